@@ -1,0 +1,57 @@
+"""Exception hierarchy of hqp-tpm.
+
+Every error raised on bad input derives from :class:`HqpTpmError`, so a caller can
+catch the whole family at once; the subclasses say what kind of input was wrong and
+their messages name the bad value and, where there is a finite set, the valid choices.
+"""
+
+from __future__ import annotations
+
+
+class HqpTpmError(Exception):
+    """Root of every error raised by hqp-tpm on bad input or impossible requests."""
+
+
+class ShapeError(HqpTpmError, ValueError):
+    """An array has the wrong shape (e.g. J rows vs b, J columns vs n)."""
+
+
+class NonFiniteError(HqpTpmError, ValueError):
+    """An array holds NaN or inf where a finite value is required."""
+
+
+class UnknownNameError(HqpTpmError, LookupError):
+    """A name (frame, joint, task type, solver, scenario) is not among the valid ones."""
+
+    def __str__(self) -> str:  # LookupError/KeyError would repr() the message
+        return str(self.args[0]) if self.args else ""
+
+
+class UnknownFrameError(UnknownNameError):
+    """A frame name is not in the robot model."""
+
+
+class RobotFileError(HqpTpmError, FileNotFoundError):
+    """A robot description (URDF, mesh folder, SRDF) cannot be found or read."""
+
+
+class SolverNotAvailableError(HqpTpmError):
+    """A QP backend is unknown to qpsolvers or not installed."""
+
+
+class SolverFailedError(HqpTpmError):
+    """A numerical solver did not return a solution."""
+
+
+class BoxError(HqpTpmError, ValueError):
+    """A box (lower, upper) is malformed: lower > upper, wrong length, NaN bounds."""
+
+
+class ScenarioError(HqpTpmError, ValueError):
+    """A scenario file is malformed: unknown task type, missing field, wrong dimension."""
+
+
+def unknown_name(kind: str, name: object, valid, cls=UnknownNameError) -> UnknownNameError:
+    """Build an error naming the bad ``name`` and listing the ``valid`` choices."""
+    choices = ", ".join(repr(v) for v in sorted(map(str, valid)))
+    return cls(f"unknown {kind} {name!r}; valid {kind}s are: {choices}")
