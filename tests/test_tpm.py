@@ -1,0 +1,181 @@
+"""TPM (eqs. (7)-(11), (12), (14) of papers/000) against the recursive null space (5)-(6)."""
+
+import numpy as np
+import pytest
+from conftest import rel_diff, random_stack
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.solvers import Level, nullspace, tpm, tpm_factors, tpm_reference
+
+DAMPING = {"lambda_max": 0.05, "eps": 0.1}
+
+
+@st.composite
+def full_rank_stacks(draw):
+    """l = 1..10 levels of m_i = 1..6 rows, n up to 40, sum m_i <= n (full row rank)."""
+    seed = draw(st.integers(0, 2**32 - 1))
+    rng = np.random.default_rng(seed)
+    l = draw(st.integers(1, 10))
+    sizes = [draw(st.integers(1, 6)) for _ in range(l)]
+    n = draw(st.integers(max(sum(sizes), 1), 40).filter(lambda k: k >= sum(sizes))) if sum(sizes) <= 40 else None
+    if n is None:  # keep the stack full rank: drop levels until it fits in 40 columns
+        while sum(sizes) > 40:
+            sizes.pop()
+        n = 40
+    return random_stack(rng, n, sizes, scale=draw(st.sampled_from([1e-2, 1.0, 100.0]))), rng
+
+
+def dependent_stack(rng, n=12, singular_within=False):
+    """Stacks whose tasks are linearly dependent on higher ones, nearly so, or in conflict."""
+    J1 = rng.standard_normal((3, n))
+    J2 = rng.standard_normal((2, n))
+    Jdep = np.vstack([J1[0] + J2[1], rng.standard_normal(n)])  # exactly dependent row
+    Jnear = np.vstack([J1[1] + 1e-3 * rng.standard_normal(n), rng.standard_normal(n)])  # nearly dependent
+    Jsame = J2.copy()  # the same task again with another target: a pure conflict
+    # a damped pivot is put before the exactly singular ones: after an exactly singular pivot the
+    # recursion's projected Jacobian has other singular values than the TPM pivot, so a damping law
+    # on sigma_min acts differently (README, 'Where TPM and recursion differ')
+    levels = [J1, J2, Jnear, Jdep, Jsame]
+    if singular_within:
+        Js = rng.standard_normal((2, n))
+        Js[1] = 2.0 * Js[0]
+        levels.insert(2, Js)
+    return [(J, 10 * rng.standard_normal(J.shape[0])) for J in levels]
+
+
+@settings(max_examples=300, deadline=None)
+@given(full_rank_stacks())
+def test_tpm_equals_nullspace_full_rank(data):
+    levels, rng = data
+    x_tpm = tpm(levels)
+    assert rel_diff(x_tpm, nullspace(levels)) < 1e-9
+    assert rel_diff(x_tpm, tpm_reference(levels)) < 1e-9
+    x0 = rng.standard_normal(levels[0][0].shape[1])
+    assert rel_diff(tpm(levels, x0=x0), nullspace(levels, x0=x0)) < 1e-9
+
+
+@settings(max_examples=300, deadline=None)
+@given(full_rank_stacks())
+def test_full_rank_stack_is_met_exactly_and_F_is_identity(data):
+    levels, _ = data
+    x = tpm(levels)
+    for J, b in levels:
+        assert np.allclose(J @ x, b, atol=1e-8 * max(1.0, np.abs(b).max()))
+    f = tpm_factors(levels)
+    np.testing.assert_allclose(f.F, np.eye(f.F.shape[0]), atol=1e-12)
+
+
+@pytest.mark.parametrize("seed", range(200))
+@pytest.mark.parametrize("damping", [{}, DAMPING], ids=["exact", "damped"])
+def test_tpm_equals_nullspace_dependent_and_conflicting(seed, damping):
+    levels = dependent_stack(np.random.default_rng(seed))
+    x = tpm(levels, **damping)
+    assert rel_diff(x, nullspace(levels, **damping)) < 1e-9
+    assert rel_diff(x, tpm_reference(levels, **damping)) < 1e-9
+
+
+@pytest.mark.parametrize("seed", range(100))
+def test_singular_task_exact_tpm_equals_nullspace(seed):
+    """A task singular by itself (two parallel rows): exact TPM and recursion still agree."""
+    levels = dependent_stack(np.random.default_rng(seed), singular_within=True)
+    assert rel_diff(tpm(levels), nullspace(levels)) < 1e-9
+    assert rel_diff(tpm(levels, **DAMPING), tpm_reference(levels, **DAMPING)) < 1e-9
+
+
+@pytest.mark.parametrize("seed", range(50))
+def test_more_rows_than_columns(seed):
+    """m > n: padded QR; the answer is the lexicographic minimum-norm one, like the recursion."""
+    rng = np.random.default_rng(seed)
+    levels = random_stack(rng, 5, [3, 2, 3, 2])
+    x = tpm(levels)
+    assert x.shape == (5,)
+    assert rel_diff(x, nullspace(levels)) < 1e-9
+    assert rel_diff(x, tpm_reference(levels)) < 1e-9
+    # the first two levels fill the 5 joints: both met, the rest cannot move them
+    J12 = np.vstack([levels[0][0], levels[1][0]])
+    b12 = np.concatenate([levels[0][1], levels[1][1]])
+    assert np.allclose(J12 @ x, b12, atol=1e-9)
+
+
+def test_higher_priority_unaffected_by_conflict():
+    rng = np.random.default_rng(3)
+    J1 = rng.standard_normal((2, 4))
+    levels = [(J1, np.array([1.0, -2.0])), (J1[:1], np.array([5.0]))]  # conflicting lower task
+    x = tpm(levels)
+    np.testing.assert_allclose(J1 @ x, [1.0, -2.0], atol=1e-12)
+
+
+def planar_tips(lengths, q, k):
+    """Position Jacobian (2 x 6) of the tip of the first k links of a planar arm."""
+    phi = np.cumsum(q)
+    J = np.zeros((2, len(q)))
+    for j in range(k):
+        for i in range(k):
+            if i >= j:
+                J[0, j] -= lengths[i] * np.sin(phi[i])
+                J[1, j] += lengths[i] * np.cos(phi[i])
+    return J
+
+
+def test_planar_six_link_random_test_of_the_tpm_paper():
+    """reference/romeo_four_tasks.md: 10,000 random planar 6-link arms, three 2-D tip tasks."""
+    rng = np.random.default_rng(2016)
+    worst = 0.0
+    for _ in range(10_000):
+        lengths = rng.uniform(0.1, 1.0, 6)
+        q = rng.uniform(-np.pi, np.pi, 6)
+        levels = [(planar_tips(lengths, q, k), rng.uniform(-100, 100, 2)) for k in (6, 4, 2)]
+        worst = max(worst, rel_diff(tpm(levels), nullspace(levels)))
+    assert worst < 1e-9
+
+
+def test_inequality_rows_enter_while_violated():
+    J = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])
+    Jc = np.array([[0.0, 0.0, 1.0]])
+    eq = (J, np.array([1.0, 2.0]))
+    inactive = Level(Jc, lower=[-1.0], upper=[1.0])  # x = 0 satisfies it: left out
+    violated = Level(Jc, lower=[0.5])  # x = 0 violates it: target = 0.5
+    np.testing.assert_allclose(tpm([eq, inactive]), [1.0, 2.0, 0.0])
+    np.testing.assert_allclose(tpm([eq, violated]), [1.0, 2.0, 0.5])
+    np.testing.assert_allclose(nullspace([eq, violated]), [1.0, 2.0, 0.5])
+    forced = Level(Jc, lower=[-0.25], upper=[3.0], active=[True])  # explicit mask: nearest finite bound
+    np.testing.assert_allclose(tpm([eq, forced]), [1.0, 2.0, -0.25])
+
+
+def test_acceleration_level_nullspace_term_is_invisible_to_tasks():
+    """eq. (14): (I - J#J) qdd0 changes no task acceleration, and equals the recursion's P_l qdd0."""
+    rng = np.random.default_rng(7)
+    levels = random_stack(rng, 7, [3, 1, 1])
+    J = np.vstack([lv[0] for lv in levels])
+    qd = rng.standard_normal(7)
+    qdd0 = -5.0 * qd  # eq. (15) with D = 5 I
+    a = tpm(levels, x0=qdd0)
+    np.testing.assert_allclose(J @ a, J @ tpm(levels), atol=1e-12)
+    assert rel_diff(a, nullspace(levels, x0=qdd0)) < 1e-12
+    f = tpm_factors(levels)
+    np.testing.assert_allclose(a - tpm(levels), f.nullspace_term(qdd0, J), atol=1e-12)
+
+
+def test_empty_stack_gives_zero_or_the_nullspace_motion():
+    assert np.array_equal(tpm([], n=3), np.zeros(3))
+    assert np.array_equal(tpm([], n=3, x0=np.ones(3)), np.ones(3))
+    with pytest.raises(ShapeError, match="empty"):
+        tpm([])
+
+
+@pytest.mark.parametrize(
+    ("levels", "error", "match"),
+    [
+        ([(np.ones((2, 3)), np.ones(3))], ShapeError, r"shape \(3,\), expected \(2,\)"),
+        ([(np.ones((2, 3)), np.ones(2)), (np.ones((1, 4)), np.ones(1))], ShapeError, "4 columns, expected n = 3"),
+        ([(np.array([[1.0, np.nan]]), np.ones(1))], NonFiniteError, "J holds NaN"),
+        ([(np.ones((1, 2)), [np.inf])], NonFiniteError, "b holds non-finite"),
+        ([np.ones((3, 2))], ShapeError, "must be a Level or a"),
+    ],
+)
+def test_bad_stacks_raise_typed_errors(levels, error, match):
+    for solve in (tpm, nullspace, tpm_reference):
+        with pytest.raises(error, match=match):
+            solve(levels)
