@@ -2,7 +2,7 @@
 
 import numpy as np
 import pytest
-from conftest import rel_diff, random_stack
+from conftest import random_stack, rel_diff
 from hypothesis import given, settings
 from hypothesis import strategies as st
 

@@ -18,8 +18,8 @@ ignores ``active`` and treats the bounds as true inequalities.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
-from typing import Iterable, Sequence
 
 import numpy as np
 

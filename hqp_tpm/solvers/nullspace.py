@@ -8,7 +8,7 @@ pseudo-inverse, so ``P_l = I - J^+ J`` and ``x0`` adds ``P_l x0`` (eq. (14)).
 
 from __future__ import annotations
 
-from typing import Iterable
+from collections.abc import Iterable
 
 import numpy as np
 

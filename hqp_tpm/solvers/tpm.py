@@ -19,8 +19,8 @@ columns up to ``m``: the minimum-norm solution has zeros there and they are drop
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Iterable
 
 import numpy as np
 import scipy.linalg as sla

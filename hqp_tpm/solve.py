@@ -1,0 +1,52 @@
+"""Solver names -> array solvers, so controllers and scenarios pick one by name.
+
+``"tpm"`` and ``"nullspace"`` (analytic), ``"sns_tpm"`` and ``"sns"`` (hard joint boxes),
+``"qp"`` (cascaded QP with proxqp) or ``"qp:<backend>"`` for any qpsolvers backend.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.errors import unknown_name
+
+ANALYTIC = ("tpm", "nullspace")
+BOXED = ("sns_tpm", "sns")
+SOLVER_NAMES = (*ANALYTIC, *BOXED, "qp", "qp:<backend>")
+
+
+def check_solver_name(name: str) -> str:
+    """Validate a solver name (the backend of ``qp:<backend>`` is checked on first use)."""
+    if name in ANALYTIC or name in BOXED or name == "qp" or name.startswith("qp:"):
+        return name
+    raise unknown_name("solver", name, SOLVER_NAMES)
+
+
+def solve(name: str, levels, n: int, *, x0=None, box=None, lambda_max: float = 0.0, eps: float = 0.0):
+    """Solve ``levels`` with solver ``name``; returns ``(x, info)`` (info: dict, may be empty).
+
+    ``box = (lower, upper)`` is a hard box on ``x`` used by the SNS solvers and the QP; the
+    analytic solvers ignore it. ``x0`` is the joint-space null-space term (eq. (14)).
+    """
+    check_solver_name(name)
+    if name == "tpm":
+        from hqp_tpm.solvers import tpm
+
+        return tpm(levels, lambda_max=lambda_max, eps=eps, x0=x0, n=n), {}
+    if name == "nullspace":
+        from hqp_tpm.solvers import nullspace
+
+        return nullspace(levels, lambda_max=lambda_max, eps=eps, x0=x0, n=n), {}
+    if name in BOXED:
+        from hqp_tpm.solvers import sns, sns_tpm
+
+        lo, up = box if box is not None else (np.full(n, -np.inf), np.full(n, np.inf))
+        fn = sns_tpm if name == "sns_tpm" else sns
+        x, info = fn(levels, lo, up, lambda_max=lambda_max, eps=eps, return_info=True, n=n)
+        return x, info if isinstance(info, dict) else vars(info)
+    from hqp_tpm.solvers import cascaded_qp
+
+    backend = "proxqp" if name == "qp" else name.split(":", 1)[1]
+    lo, up = box if box is not None else (None, None)
+    x, info = cascaded_qp(levels, solver=backend, x0=x0, lower=lo, upper=up, n=n, return_info=True)
+    return x, info if isinstance(info, dict) else vars(info)

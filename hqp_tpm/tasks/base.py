@@ -1,0 +1,104 @@
+"""The task interface and the tracking command it turns into a solver level.
+
+Velocity level (order 1):      ``b = xd_d + kp e``                      (CLIK, eq. (7) of papers/000)
+Acceleration level (order 2):  ``b = xdd_d + kd (xd_d - J qd) + kp e - Jdot qd``  (eq. (12))
+with ``e = x_d - x``. An ``extra`` vector (e.g. the EE repulsion of eq. (30)) is added to the
+desired velocity/acceleration before the feedback terms.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass
+
+import numpy as np
+
+from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.solvers.levels import Level
+from hqp_tpm.state import State
+from hqp_tpm.trajectories import Trajectory, as_trajectory
+
+
+@dataclass(frozen=True)
+class Gains:
+    """Feedback gains: ``kp`` (position) and ``kd`` (velocity, acceleration level only)."""
+
+    kp: float = 1.0
+    kd: float = 0.0
+
+    def __post_init__(self):
+        for k in ("kp", "kd"):
+            v = getattr(self, k)
+            if not np.isfinite(v) or v < 0:
+                raise ValueError(f"gain {k} = {v!r} must be finite and >= 0")
+
+
+class Task(ABC):
+    """A task knows its value, Jacobian and J-dot q-dot on a :class:`State`, and its target."""
+
+    name: str = "task"
+    dim: int = 0
+
+    def __init__(self, name: str, target, gains: Gains | None = None):
+        self.name = name
+        self.gains = gains or Gains()
+        self.trajectory: Trajectory = as_trajectory(target, self.dim)
+
+    # robot-side quantities --------------------------------------------------------------
+    @abstractmethod
+    def value(self, state: State) -> np.ndarray: ...
+
+    @abstractmethod
+    def jacobian(self, state: State) -> np.ndarray: ...
+
+    @abstractmethod
+    def jdot_qdot(self, state: State) -> np.ndarray: ...
+
+    def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
+        """``e = x_d - x`` (tasks on manifolds override it)."""
+        return x_d - self.value(state)
+
+    def rate(self, state: State) -> np.ndarray:
+        """Task velocity ``J qd``."""
+        return self.jacobian(state) @ state.v
+
+    # lifecycle --------------------------------------------------------------------------
+    def start(self, state: State) -> None:
+        """Called once at the start of a run: relative targets take the current value."""
+        self.trajectory.start(self.value(state))
+
+    def reference(self, t: float):
+        return self.trajectory.reference(t)
+
+    # command ----------------------------------------------------------------------------
+    def command(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> np.ndarray:
+        """Right-hand side ``b`` of the task at velocity (1) or acceleration (2) level."""
+        x_d, xd_d, xdd_d = self.reference(t)
+        e = self.error(state, x_d)
+        if extra is not None:
+            extra = np.asarray(extra, dtype=float)
+            if extra.shape != (self.dim,):
+                raise ShapeError(f"task {self.name!r}: extra command has shape {extra.shape}, expected ({self.dim},)")
+            if not np.isfinite(extra).all():
+                raise NonFiniteError(f"task {self.name!r}: extra command holds non-finite values: {extra}")
+        if order == 1:
+            b = xd_d + self.gains.kp * e
+            return b if extra is None else b + extra
+        if order != 2:
+            raise ValueError(f"order must be 1 (velocity) or 2 (acceleration), got {order!r}")
+        xdd = xdd_d if extra is None else xdd_d + extra
+        return xdd + self.gains.kd * (xd_d - self.rate(state)) + self.gains.kp * e - self.jdot_qdot(state)
+
+    def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
+        """The task as a solver level (equality ``J x = b``)."""
+        return Level(self.jacobian(state), self.command(state, t, order, extra), name=self.name)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
+
+
+def select_axes(axes: str) -> np.ndarray:
+    """Row indices of ``axes`` (a subset of ``"xyz"``), validated."""
+    if not axes or any(a not in "xyz" for a in axes) or len(set(axes)) != len(axes):
+        raise ValueError(f"axes {axes!r} must be distinct letters among 'x', 'y', 'z'")
+    return np.array(["xyz".index(a) for a in axes])

@@ -1,0 +1,45 @@
+"""Full orientation of a frame, error ``log3(R_d R^T)`` in the world frame."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.trajectories import Constant, Hold
+
+
+class FrameOrientation(Task):
+    """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot.
+
+    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation.
+    The 'value' is the rotation flattened; the error is the world rotation vector to the target.
+    """
+
+    dim = 3
+
+    def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *, name: str | None = None):
+        self.frame = frame
+        self.fid = robot.frame_id(frame)
+        self._R_target = None if target is None or isinstance(target, str) else np.asarray(target, float).reshape(3, 3)
+        super().__init__(name or f"{frame}_orientation", np.zeros(3), gains)
+        self.trajectory = Hold() if self._R_target is None else Constant(value=np.zeros(3))
+
+    def start(self, state: State) -> None:
+        if self._R_target is None:
+            self._R_target = state.rotation(self.fid).copy()
+        self.trajectory.start(np.zeros(3))
+
+    def value(self, state: State) -> np.ndarray:
+        return pin.log3(state.rotation(self.fid))
+
+    def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
+        return pin.log3(self._R_target @ state.rotation(self.fid).T)
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return state.jacobian(self.fid)[3:]
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        return state.jdot_qdot(self.fid)[3:]

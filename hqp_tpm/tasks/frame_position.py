@@ -1,0 +1,30 @@
+"""Position of a frame origin (possibly only some axes), world frame."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task, select_axes
+
+
+class FramePosition(Task):
+    """``x = p_frame[axes]``, ``J = J_v[axes]``, ``Jdot qd`` = classical linear acceleration at zero q-ddot."""
+
+    def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
+                 axes: str = "xyz", name: str | None = None):
+        self.frame = frame
+        self.fid = robot.frame_id(frame)
+        self.rows = select_axes(axes)
+        self.dim = len(self.rows)
+        super().__init__(name or f"{frame}_position", target, gains)
+
+    def value(self, state: State) -> np.ndarray:
+        return state.position(self.fid)[self.rows]
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return state.jacobian(self.fid)[self.rows]
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        return state.jdot_qdot(self.fid)[self.rows]

@@ -1,0 +1,71 @@
+"""Relaxed pointing task of papers/000: equality (16)-(19) or cone inequality (21).
+
+``p_rp = z_d^T z_e`` with ``z_e`` the frame's z axis; ``J_rp = z_d^T S(z_e)^T J_O`` (19);
+``Jdot_rp qd = z_d^T (alpha x z_e + omega x (omega x z_e))`` with ``alpha = Jdot_O qd``.
+Error ``e = cos(alpha_d) - p_rp``. The equality keeps ``p_rp = cos(alpha_d)``; the
+inequality ``cos(alpha_d) <= p_rp`` (21) is in the stack only while ``e > 0``, with the
+same command as lower bound (Algorithm 1 of papers/000).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.robot import Robot
+from hqp_tpm.solvers.levels import Level
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.trajectories import Constant
+
+
+class Pointing(Task):
+    """Point the frame's z axis at ``axis`` within the cone half-angle ``alpha_d`` (radians)."""
+
+    dim = 1
+
+    def __init__(self, robot: Robot, frame: str, axis, alpha_d: float, gains: Gains | None = None, *,
+                 inequality: bool = True, name: str | None = None):
+        self.frame = frame
+        self.fid = robot.frame_id(frame)
+        z_d = np.asarray(axis, dtype=float).reshape(3)
+        norm = np.linalg.norm(z_d)
+        if not np.isfinite(z_d).all() or norm < 1e-12:
+            raise ValueError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
+        if not (0.0 <= alpha_d < np.pi):
+            raise ValueError(f"cone half-angle alpha_d = {alpha_d!r} must be in [0, pi) radians")
+        self.z_d = z_d / norm
+        self.alpha_d = float(alpha_d)
+        self.inequality = inequality
+        super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
+
+    def axis(self, state: State) -> np.ndarray:
+        return state.rotation(self.fid)[:, 2]
+
+    def value(self, state: State) -> np.ndarray:
+        return np.array([self.z_d @ self.axis(state)])               # eq. (16)
+
+    def jacobian(self, state: State) -> np.ndarray:
+        z_e = self.axis(state)
+        # z_d^T S(z_e)^T J_O = (z_e x z_d)^T J_O, since S(z_e)^T w = w x z_e                  eq. (19)
+        return (np.cross(z_e, self.z_d) @ state.jacobian(self.fid)[3:]).reshape(1, -1)
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        z_e = self.axis(state)
+        omega = state.velocity(self.fid)[3:]
+        alpha = state.jdot_qdot(self.fid)[3:]
+        return np.array([self.z_d @ (np.cross(alpha, z_e) + np.cross(omega, np.cross(omega, z_e)))])
+
+    def pointing_error(self, state: State) -> float:
+        """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
+        return float(np.cos(self.alpha_d) - self.value(state)[0])
+
+    def is_active(self, state: State) -> bool:
+        """Equality: always; inequality (21): while ``e > 0``."""
+        return (not self.inequality) or self.pointing_error(state) > 0.0
+
+    def level(self, state: State, t: float, order: int, extra=None) -> Level:
+        b = self.command(state, t, order, extra)
+        J = self.jacobian(state)
+        if not self.inequality:
+            return Level(J, b, name=self.name)
+        return Level(J, lower=b, upper=[np.inf], active=[self.pointing_error(state) > 0.0], name=self.name)

@@ -1,0 +1,33 @@
+"""Joint posture: selected 1-DOF joints towards target angles (``J`` is a selection matrix)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task
+
+
+class Posture(Task):
+    """``x = q[joints]``; ``joints=None`` means every 1-DOF joint. Target ``None`` holds the start posture."""
+
+    def __init__(self, robot: Robot, target=None, gains: Gains | None = None, *, joints=None, name: str = "posture"):
+        names = [n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
+        self.joints = list(joints) if joints is not None else names
+        self.cols = np.array([robot.joint_index(j) for j in self.joints], dtype=int)
+        model = robot.model
+        self.q_idx = np.array([model.joints[model.getJointId(j)].idx_q for j in self.joints], dtype=int)
+        self.dim = len(self.cols)
+        self._J = np.zeros((self.dim, robot.nv))
+        self._J[np.arange(self.dim), self.cols] = 1.0
+        super().__init__(name, target, gains)
+
+    def value(self, state: State) -> np.ndarray:
+        return state.q[self.q_idx]
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return self._J
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        return np.zeros(self.dim)

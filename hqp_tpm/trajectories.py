@@ -1,0 +1,112 @@
+"""Desired task trajectories: ``reference(t) -> (x_d, xd_d, xdd_d)``.
+
+A trajectory may be *relative*: its offset is the task value at the start of the run
+(``start(x0)``), as the Romeo hand circles and the 'hold where you are' targets need.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hqp_tpm.errors import NonFiniteError, ShapeError
+
+
+def _finite(x, what: str) -> np.ndarray:
+    arr = np.atleast_1d(np.asarray(x, dtype=float))
+    if not np.isfinite(arr).all():
+        raise NonFiniteError(f"{what} holds non-finite values: {arr}")
+    return arr
+
+
+@dataclass
+class Trajectory:
+    """Base: a constant zero-dimensional placeholder; subclasses give ``reference``."""
+
+    relative: bool = False
+    origin: np.ndarray | None = field(default=None, repr=False)
+
+    def start(self, x0: np.ndarray) -> None:
+        """Called once with the task value at the start; fixes the offset of relative trajectories."""
+        self.origin = np.array(x0, dtype=float) if self.relative else None
+
+    def offset(self, dim: int) -> np.ndarray:
+        return self.origin if self.origin is not None else np.zeros(dim)
+
+    def reference(self, t: float):  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+@dataclass
+class Constant(Trajectory):
+    """``x_d = value`` (plus the start value when relative), zero derivatives."""
+
+    value: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+    def __post_init__(self):
+        self.value = _finite(self.value, "target")
+
+    def reference(self, t: float):
+        x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0)
+        z = np.zeros_like(x)
+        return x, z, z
+
+
+@dataclass
+class Hold(Trajectory):
+    """Hold the value the task had at the start (``relative`` by construction)."""
+
+    relative: bool = True
+
+    def reference(self, t: float):
+        if self.origin is None:
+            raise ShapeError("Hold trajectory used before start(): the run did not initialise it")
+        z = np.zeros_like(self.origin)
+        return self.origin, z, z
+
+
+@dataclass
+class Harmonic(Trajectory):
+    """``x_d(t) = center + a cos(w t + phi) + b sin(w t + phi)`` with analytic derivatives.
+
+    The LWR ellipse of papers/000 is ``center = [0, .6, 0]``, ``a = [.2, 0, .2]``,
+    ``b = [0, .1, 0]``, ``w = 1``; a Romeo hand circle is relative with
+    ``center = [0, 0, -r]``, ``a = [0, 0, r]``, ``b = [0, -+2r, 0]``, ``w = 2 pi / Tc``.
+    """
+
+    center: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    cos_amplitude: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    sin_amplitude: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    omega: float = 1.0
+    phase: float = 0.0
+
+    def __post_init__(self):
+        self.center = _finite(self.center, "center")
+        self.cos_amplitude = _finite(self.cos_amplitude, "cos_amplitude")
+        self.sin_amplitude = _finite(self.sin_amplitude, "sin_amplitude")
+        if not (self.center.shape == self.cos_amplitude.shape == self.sin_amplitude.shape):
+            raise ShapeError(f"center, cos_amplitude, sin_amplitude must have one shape, got {self.center.shape}, "
+                             f"{self.cos_amplitude.shape}, {self.sin_amplitude.shape}")
+        _finite([self.omega, self.phase], "omega/phase")
+
+    def reference(self, t: float):
+        w = self.omega
+        c, s = np.cos(w * t + self.phase), np.sin(w * t + self.phase)
+        a, b = self.cos_amplitude, self.sin_amplitude
+        x = self.center + self.offset(self.center.size) + a * c + b * s
+        xd = w * (-a * s + b * c)
+        xdd = -w * w * (a * c + b * s)
+        return x, xd, xdd
+
+
+def as_trajectory(target, dim: int) -> Trajectory:
+    """A :class:`Trajectory` from a trajectory, ``None``/``"hold"`` (hold the start value) or a constant."""
+    if isinstance(target, Trajectory):
+        return target
+    if target is None or (isinstance(target, str) and target == "hold"):
+        return Hold()
+    value = _finite(target, "target")
+    if value.shape != (dim,):
+        raise ShapeError(f"target has shape {value.shape}, expected ({dim},)")
+    return Constant(value=value)

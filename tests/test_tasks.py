@@ -1,0 +1,131 @@
+"""Task Jacobians against finite differences; J-dot q-dot against a finite difference of J along q-dot."""
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from hqp_tpm.errors import NonFiniteError, RobotFileError, ShapeError, UnknownFrameError
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePosition, Gains, Pointing, Posture
+
+H = 1e-6
+
+
+@pytest.fixture(scope="module")
+def panda():
+    return Robot.load("panda")
+
+
+@pytest.fixture(scope="module")
+def romeo():
+    return Robot.load("romeo")
+
+
+def random_state(robot, rng):
+    q = pin.randomConfiguration(robot.model)
+    if robot.has_free_flyer:
+        q[:3] = rng.uniform(-1, 1, 3)
+        q[3:7] = pin.Quaternion(pin.SE3.Random().rotation).coeffs()
+    return q, rng.standard_normal(robot.nv)
+
+
+def numeric_jacobian(robot, task, q, v):
+    st = State(robot)
+    cols = []
+    for k in range(robot.nv):
+        dq = np.zeros(robot.nv)
+        dq[k] = H
+        plus = task_value(task, st.update(pin.integrate(robot.model, q, dq), v))
+        minus = task_value(task, st.update(pin.integrate(robot.model, q, -dq), v))
+        cols.append((plus - minus) / (2 * H))
+    return np.column_stack(cols)
+
+
+def task_value(task, st):
+    if isinstance(task, FrameOrientation):
+        return pin.log3(st.rotation(task.fid)).copy()
+    return task.value(st).copy()
+
+
+def tasks_for(robot):
+    if robot.name == "panda":
+        return [FramePosition(robot, "panda_hand", [0.3, 0, 0.5]), FramePosition(robot, "panda_link4", axes="xz"),
+                Pointing(robot, "panda_hand", [1, 0, 0], np.deg2rad(5)), Posture(robot, np.zeros(9)),
+                CenterOfMass(axes="xy")]
+    return [CenterOfMass(axes="xy"), FramePosition(robot, "l_wrist"), Pointing(robot, "r_sole", [0, 0, 1], 0.1)]
+
+
+@pytest.mark.parametrize("robot_name", ["panda", "romeo"])
+def test_jacobians_and_jdot_qdot_match_finite_differences(robot_name, panda, romeo):
+    robot = panda if robot_name == "panda" else romeo
+    rng = np.random.default_rng(0)
+    for _ in range(5):
+        q, v = random_state(robot, rng)
+        st = State(robot).update(q, v)
+        for task in tasks_for(robot):
+            J = task.jacobian(st).copy()
+            np.testing.assert_allclose(J, numeric_jacobian(robot, task, q, v), atol=2e-6, err_msg=task.name)
+            # Jdot qd = d/dt (J(q(t))) qd along q(t) = q + t v
+            s1 = State(robot).update(pin.integrate(robot.model, q, H * v), v)
+            s0 = State(robot).update(pin.integrate(robot.model, q, -H * v), v)
+            jdqd_fd = (task.jacobian(s1) - task.jacobian(s0)) @ v / (2 * H)
+            np.testing.assert_allclose(task.jdot_qdot(st), jdqd_fd, atol=2e-5, err_msg=task.name)
+
+
+def test_orientation_jacobian_and_error(panda):
+    rng = np.random.default_rng(1)
+    q, v = random_state(panda, rng)
+    st = State(panda).update(q, v)
+    task = FrameOrientation(panda, "panda_hand")
+    task.start(st)
+    np.testing.assert_allclose(task.error(st, None), 0.0, atol=1e-12)
+    # a rotation of the frame by a small world-frame angle w: error ~ -w
+    fid = task.fid
+    dq = np.linalg.pinv(task.jacobian(st)) @ np.array([0.0, 0.0, 1e-4])
+    st2 = State(panda).update(pin.integrate(panda.model, q, dq), v)
+    np.testing.assert_allclose(task.error(st2, None), [0, 0, -1e-4], atol=1e-7)
+    s1 = State(panda).update(pin.integrate(panda.model, q, H * v), v)
+    s0 = State(panda).update(pin.integrate(panda.model, q, -H * v), v)
+    jdqd_fd = (s1.jacobian(fid)[3:] - s0.jacobian(fid)[3:]) @ v / (2 * H)
+    np.testing.assert_allclose(task.jdot_qdot(st), jdqd_fd, atol=2e-5)
+
+
+def test_acceleration_command_is_the_papers_law(panda):
+    rng = np.random.default_rng(2)
+    q, v = random_state(panda, rng)
+    st = State(panda).update(q, v)
+    task = FramePosition(panda, "panda_hand", [0.3, 0.1, 0.5], Gains(kp=40, kd=20))
+    e = np.array([0.3, 0.1, 0.5]) - st.position(task.fid)
+    b = task.command(st, 0.0, 2)
+    np.testing.assert_allclose(b, 40 * e + 20 * (0 - task.jacobian(st) @ v) - task.jdot_qdot(st), atol=1e-12)
+    np.testing.assert_allclose(task.command(st, 0.0, 1), 40 * e, atol=1e-12)
+
+
+def test_pointing_cone_level_is_active_only_outside(panda):
+    q = pin.neutral(panda.model)
+    st = State(panda).update(q, np.zeros(panda.nv))
+    z = st.rotation(panda.frame_id("panda_hand"))[:, 2]
+    inside = Pointing(panda, "panda_hand", z, np.deg2rad(5))
+    assert not inside.is_active(st) and not inside.level(st, 0, 2).active_rows().any()
+    other = np.cross(z, [1.0, 0, 0])
+    outside = Pointing(panda, "panda_hand", other / np.linalg.norm(other), np.deg2rad(5))
+    assert outside.is_active(st) and outside.level(st, 0, 2).active_rows().all()
+    eq = Pointing(panda, "panda_hand", z, np.deg2rad(5), inequality=False)
+    assert eq.level(st, 0, 2).is_equality
+
+
+def test_bad_robot_inputs_raise_typed_errors(panda, tmp_path):
+    with pytest.raises(UnknownFrameError, match="unknown frame 'no_such_frame'.*'panda_hand'"):
+        FramePosition(panda, "no_such_frame")
+    with pytest.raises(RobotFileError, match="missing.urdf"):
+        Robot.load(tmp_path / "missing.urdf")
+    st = State(panda)
+    with pytest.raises(ShapeError, match="nq = 9"):
+        st.update(np.zeros(3), np.zeros(9))
+    with pytest.raises(NonFiniteError, match=r"q holds non-finite values at \[2\]"):
+        st.update(np.array([0, 0, np.nan, 0, 0, 0, 0, 0, 0.0]), np.zeros(9))
+    with pytest.raises(NonFiniteError, match="target"):
+        FramePosition(panda, "panda_hand", [0.0, np.inf, 0.0])
+    with pytest.raises(ShapeError, match=r"expected \(3,\)"):
+        FramePosition(panda, "panda_hand", [0.0, 1.0])
