@@ -88,7 +88,8 @@ class State:
         if "com" not in self._cache:
             pin.centerOfMass(self.model, self.data, self.q, self.v, self._zero)
             Jc = pin.jacobianCenterOfMass(self.model, self.data, self.q, False)
-            self._cache["com"] = (self.data.com[0].copy(), Jc.copy(), self.data.acom[0].copy(), self.data.vcom[0].copy())
+            d = self.data
+            self._cache["com"] = (d.com[0].copy(), Jc.copy(), d.acom[0].copy(), d.vcom[0].copy())
         return self._cache["com"]
 
     def com(self) -> np.ndarray:

@@ -1,0 +1,172 @@
+"""Turn a parsed :class:`~hqp_tpm.scenario.Scenario` into robot, tasks, policy and controller."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.controller import Controller
+from hqp_tpm.errors import HqpTpmError, ScenarioError
+from hqp_tpm.robot import Robot
+from hqp_tpm.scenario import Scenario, Section
+from hqp_tpm.stack import FixedStack, Stack
+from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePosition, Gains, Pointing, Posture
+from hqp_tpm.trajectories import Constant, Harmonic, Hold
+
+POLICY_BUILDERS: dict = {}  # filled by modules that define dynamic policies (see register_policy)
+
+
+def register_policy(kind: str):
+    """Decorator: ``@register_policy("algorithm1") def build(scenario, robot, tasks, section) -> policy``."""
+    def deco(fn):
+        POLICY_BUILDERS[kind] = fn
+        return fn
+    return deco
+
+
+def trajectory(sec: Section, key: str, dim: int):
+    """``target``: a list (constant), ``"hold"``/absent (start value), or a table ``{type = "harmonic", ...}``."""
+    raw = sec.raw(key, None)
+    if raw is None or raw == "hold":
+        return Hold()
+    if isinstance(raw, list):
+        return Constant(value=sec.vector(key, dim))
+    tab = sec.table(key)
+    kind = tab.string("type", choices=("harmonic", "constant"))
+    rel = tab.boolean("relative", False)
+    if kind == "constant":
+        tr = Constant(value=tab.vector("value", dim), relative=rel)
+    else:
+        tr = Harmonic(center=tab.vector("center", dim), cos_amplitude=tab.vector("cos_amplitude", dim),
+                      sin_amplitude=tab.vector("sin_amplitude", dim), omega=tab.number("omega"),
+                      phase=tab.number("phase", 0.0), relative=rel)
+    tab.check_unused()
+    return tr
+
+
+def gains(sec: Section) -> Gains:
+    return Gains(kp=sec.number("kp", 1.0), kd=sec.number("kd", 0.0))
+
+
+def _axes(sec: Section) -> str:
+    axes = sec.string("axes", "xyz")
+    if not axes or any(a not in "xyz" for a in axes) or len(set(axes)) != len(axes):
+        raise ScenarioError(f"{sec.where}.axes: {axes!r} must be distinct letters among 'x', 'y', 'z'")
+    return axes
+
+
+def _frame_position(robot, sec):
+    axes = _axes(sec)
+    return FramePosition(robot, sec.string("frame"), trajectory(sec, "target", len(axes)), gains(sec),
+                         axes=axes, name=sec.string("name"))
+
+
+def _frame_orientation(robot, sec):
+    return FrameOrientation(robot, sec.string("frame"), None, gains(sec), name=sec.string("name"))
+
+
+def _pointing(robot, sec):
+    alpha = np.deg2rad(sec.number("alpha_d_deg")) if sec.has("alpha_d_deg") else sec.number("alpha_d")
+    return Pointing(robot, sec.string("frame"), sec.vector("axis", 3), alpha, gains(sec),
+                    inequality=sec.boolean("inequality", True), name=sec.string("name"))
+
+
+def _com(robot, sec):
+    axes = _axes(sec)
+    return CenterOfMass(trajectory(sec, "target", len(axes)), gains(sec), axes=axes, name=sec.string("name"))
+
+
+def _posture(robot, sec):
+    joints = sec.raw("joints", None)
+    task = Posture(robot, None, gains(sec), joints=joints, name=sec.string("name"))
+    task.trajectory = trajectory(sec, "target", task.dim)
+    return task
+
+
+TASK_BUILDERS = {
+    "frame_position": _frame_position,
+    "frame_orientation": _frame_orientation,
+    "pointing": _pointing,
+    "com": _com,
+    "posture": _posture,
+}
+
+
+def build_task(robot: Robot, sec: Section):
+    kind = sec.string("type")
+    if kind not in TASK_BUILDERS:
+        raise ScenarioError(f"{sec.where}.type: unknown task type {kind!r}; valid types: "
+                            f"{', '.join(sorted(TASK_BUILDERS))}")
+    try:
+        task = TASK_BUILDERS[kind](robot, sec)
+    except ScenarioError:
+        raise
+    except (HqpTpmError, ValueError) as exc:
+        raise ScenarioError(f"{sec.where} ({kind}): {exc}") from exc
+    sec.check_unused()
+    return task
+
+
+def initial_configuration(robot: Robot, sec: Section) -> np.ndarray:
+    """``q`` (radians, full vector), ``q_deg``, or ``joints_deg = {name = value}`` on top of neutral."""
+    if sec.has("q"):
+        q = np.array(sec.vector("q", robot.nq))
+    elif sec.has("q_deg"):
+        q = np.deg2rad(sec.vector("q_deg", robot.nq))
+    else:
+        q = robot.neutral()
+        joints = sec.raw("joints_deg", {})
+        if not isinstance(joints, dict):
+            raise ScenarioError(f"{sec.where}.joints_deg: expected a table of joint = degrees")
+        try:
+            q = robot.configuration({k: np.deg2rad(float(v)) for k, v in joints.items()}, base=None)
+        except HqpTpmError as exc:
+            raise ScenarioError(f"{sec.where}.joints_deg: {exc}") from exc
+    return q
+
+
+def build_policy(sc: Scenario, robot: Robot, tasks: dict):
+    sec = sc.policy
+    kind = sec.string("type", "fixed")
+    if kind == "fixed":
+        levels = sec.raw("levels", None)
+        if levels is None:
+            stack = Stack.of(*tasks.values())
+        else:
+            if not isinstance(levels, list):
+                raise ScenarioError(f"{sec.where}.levels: expected a list of task names or lists of names")
+            out = []
+            for i, lv in enumerate(levels):
+                names = [lv] if isinstance(lv, str) else lv
+                for n in names:
+                    if n not in tasks:
+                        raise ScenarioError(f"{sec.where}.levels[{i}]: unknown task {n!r}; tasks: "
+                                            f"{', '.join(tasks)}")
+                out.append(tuple(tasks[n] for n in names))
+            stack = Stack(out)
+        sec.check_unused()
+        return FixedStack(stack)
+    if kind not in POLICY_BUILDERS:
+        raise ScenarioError(f"{sec.where}.type: unknown policy {kind!r}; valid: "
+                            f"{', '.join(['fixed', *sorted(POLICY_BUILDERS)])}")
+    return POLICY_BUILDERS[kind](sc, robot, tasks, sec)
+
+
+def build(sc: Scenario, solver: str | None = None):
+    """Robot, controller and the context a run needs (obstacles, distance field...)."""
+    from hqp_tpm import policies  # noqa: F401 - registers the dynamic policies
+
+    try:
+        robot = Robot.load(sc.robot)
+    except HqpTpmError as exc:
+        raise ScenarioError(f"{sc.path.name}.scenario.robot: {exc}") from exc
+    tasks = {t.string("name"): build_task(robot, t) for t in sc.tasks}
+    q0 = initial_configuration(robot, sc.initial)
+    v0 = np.zeros(robot.nv)
+    policy = build_policy(sc, robot, tasks)
+    box = getattr(policy, "box", None)
+    hooks = getattr(policy, "pre_policy", ())
+    ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,
+                      lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,
+                      box=box, q0=q0, v0=v0, pre_policy=hooks)
+    sc.initial.check_unused()
+    return robot, ctrl, tasks, policy

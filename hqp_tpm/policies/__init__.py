@@ -1,0 +1,1 @@
+"""Dynamic stack policies; importing this package registers them with the scenario builder."""
