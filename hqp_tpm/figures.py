@@ -25,7 +25,7 @@ def joint_velocities(path: Path, arrays: dict, limits=None, title: str = "") -> 
         n = len(cols)
         ncol = 4
         fig, axes = plt.subplots(int(np.ceil(n / ncol)), ncol, figsize=(12, 1.8 * np.ceil(n / ncol)), sharex=True)
-        for ax, i in zip(np.ravel(axes), cols):
+        for ax, i in zip(np.ravel(axes), cols, strict=False):
             ax.plot(t, dq[:, i], "b", lw=0.8)
             ax.axhline(limits[i], color="r", lw=0.8)
             ax.axhline(-limits[i], color="r", lw=0.8)
@@ -86,7 +86,7 @@ def distances(path: Path, arrays: dict, thresholds: dict, title: str = "") -> No
     fig, axes = plt.subplots(len(keys) + extra, 1, figsize=(8, 2.2 * (len(keys) + extra)), sharex=True,
                              squeeze=False)
     t = arrays["t"]
-    for ax, k in zip(axes[:, 0], keys):
+    for ax, k in zip(axes[:, 0], keys, strict=False):
         ax.plot(t, arrays[k], lw=0.9)
         for name, val in thresholds.get(k, {}).items():
             ax.axhline(val, ls="--", lw=0.7, color="r" if "1" in name or "safe" in name else "g", label=name)

@@ -140,7 +140,8 @@ class Obstacle:
         if not isinstance(name, str) or not name:
             raise GeometryError(f"obstacle name must be a non-empty string, got {name!r}")
         if not isinstance(shape, coal.CollisionGeometry):
-            raise GeometryError(f"obstacle {name!r}: shape must be a coal.CollisionGeometry, got {type(shape).__name__}")
+            raise GeometryError(f"obstacle {name!r}: shape must be a coal.CollisionGeometry, "
+                                f"got {type(shape).__name__}")
         if motion is not None and velocity is not None:
             raise GeometryError(f"obstacle {name!r}: give either motion or velocity, not both")
         if motion is not None and not callable(motion):

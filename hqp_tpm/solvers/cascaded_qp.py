@@ -48,6 +48,10 @@ DEFAULT_OPTIONS = {
 #: positive-definite Hessian); it is exact when no inequality couples them to the objective.
 FREE_WEIGHT = 1e-10
 
+#: A kept bound whose multiplier exceeds this (relative to the largest one) is active at every
+#: optimum of its level, and is kept as an equality by the levels below.
+PIN_TOL = 1e-7
+
 
 @dataclass(frozen=True)
 class CascadeInfo:
@@ -65,7 +69,7 @@ class CascadeInfo:
 
 @dataclass
 class _Cascade:
-    """State between levels: ``x = x + N z`` keeps all equalities, ``G x <= h`` all inequalities."""
+    """State between levels: ``x + N z`` keeps all equalities, ``G x <= h`` all inequalities."""
 
     x: np.ndarray
     N: np.ndarray
@@ -75,42 +79,67 @@ class _Cascade:
     options: dict
     qp_count: int = field(default=0)
 
-    def reduced_constraints(self) -> tuple[np.ndarray, np.ndarray]:
-        """``G N z <= h - G x``, without rows the null space makes constant (satisfied at z = 0)."""
-        Gz = self.G @ self.N
-        keep = np.linalg.norm(Gz, axis=1) > RANK_TOL
-        return Gz[keep], (self.h - self.G @ self.x)[keep]
-
     def move(self, z: np.ndarray) -> None:
         """Go to ``x + N z`` and relax the kept bounds by what the backend's tolerance left violated."""
         self.x = self.x + self.N @ z
         self.h = np.maximum(self.h, self.G @ self.x)
 
-    def keep_bounds(self, J: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
-        """Add ``lower <= J x <= upper`` (finite sides only), relaxed to the current point."""
+    def restrict(self, A: np.ndarray) -> None:
+        """Keep ``A x`` at its current value: ``N <- N null(A N)``."""
+        if A.shape[0] and self.N.shape[1]:
+            self.N = self.N @ null_space_basis(A @ self.N)
+
+    def keep_bounds(self, J: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
+        """Add ``lower <= J x <= upper`` (finite sides only), relaxed to the current point; return the rows."""
         up, lo = np.isfinite(upper), np.isfinite(lower)
         G = np.vstack([J[up], -J[lo]])
         h = np.concatenate([upper[up], -lower[lo]])
         self.G = np.vstack([self.G, G])
         self.h = np.concatenate([self.h, np.maximum(h, G @ self.x)])
+        return G
 
-    def solve(self, P, q, G, h, where: str) -> np.ndarray:
-        """One QP ``min 1/2 v'Pv + q'v  s.t.  G v <= h`` through qpsolvers."""
+    def qp(self, P, q, T, where: str, G_own=None, h_own=None) -> tuple[np.ndarray, np.ndarray]:
+        """Solve ``min 1/2 v'Pv + q'v`` s.t. ``G_own v <= h_own`` and the kept bounds at ``z = T v``; move there.
+
+        Kept bounds whose multiplier is positive stay active at every optimum of this level, so
+        they are kept as equalities from now on. Returns ``v`` and the multipliers of ``G_own``.
+        """
+        G_own = np.zeros((0, P.shape[0])) if G_own is None else G_own
+        h_own = np.zeros(0) if h_own is None else h_own
+        Gz = self.G @ self.N
+        rows = np.flatnonzero(np.linalg.norm(Gz, axis=1) > RANK_TOL)  # the others are constant: met at z = 0
+        G = np.vstack([G_own, Gz[rows] @ T])
+        h = np.concatenate([h_own, (self.h - self.G @ self.x)[rows]])
+        v, mult = self.solve(P, q, G, h, where)
+        self.move(T @ v)
+        mult_own, mult_kept = mult[: G_own.shape[0]], mult[G_own.shape[0]:]
+        self.restrict(self.G[rows[mult_kept > PIN_TOL * max(1.0, mult.max(initial=0.0))]])
+        return v, mult_own
+
+    def solve(self, P, q, G, h, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """One QP ``min 1/2 v'Pv + q'v  s.t.  G v <= h`` through qpsolvers: solution and multipliers."""
         options = dict(self.options)
-        if G.shape[0] == 0:
+        m = G.shape[0]
+        if m == 0:
             G, h = None, None
             options.pop("polish", None)  # nothing to polish; OSQP would print that it skipped it
         if self.solver not in qpsolvers.dense_solvers:
             P, G = sparse.csc_matrix(P), None if G is None else sparse.csc_matrix(G)
-        problem = qpsolvers.Problem(P, q, G, h)
         self.qp_count += 1
         try:
-            sol = qpsolvers.solve_problem(problem, self.solver, **options)
+            sol = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h), self.solver, **options)
         except Exception as exc:  # backends raise their own types on numerical trouble
             raise SolverFailedError(f"{where}: backend {self.solver!r} failed: {exc}") from exc
         if not sol.found or sol.x is None or not np.isfinite(sol.x).all():
             raise SolverFailedError(f"{where}: backend {self.solver!r} returned no solution")
-        return sol.x
+        mult = np.zeros(m) if sol.z is None or m == 0 else np.asarray(sol.z, dtype=float).reshape(m)
+        return sol.x, mult
+
+
+def null_space_basis(A: np.ndarray) -> np.ndarray:
+    """Orthonormal basis of the null space of ``A`` (singular values above the TPM rank tolerance count)."""
+    _, s, Vt = np.linalg.svd(A, full_matrices=True)
+    return Vt[int((s > RANK_TOL).sum()):].T
 
 
 def check_solver(solver: str) -> str:
@@ -159,25 +188,17 @@ def _options(solver: str, solver_options: dict) -> dict:
 def _equality_level(c: _Cascade, J: np.ndarray, b: np.ndarray, k: int) -> None:
     """Minimize ``||J x - b||^2``, then keep ``J x`` at the value reached."""
     r = c.N.shape[1]
-    if r == 0:
-        return
     U, s, Vt = np.linalg.svd(J @ c.N, full_matrices=True)
     rank = int((s > RANK_TOL).sum())
-    if rank == 0:  # the level is decided by the higher ones
+    if rank == 0:  # the level is decided by the higher ones (or nothing is left free)
         return
+    # z = V1 diag(1/s1) u + V2 t: the objective is ||u - target||^2; t is weighted only for a PD Hessian
     V1, V2, s1 = Vt[:rank].T, Vt[rank:].T, s[:rank]
     target = U[:, :rank].T @ (b - J @ c.x)
-    # z = V1 diag(1/s1) u + V2 t: the objective is ||u - target||^2, t only matters to the bounds
-    Gz, hz = c.reduced_constraints()
-    if Gz.shape[0] == 0:
-        u = c.solve(np.eye(rank), -target, Gz[:, :rank], hz, f"level {k}")
-        c.move(V1 @ (u / s1))
-    else:
-        P = np.diag(np.concatenate([np.ones(rank), np.full(r - rank, FREE_WEIGHT)]))
-        q = np.concatenate([-target, np.zeros(r - rank)])
-        v = c.solve(P, q, np.hstack([(Gz @ V1) / s1, Gz @ V2]), hz, f"level {k}")
-        c.move(V1 @ (v[:rank] / s1) + V2 @ v[rank:])
-    c.N = c.N @ V2
+    P = np.diag(np.concatenate([np.ones(rank), np.full(r - rank, FREE_WEIGHT)]))
+    q = np.concatenate([-target, np.zeros(r - rank)])
+    c.qp(P, q, np.hstack([V1 / s1, V2]), f"level {k}")
+    c.restrict(J)
 
 
 def _inequality_level(c: _Cascade, J: np.ndarray, lower: np.ndarray, upper: np.ndarray, k: int) -> None:
@@ -185,29 +206,26 @@ def _inequality_level(c: _Cascade, J: np.ndarray, lower: np.ndarray, upper: np.n
     rows = np.isfinite(lower) | np.isfinite(upper)
     J, lower, upper = J[rows], lower[rows], upper[rows]
     Jx = J @ c.x
-    if c.N.shape[1] > 0 and ((Jx < lower) | (Jx > upper)).any():
-        # variables (z, w): lower <= J (x + N z) - w <= upper, minimize ||w||^2
-        r, m = c.N.shape[1], J.shape[0]
-        A = J @ c.N
-        up, lo = np.isfinite(upper), np.isfinite(lower)
-        G = np.vstack([np.hstack([A[up], -np.eye(m)[up]]), np.hstack([-A[lo], np.eye(m)[lo]])])
-        h = np.concatenate([(upper - Jx)[up], (Jx - lower)[lo]])
-        Gz, hz = c.reduced_constraints()
-        G = np.vstack([G, np.hstack([Gz, np.zeros((Gz.shape[0], m))])])
-        P = np.diag(np.concatenate([np.full(r, FREE_WEIGHT), np.ones(m)]))
-        v = c.solve(P, np.zeros(r + m), G, np.concatenate([h, hz]), f"level {k}")
-        c.move(v[:r])
-    c.keep_bounds(J, lower, upper)
+    r, m = c.N.shape[1], J.shape[0]
+    if r == 0 or not ((Jx < lower) | (Jx > upper)).any():  # met already: nothing to minimize
+        c.keep_bounds(J, lower, upper)
+        return
+    # variables v = (z, w): lower <= J (x + N z) - w <= upper, minimize ||w||^2
+    A, I = J @ c.N, np.eye(m)
+    up, lo = np.isfinite(upper), np.isfinite(lower)
+    G = np.vstack([np.hstack([A[up], -I[up]]), np.hstack([-A[lo], I[lo]])])
+    h = np.concatenate([(upper - Jx)[up], (Jx - lower)[lo]])
+    P = np.diag(np.concatenate([np.full(r, FREE_WEIGHT), np.ones(m)]))
+    _, mult = c.qp(P, np.zeros(r + m), np.eye(r, r + m), f"level {k}", G, h)
+    kept = c.keep_bounds(J, lower, upper)
+    c.restrict(kept[mult > PIN_TOL * max(1.0, mult.max(initial=0.0))])
 
 
 def _nearest_point(c: _Cascade, x0: np.ndarray, k: int) -> None:
     """Last level: minimize ``||x - x0||^2`` with every level kept."""
     r = c.N.shape[1]
-    if r == 0:
-        return
-    Gz, hz = c.reduced_constraints()
-    z = c.solve(np.eye(r), c.N.T @ (c.x - x0), Gz, hz, f"level {k} (minimum norm)")
-    c.move(z)
+    if r:
+        c.qp(np.eye(r), c.N.T @ (c.x - x0), np.eye(r), f"level {k} (minimum norm)")
 
 
 def residuals(levels: Iterable, x: np.ndarray) -> np.ndarray:
