@@ -124,7 +124,29 @@ def initial_configuration(robot: Robot, sec: Section) -> np.ndarray:
     return q
 
 
-def build_policy(sc: Scenario, robot: Robot, tasks: dict):
+def obstacles_from(sc: Scenario) -> list:
+    """The scenario's ``[[obstacles]]``: spheres (radius 0 = point), boxes, capsules."""
+    from hqp_tpm.obstacles import Obstacle
+
+    out = []
+    for sec in sc.obstacles:
+        kind = sec.string("type", choices=("sphere", "point", "box", "capsule"))
+        name = sec.string("name")
+        motion = {}
+        if sec.has("velocity"):
+            motion["velocity"] = sec.vector("velocity", 3)
+        if kind in ("sphere", "point"):
+            out.append(Obstacle.sphere(name, sec.vector("center", 3), sec.number("radius", 0.0), **motion))
+        elif kind == "box":
+            out.append(Obstacle.box(name, sec.vector("center", 3), sec.vector("half_extents", 3), **motion))
+        else:
+            out.append(Obstacle.capsule(name, sec.vector("a", 3), sec.vector("b", 3), sec.number("radius"),
+                                        **motion))
+        sec.check_unused()
+    return out
+
+
+def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list):
     sec = sc.policy
     kind = sec.string("type", "fixed")
     if kind == "fixed":
@@ -148,7 +170,7 @@ def build_policy(sc: Scenario, robot: Robot, tasks: dict):
     if kind not in POLICY_BUILDERS:
         raise ScenarioError(f"{sec.where}.type: unknown policy {kind!r}; valid: "
                             f"{', '.join(['fixed', *sorted(POLICY_BUILDERS)])}")
-    return POLICY_BUILDERS[kind](sc, robot, tasks, sec)
+    return POLICY_BUILDERS[kind](sc, robot, tasks, sec, obstacles)
 
 
 def build(sc: Scenario, solver: str | None = None):
@@ -162,7 +184,9 @@ def build(sc: Scenario, solver: str | None = None):
     tasks = {t.string("name"): build_task(robot, t) for t in sc.tasks}
     q0 = initial_configuration(robot, sc.initial)
     v0 = np.zeros(robot.nv)
-    policy = build_policy(sc, robot, tasks)
+    obstacles = obstacles_from(sc)
+    policy = build_policy(sc, robot, tasks, obstacles)
+    policy.obstacles = getattr(policy, "obstacles", obstacles)
     box = getattr(policy, "box", None)
     hooks = getattr(policy, "pre_policy", ())
     ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,

@@ -142,8 +142,6 @@ class Scenario:
     tasks: list[Section]
     policy: Section
     limits: Section | None
-    control_points: Section | None
-    collision: Section | None
     raw: dict
 
     @property
@@ -202,8 +200,7 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         initial=top.table("initial", None) or Section({}, f"{path.name}.initial"),
         obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
-        limits=top.table("limits", None), control_points=top.table("control_points", None),
-        collision=top.table("collision", None), raw=data,
+        limits=top.table("limits", None), raw=data,
     )
     sc.check_unused()
     top.check_unused()

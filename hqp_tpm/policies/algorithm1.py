@@ -1,0 +1,168 @@
+"""Algorithm 1 of papers/000: priority assignment with thresholds eps1, eps2, eps_ee.
+
+As coded by the authors (reference page, 'Priority assignment'):
+
+1. Stack = [EE position], its command plus the EE repulsion (30) while ``d_ee <= eps_ee``.
+2. If a critical body point exists (the nearest within ``eps2``) and ``d <= eps1``: its
+   avoidance task goes above the EE task when ``d <= d_ee`` (``d_ee`` counts as
+   ``d_ee_default`` = 0.11 when no obstacle is within ``eps_ee``), else right below it.
+3. If the pointing task is active (equality: always; inequality (21): ``e > 0``): append it.
+4. If the critical point exists and was not placed in step 2: append its task last.
+
+The policy owns the distance field: its ``pre_policy`` hook updates the distances once per
+step after the state update; ``probe`` records ``d_minimal``, ``d_ee`` and ``active_point``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hqp_tpm.build import register_policy
+from hqp_tpm.distances import DistanceField
+from hqp_tpm.errors import ScenarioError
+from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.repulsion import Repulsion
+from hqp_tpm.stack import Stack
+from hqp_tpm.state import State
+from hqp_tpm.tasks import Pointing
+from hqp_tpm.tasks.avoidance import Avoidance
+from hqp_tpm.tasks.base import Task
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Danger thresholds of Algorithm 1 (m)."""
+
+    eps1: float = 0.05
+    eps2: float = 0.15
+    eps_ee: float = 0.1
+    d_ee_default: float = 0.11
+
+    def __post_init__(self):
+        if not (0 < self.eps1 < self.eps2):
+            raise ValueError(f"thresholds must satisfy 0 < eps1 < eps2, got eps1={self.eps1}, eps2={self.eps2}")
+        if self.eps_ee <= 0:
+            raise ValueError(f"eps_ee must be > 0, got {self.eps_ee}")
+
+
+class Algorithm1:
+    """Dynamic stack of papers/000 for an EE position task, a pointing task and body avoidance."""
+
+    def __init__(self, robot, ee_task: Task, pointing: Pointing | None, control_points: list[str], ee_frame: str,
+                 obstacles: list[Obstacle], *, thresholds: Thresholds = Thresholds(),
+                 ee_repulsion: Repulsion = Repulsion(5.0, 0.1, 10.0, 1.5),
+                 body_repulsion: Repulsion = Repulsion(0.15, 0.15, 2.0, 3.0),
+                 avoidance_dim: int = 1, direction: str = "nearest", record_range: float = 0.5):
+        self.robot = robot
+        self.ee_task = ee_task
+        self.pointing = pointing
+        self.th = thresholds
+        self.ee_repulsion = ee_repulsion
+        self.body_repulsion = body_repulsion
+        self.direction = direction
+        self.obstacles = list(obstacles)
+        self.control_points = list(control_points)
+        self.ee_frame = ee_frame
+        self.field = DistanceField(robot.model, None, [*control_points, ee_frame], self.obstacles,
+                                   surveillance=max(record_range, thresholds.eps2, thresholds.eps_ee))
+        self.body = np.arange(len(control_points))
+        self.ee_index = len(control_points)
+        self.avoid = Avoidance("avoid", avoidance_dim)
+        self.thresholds = {"d_minimal": {"eps1": thresholds.eps1, "eps2": thresholds.eps2},
+                           "d_ee": {"eps_ee": thresholds.eps_ee}}
+        self._last: dict = {}
+
+    # hooks ---------------------------------------------------------------------------------
+    def tasks(self) -> list[Task]:
+        return [t for t in (self.ee_task, self.pointing) if t is not None]
+
+    @property
+    def pre_policy(self):
+        return (self._update_distances,)
+
+    def _update_distances(self, state: State, t: float) -> None:
+        self.field.update(state.data, None, t)
+
+    # the algorithm -------------------------------------------------------------------------
+    def __call__(self, state: State, t: float) -> Stack:
+        f, th = self.field, self.th
+        # EE control point: repulsion added to the EE command (30) while d_ee <= eps_ee
+        d_ee_all = np.where(f.in_range[self.ee_index], f.distance[self.ee_index], np.inf)
+        j_ee = int(np.argmin(d_ee_all)) if d_ee_all.size else -1
+        d_ee = float(d_ee_all[j_ee]) if j_ee >= 0 else np.inf
+        extras = {}
+        if d_ee <= th.eps_ee:
+            # the obstacle of largest magnitude is the nearest; direction (p_ee - o)/||p_ee - o||
+            extras[self.ee_task.name] = self.ee_repulsion.magnitude(d_ee) * f.normal[self.ee_index, j_ee]
+        # critical body point: largest repulsion magnitude = nearest within eps2 (31)
+        mag, r_hat, d_min, nearest = self.body_repulsion.vectors(
+            f.distance[self.body], f.normal[self.body], f.in_range[self.body], self.direction, th.eps2)
+        k = int(np.argmin(d_min)) if d_min.size else -1
+        d_minimal = float(d_min[k]) if k >= 0 else np.inf
+        critical = k >= 0 and np.isfinite(d_minimal)
+        levels: list[tuple[Task, ...]] = [(self.ee_task,)]
+        placed = False
+        if critical:
+            j = int(nearest[k])
+            self.avoid.assign(f.jacobian(state.data, int(self.body[k]), j),
+                              f.jdot_qdot(state.data, int(self.body[k]), j), r_hat[k], mag[k],
+                              f.p_robot[self.body[k], j])
+            if d_minimal <= th.eps1:
+                d_ee_eff = d_ee if d_ee <= th.eps_ee else th.d_ee_default
+                levels.insert(0 if d_minimal <= d_ee_eff else 1, (self.avoid,))
+                placed = True
+        if self.pointing is not None and self.pointing.is_active(state):
+            levels.append((self.pointing,))
+        if critical and not placed:
+            levels.append((self.avoid,))
+        self._last = {"d_minimal": d_minimal, "d_ee": d_ee, "active_point": k if critical else -1}
+        return Stack(levels, extras)
+
+    def probe(self, ctrl, res) -> dict:
+        """Per-step record: D_minimal (31) and D_min(p_ee) (NaN when nothing in range), critical point."""
+        f = self.field
+        body = np.where(f.in_range[self.body], f.distance[self.body], np.inf)
+        d_min_body = float(body.min()) if body.size else np.inf
+        ee = np.where(f.in_range[self.ee_index], f.distance[self.ee_index], np.inf)
+        d_ee = float(ee.min()) if ee.size else np.inf
+        return {"d_minimal": d_min_body if np.isfinite(d_min_body) else np.nan,
+                "d_ee": d_ee if np.isfinite(d_ee) else np.nan,
+                "active_point": float(self._last.get("active_point", -1))}
+
+
+def _repulsion(sec, key: str, default: Repulsion) -> Repulsion:
+    tab = sec.table(key, None)
+    if tab is None:
+        return default
+    rep = Repulsion(tab.number("v_max"), tab.number("rho"), tab.number("gamma"), tab.number("c", 2.0))
+    tab.check_unused()
+    return rep
+
+
+@register_policy("algorithm1")
+def build_algorithm1(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> Algorithm1:
+    ee_name = sec.string("ee_task")
+    if ee_name not in tasks:
+        raise ScenarioError(f"{sec.where}.ee_task: unknown task {ee_name!r}; tasks: {', '.join(tasks)}")
+    p_name = sec.string("pointing_task", None)
+    if p_name is not None and not isinstance(tasks.get(p_name), Pointing):
+        raise ScenarioError(f"{sec.where}.pointing_task: {p_name!r} is not a pointing task; tasks: {', '.join(tasks)}")
+    th = Thresholds(sec.number("eps1", 0.05), sec.number("eps2", 0.15), sec.number("eps_ee", 0.1),
+                    sec.number("d_ee_default", 0.11))
+    dim = {"1d": 1, "3d": 3}
+    av = sec.string("avoidance", "1d", choices=tuple(dim))
+    frames = sec.raw("control_points")
+    if not isinstance(frames, list) or not all(isinstance(x, str) for x in frames):
+        raise ScenarioError(f"{sec.where}.control_points: expected a list of frame names")
+    for fr in [*frames, sec.string("ee_frame")]:
+        robot.frame_id(fr)
+    pol = Algorithm1(robot, tasks[ee_name], tasks.get(p_name) if p_name else None, frames, sec.string("ee_frame"),
+                     obstacles, thresholds=th, ee_repulsion=_repulsion(sec, "ee_repulsion",
+                                                                                 Repulsion(5.0, 0.1, 10.0, 1.5)),
+                     body_repulsion=_repulsion(sec, "body_repulsion", Repulsion(0.15, 0.15, 2.0, 3.0)),
+                     avoidance_dim=dim[av], direction=sec.string("direction", "nearest", choices=("nearest", "mean")),
+                     record_range=sec.number("record_range", 0.5))
+    sec.check_unused()
+    return pol
