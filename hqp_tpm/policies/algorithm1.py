@@ -47,13 +47,18 @@ class Thresholds:
             raise ValueError(f"eps_ee must be > 0, got {self.eps_ee}")
 
 
+#: Reference values of the authors' code (reference page): EE and body repulsion, eq. (23) with factor c.
+EE_REPULSION = Repulsion(5.0, 0.1, 10.0, 1.5)
+BODY_REPULSION = Repulsion(0.15, 0.15, 2.0, 3.0)
+DEFAULT_THRESHOLDS = Thresholds()
+
+
 class Algorithm1:
     """Dynamic stack of papers/000 for an EE position task, a pointing task and body avoidance."""
 
     def __init__(self, robot, ee_task: Task, pointing: Pointing | None, control_points: list[str], ee_frame: str,
-                 obstacles: list[Obstacle], *, thresholds: Thresholds = Thresholds(),
-                 ee_repulsion: Repulsion = Repulsion(5.0, 0.1, 10.0, 1.5),
-                 body_repulsion: Repulsion = Repulsion(0.15, 0.15, 2.0, 3.0),
+                 obstacles: list[Obstacle], *, thresholds: Thresholds = DEFAULT_THRESHOLDS,
+                 ee_repulsion: Repulsion = EE_REPULSION, body_repulsion: Repulsion = BODY_REPULSION,
                  avoidance_dim: int = 1, direction: str = "nearest", record_range: float = 0.5):
         self.robot = robot
         self.ee_task = ee_task
@@ -159,9 +164,8 @@ def build_algorithm1(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> 
     for fr in [*frames, sec.string("ee_frame")]:
         robot.frame_id(fr)
     pol = Algorithm1(robot, tasks[ee_name], tasks.get(p_name) if p_name else None, frames, sec.string("ee_frame"),
-                     obstacles, thresholds=th, ee_repulsion=_repulsion(sec, "ee_repulsion",
-                                                                                 Repulsion(5.0, 0.1, 10.0, 1.5)),
-                     body_repulsion=_repulsion(sec, "body_repulsion", Repulsion(0.15, 0.15, 2.0, 3.0)),
+                     obstacles, thresholds=th, ee_repulsion=_repulsion(sec, "ee_repulsion", EE_REPULSION),
+                     body_repulsion=_repulsion(sec, "body_repulsion", BODY_REPULSION),
                      avoidance_dim=dim[av], direction=sec.string("direction", "nearest", choices=("nearest", "mean")),
                      record_range=sec.number("record_range", 0.5))
     sec.check_unused()

@@ -46,7 +46,7 @@ DEFAULT_OPTIONS = {
 
 #: Hessian weight of the directions a level's objective does not see (quadprog and daqp need a
 #: positive-definite Hessian); it is exact when no inequality couples them to the objective.
-FREE_WEIGHT = 1e-10
+FREE_WEIGHT = float(__import__("os").environ.get("FW", "1e-10"))
 
 #: A kept bound whose multiplier exceeds this (relative to the largest one) is active at every
 #: optimum of its level, and is kept as an equality by the levels below.
