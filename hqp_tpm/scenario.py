@@ -168,14 +168,50 @@ def resolve_path(spec: str | Path) -> Path:
     raise ScenarioError(f"unknown scenario {str(spec)!r}; scenarios in {SCENARIO_DIR}: {', '.join(known)}")
 
 
-def load(spec: str | Path) -> Scenario:
-    """Read and validate a scenario file (structure and scalar fields; tasks are built later)."""
-    path = resolve_path(spec)
+def merge(base: dict, over: dict) -> dict:
+    """Deep merge for ``extends``: tables merge key by key; arrays of named tables merge by ``name``
+    (a table with ``remove = true`` drops that entry); anything else is replaced."""
+    out = dict(base)
+    for key, value in over.items():
+        old = out.get(key)
+        if isinstance(old, dict) and isinstance(value, dict):
+            out[key] = merge(old, value)
+        elif (isinstance(old, list) and isinstance(value, list) and all(isinstance(x, dict) and "name" in x
+                                                                        for x in [*old, *value])):
+            items = {x["name"]: dict(x) for x in old}
+            for x in value:
+                if x.get("remove") is True:
+                    items.pop(x["name"], None)
+                else:
+                    items[x["name"]] = merge(items.get(x["name"], {}), x)
+            out[key] = list(items.values())
+        else:
+            out[key] = value
+    return out
+
+
+def read(path: Path, seen: tuple = ()) -> dict:
+    """The file's TOML, with ``[scenario] extends = "other"`` resolved (the other file's stem or path)."""
     try:
         data = tomllib.loads(path.read_text())
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
-    return parse(data, path)
+    parent = data.get("scenario", {}).pop("extends", None) if isinstance(data.get("scenario"), dict) else None
+    if parent is None:
+        return data
+    base_path = resolve_path(parent) if not Path(parent).suffix else path.parent / parent
+    if base_path.resolve() in seen:
+        raise ScenarioError(f"{path.name}.scenario.extends: cycle through {base_path.name}")
+    base = read(base_path, (*seen, path.resolve()))
+    base.get("scenario", {}).pop("name", None)
+    base.get("scenario", {}).pop("description", None)
+    return merge(base, data)
+
+
+def load(spec: str | Path) -> Scenario:
+    """Read and validate a scenario file (structure and scalar fields; tasks are built later)."""
+    path = resolve_path(spec)
+    return parse(read(path), path)
 
 
 def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:

@@ -1,0 +1,98 @@
+"""Algorithm 1 of papers/000: the stack it builds in hand-made situations on the LWR IV."""
+
+import numpy as np
+import pytest
+
+from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.policies.algorithm1 import Algorithm1
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks import FramePosition, Gains, Pointing
+
+Q0 = np.array([0.923, -0.854, 0.903, 1.195, 0.971, 1.796, 0.0])
+CPS = [f"lwr_cp_{k}" for k in range(1, 9)]
+
+
+@pytest.fixture(scope="module")
+def lwr():
+    return Robot.load("lwr4")
+
+
+def make(lwr, obstacles, alpha_deg=5.0, inequality=True, dim=1):
+    ee = FramePosition(lwr, "lwr_ee", None, Gains(40, 20), name="ee")
+    st = State(lwr).update(Q0, np.zeros(7))
+    z = st.rotation(lwr.frame_id("lwr_ee"))[:, 2]
+    ee.start(st)
+    pointing = Pointing(lwr, "lwr_ee", z, np.deg2rad(alpha_deg), Gains(5, 2), inequality=inequality,
+                        name="pointing")
+    pol = Algorithm1(lwr, ee, pointing, CPS, "lwr_ee", obstacles, avoidance_dim=dim)
+    for hook in pol.pre_policy:
+        hook(st, 0.0)
+    return pol, st
+
+
+def point_near(lwr, frame, d):
+    """A point obstacle at distance d from a frame origin, perpendicular to the arm's segments there."""
+    st = State(lwr).update(Q0, np.zeros(7))
+    p = st.position(lwr.frame_id(frame))
+    upper = st.position(lwr.frame_id("lwr_elbow")) - st.position(lwr.frame_id("lwr_shoulder"))
+    fore = st.position(lwr.frame_id("lwr_wrist")) - st.position(lwr.frame_id("lwr_elbow"))
+    n = np.cross(upper, fore)
+    return p + d * n / np.linalg.norm(n)
+
+
+def labels(pol, st):
+    return pol(st, 0.0).label()
+
+
+def test_no_obstacle_in_range_gives_ee_only(lwr):
+    pol, st = make(lwr, [Obstacle.sphere("far", [3.0, 3.0, 3.0])])
+    assert labels(pol, st) == "ee"  # pointing inside its cone (axis = current z)
+    assert pol.probe(None, None)["active_point"] == -1
+
+
+def test_body_point_in_surveillance_band_is_appended_last(lwr):
+    pol, st = make(lwr, [Obstacle.sphere("o", point_near(lwr, "lwr_cp_3", 0.10))])
+    assert labels(pol, st) == "ee > avoid"
+    assert pol.probe(None, None)["active_point"] == 2
+    assert pol.probe(None, None)["d_minimal"] == pytest.approx(0.10, abs=1e-12)
+
+
+def test_dangerous_body_point_goes_above_the_ee_task(lwr):
+    pol, st = make(lwr, [Obstacle.sphere("o", point_near(lwr, "lwr_cp_6", 0.03))])
+    assert labels(pol, st) == "avoid > ee"
+
+
+def test_dangerous_body_point_goes_below_an_ee_that_is_closer(lwr):
+    o_body = Obstacle.sphere("ob", point_near(lwr, "lwr_cp_6", 0.04))
+    o_ee = Obstacle.sphere("oe", point_near(lwr, "lwr_ee", 0.02))
+    pol, st = make(lwr, [o_body, o_ee])
+    stack = pol(st, 0.0)
+    assert stack.label() == "ee > avoid"
+    # the EE repulsion (30) is added to the EE command, away from the obstacle
+    extra = stack.extras["ee"]
+    n = st.position(lwr.frame_id("lwr_ee")) - o_ee.placement.translation
+    assert np.dot(extra, n) > 0 and np.linalg.norm(extra) > 1.0
+
+
+def test_active_pointing_sits_between_ee_and_low_priority_avoidance(lwr):
+    o = Obstacle.sphere("o", point_near(lwr, "lwr_cp_3", 0.10))
+    pol, st = make(lwr, [o])
+    pol.pointing.z_d = -pol.pointing.z_d  # axis now outside the cone: e > 0
+    assert labels(pol, st) == "ee > pointing > avoid"
+    pol_eq, st = make(lwr, [o], inequality=False)
+    assert labels(pol_eq, st) == "ee > pointing > avoid"  # the equality is always in the stack
+
+
+def test_avoidance_task_is_n_transpose_J(lwr):
+    o = Obstacle.sphere("o", point_near(lwr, "lwr_cp_3", 0.10))
+    pol, st = make(lwr, [o])
+    stack = pol(st, 0.0)
+    level = stack.to_levels(st, 0.0, 2)[-1]
+    J_c = pol.field.jacobian(st.data, 2, 0)
+    n = pol.avoid.normal
+    np.testing.assert_allclose(level.J, (n @ J_c).reshape(1, -1), atol=1e-14)
+    np.testing.assert_allclose(np.linalg.norm(n), 1.0)
+    assert level.b[0] == pytest.approx(pol.body_repulsion.magnitude(0.10), rel=1e-12)  # qd = 0: no Jdot term
+    pol3, st = make(lwr, [o], dim=3)
+    assert pol3(st, 0.0).to_levels(st, 0.0, 2)[-1].J.shape == (3, 7)
