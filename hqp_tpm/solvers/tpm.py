@@ -24,7 +24,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
+from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
 from hqp_tpm.solvers.levels import as_levels, equality_stack
 
@@ -147,6 +149,66 @@ def _factors(J, sizes, n, lambda_max, eps) -> TPMFactors:
     return TPMFactors(Q, R, F, Jpinv[:n], tuple(sizes), n)
 
 
+def _pivot_inverse(block: np.ndarray, lambda_max: float, eps: float) -> tuple[np.ndarray, float]:
+    """(Damped) pseudo-inverse of a pivot block and its smallest singular value; 1x1 blocks in closed form."""
+    if block.shape[0] == 1:
+        s = abs(block[0, 0])
+        return np.array([[inverted_singular_values(np.array([s]), lambda_max, eps)[0] * np.sign(block[0, 0])]]), s
+    U, s, Vt = np.linalg.svd(block)
+    return (Vt.T * inverted_singular_values(s, lambda_max, eps)) @ U.T, s[-1]
+
+
+def _solve(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0):
+    """Fast ``J# F b (+ (I - J#J) x0)``: LAPACK QR, pivots only, triangular solves (no explicit J#)."""
+    m = J.shape[0]
+    JT = J.T if m <= n else np.vstack([J.T, np.zeros((m - n, m))])
+    qr, tau, _, _ = lapack.dgeqrf(JT)
+    R = np.triu(qr[:m, :m])
+    Q, _, _ = lapack.dorgqr(qr, tau)
+    Q = Q[:, :m]
+    off = _offsets(sizes)
+    y = b.copy()  # y = F b = Fbar^T b, built by applying the elimination steps to b's transpose
+    Fbar = None
+    singular = False
+    for i in range(len(sizes)):
+        r = slice(off[i], off[i + 1])
+        D, smin = _pivot_inverse(R[r, r], lambda_max, eps)
+        singular |= smin <= RANK_TOL
+        regular = smin > RANK_TOL and not (lambda_max > 0.0 and smin < eps)
+        if Fbar is None and regular:
+            continue  # Steps 2-3 with an invertible undamped pivot leave F = I on this block
+        if Fbar is None:
+            Fbar = _eliminated_prefix(R, off, i, lambda_max, eps)
+        Fbar[r, off[i]:] = D @ Fbar[r, off[i]:]                       # Step 2
+        if i > 0:
+            Fbar[: off[i], off[i]:] -= Fbar[: off[i], r] @ Fbar[r, off[i]:]  # Step 3
+    if Fbar is not None:
+        y = Fbar.T @ b                                                # F b, Step 5
+    if singular:
+        z = pinv(R.T) @ y
+    else:
+        z, _ = lapack.dtrtrs(R, y, lower=0, trans=1)                  # R^{-T} y
+    x = Q @ z                                                         # eq. (11)
+    if x0 is not None:
+        x0p = x0 if m <= n else np.concatenate([x0, np.zeros(m - n)])
+        Jx0 = JT.T @ x0p
+        w = pinv(R.T) @ Jx0 if singular else lapack.dtrtrs(R, Jx0, lower=0, trans=1)[0]
+        x = x + x0p - Q @ w                                           # eq. (14)
+    return x[:n]
+
+
+def _eliminated_prefix(R: np.ndarray, off, upto: int, lambda_max: float, eps: float) -> np.ndarray:
+    """``Fbar`` after Steps 2-3 for the first ``upto`` (regular) levels: identity blocks there."""
+    Fbar = R.copy()
+    for i in range(upto):
+        r = slice(off[i], off[i + 1])
+        D, _ = _pivot_inverse(R[r, r], lambda_max, eps)
+        Fbar[r, off[i]:] = D @ Fbar[r, off[i]:]
+        if i > 0:
+            Fbar[: off[i], off[i]:] -= Fbar[: off[i], r] @ Fbar[r, off[i]:]
+    return Fbar
+
+
 def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
         x0: np.ndarray | None = None, n: int | None = None) -> np.ndarray:
     """Solve a prioritized stack with the Task Priority Matrix: ``x = J# F b`` (eq. (7)).
@@ -158,11 +220,12 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
     ``n`` is required only when ``levels`` is empty.
     """
     J, b, sizes, n = _stack(levels, n)
-    x0 = None if x0 is None else np.asarray(x0, dtype=float)
+    if x0 is not None:
+        x0 = np.asarray(x0, dtype=float).reshape(-1)
+        if x0.shape != (n,):
+            raise ShapeError(f"x0 has {x0.size} entries, expected n = {n}")
+        if not np.isfinite(x0).all():
+            raise NonFiniteError(f"x0 holds non-finite values: {x0}")
     if not sizes:
         return np.zeros(n) if x0 is None else x0.copy()
-    f = _factors(J, sizes, n, lambda_max, eps)
-    x = f.Jpinv @ (b if f.F is None else f.F @ b)
-    if x0 is not None:
-        x = x + f.nullspace_term(x0, J)
-    return x
+    return _solve(J, b, sizes, n, lambda_max, eps, x0)

@@ -71,8 +71,9 @@ class Task(ABC):
         return self.trajectory.reference(t)
 
     # command ----------------------------------------------------------------------------
-    def command(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> np.ndarray:
-        """Right-hand side ``b`` of the task at velocity (1) or acceleration (2) level."""
+    def command(self, state: State, t: float, order: int, extra: np.ndarray | None = None,
+                J: np.ndarray | None = None) -> np.ndarray:
+        """Right-hand side ``b`` of the task at velocity (1) or acceleration (2) level (``J``: if known)."""
         x_d, xd_d, xdd_d = self.reference(t)
         e = self.error(state, x_d)
         if extra is not None:
@@ -87,11 +88,13 @@ class Task(ABC):
         if order != 2:
             raise ValueError(f"order must be 1 (velocity) or 2 (acceleration), got {order!r}")
         xdd = xdd_d if extra is None else xdd_d + extra
-        return xdd + self.gains.kd * (xd_d - self.rate(state)) + self.gains.kp * e - self.jdot_qdot(state)
+        rate = (self.jacobian(state) if J is None else J) @ state.v
+        return xdd + self.gains.kd * (xd_d - rate) + self.gains.kp * e - self.jdot_qdot(state)
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
         """The task as a solver level (equality ``J x = b``)."""
-        return Level(self.jacobian(state), self.command(state, t, order, extra), name=self.name)
+        J = self.jacobian(state)
+        return Level(J, self.command(state, t, order, extra, J), name=self.name)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"

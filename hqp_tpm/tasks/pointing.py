@@ -13,6 +13,7 @@ import numpy as np
 
 from hqp_tpm.robot import Robot
 from hqp_tpm.solvers.levels import Level
+from hqp_tpm.spatial import cross
 from hqp_tpm.state import State
 from hqp_tpm.tasks.base import Gains, Task
 from hqp_tpm.trajectories import Constant
@@ -47,13 +48,13 @@ class Pointing(Task):
     def jacobian(self, state: State) -> np.ndarray:
         z_e = self.axis(state)
         # z_d^T S(z_e)^T J_O = (z_e x z_d)^T J_O, since S(z_e)^T w = w x z_e                  eq. (19)
-        return (np.cross(z_e, self.z_d) @ state.jacobian(self.fid)[3:]).reshape(1, -1)
+        return (cross(z_e, self.z_d) @ state.jacobian(self.fid)[3:]).reshape(1, -1)
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         z_e = self.axis(state)
         omega = state.velocity(self.fid)[3:]
         alpha = state.jdot_qdot(self.fid)[3:]
-        return np.array([self.z_d @ (np.cross(alpha, z_e) + np.cross(omega, np.cross(omega, z_e)))])
+        return np.array([self.z_d @ (cross(alpha, z_e) + cross(omega, cross(omega, z_e)))])
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
@@ -64,8 +65,8 @@ class Pointing(Task):
         return (not self.inequality) or self.pointing_error(state) > 0.0
 
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        b = self.command(state, t, order, extra)
         J = self.jacobian(state)
+        b = self.command(state, t, order, extra, J)
         if not self.inequality:
             return Level(J, b, name=self.name)
         return Level(J, lower=b, upper=[np.inf], active=[self.pointing_error(state) > 0.0], name=self.name)
