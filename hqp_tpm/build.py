@@ -9,7 +9,7 @@ from hqp_tpm.errors import HqpTpmError, ScenarioError
 from hqp_tpm.robot import Robot
 from hqp_tpm.scenario import Scenario, Section
 from hqp_tpm.stack import FixedStack, Stack
-from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePosition, Gains, Pointing, Posture
+from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePose, FramePosition, Gains, Pointing, Posture
 from hqp_tpm.trajectories import Constant, Harmonic, Hold
 
 POLICY_BUILDERS: dict = {}  # filled by modules that define dynamic policies (see register_policy)
@@ -64,6 +64,10 @@ def _frame_orientation(robot, sec):
     return FrameOrientation(robot, sec.string("frame"), None, gains(sec), name=sec.string("name"))
 
 
+def _frame_pose(robot, sec):
+    return FramePose(robot, sec.string("frame"), None, gains(sec), name=sec.string("name"))
+
+
 def _pointing(robot, sec):
     alpha = np.deg2rad(sec.number("alpha_d_deg")) if sec.has("alpha_d_deg") else sec.number("alpha_d")
     return Pointing(robot, sec.string("frame"), sec.vector("axis", 3), alpha, gains(sec),
@@ -85,6 +89,7 @@ def _posture(robot, sec):
 TASK_BUILDERS = {
     "frame_position": _frame_position,
     "frame_orientation": _frame_orientation,
+    "frame_pose": _frame_pose,
     "pointing": _pointing,
     "com": _com,
     "posture": _posture,
@@ -188,6 +193,17 @@ def build(sc: Scenario, solver: str | None = None):
     policy = build_policy(sc, robot, tasks, obstacles)
     policy.obstacles = getattr(policy, "obstacles", obstacles)
     box = getattr(policy, "box", None)
+    if sc.limits is not None:
+        from hqp_tpm.limits import JointLimits
+
+        lim = sc.limits
+        box = JointLimits(robot, order=sc.order, dt=sc.period, position=lim.boolean("position", True),
+                          velocity=lim.boolean("velocity", True),
+                          acceleration_limit=lim.number("acceleration_limit", 50.0),
+                          velocity_scale=lim.number("velocity_scale", 1.0))
+        lim.check_unused()
+        policy.box = box
+        policy.velocity_limits = box.velocity_limits
     hooks = getattr(policy, "pre_policy", ())
     ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,
                       lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,

@@ -21,6 +21,18 @@ ROBOTS_DIR = Path(os.environ.get("HQP_TPM_ROBOTS", Path(__file__).resolve().pare
 #: Robots shipped in ``robots/``: short name -> URDF path relative to ROBOTS_DIR.
 PROJECT_ROBOTS = {"lwr4": "kuka_lwr4/lwr4.urdf", "iiwa7": "kuka_iiwa7/iiwa7.urdf"}
 
+#: The 21 joints of the papers' simplified Romeo (reference page romeo_four_tasks.md).
+ROMEO21_JOINTS = (
+    "LHipYaw", "LHipRoll", "LHipPitch", "LKneePitch", "LAnklePitch", "LAnkleRoll",
+    "RHipYaw", "RHipRoll", "RHipPitch", "RKneePitch", "RAnklePitch", "RAnkleRoll",
+    "TrunkYaw",
+    "LShoulderPitch", "LShoulderYaw", "LElbowRoll", "LElbowYaw",
+    "RShoulderPitch", "RShoulderYaw", "RElbowRoll", "RElbowYaw",
+)
+
+#: Reduced robots built from example-robot-data: name -> (robot, joints kept).
+REDUCED_ROBOTS = {"romeo21": ("romeo", ROMEO21_JOINTS)}
+
 
 @dataclass
 class Robot:
@@ -80,11 +92,36 @@ class Robot:
     def load(cls, spec: str | os.PathLike) -> Robot:
         """``spec``: a project robot name, a URDF path, or an example-robot-data name."""
         key = str(spec)
+        if key in REDUCED_ROBOTS:
+            base, keep = REDUCED_ROBOTS[key]
+            return cls.from_example_robot_data(base).reduced(keep, name=key)
         if key in PROJECT_ROBOTS:
             return cls.from_urdf(ROBOTS_DIR / PROJECT_ROBOTS[key], name=key)
         if key.endswith(".urdf") or os.sep in key:
             return cls.from_urdf(key)
         return cls.from_example_robot_data(key)
+
+    def reduced(self, keep, q_ref=None, name: str = "") -> Robot:
+        """The robot with every 1-DOF joint not in ``keep`` locked at ``q_ref`` (default: neutral).
+
+        The free-flyer (if any) is kept. Geometry models are reduced along.
+        """
+        model = self.model
+        names = [model.names[j] for j in range(1, model.njoints)]
+        unknown = [k for k in keep if k not in names]
+        if unknown:
+            raise unknown_name("joint", unknown[0], names)
+        lock = [j for j in range(1, model.njoints) if model.names[j] not in keep and model.joints[j].nv == 1]
+        q_ref = self.neutral() if q_ref is None else np.asarray(q_ref, dtype=float)
+        geoms = [g for g in (self.collision_model, self.visual_model) if g is not None]
+        if geoms:
+            red, geoms_red = pin.buildReducedModel(model, geoms, lock, q_ref)
+        else:
+            red, geoms_red = pin.buildReducedModel(model, lock, q_ref), []
+        it = iter(geoms_red)
+        col = next(it) if self.collision_model is not None else None
+        vis = next(it) if self.visual_model is not None else None
+        return Robot(red, col, vis, name=name or f"{self.name}_reduced", source=f"{self.source} reduced")
 
     # -- names and sizes ---------------------------------------------------------------------
     @property

@@ -1,0 +1,198 @@
+"""The meshcat viewer: replay contents (no browser), and what headless Chromium draws of the replay and live view."""
+
+from __future__ import annotations
+
+import base64
+import re
+import time
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pinocchio as pin
+import pytest
+import umsgpack
+
+from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.robot import Robot
+
+STEPS = 3000  # 3 s of lwr_relaxed (dt = 1 ms)
+
+
+# ------------------------------------------------------------------------------------------ helpers
+def commands(html: str) -> list[dict]:
+    """The meshcat commands embedded in a replay page (base64 msgpack strings)."""
+    block = html[html.index("const hqpCommands = ["):]
+    block = block[: block.index("];")]
+    return [umsgpack.unpackb(base64.b64decode(s)) for s in re.findall(r'"([A-Za-z0-9+/=]+)"', block)]
+
+
+def animation(cmds: list[dict]) -> dict[str, dict]:
+    """``{node path: {track name: keys}}`` of the (single) set_animation command."""
+    anims = [c for c in cmds if c["type"] == "set_animation"]
+    assert len(anims) == 1
+    assert anims[0]["options"]["play"] is False
+    return {a["path"]: {t["name"]: t["keys"] for t in a["clip"]["tracks"]} for a in anims[0]["animations"]}
+
+
+def object_paths(cmds: list[dict]) -> set[str]:
+    return {c["path"] for c in cmds if c["type"] == "set_object"}
+
+
+def rgb(png: Path) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(png).convert("RGB")).astype(int)
+
+
+def orange_mask(img: np.ndarray) -> np.ndarray:
+    """Pixels in the LWR's shaded orange (URDF colour 1, 0.45, 0): red high, blue low, green in between."""
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    return (r > 120) & (r - b > 100) & (g > 0.2 * r) & (g < 0.75 * r)
+
+
+def coloured_mask(img: np.ndarray) -> np.ndarray:
+    """Saturated pixels: neither the white-grey background nor the grey floor grid."""
+    return (img.max(axis=-1) - img.min(axis=-1)) > 60
+
+
+# ------------------------------------------------------------------------------------------ fixtures
+@pytest.fixture(scope="module")
+def lwr_run(tmp_path_factory):
+    """A real 3 s run of lwr_relaxed with its replay; returns (out dir, robot, arrays, policy)."""
+    from hqp_tpm import build, scenario
+    from hqp_tpm.cli import run_scenario
+
+    out = tmp_path_factory.mktemp("lwr_relaxed")
+    run_scenario("lwr_relaxed", out, steps=STEPS, progress=False, figures=False, replay=True)
+    robot, _ctrl, _tasks, policy = build.build(scenario.load("lwr_relaxed"))
+    arrays = dict(np.load(out / "trajectory.npz"))
+    return out, robot, arrays, policy
+
+
+# ------------------------------------------------------------------------------------------ replay file
+def test_replay_is_self_contained_and_animates_the_robot(lwr_run):
+    out, robot, arrays, _ = lwr_run
+    page = out / "replay.html"
+    assert page.is_file()
+    assert 0.5e6 < page.stat().st_size < 15e6
+    html = page.read_text(encoding="utf-8")
+    assert "MeshCat.Viewer" in html  # meshcat's JavaScript is embedded
+    assert not re.search(r"<script[^>]*\bsrc\s*=", html, re.I), "no external scripts"
+    assert not re.search(r"""(?:src|href)\s*=\s*["']?(?:https?:)?//""", html, re.I), "no network resources"
+    assert not list(out.glob(".replay.html.*")), "temporary file left behind"
+
+    cmds = commands(html)
+    anim = animation(cmds)
+    objects = object_paths(cmds)
+    visuals = robot.visual_model.geometryObjects
+    for g in visuals:  # every visual geometry is drawn, every moving one is animated
+        path = f"/meshcat/world/robot/visuals/{g.name}"
+        assert path in objects
+        if g.parentJoint != 0:
+            assert {"position", "quaternion"} & {k.lstrip(".") for k in anim[path]}, g.name
+    moving_links = {robot.model.frames[g.parentFrame].name for g in visuals if g.parentJoint != 0}
+    animated = " ".join(anim)
+    assert moving_links and all(link in animated for link in moving_links)
+    for name in ("desired_path", "pointing_cone", "critical_point", "distance", "obstacles/o1", "obstacles/o2",
+                 "obstacles/o3", "control_points/0_lwr_cp_1", "control_points/7_lwr_cp_8", "ee_trace/0"):
+        assert f"/meshcat/world/{name}" in objects, name
+    # real-time keys: at most max_frames of them, spanning the run (fps = 30)
+    keys = anim[f"/meshcat/world/robot/visuals/{visuals[-1].name}"][".position"]
+    times = np.array([k["time"] for k in keys]) / 30.0
+    assert len(keys) <= 600
+    assert times[0] == 0.0 and times[-1] == pytest.approx(arrays["t"][-1] - arrays["t"][0])
+    # the critical point changes over the run (blue marker visible or hidden, moving)
+    assert ".visible" in anim["/meshcat/world/critical_point"] or ".position" in anim["/meshcat/world/critical_point"]
+
+
+def test_replay_subsamples_and_is_quick(lwr_run, tmp_path):
+    from hqp_tpm.viewer import write_replay
+
+    _, robot, arrays, policy = lwr_run
+    long = {k: (np.concatenate([v] * 6) if k in ("q", "active_point") else v) for k, v in arrays.items()}
+    long["t"] = np.arange(len(long["q"])) * 1e-3  # 18,000 steps, as long as the paper's 6 pi s run
+    t0 = time.perf_counter()
+    page = write_replay(tmp_path / "long.html", robot, long, policy, max_frames=200)
+    elapsed = time.perf_counter() - t0
+    assert elapsed < 10.0
+    anim = animation(commands(page.read_text(encoding="utf-8")))
+    n_keys = {len(tr) for tracks in anim.values() for tr in tracks.values()}
+    assert n_keys == {200}
+
+
+def test_replay_draws_any_obstacle_and_policy_markers(tmp_path):
+    from hqp_tpm.viewer import write_replay
+
+    robot = Robot.load("lwr4")
+    cube = np.array([[x, y, z] for x in (0, 0.1) for y in (0, 0.1) for z in (0, 0.1)]) + [0.3, 0.3, 0.3]
+    obstacles = [Obstacle.sphere("point", [0.3, 0.0, 0.2]),
+                 Obstacle.sphere("ball", [0.0, 0.4, 0.3], 0.05, velocity=[0.0, 0.0, 0.1]),
+                 Obstacle.box("box", [0.3, -0.3, 0.0], [0.05, 0.1, 0.02]),
+                 Obstacle.capsule("capsule", [-0.3, 0.2, 0.0], [-0.3, 0.2, 0.3], 0.03),
+                 Obstacle.mesh("convex", cube)]
+
+    def markers(t):
+        return [("com", [0.0, 0.0, 0.1 + t], (0.6, 0.0, 0.8, 1.0))] + ([("late", [0.1, 0.1, 0.1], (1, 1, 0, 1))]
+                                                                       if t > 0.5 else [])
+
+    policy = SimpleNamespace(obstacles=obstacles, viewer_markers=markers)
+    n = 50
+    q = np.tile(robot.neutral(), (n, 1))
+    q[:, 1] = np.linspace(0.0, 1.0, n)
+    page = write_replay(tmp_path / "r.html", robot, {"t": np.linspace(0.0, 1.0, n), "q": q}, policy)
+    cmds = commands(page.read_text(encoding="utf-8"))
+    objects = object_paths(cmds)
+    for o in obstacles:
+        assert f"/meshcat/world/obstacles/{o.name}" in objects
+    point = next(c for c in cmds if c["type"] == "set_object" and c["path"].endswith("obstacles/point"))
+    assert point["object"]["geometries"][0]["radius"] == pytest.approx(0.015)  # radius-0 point drawn 1.5 cm
+    anim = animation(cmds)
+    assert ".position" in anim["/meshcat/world/obstacles/ball"]  # moving obstacle
+    assert "/meshcat/world/obstacles/box" not in anim  # static: no track
+    assert ".position" in anim["/meshcat/world/markers/com"]
+    late = [k["value"] for k in anim["/meshcat/world/markers/late"][".visible"]]
+    assert late[0] is False and late[-1] is True
+    # a robot alone (no policy) is fine too
+    write_replay(tmp_path / "bare.html", robot, {"t": np.linspace(0.0, 1.0, n), "q": q}, None)
+    assert pin.neutral(robot.model).shape == q[0].shape
+
+
+# ------------------------------------------------------------------------------------------ browser
+def test_browser_replay_shows_the_robot_moving(lwr_run, tmp_path):
+    from browser import screenshot
+
+    out, *_ = lwr_run
+    shots = {t: rgb(screenshot(f"{out / 'replay.html'}#t={t}&ui=0", tmp_path / f"replay_t{t}.png"))
+             for t in (0.5, 2.5)}
+    masks = {}
+    for t, img in shots.items():
+        assert img.shape == (600, 800, 3)
+        assert img[5, 5].min() > 230, f"t={t}: background not drawn (corner pixel {img[5, 5]})"
+        orange, coloured = orange_mask(img), coloured_mask(img)
+        print(f"t={t}: orange {orange.mean():.3f}, coloured {coloured.mean():.3f} of the pixels")
+        assert orange.mean() > 0.02, f"t={t}: robot not drawn ({orange.sum()} orange pixels)"
+        assert coloured.mean() > 0.03 and orange.sum() > 0.5 * coloured.sum()
+        masks[t] = orange
+    moved = masks[0.5] ^ masks[2.5]
+    print(f"robot pixels that changed between t=0.5 and t=2.5: {moved.sum()}")
+    assert moved.sum() > 0.01 * moved.size, "the robot did not move between the two playback times"
+    diff = np.abs(shots[0.5] - shots[2.5]).sum(axis=-1)
+    assert (diff[masks[0.5] | masks[2.5]] > 60).mean() > 0.1
+
+
+def test_browser_live_viewer_shows_the_robot(lwr_run, tmp_path):
+    from browser import chromium, screenshot
+
+    from hqp_tpm.viewer import LiveViewer
+
+    chromium()  # skip (with the reason) before starting a server when there is no browser
+    _, robot, arrays, policy = lwr_run
+    with LiveViewer(robot, policy) as live:
+        assert live.url.startswith("http://127.0.0.1:")
+        live.show(arrays["q"][1000], float(arrays["t"][1000]), int(arrays["active_point"][1000]))
+        img = rgb(screenshot(live.url, tmp_path / "live.png"))
+    orange, coloured = orange_mask(img), coloured_mask(img)
+    print(f"live: orange {orange.mean():.3f}, coloured {coloured.mean():.3f} of the pixels")
+    assert img[5, 5].min() > 230
+    assert orange.mean() > 0.02, f"live viewer: robot not drawn ({orange.sum()} orange pixels)"
