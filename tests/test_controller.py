@@ -1,0 +1,94 @@
+"""The control loop: integration rule, null-space damping, and state kept on rejected input."""
+
+import numpy as np
+import pytest
+
+from hqp_tpm.controller import Controller
+from hqp_tpm.errors import HqpTpmError, NonFiniteError, ShapeError, UnknownNameError
+from hqp_tpm.robot import Robot
+from hqp_tpm.solvers import tpm
+from hqp_tpm.stack import Stack
+from hqp_tpm.tasks import FramePosition, Gains, Pointing
+from hqp_tpm.trajectories import Harmonic
+
+Q0 = np.array([0.923, -0.854, 0.903, 1.195, 0.971, 1.796, 0.0])
+
+
+@pytest.fixture(scope="module")
+def lwr():
+    return Robot.load("lwr4")
+
+
+def ellipse():
+    return Harmonic(center=[0, 0.6, 0], cos_amplitude=[0.2, 0, 0.2], sin_amplitude=[0, 0.1, 0], omega=1.0)
+
+
+def tracking(lwr, order=2, **kw):
+    ee = FramePosition(lwr, "lwr_ee", ellipse(), Gains(40, 20) if order == 2 else Gains(40, 0), name="ee")
+    pt = Pointing(lwr, "lwr_ee", [1, 0, 0], np.deg2rad(5), Gains(5, 2 if order == 2 else 0), inequality=False)
+    return Controller(lwr, [ee, pt], order=order, dt=1e-3, q0=Q0, lambda_max=0.05, eps=0.1, **kw), ee
+
+
+def test_acceleration_step_is_the_reference_integration(lwr):
+    ctrl, _ = tracking(lwr, nullspace_damping=5.0)
+    for _ in range(5):
+        ctrl.step()
+    q, v = ctrl.q.copy(), ctrl.v.copy()
+    res = ctrl.step()
+    a = res.command
+    np.testing.assert_allclose(ctrl.q, q + v * 1e-3 + 0.5 * a * 1e-6, atol=1e-15)
+    np.testing.assert_allclose(ctrl.v, v + a * 1e-3, atol=1e-15)
+    # the command is TPM (14) with qdd_0 = -5 qd
+    np.testing.assert_allclose(a, tpm(res.levels, lambda_max=0.05, eps=0.1, x0=-5.0 * v), atol=1e-12)
+
+
+def test_tracking_converges_on_the_ellipse(lwr):
+    for order in (1, 2):
+        ctrl, ee = tracking(lwr, order=order, nullspace_damping=5.0)
+        for _ in range(3000):
+            res = ctrl.step()
+        err = ee.error(ctrl.state.update(ctrl.q, ctrl.v, ctrl.t), ee.reference(ctrl.t)[0])
+        assert np.linalg.norm(err) < 1e-3, (order, err)
+        assert res.stack.label() == "ee > lwr_ee_pointing"
+
+
+def test_rejected_inputs_keep_the_previous_state(lwr):
+    ctrl, ee = tracking(lwr)
+    for _ in range(3):
+        ctrl.step()
+    before = (ctrl.q.copy(), ctrl.v.copy(), ctrl.t, ctrl.steps)
+
+    def same():
+        np.testing.assert_array_equal(ctrl.q, before[0])
+        np.testing.assert_array_equal(ctrl.v, before[1])
+        assert (ctrl.t, ctrl.steps) == before[2:]
+
+    with pytest.raises(NonFiniteError):
+        ctrl.set_state(np.full(7, np.nan))
+    same()
+    with pytest.raises(ShapeError):
+        ctrl.set_state(np.zeros(6))
+    same()
+    bad = Stack.of(ee)
+    bad.extras["ee"] = np.array([np.inf, 0.0, 0.0])  # e.g. a broken repulsion vector
+    ctrl.policy = lambda st, t: bad
+    with pytest.raises(NonFiniteError, match="extra command"):
+        ctrl.step()
+    same()
+    ctrl.policy = lambda st, t: Stack.of(ee)
+    ctrl.solver = "qp:no_such_backend"
+    with pytest.raises(HqpTpmError, match="no_such_backend"):
+        ctrl.step()
+    same()
+
+
+def test_bad_controller_settings(lwr):
+    ee = FramePosition(lwr, "lwr_ee", [0, 0.5, 0])
+    with pytest.raises(UnknownNameError, match="unknown solver 'tpmm'.*'tpm'"):
+        Controller(lwr, [ee], solver="tpmm")
+    with pytest.raises(ValueError, match="order"):
+        Controller(lwr, [ee], order=3)
+    with pytest.raises(ValueError, match="dt"):
+        Controller(lwr, [ee], dt=0.0)
+    with pytest.raises(ShapeError, match="nq = 7"):
+        Controller(lwr, [ee], q0=np.zeros(3))
