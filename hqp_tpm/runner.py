@@ -9,6 +9,7 @@ import numpy as np
 
 from hqp_tpm.controller import Controller
 from hqp_tpm.solve import solve
+from hqp_tpm.solvers.levels import Level
 
 
 @dataclass
@@ -74,7 +75,11 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         if crosscheck:
             x0 = -ctrl.nullspace_damping * v if (ctrl.order == 2 and ctrl.nullspace_damping) else None
             box = ctrl.box(ctrl.state, t) if ctrl.box is not None else None
-            other, _ = solve(crosscheck, res.levels, ctrl.robot.nv, x0=x0, box=box,
+            # the same stack: inequality rows as the analytic solver used them (active ones, as equalities)
+            same = [Level(J, b, name=lv.name) for lv, (J, b) in zip(res.levels, (lv.as_equality() for lv in
+                                                                             res.levels), strict=True)
+                    if J.shape[0]]
+            other, _ = solve(crosscheck, same, ctrl.robot.nv, x0=x0, box=box,
                              lambda_max=ctrl.lambda_max, eps=ctrl.eps)
             row["crosscheck_diff"] = float(np.max(np.abs(other - res.command)))
         for probe in probes:

@@ -44,9 +44,10 @@ def solve(name: str, levels, n: int, *, x0=None, box=None, lambda_max: float = 0
         fn = sns_tpm if name == "sns_tpm" else sns
         x, info = fn(levels, lo, up, lambda_max=lambda_max, eps=eps, return_info=True, n=n)
         return x, info if isinstance(info, dict) else vars(info)
-    from hqp_tpm.solvers import cascaded_qp
+    from hqp_tpm.solvers.cascaded_qp import cascaded_qp
 
     backend = "proxqp" if name == "qp" else name.split(":", 1)[1]
     lo, up = box if box is not None else (None, None)
-    x, info = cascaded_qp(levels, solver=backend, x0=x0, lower=lo, upper=up, n=n, return_info=True)
+    x, info = cascaded_qp(levels, solver=backend, x0=x0, lower=lo, upper=up, n=n, return_info=True,
+                          lambda_max=lambda_max, eps=eps)
     return x, info if isinstance(info, dict) else vars(info)

@@ -2,15 +2,23 @@
 
 Level ``k`` minimizes its error (``||J_k x - b_k||^2``, or the squared violation of
 ``lower_k <= J_k x <= upper_k`` through slack variables) while every higher level keeps the
-optimum it reached; an optional hard box ``lower <= x <= upper`` (the joint limits) is kept
-in every QP. A last level picks the point nearest to ``x0`` (0 if not given), so on feasible
-equality stacks the answer is :func:`hqp_tpm.solvers.tpm` ``(levels, x0=x0)``.
+optimum it reached: ``J_j x`` at the value reached (equality level), the bounds relaxed by the
+violation left (inequality level). An optional hard box ``lower <= x <= upper`` (the joint
+limits) is kept in every QP. A last level picks the point nearest to ``x0`` (0 if not given),
+so on feasible equality stacks the answer is :func:`hqp_tpm.solvers.tpm` ``(levels, x0=x0)``.
 
-Kept equalities are never handed to a backend: the cascade parametrizes
-``x = x_p + N z`` with ``N`` an orthonormal basis of their common null space (SVD with the
-rank tolerance of the TPM code), so dependent or conflicting levels cannot make a QP
-degenerate, and every QP has only inequality constraints. The current point ``x_p`` is
-always feasible (kept bounds are relaxed to it), so ``z = 0`` is a feasible start.
+Numerical care, because the stacked "keep the optimum" constraints are often dependent:
+
+* kept equalities are never handed to a backend: ``x = x_p + N z`` with ``N`` an orthonormal
+  basis of their common null space (SVD, TPM rank tolerance), so each QP is in ``z`` only;
+* a level's variables are split along the SVD of ``J N``: the objective is ``||u - target||^2``
+  (or ``||w||^2``) and the directions ``t`` it cannot see get a Hessian weight only for the
+  backends that need a positive-definite one (:data:`FREE_WEIGHT`);
+* the current point is always feasible (kept bounds are relaxed to it), so ``z = 0`` is a
+  feasible start; bounds that meet (``lower == upper``) and kept bounds with a positive
+  multiplier (active at every optimum of their level) become equalities;
+* a backend that returns no solution is retried with :data:`RETRY_OPTIONS`; ProxQP last through
+  ProxSuite itself (:data:`LAST_RESORT`), whose infeasibility tolerance qpsolvers cannot set.
 """
 
 from __future__ import annotations
@@ -22,9 +30,9 @@ import numpy as np
 import qpsolvers
 from scipy import sparse
 
-from hqp_tpm.errors import BoxError, SolverFailedError, SolverNotAvailableError, unknown_name
+from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError, SolverNotAvailableError, unknown_name
 from hqp_tpm.solvers.damping import RANK_TOL
-from hqp_tpm.solvers.levels import Level, as_levels
+from hqp_tpm.solvers.levels import as_levels
 
 #: pip package that provides each qpsolvers backend (name not listed: ``pip install qpsolvers[<name>]``).
 PIP_PACKAGE = {
@@ -35,18 +43,43 @@ PIP_PACKAGE = {
     "qtqp": "qtqp", "quadprog": "quadprog", "scs": "scs", "sip": "sip-qp-python",
 }
 
-#: Tight default settings per backend (any ``**solver_options`` of the call override them).
+
+def _osqp_polish_key() -> str:
+    """OSQP 1.0 renamed its ``polish`` setting ``polishing``."""
+    try:
+        import osqp
+    except ImportError:
+        return "polish"
+    return "polishing" if int(osqp.__version__.split(".")[0]) >= 1 else "polish"
+
+
+POLISH = _osqp_polish_key()
+
+#: First settings tried per backend, tight enough for 1e-8 agreement with TPM (``**solver_options``
+#: override them; other backends run with their own defaults). ProxQP stalls at 1e-12 on degenerate
+#: levels and needs a stronger proximal rho than its default on semidefinite ones; DAQP stalls at
+#: 1e-12 and needs ``eps_prox`` for a semidefinite Hessian; OSQP (first order) gets 1e-9 with polishing.
 DEFAULT_OPTIONS = {
-    "proxqp": {"eps_abs": 1e-12, "eps_rel": 0.0, "max_iter": 10_000},
-    "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, "polish": True, "max_iter": 100_000},
-    "daqp": {"primal_tol": 1e-12, "dual_tol": 1e-12},
-    "clarabel": {"tol_gap_abs": 1e-10, "tol_gap_rel": 1e-10, "tol_feas": 1e-10},
-    "piqp": {"eps_abs": 1e-10, "eps_rel": 1e-10},
+    "proxqp": {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 1e-3},
+    "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, POLISH: True, "max_iter": 100_000, "rho": 1e-3, "raise_error": False},
+    "daqp": {"primal_tol": 1e-10, "dual_tol": 1e-10, "eps_prox": -1},
 }
 
-#: Hessian weight of the directions a level's objective does not see (quadprog and daqp need a
-#: positive-definite Hessian); it is exact when no inequality couples them to the objective.
-FREE_WEIGHT = float(__import__("os").environ.get("FW", "1e-10"))
+#: Settings tried in turn when a backend returns no solution (ProxQP's infeasibility test is loose,
+#: 1e-4, and qpsolvers cannot tighten it: it now and then calls a feasible level infeasible).
+RETRY_OPTIONS = {
+    "proxqp": [{"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 0.1},
+               {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 1e-3, "compute_preconditioner": False},
+               {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000}],
+    "osqp": [{"eps_abs": 1e-9, "eps_rel": 1e-9, POLISH: True, "max_iter": 100_000, "rho": r, "raise_error": False}
+             for r in (0.1, 1e-6)],
+}
+
+#: Hessian weight of the directions a level's objective does not see but a kept bound touches, for
+#: the backends that need a positive-definite Hessian (Goldfarb-Idnani). It moves a level's optimum
+#: by about this much relative and creates multipliers of about this size, so it must stay far below
+#: :data:`PIN_TOL` (1e-10 already pins wrong bounds). ProxQP, DAQP and OSQP take the semidefinite one.
+FREE_WEIGHT = {"quadprog": 1e-12, "pyqpmad": 1e-12}
 
 #: A kept bound whose multiplier exceeds this (relative to the largest one) is active at every
 #: optimum of its level, and is kept as an equality by the levels below.
@@ -58,8 +91,8 @@ class CascadeInfo:
     """What :func:`cascaded_qp` reports with ``return_info=True``.
 
     ``residuals[k]``: ``||J_k x - b_k||`` of an equality level, the norm of the bound
-    violation of an inequality level. ``qp_count``: QPs actually solved (a level already
-    decided by the higher ones needs none).
+    violation of an inequality level. ``qp_count``: QPs handed to the backend, retries
+    included (a level already decided or met needs none).
     """
 
     residuals: np.ndarray
@@ -76,7 +109,7 @@ class _Cascade:
     G: np.ndarray
     h: np.ndarray
     solver: str
-    options: dict
+    attempts: list[dict]
     qp_count: int = field(default=0)
 
     def move(self, z: np.ndarray) -> None:
@@ -89,51 +122,132 @@ class _Cascade:
         if A.shape[0] and self.N.shape[1]:
             self.N = self.N @ null_space_basis(A @ self.N)
 
-    def keep_bounds(self, J: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> np.ndarray:
-        """Add ``lower <= J x <= upper`` (finite sides only), relaxed to the current point; return the rows."""
-        up, lo = np.isfinite(upper), np.isfinite(lower)
-        G = np.vstack([J[up], -J[lo]])
-        h = np.concatenate([upper[up], -lower[lo]])
-        self.G = np.vstack([self.G, G])
-        self.h = np.concatenate([self.h, np.maximum(h, G @ self.x)])
-        return G
+    def keep_bounds(self, J: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
+        """Keep ``lower <= J x <= upper``, relaxed to the current point (rows whose bounds meet: equalities)."""
+        Jx = J @ self.x
+        lower, upper = np.minimum(lower, Jx), np.maximum(upper, Jx)
+        eq, up, lo = bound_kinds(lower, upper)
+        self.restrict(J[eq])
+        self.G = np.vstack([self.G, J[up], -J[lo]])
+        self.h = np.concatenate([self.h, upper[up], -lower[lo]])
 
-    def qp(self, P, q, T, where: str, G_own=None, h_own=None) -> tuple[np.ndarray, np.ndarray]:
-        """Solve ``min 1/2 v'Pv + q'v`` s.t. ``G_own v <= h_own`` and the kept bounds at ``z = T v``; move there.
+    def kept_bounds_in(self, B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The kept bounds as ``G_y y <= h_y`` in ``z = B y`` (``B`` orthonormal): rows used, ``G_y``, ``h_y``.
 
-        Kept bounds whose multiplier is positive stay active at every optimum of this level, so
-        they are kept as equalities from now on. Returns ``v`` and the multipliers of ``G_own``.
+        Entries below the rank tolerance are rounding noise and set to zero (a backend could push a
+        free direction to 1e16 to exploit them); rows left all zero are met at ``y = 0`` and dropped.
         """
-        G_own = np.zeros((0, P.shape[0])) if G_own is None else G_own
-        h_own = np.zeros(0) if h_own is None else h_own
-        Gz = self.G @ self.N
-        rows = np.flatnonzero(np.linalg.norm(Gz, axis=1) > RANK_TOL)  # the others are constant: met at z = 0
-        G = np.vstack([G_own, Gz[rows] @ T])
-        h = np.concatenate([h_own, (self.h - self.G @ self.x)[rows]])
-        v, mult = self.solve(P, q, G, h, where)
-        self.move(T @ v)
-        mult_own, mult_kept = mult[: G_own.shape[0]], mult[G_own.shape[0]:]
-        self.restrict(self.G[rows[mult_kept > PIN_TOL * max(1.0, mult.max(initial=0.0))]])
-        return v, mult_own
+        Gy = self.G @ self.N @ B
+        Gy[np.abs(Gy) <= RANK_TOL * np.maximum(1.0, np.linalg.norm(self.G, axis=1))[:, None]] = 0.0
+        rows = np.flatnonzero(np.abs(Gy).max(axis=1, initial=0.0) > 0.0)
+        return rows, Gy[rows], (self.h - self.G @ self.x)[rows]
 
-    def solve(self, P, q, G, h, where: str) -> tuple[np.ndarray, np.ndarray]:
-        """One QP ``min 1/2 v'Pv + q'v  s.t.  G v <= h`` through qpsolvers: solution and multipliers."""
-        options = dict(self.options)
+    def qp(self, P, q, B, scale, where: str, C=None, lower=None, upper=None) -> np.ndarray:
+        """Solve ``min 1/2 v'Pv + q'v`` s.t. ``lower <= C v <= upper`` and the kept bounds; move to ``x + N z``.
+
+        ``z = B diag(scale) v[:r]``, ``B`` orthonormal (r x r); the other entries of ``v`` are the
+        level's slacks. Kept bounds with a positive multiplier are active at every optimum of
+        this level and become equalities. Returns the mask of the rows of ``C`` active at every optimum.
+        """
+        r, p = len(scale), P.shape[0]
+        if C is None:
+            C, lower, upper = np.zeros((0, p)), np.zeros(0), np.zeros(0)
+        eq, up, lo = bound_kinds(lower, upper)
+        rows, Gy, hy = self.kept_bounds_in(B)
+        G = np.vstack([C[up], -C[lo], np.hstack([Gy * scale, np.zeros((rows.size, p - r))])])
+        h = np.concatenate([upper[up], -lower[lo], hy])
+        v, mult = self.solve(P, q, G, h, C[eq], upper[eq], where)
+        self.move(B @ (scale * v[:r]))
+        n_up, n_lo = up.sum(), lo.sum()
+        self.restrict(self.G[rows[positive(mult[n_up + n_lo:], mult)]])
+        active = eq.copy()
+        active[up] |= positive(mult[:n_up], mult)
+        active[lo] |= positive(mult[n_up: n_up + n_lo], mult)
+        return active
+
+    def solve(self, P, q, G, h, A, b, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """``min 1/2 v'Pv + q'v  s.t.  G v <= h, A v = b`` for a diagonal ``P``: solution, multipliers of G.
+
+        A variable that neither ``q`` nor any constraint sees is decoupled: it stays 0 and is left out.
+        """
+        used = (q != 0.0) | G.any(axis=0) | A.any(axis=0)
+        v, mult = np.zeros(q.size), np.zeros(G.shape[0])
+        if used.any():
+            v[used], mult = self.backend(P[np.ix_(used, used)], q[used], G[:, used], h, A[:, used], b, where)
+        return v, mult
+
+    def backend(self, P, q, G, h, A, b, where: str) -> tuple[np.ndarray, np.ndarray]:
+        """One QP through qpsolvers: solution and multipliers of ``G``; on failure the retry settings."""
         m = G.shape[0]
-        if m == 0:
-            G, h = None, None
-            options.pop("polish", None)  # nothing to polish; OSQP would print that it skipped it
-        if self.solver not in qpsolvers.dense_solvers:
-            P, G = sparse.csc_matrix(P), None if G is None else sparse.csc_matrix(G)
-        self.qp_count += 1
-        try:
-            sol = qpsolvers.solve_problem(qpsolvers.Problem(P, q, G, h), self.solver, **options)
-        except Exception as exc:  # backends raise their own types on numerical trouble
-            raise SolverFailedError(f"{where}: backend {self.solver!r} failed: {exc}") from exc
-        if not sol.found or sol.x is None or not np.isfinite(sol.x).all():
-            raise SolverFailedError(f"{where}: backend {self.solver!r} returned no solution")
-        mult = np.zeros(m) if sol.z is None or m == 0 else np.asarray(sol.z, dtype=float).reshape(m)
-        return sol.x, mult
+        problem = _problem(self.solver, P, q, G, h, A, b)
+        error = None
+        for options in self.attempts:
+            if problem.G is None and problem.A is None:
+                options = {k: v for k, v in options.items() if k != POLISH}  # OSQP would print it skipped it
+            self.qp_count += 1
+            try:
+                sol = qpsolvers.solve_problem(problem, self.solver, **options)
+            except Exception as exc:  # backends raise their own types on numerical trouble
+                error = exc
+                continue
+            if sol.found and sol.x is not None and np.isfinite(sol.x).all():
+                mult = np.zeros(m) if sol.z is None or m == 0 else np.asarray(sol.z, dtype=float).reshape(m)
+                return sol.x, mult
+        if self.solver in LAST_RESORT:
+            self.qp_count += 1
+            found = LAST_RESORT[self.solver](problem, self.attempts[0])
+            if found is not None:
+                return found[0], np.zeros(m) if m == 0 else found[1]
+        raise SolverFailedError(f"{where}: backend {self.solver!r} returned no solution with any of its "
+                                f"{len(self.attempts)} settings{f' ({error})' if error else ''}; "
+                                f"try another backend") from error
+
+
+def _problem(solver: str, P, q, G, h, A, b) -> qpsolvers.Problem:
+    """A qpsolvers problem without empty blocks, sparse for the backends that only take sparse matrices."""
+    G, h = (G, h) if G.shape[0] else (None, None)
+    A, b = (A, b) if A.shape[0] else (None, None)
+    if solver not in qpsolvers.dense_solvers:
+        P, G, A = (None if M is None else sparse.csc_matrix(M) for M in (P, G, A))
+    return qpsolvers.Problem(P, q, G, h, A, b)
+
+
+def _proxqp_direct(problem: qpsolvers.Problem, options: dict) -> tuple[np.ndarray, np.ndarray] | None:
+    """ProxQP called through ProxSuite itself, for the tight infeasibility tests qpsolvers cannot set.
+
+    ProxQP's default ``eps_primal_inf`` (1e-4) now and then calls a feasible level infeasible; every
+    cascade QP is feasible (``z = 0`` is), so here the tests are as tight as the solution.
+    """
+    from proxsuite import proxqp
+
+    P, q, G, h, A, b = problem.P, problem.q, problem.G, problem.h, problem.A, problem.b
+    qp = proxqp.dense.QP(q.size, 0 if A is None else A.shape[0], 0 if G is None else G.shape[0])
+    for key in ("eps_abs", "eps_rel", "max_iter"):
+        if key in options:
+            setattr(qp.settings, key, options[key])
+    qp.settings.eps_primal_inf = qp.settings.eps_dual_inf = 1e-12
+    qp.init(P, q, A, b, G, None if G is None else np.full(G.shape[0], -np.inf), h, rho=options.get("rho", 1e-6))
+    qp.solve()
+    if qp.results.info.status != proxqp.QPSolverOutput.PROXQP_SOLVED:
+        return None
+    return qp.results.x, qp.results.z
+
+
+#: Called with the first settings when every qpsolvers attempt failed: ``(x, multipliers of G)`` or None.
+LAST_RESORT = {"proxqp": _proxqp_direct}
+
+
+def bound_kinds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Masks of the rows of ``lower <= y <= upper`` that are equalities, finite upper and finite lower bounds."""
+    size = np.maximum(1.0, np.abs(np.where(np.isfinite(upper), upper, 0.0)))
+    eq = upper - lower <= RANK_TOL * size
+    return eq, np.isfinite(upper) & ~eq, np.isfinite(lower) & ~eq
+
+
+def positive(mult: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
+    """Mask of the multipliers above :data:`PIN_TOL` relative to the largest of ``among`` (default: ``mult``)."""
+    among = mult if among is None else among
+    return mult > PIN_TOL * max(1.0, among.max(initial=0.0))
 
 
 def null_space_basis(A: np.ndarray) -> np.ndarray:
@@ -142,24 +256,52 @@ def null_space_basis(A: np.ndarray) -> np.ndarray:
     return Vt[int((s > RANK_TOL).sum()):].T
 
 
+@dataclass(frozen=True)
+class _Split:
+    """Truncated SVD ``A = U1 diag(s1) V1'`` of a level on the free space; ``B = [V1 V2]`` is orthonormal.
+
+    The level's variables are ``z = B diag(scale) (u, t)`` with ``scale = (1/s1, 1)``, so that
+    ``A z = U1 u`` and ``t`` spans the directions the level cannot see.
+    """
+
+    U1: np.ndarray
+    s1: np.ndarray
+    B: np.ndarray
+    s_all: np.ndarray
+
+    @property
+    def rank(self) -> int:
+        return self.s1.size
+
+    @property
+    def scale(self) -> np.ndarray:
+        return np.concatenate([1.0 / self.s1, np.ones(self.B.shape[1] - self.rank)])
+
+
+def split(A: np.ndarray) -> _Split:
+    """:class:`_Split` of ``A`` (m x r) with the TPM rank tolerance."""
+    U, s, Vt = np.linalg.svd(A, full_matrices=True)
+    rank = int((s > RANK_TOL).sum())
+    return _Split(U[:, :rank], s[:rank], Vt.T, s)
+
+
 def check_solver(solver: str) -> str:
     """Return ``solver`` if qpsolvers can use it, else raise :class:`SolverNotAvailableError`."""
-    installed = list(qpsolvers.available_solvers)
-    if isinstance(solver, str) and solver in installed:
+    installed = sorted(qpsolvers.available_solvers)
+    if solver in installed:
         return solver
     known = sorted(name[: -len("_solve_qp")] for name in dir(qpsolvers.solvers) if name.endswith("_solve_qp"))
-    if isinstance(solver, str) and solver in known:
-        return _raise_not_installed(solver, installed)
-    hints = ", ".join(f"'{k}' -> {PIP_PACKAGE[k]}" for k in ("proxqp", "osqp", "daqp", "quadprog", "clarabel"))
+    if solver in known:
+        raise SolverNotAvailableError(
+            f"QP backend {solver!r} is known to qpsolvers but not installed: "
+            f"`pip install {PIP_PACKAGE.get(solver, f'qpsolvers[{solver}]')}`; installed backends are: "
+            f"{', '.join(map(repr, installed))}")
+    hints = ", ".join(f"`pip install {PIP_PACKAGE[k]}` for {k!r}" for k in ("proxqp", "osqp", "daqp", "quadprog",
+                                                                             "clarabel", "highs", "piqp"))
     err = unknown_name("QP backend", solver, installed, SolverNotAvailableError)
-    raise SolverNotAvailableError(f"{err} (installed); qpsolvers also knows {', '.join(known)}, "
-                                  f"installed with pip (e.g. {hints})")
-
-
-def _raise_not_installed(solver: str, installed: list[str]):
-    package = PIP_PACKAGE.get(solver, f"qpsolvers[{solver}]")
-    raise SolverNotAvailableError(f"QP backend {solver!r} is not installed: `pip install {package}`; "
-                                  f"installed backends are: {', '.join(sorted(installed))}")
+    others = ", ".join(k for k in known if k not in installed)
+    raise SolverNotAvailableError(f"{err} (the installed ones); qpsolvers also knows {others}, "
+                                  f"each after installing its package, e.g. {hints}")
 
 
 def check_box(lower, upper, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -181,23 +323,36 @@ def check_box(lower, upper, n: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, up
 
 
-def _options(solver: str, solver_options: dict) -> dict:
-    return {**DEFAULT_OPTIONS.get(solver, {}), **solver_options}
+def _attempts(solver: str, solver_options: dict) -> list[dict]:
+    """Settings to try in turn: the defaults, then the retry settings, each overridden by the caller's."""
+    tries = [DEFAULT_OPTIONS.get(solver, {}), *RETRY_OPTIONS.get(solver, [])]
+    return [{**options, **solver_options} for options in tries]
 
 
-def _equality_level(c: _Cascade, J: np.ndarray, b: np.ndarray, k: int) -> None:
-    """Minimize ``||J x - b||^2``, then keep ``J x`` at the value reached."""
-    r = c.N.shape[1]
-    U, s, Vt = np.linalg.svd(J @ c.N, full_matrices=True)
-    rank = int((s > RANK_TOL).sum())
-    if rank == 0:  # the level is decided by the higher ones (or nothing is left free)
+def damping_lambda2(s: np.ndarray, lambda_max: float, eps: float) -> float:
+    """``lambda^2`` of the damping law (:mod:`hqp_tpm.solvers.damping`) for singular values ``s``."""
+    if lambda_max > 0.0 and s.size and s.min() < eps:
+        return (1.0 - (s.min() / eps) ** 2) * lambda_max**2
+    return 0.0
+
+
+def _equality_level(c: _Cascade, J: np.ndarray, b: np.ndarray, k: int, lambda_max: float = 0.0,
+                    eps: float = 0.0) -> None:
+    """Minimize ``||J x - b||^2`` (+ ``lambda^2 ||x - x_prev||^2`` when damped), then keep ``J x``.
+
+    The damping term is the one of the damped recursion (5): with ``lambda`` from the damping law on
+    the singular values of ``J N`` (``N``: what the higher levels leave free, i.e. ``J_k P_{k-1}``),
+    the minimizer is ``x_prev + (J_k P_{k-1})#_damped (b - J x_prev)``, exactly the recursion's step.
+    """
+    sp = split(J @ c.N)
+    if sp.rank == 0:  # the level is decided by the higher ones (or nothing is left free)
         return
-    # z = V1 diag(1/s1) u + V2 t: the objective is ||u - target||^2; t is weighted only for a PD Hessian
-    V1, V2, s1 = Vt[:rank].T, Vt[rank:].T, s[:rank]
-    target = U[:, :rank].T @ (b - J @ c.x)
-    P = np.diag(np.concatenate([np.ones(rank), np.full(r - rank, FREE_WEIGHT)]))
-    q = np.concatenate([-target, np.zeros(r - rank)])
-    c.qp(P, q, np.hstack([V1 / s1, V2]), f"level {k}")
+    lam2 = damping_lambda2(sp.s_all, lambda_max, eps)
+    # ||J (x + N z) - b||^2 + lam2 ||z||^2 = ||u - target||^2 + lam2 (||u / s1||^2 + ||t||^2) + const
+    target = sp.U1.T @ (b - J @ c.x)
+    free = c.N.shape[1] - sp.rank
+    P = np.diag(np.concatenate([1.0 + lam2 / sp.s1**2, np.full(free, max(lam2, FREE_WEIGHT.get(c.solver, 0.0)))]))
+    c.qp(P, np.concatenate([-target, np.zeros(free)]), sp.B, sp.scale, f"level {k}")
     c.restrict(J)
 
 
@@ -206,26 +361,24 @@ def _inequality_level(c: _Cascade, J: np.ndarray, lower: np.ndarray, upper: np.n
     rows = np.isfinite(lower) | np.isfinite(upper)
     J, lower, upper = J[rows], lower[rows], upper[rows]
     Jx = J @ c.x
-    r, m = c.N.shape[1], J.shape[0]
-    if r == 0 or not ((Jx < lower) | (Jx > upper)).any():  # met already: nothing to minimize
+    if c.N.shape[1] == 0 or not ((Jx < lower) | (Jx > upper)).any():  # met already: nothing to minimize
         c.keep_bounds(J, lower, upper)
         return
-    # variables v = (z, w): lower <= J (x + N z) - w <= upper, minimize ||w||^2
-    A, I = J @ c.N, np.eye(m)
-    up, lo = np.isfinite(upper), np.isfinite(lower)
-    G = np.vstack([np.hstack([A[up], -I[up]]), np.hstack([-A[lo], I[lo]])])
-    h = np.concatenate([(upper - Jx)[up], (Jx - lower)[lo]])
-    P = np.diag(np.concatenate([np.full(r, FREE_WEIGHT), np.ones(m)]))
-    _, mult = c.qp(P, np.zeros(r + m), np.eye(r, r + m), f"level {k}", G, h)
-    kept = c.keep_bounds(J, lower, upper)
-    c.restrict(kept[mult > PIN_TOL * max(1.0, mult.max(initial=0.0))])
+    # variables (u, t, w): lower <= J (x + N z) - w = Jx + U1 u - w <= upper, minimize ||w||^2
+    sp = split(J @ c.N)
+    r, m = c.N.shape[1], J.shape[0]
+    C = np.hstack([sp.U1, np.zeros((m, r - sp.rank)), -np.eye(m)])
+    P = np.diag(np.concatenate([np.full(r, FREE_WEIGHT.get(c.solver, 0.0)), np.ones(m)]))
+    active = c.qp(P, np.zeros(r + m), sp.B, sp.scale, f"level {k}", C, lower - Jx, upper - Jx)
+    c.keep_bounds(J, lower, upper)
+    c.restrict(J[active])
 
 
 def _nearest_point(c: _Cascade, x0: np.ndarray, k: int) -> None:
     """Last level: minimize ``||x - x0||^2`` with every level kept."""
     r = c.N.shape[1]
     if r:
-        c.qp(np.eye(r), c.N.T @ (c.x - x0), np.eye(r), f"level {k} (minimum norm)")
+        c.qp(np.eye(r), c.N.T @ (c.x - x0), np.eye(r), np.ones(r), f"level {k} (minimum norm)")
 
 
 def residuals(levels: Iterable, x: np.ndarray) -> np.ndarray:
@@ -240,35 +393,36 @@ def residuals(levels: Iterable, x: np.ndarray) -> np.ndarray:
 
 def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | None = None,
                 lower=None, upper=None, n: int | None = None, return_info: bool = False,
-                **solver_options):
+                lambda_max: float = 0.0, eps: float = 0.0, **solver_options):
     """Solve a prioritized stack lexicographically, one QP per level (see module doc).
 
     ``levels``: highest priority first, ``(J, b)`` pairs or :class:`Level` (inequality
     bounds are true inequalities here, ``active`` is ignored). ``solver``: any backend in
     ``qpsolvers.available_solvers``. ``lower``/``upper``: hard box on ``x``, kept in every
     QP. ``x0``: the last level minimizes ``||x - x0||^2``. ``n`` is needed only for an
-    empty stack. ``solver_options`` override :data:`DEFAULT_OPTIONS`.
+    empty stack. ``lambda_max``/``eps``: the damping law of the analytic solvers applied to
+    each equality level's free part (see :func:`_equality_level`); with it the cascade equals
+    the damped recursive null-space solution. ``solver_options`` override :data:`DEFAULT_OPTIONS`.
     Returns ``x``, or ``(x, CascadeInfo)`` with ``return_info=True``.
     """
     solver = check_solver(solver)
     lv = as_levels(levels, n)
     n = lv[0].n if lv else n
     box_lo, box_up = check_box(lower, upper, n)
-    x0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float).reshape(n)
+    x0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
+    if x0.shape != (n,):
+        raise ShapeError(f"x0 has shape {x0.shape}, expected ({n},)")
     c = _Cascade(np.clip(np.zeros(n), box_lo, box_up), np.eye(n), np.zeros((0, n)), np.zeros(0),
-                 solver, _options(solver, solver_options))
+                 solver, _attempts(solver, solver_options))
     c.keep_bounds(np.eye(n), box_lo, box_up)
     for k, level in enumerate(lv):
-        _solve_level(c, level, k)
+        if level.is_equality:
+            _equality_level(c, level.J, level.b, k, lambda_max, eps)
+        else:
+            _inequality_level(c, level.J, level.lower, level.upper, k)
     _nearest_point(c, x0, len(lv))
     x = np.clip(c.x, box_lo, box_up)
     if not return_info:
         return x
     return x, CascadeInfo(residuals(lv, x), solver, c.qp_count)
 
-
-def _solve_level(c: _Cascade, level: Level, k: int) -> None:
-    if level.is_equality:
-        _equality_level(c, level.J, level.b, k)
-    else:
-        _inequality_level(c, level.J, level.lower, level.upper, k)

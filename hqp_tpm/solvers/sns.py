@@ -1,0 +1,397 @@
+"""Saturation in the Null Space (SNS) under hard joint boxes ``lower <= x <= upper``.
+
+* :func:`sns_tpm` / :func:`sns_tpm_reference`: SNS-TPM, Algorithm 1 of papers/002 with the core
+  step eq. (4), ``x = x_N + (J W)# F (b - J x_N)``. ``F`` is the TPM matrix of the whole stack
+  (computed once, :func:`hqp_tpm.solvers.tpm.tpm_factors`), ``W = diag(0/1)`` marks the saturated
+  joints and one scale factor ``s`` applies to *all* tasks. Without an active bound the result
+  is exactly :func:`hqp_tpm.solvers.tpm.tpm`. The reference path follows the algorithm line by
+  line with ``n x n`` matrices; the fast path works on the columns of the free joints and reuses
+  one SVD per saturation. ``tests/test_sns.py`` proves them equal.
+* :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
+  first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
+  least amount); a lower level moves only in the null space of the higher ones, so their
+  saturations and task values are kept. Without an active bound it equals
+  :func:`hqp_tpm.solvers.nullspace.nullspace`.
+
+``getTaskScalingFactor`` (T-RO 2015) is :func:`task_scaling_factor`: with ``x(s) = s a + b``,
+each free joint allows ``s`` in ``[smin_j, smax_j]``; the factor is the largest ``s`` in ``[0, 1]``
+allowed by all free joints and the most critical joint is the argmin of ``smax_j``.
+
+The functions are array-level: at acceleration level pass the stack ``b_i = xdd_i - Jdot_i qd``
+(TPM eq. (12) of papers/000) and a box on ``qdd`` (:func:`hqp_tpm.joint_boxes.acceleration_box`);
+``s`` then scales the whole right-hand side ``b`` (the T-RO paper scales only ``xdd``; to do so,
+keep ``-Jdot qd`` out of ``b`` and add its contribution yourself). Inequality :class:`Level`\\ s
+enter through their active rows, exactly as in :func:`tpm` (:mod:`hqp_tpm.solvers.levels`).
+
+Guarantee: if the zero command is inside the box (always true for the velocity box of a state
+inside its limits) the result is inside the box. Otherwise (e.g. acceleration boxes that force
+braking, recovery boxes) the algorithm may find no scale factor in ``[0, 1]`` that keeps the box;
+the result is then the paper's fallback ``s = 0, W = I, x_N = 0`` clipped into the box and
+``info.feasible`` is False.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+import scipy.linalg as sla
+
+from hqp_tpm.errors import BoxError, ShapeError
+from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
+from hqp_tpm.solvers.levels import as_levels, equality_stack
+from hqp_tpm.solvers.tpm import tpm_factors
+
+#: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (1 + |bound|)``;
+#: the scale factor uses the box widened by the same amount, and the returned command is clipped
+#: into the exact box (a change of at most this size, the round-off of the null-space products).
+VIOLATION_TOL = 1e-10
+
+
+@dataclass(frozen=True)
+class SNSInfo:
+    """What one SNS solve did.
+
+    ``scale``: the task scale factor ``s`` applied (1 when no scaling was needed, 0 when the task
+    could not be executed at all); ``saturated``: the joints with ``W_jj = 0`` in the returned
+    command, in the order they were saturated; ``iterations``: passes through the core step;
+    ``feasible``: False only if no scale factor in ``[0, 1]`` kept the box and the command had to be
+    clipped into it (see module doc).
+    """
+
+    scale: float
+    saturated: tuple[int, ...]
+    iterations: int
+    feasible: bool = True
+
+
+@dataclass(frozen=True)
+class SNSStackInfo:
+    """Per-level :class:`SNSInfo` of :func:`sns`, and whether the final command had to be clipped."""
+
+    levels: tuple[SNSInfo, ...]
+    clipped: bool = False
+
+
+# ----------------------------------------------------------------------------------------
+# Shared pieces.
+# ----------------------------------------------------------------------------------------
+def _box(lower, upper, n: int | None) -> tuple[np.ndarray, np.ndarray]:
+    lo = np.asarray(lower, dtype=float)
+    up = np.asarray(upper, dtype=float)
+    if lo.ndim != 1 or (n is not None and lo.shape[0] != n) or up.shape != lo.shape:
+        expected = f"({n},) each" if n is not None else "the same 1-D shape"
+        raise ShapeError(f"box has lower shape {np.shape(lower)} and upper shape {np.shape(upper)}, "
+                         f"expected {expected}")
+    for name, arr in (("lower", lo), ("upper", up)):
+        if np.isnan(arr).any():
+            i = int(np.flatnonzero(np.isnan(arr))[0])
+            raise BoxError(f"box {name}[{i}] is NaN (joint {i})")
+    if (lo > up).any():
+        i = int(np.flatnonzero(lo > up)[0])
+        raise BoxError(f"box of joint {i} is empty: lower[{i}] = {lo[i]} > upper[{i}] = {up[i]}")
+    return lo, up
+
+
+def _levels(levels, n):
+    """Validated levels whose column count must be the box's ``n``."""
+    levels = tuple(levels)
+    lv = as_levels(levels) if levels else ()
+    if lv and lv[0].n != n:
+        raise ShapeError(f"the stack has {lv[0].n} columns but the box has {n} joints")
+    return lv
+
+
+def _stacked(levels, n):
+    """Validated levels and the stacked active rows ``(J, b)`` of the whole stack."""
+    lv = _levels(levels, n)
+    pairs = equality_stack(lv)
+    if not pairs:
+        return lv, np.zeros((0, n)), np.zeros(0)
+    return lv, np.vstack([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
+
+
+class _Box:
+    """The exact box and the box widened by round-off (``VIOLATION_TOL``), computed once per solve."""
+
+    __slots__ = ("lo", "up", "wlo", "wup")
+
+    def __init__(self, lo, up):
+        self.lo, self.up = lo, up
+        with np.errstate(invalid="ignore"):
+            self.wlo = lo - VIOLATION_TOL * (1.0 + np.abs(lo))
+            self.wup = up + VIOLATION_TOL * (1.0 + np.abs(up))
+
+    def violated(self, x, k: float = 1.0) -> np.ndarray:
+        """Joints beyond the box by more than ``k`` times the round-off tolerance."""
+        if k == 1.0:
+            return (x < self.wlo) | (x > self.wup)
+        with np.errstate(invalid="ignore"):
+            return ((x < self.lo - k * (self.lo - self.wlo)) | (x > self.up + k * (self.wup - self.up)))
+
+
+def _scaling(a, b, box: _Box, free) -> tuple[float, np.ndarray]:
+    """Task scale factor (-1 if none in [0, 1]) and the per-joint ``smax`` (``+inf`` off ``free``).
+
+    Per free joint, ``s a_j + b_j`` is in the box for ``s`` in ``[smin_j, smax_j]`` (all ``s`` or none
+    if ``a_j = 0``). The factor is the largest ``s <= 1`` allowed by the exact box; whether some ``s``
+    in ``[0, 1]`` exists is decided on the box widened by round-off, so that a ``b`` that leaves the
+    box by round-off only does not make the task infeasible (the factor is then raised to the
+    smallest admissible value of the widened box).
+    """
+    n = a.shape[0]
+    smax = np.full(n, np.inf)
+    idx = np.flatnonzero(free & (a != 0.0))
+    flat = free & (a == 0.0)                     # s has no effect: fine iff b is in the box
+    if flat.any() and ((b[flat] < box.wlo[flat]) | (b[flat] > box.wup[flat])).any():
+        bad = flat & ((b < box.wlo) | (b > box.wup))
+        smax[bad] = -np.inf
+        return -1.0, smax
+    if idx.size == 0:
+        return 1.0, smax
+    ai, bi = a[idx], b[idx]
+    pos = ai > 0.0
+    smax[idx] = (np.where(pos, box.up[idx], box.lo[idx]) - bi) / ai
+    s_hi_w = float(((np.where(pos, box.wup[idx], box.wlo[idx]) - bi) / ai).min())
+    s_lo = float(((np.where(pos, box.wlo[idx], box.wup[idx]) - bi) / ai).max())
+    s_lo = max(s_lo, 0.0)
+    if s_lo > min(s_hi_w, 1.0):
+        return -1.0, smax
+    return max(min(float(smax[idx].min()), 1.0), s_lo), smax
+
+
+def task_scaling_factor(a, b, lower, upper, free=None) -> tuple[float, int]:
+    """``getTaskScalingFactor(a, b)`` of the SNS T-RO paper (used by papers/002 Algorithm 1).
+
+    Returns ``(s, j)``: ``s`` the largest value in ``[0, 1]`` such that ``s a + b`` stays inside
+    ``[lower, upper]`` on the ``free`` joints (all by default), or -1 if there is none; ``j`` the
+    most critical joint, the free joint whose bound limits ``s`` first (argmin of ``smax_j``), or
+    -1 if there is no free joint.
+    """
+    a = np.asarray(a, dtype=float)
+    b = np.asarray(b, dtype=float)
+    lo, up = _box(lower, upper, a.shape[0])
+    if b.shape != a.shape:
+        raise ShapeError(f"a has shape {a.shape} but b has shape {b.shape}")
+    free = np.ones(a.shape[0], dtype=bool) if free is None else np.asarray(free, dtype=bool)
+    s, smax = _scaling(a, b, _Box(lo, up), free)
+    return s, (int(np.argmin(smax)) if free.any() else -1)
+
+
+def _critical_joint(smax, free, violated) -> int:
+    """The most critical joint: argmin of ``smax`` over the free joints (the T-RO rule).
+
+    When a scale factor in [0, 1] exists this joint is beyond its bound at ``s = 1``. Otherwise
+    (possible only when ``b`` leaves the box) it may not be; then the argmin over the free joints
+    that *are* beyond a bound is taken, so that the saturated bound is always defined. -1 if no
+    free joint is beyond a bound.
+    """
+    cand = free & violated
+    if not cand.any():
+        return -1
+    j = int(np.argmin(smax))
+    if not cand[j]:
+        j = int(np.argmin(np.where(cand, smax, np.inf)))
+    return j
+
+
+def _rank(A) -> int:
+    if A.size == 0:
+        return 0
+    return int(np.sum(np.linalg.svd(A, compute_uv=False) > RANK_TOL))
+
+
+def _result(x, box: _Box, info, return_info):
+    """The command clipped into the exact box: a round-off change only, unless ``info.feasible`` is False."""
+    if info.feasible and box.violated(x, 2.0).any():  # cannot happen when a factor was found
+        info = replace(info, feasible=False)
+    x = np.clip(x, box.lo, box.up)
+    return (x, info) if return_info else x
+
+
+# ----------------------------------------------------------------------------------------
+# SNS-TPM, papers/002 Algorithm 1: reference path.
+# ----------------------------------------------------------------------------------------
+def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
+                      return_info: bool = False):
+    """SNS-TPM exactly as written in papers/002 Algorithm 1 (readable, slow): ``n x n`` ``W``."""
+    lo, up = _box(lower, upper, None)
+    box = _Box(lo, up)
+    n = lo.shape[0]
+    lv, J, xd = _stacked(levels, n)
+    m = J.shape[0]
+    F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
+    W, xN, s, s_star = np.eye(n), np.zeros(n), 1.0, 0.0          # W = I, qdot_N = 0, s = 1, s* = 0
+    W_star, xN_star, found = W.copy(), xN.copy(), False
+    order, order_star = [], []
+    iterations = 0
+    while True:                                                  # repeat
+        iterations += 1
+        JWp = pinv(J @ W)
+        x = xN + JWp @ F @ (xd - J @ xN)                         # eq. (4)
+        viol = box.violated(x)
+        if not viol.any():                                       # until no limit is exceeded
+            return _result(x, box, SNSInfo(s, tuple(order), iterations), return_info)
+        a = JWp @ F @ xd
+        b = x - a
+        free = np.diag(W) > 0.5
+        factor, smax = _scaling(a, b, box, free)                 # getTaskScalingFactor(a, b)
+        if factor > s_star or (factor >= 0.0 and not found):     # (a feasible 0 counts once: see module doc)
+            s_star, W_star, xN_star, order_star, found = factor, W.copy(), xN.copy(), list(order), True
+        j = _critical_joint(smax, free, viol)                    # the most critical joint
+        if j >= 0:
+            W[j, j] = 0.0
+            xN[j] = up[j] if x[j] > up[j] else lo[j]
+            order.append(j)
+        if j < 0 or _rank(J @ W) < m:                            # rank(JW) < m: output the best solution
+            s, W, xN, order = s_star, W_star, xN_star, order_star
+            x = xN + pinv(J @ W) @ F @ (s * xd - J @ xN)
+            return _result(x, box, SNSInfo(float(s), tuple(order), iterations, found), return_info)
+
+
+# ----------------------------------------------------------------------------------------
+# SNS-TPM: fast path.
+# ----------------------------------------------------------------------------------------
+def _free_pinv(J, free, n):
+    """``(J W)#`` from the SVD of the free columns, and whether ``rank(J W) = m``."""
+    m = J.shape[0]
+    G = np.zeros((n, m))
+    if m == 0:
+        return G, True
+    U, sv, Vt = sla.svd(J[:, free], full_matrices=False, check_finite=False)
+    G[free] = (Vt.T * inverted_singular_values(sv)) @ U.T
+    return G, sv.size == m and sv[-1] > RANK_TOL
+
+
+def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
+            return_info: bool = False):
+    """SNS-TPM (papers/002 Algorithm 1, eq. (4)): prioritized stack under the box ``lower <= x <= upper``.
+
+    ``levels`` as for :func:`tpm` (highest first; ``(J, b)`` pairs or :class:`Level`); ``lower``,
+    ``upper`` per joint (``+-inf`` allowed). ``lambda_max``, ``eps`` damp the TPM pivots of ``F``.
+    Returns ``x``, or ``(x, SNSInfo)`` with ``return_info``. Equal to :func:`tpm` when no bound is
+    exceeded; otherwise joints are saturated one by one and, when ``rank(J W) < m``, the best
+    scaled solution ``x = x_N + (J W)# F (s b - J x_N)`` is returned. Same numbers as
+    :func:`sns_tpm_reference`; the core step is evaluated as ``x = s a + b`` with
+    ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
+    """
+    lo, up = _box(lower, upper, None)
+    box = _Box(lo, up)
+    n = lo.shape[0]
+    lv, J, xd = _stacked(levels, n)
+    f = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n)
+    F = f.F
+    Fxd = F @ xd
+    G = f.Jpinv                                  # (J W)# with W = I: the TPM's J#
+    free = np.ones(n, dtype=bool)
+    xN = np.zeros(n)
+    b = np.zeros(n)
+    order: list[int] = []
+    best = None                                  # (s*, a, b, saturated) of the best scaled solution
+    iterations = 0
+    while True:
+        iterations += 1
+        a = G @ Fxd
+        if order:
+            b = xN - G @ (F @ (J[:, order] @ xN[order]))
+        x = a + b if order else a                # exactly tpm's J# F b while W = I
+        viol = box.violated(x)
+        if not viol.any():
+            return _result(x, box, SNSInfo(1.0, tuple(order), iterations), return_info)
+        factor, smax = _scaling(a, b, box, free)
+        if factor >= 0.0 and (best is None or factor > best[0]):
+            best = (factor, a, b, tuple(order))
+        j = _critical_joint(smax, free, viol)
+        if j >= 0:
+            free[j] = False
+            xN[j] = up[j] if x[j] > up[j] else lo[j]
+            order.append(j)
+            G, full_rank = _free_pinv(J, free, n)
+        if j < 0 or not full_rank:
+            if best is None:                     # paper's fallback s* = 0, W* = I, x_N* = 0: x = 0
+                return _result(np.zeros(n), box, SNSInfo(0.0, (), iterations, False), return_info)
+            s, a, b, sat = best
+            return _result(s * a + b, box, SNSInfo(float(s), sat, iterations), return_info)
+
+
+# ----------------------------------------------------------------------------------------
+# Multi-task SNS (Flacco, De Luca, Khatib, T-RO 2015).
+# ----------------------------------------------------------------------------------------
+def _sns_level(J, xd, x_prev, P, box: _Box, lambda_max, eps):
+    """One level of the multi-task SNS: returns ``(x_k, SNSInfo)``.
+
+    ``x_k = xt + (J_k Pbar_k)# (s xd_k - J_k xt)`` with ``xt = x_{k-1} + ((I - W_k) P_{k-1})# x_N``
+    and ``Pbar_k = (I - ((I - W_k) P_{k-1})#) P_{k-1}``; saturated joint ``j`` gets
+    ``x_N,j = bound_j - x_{k-1,j}``, so that ``x_k,j`` is the bound.
+    """
+    n, m = P.shape[0], J.shape[0]
+    free = np.ones(n, dtype=bool)
+    xN = np.zeros(n)
+    order: list[int] = []
+    xt, G = x_prev, pinv(J @ P, lambda_max, eps)
+    best = None
+    iterations = 0
+    while True:
+        iterations += 1
+        x = xt + G @ (xd - J @ xt)
+        viol = box.violated(x)
+        if not viol.any():
+            return x, SNSInfo(1.0, tuple(order), iterations)
+        a = G @ xd
+        b = x - a
+        factor, smax = _scaling(a, b, box, free)
+        if factor >= 0.0 and (best is None or factor > best[0]):
+            best = (factor, xt, G, tuple(order))
+        j = _critical_joint(smax, free, viol)
+        if j >= 0:
+            free[j] = False
+            xN[j] = (box.up[j] if x[j] > box.up[j] else box.lo[j]) - x_prev[j]
+            order.append(j)
+            A = np.where(free[:, None], 0.0, P)           # (I - W_k) P_{k-1}
+            Ap = pinv(A)
+            xt = x_prev + Ap @ xN
+            JPbar = J @ (P - Ap @ A)                      # Pbar_k = (I - A#) P_{k-1} = P_{k-1} - A# A
+        if j < 0 or _rank(JPbar) < m:
+            if best is None:                              # the task is not executed
+                return x_prev, SNSInfo(0.0, (), iterations, False)
+            s, xt, G, sat = best
+            return xt + G @ (s * xd - J @ xt), SNSInfo(float(s), sat, iterations)
+        G = pinv(JPbar, lambda_max, eps)
+
+
+def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
+        return_info: bool = False):
+    """Multi-task SNS (T-RO 2015): each level in turn, higher first, with its own scale factor.
+
+    Returns ``(x, scales)`` -- ``scales[i]`` is the factor of ``levels[i]`` (1 for a level with no
+    active row) -- or ``(x, scales, SNSStackInfo)`` with ``return_info``. Level ``k`` works in the
+    null space ``P_{k-1}`` of the levels above (``P_k = P_{k-1} - (J_k P_{k-1})# J_k P_{k-1}``),
+    so their task values and saturations are kept; it saturates its own critical joints in that
+    null space and, when ``rank(J_k Pbar_k) < m_k``, takes the largest scale that keeps the box. A
+    level for which no scale in ``[0, 1]`` keeps the box is not executed (scale 0). ``lambda_max``,
+    ``eps`` damp the task pseudo-inverses as in :func:`nullspace`; without an active bound the
+    result is :func:`nullspace`'s.
+    """
+    lo, up = _box(lower, upper, None)
+    box = _Box(lo, up)
+    n = lo.shape[0]
+    lv = _levels(levels, n)
+    x = np.zeros(n)
+    P = np.eye(n)
+    scales, infos = [], []
+    for level in lv:
+        J, xd = level.as_equality()
+        if J.shape[0] == 0:
+            scales.append(1.0)
+            infos.append(SNSInfo(1.0, (), 0))
+            continue
+        x, info = _sns_level(J, xd, x, P, box, lambda_max, eps)
+        scales.append(info.scale)
+        infos.append(info)
+        JP = J @ P
+        P = P - pinv(JP) @ JP
+    clipped = bool(box.violated(x, 2.0).any())     # beyond round-off: only if 0 is outside the box
+    x = np.clip(x, lo, up)
+    scales = np.array(scales)
+    return (x, scales, SNSStackInfo(tuple(infos), clipped)) if return_info else (x, scales)
