@@ -38,12 +38,17 @@ def solve(name: str, levels, n: int, *, x0=None, box=None, lambda_max: float = 0
 
         return nullspace(levels, lambda_max=lambda_max, eps=eps, x0=x0, n=n), {}
     if name in BOXED:
-        from hqp_tpm.solvers import sns, sns_tpm
+        from hqp_tpm.solvers.sns import sns, sns_tpm
 
         lo, up = box if box is not None else (np.full(n, -np.inf), np.full(n, np.inf))
-        fn = sns_tpm if name == "sns_tpm" else sns
-        x, info = fn(levels, lo, up, lambda_max=lambda_max, eps=eps, return_info=True, n=n)
-        return x, info if isinstance(info, dict) else vars(info)
+        if x0 is not None:  # the joint-space term must respect the box too: one more (lowest) level
+            levels = [*levels, (np.eye(n), np.asarray(x0, dtype=float))]
+        if name == "sns_tpm":
+            x, info = sns_tpm(levels, lo, up, lambda_max=lambda_max, eps=eps, return_info=True)
+            return x, {"scale": info.scale, "saturated": list(info.saturated), "iterations": info.iterations}
+        x, scales, info = sns(levels, lo, up, lambda_max=lambda_max, eps=eps, return_info=True)
+        saturated = sorted({j for lv in info.levels for j in lv.saturated})
+        return x, {"scale": float(min(scales, default=1.0)), "scales": list(scales), "saturated": saturated}
     from hqp_tpm.solvers.cascaded_qp import cascaded_qp
 
     backend = "proxqp" if name == "qp" else name.split(":", 1)[1]
