@@ -38,8 +38,12 @@ def standard_aliases(arrays: dict, tasks: dict[str, Task]) -> None:
             break
 
 
+#: Task errors are also summarized from this time on, after the start-up transient (s).
+SETTLE_S = 2.0
+
+
 def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
-    """Summary numbers of a run (all plain floats, JSON-ready)."""
+    """Summary numbers of a run (all plain floats, JSON-ready); ``*_settled`` ones from ``t >= SETTLE_S``."""
     out: dict = {"steps": int(arrays["t"].size), **{k: float(v) for k, v in timing.items()}}
     dq = arrays["dq"]
     if dq.shape[0] > 1:
@@ -54,12 +58,18 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
         norm = np.abs(e) if e.ndim == 1 else np.linalg.norm(e, axis=1)
         out[f"error_{name}_max"] = float(norm.max())
         out[f"error_{name}_rms"] = float(np.sqrt(np.mean(norm**2)))
+    settled = arrays["t"] >= SETTLE_S
     if "ee_error" in arrays:
         n = np.linalg.norm(arrays["ee_error"], axis=1)
         out["ee_error_max"], out["ee_error_rms"] = float(n.max()), float(np.sqrt(np.mean(n**2)))
+        if settled.any():
+            out["ee_error_max_settled"] = float(n[settled].max())
+            out["ee_error_rms_settled"] = float(np.sqrt(np.mean(n[settled] ** 2)))
     if "pointing_error" in arrays:
         out["pointing_violation_max"] = float(max(0.0, arrays["pointing_error"].max()))
-        out["pointing_violation_max_deg"] = _violation_deg(arrays, tasks)
+        out["pointing_violation_max_deg"] = _violation_deg(arrays, tasks, np.ones_like(settled))
+        if settled.any():
+            out["pointing_violation_max_deg_settled"] = _violation_deg(arrays, tasks, settled)
     for key in ("d_minimal", "d_ee", "d_obstacle", "d_self"):
         if key in arrays and np.isfinite(arrays[key]).any():
             out[f"{key}_min"] = float(np.nanmin(arrays[key]))
@@ -74,10 +84,11 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
     return out
 
 
-def _violation_deg(arrays, tasks) -> float:
+def _violation_deg(arrays, tasks, mask) -> float:
+    """Largest angle (deg) by which the pointing axis was outside its cone, over the steps in ``mask``."""
     for task in tasks.values():
         if isinstance(task, Pointing):
-            p = np.clip(np.cos(task.alpha_d) - arrays["pointing_error"], -1.0, 1.0)
+            p = np.clip(np.cos(task.alpha_d) - arrays["pointing_error"][mask], -1.0, 1.0)
             return float(max(0.0, np.rad2deg(np.arccos(p).max() - task.alpha_d)))
     return 0.0
 
