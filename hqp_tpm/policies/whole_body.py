@@ -1,0 +1,307 @@
+"""Whole-body collision avoidance on Romeo (issue 7): obstacles and self-collisions as priority levels.
+
+Stack of every step (highest first)::
+
+    sole hold > [avoid_obstacle] > [avoid_self] > CoM x-y > left foot > left hand > right hand
+
+``avoid_obstacle`` is present while some robot-obstacle pair is closer than ``d_obstacle_activation``,
+``avoid_self`` while the closest checked self pair is closer than ``d_self_activation``.
+
+Collision model for control (:func:`control_geometries`): the romeo21 collision meshes of the arms
+(upper arm, forearm, wrist roll, hand), the torso, the pelvis and the legs (thigh, shin, ankle), each
+replaced once by its convex hull (cached per process and robot name). The head, the neck and the
+tiny finger/thumb meshes are left out: the fingertips stick out of the hand hull by at most 1.3 cm
+and the thumb by at most 2.2 cm, less than the safety distance ``d_obstacle_safe``.
+Self pairs (:func:`self_pairs`): every arm part against the torso, pelvis and legs, and the forearm
+and hand of one arm against the other arm, minus adjacent links (same joint, or joints connected
+only through links without collision geometry) and minus the pairs ``romeo.srdf`` disables.
+
+Avoidance rows (velocity level). For a pair at distance ``d`` with unit normal ``n`` (pointing away
+from the obstacle / from the second body) and witness-point Jacobian ``J_c`` (self pairs:
+``J_c = J_p1 - J_p2``), the distance rate is ``d_dot = n^T J_c qd``. The level asks
+
+    ``n^T J_c qd >= r(d) = xi (d_a - d) / (d_a - d_s)``   (``d_a``: activation, ``d_s``: safety distance)
+
+a *repulsive* velocity damper: zero at the activation distance, ``xi`` at the safety distance,
+larger below. It is a one-sided inequality :class:`~hqp_tpm.solvers.levels.Level`
+(``lower = r(d)``, ``upper = +inf``), the one formulation both solvers consume:
+
+* the analytic SNS-TPM keeps an inequality row while it is violated by ``qd = 0``, i.e. while
+  ``r(d) > 0`` -- always, since the level exists only for ``d < d_a`` -- and then tracks its bound as
+  an equality: ``d_dot = r(d)`` exactly;
+* the cascaded QP treats it as a true inequality: ``d_dot >= r(d)``.
+
+Whenever the level is present the pair therefore separates (``d_dot >= r(d) > 0``), which keeps the
+distance near ``d_a``; the runner's ``--crosscheck`` solves the active rows as equalities with the QP
+(the SNS-TPM's own stack). The classical damper ``d_dot >= -xi (d - d_s)/(d_a - d_s)`` was not used:
+its bound is negative (satisfied by ``qd = 0``), so the analytic solvers would never activate it.
+
+With ``obstacle_rows = "per_obstacle"`` (default) the ``avoid_obstacle`` level has one row per
+obstacle in range (its closest robot part): both hands may be near their obstacles at the same
+time, and a single row would leave the other pair uncontrolled. ``"closest"``: one row, the closest
+pair overall. The self level always has one row, the closest self pair.
+
+``probe`` records ``d_obstacle`` (closest robot-obstacle distance), ``d_self`` (closest checked self
+pair), ``n_avoid_obstacle`` and ``n_avoid_self`` (rows of the avoidance levels); the runner records
+the stack label.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+
+from hqp_tpm.build import register_policy
+from hqp_tpm.distances import DistanceField, _convexified, point_jacobian
+from hqp_tpm.errors import ScenarioError
+from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.solvers.levels import Level
+from hqp_tpm.stack import Stack
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Task
+
+#: Arm parts (upper arm, forearm, wrist, hand) per side, torso/pelvis and legs of romeo21's collision model.
+ARMS = {
+    "L": ("LShoulderYawLink_0", "LElbowYawLink_0", "LWristRollLink_0", "l_wrist_0"),
+    "R": ("RShoulderYawLink_0", "RElbowYawLink_0", "RWristRollLink_0", "r_wrist_0"),
+}
+TRUNK = ("body_0", "torso_0", "LHipPitchLink_0", "LKneePitchLink_0", "l_ankle_0",
+         "RHipPitchLink_0", "RKneePitchLink_0", "r_ankle_0")
+CONTROL_GEOMETRIES = (*ARMS["L"], *ARMS["R"], *TRUNK)
+
+
+def romeo_srdf() -> Path:
+    """``romeo.srdf`` of example-robot-data."""
+    import example_robot_data as erd
+
+    path = Path(erd.getModelPath("romeo_description/srdf/romeo.srdf")) / "romeo_description/srdf/romeo.srdf"
+    if not path.is_file():
+        raise FileNotFoundError(f"romeo.srdf not found at {path}")
+    return path
+
+
+def srdf_disabled_links(path: Path | None = None) -> set[frozenset[str]]:
+    """Link pairs ``<disable_collisions link1 link2>`` of an SRDF (default: romeo.srdf)."""
+    root = ET.parse(path or romeo_srdf()).getroot()
+    return {frozenset((e.get("link1"), e.get("link2"))) for e in root.iter("disable_collisions")}
+
+
+def _link(geometry_name: str) -> str:
+    return geometry_name.rsplit("_", 1)[0]
+
+
+def adjacent(model: pin.Model, geometry_model: pin.GeometryModel, a: str, b: str) -> bool:
+    """Same joint, or one joint the nearest geometry-carrying ancestor of the other (links in between bare)."""
+    carrying = {g.parentJoint for g in geometry_model.geometryObjects}
+    ja = geometry_model.geometryObjects[geometry_model.getGeometryId(a)].parentJoint
+    jb = geometry_model.geometryObjects[geometry_model.getGeometryId(b)].parentJoint
+
+    def up(j):
+        j = model.parents[j]
+        while j > 0 and j not in carrying:
+            j = model.parents[j]
+        return j
+
+    return ja == jb or up(ja) == jb or up(jb) == ja
+
+
+def self_pairs(model: pin.Model, geometry_model: pin.GeometryModel, srdf: Path | None = None) -> list[tuple[str, str]]:
+    """Arm parts against torso/pelvis/legs, forearm and hand against the other arm; no adjacent/SRDF pairs.
+
+    The SRDF is applied with pinocchio: ``addAllCollisionPairs`` then ``removeCollisionPairs``.
+    """
+    gm = geometry_model.copy()
+    gm.addAllCollisionPairs()
+    pin.removeCollisionPairs(model, gm, str(srdf or romeo_srdf()))
+    allowed = {frozenset((gm.geometryObjects[p.first].name, gm.geometryObjects[p.second].name))
+               for p in gm.collisionPairs}
+    candidates = [(a, b) for side in "LR" for a in ARMS[side] for b in TRUNK]
+    candidates += [(a, b) for a in ARMS["L"] for b in ARMS["R"]
+                   if a.startswith(("LElbow", "l_wrist")) or b.startswith(("RElbow", "r_wrist"))]
+    return [(a, b) for a, b in candidates
+            if frozenset((a, b)) in allowed and not adjacent(model, geometry_model, a, b)]
+
+
+_HULLS: dict[tuple[str, tuple[str, ...]], pin.GeometryModel] = {}
+
+
+def control_geometries(robot, names=CONTROL_GEOMETRIES) -> pin.GeometryModel:
+    """The selected collision geometries of ``robot``, BVH meshes as convex hulls (built once per process).
+
+    Cached by robot name and geometry names: building the hulls costs about a second.
+    """
+    key = (robot.name, tuple(names))
+    if key not in _HULLS:
+        src = robot.collision_model
+        gm = pin.GeometryModel()
+        for name in names:
+            if src is None or not src.existGeometryName(name):
+                raise ScenarioError(f"robot {robot.name!r} has no collision geometry {name!r}")
+            obj = pin.GeometryObject(src.geometryObjects[src.getGeometryId(name)])
+            obj.geometry = _convexified(obj.geometry, f"geometry {name!r}")
+            gm.addGeometryObject(obj)
+        _HULLS[key] = gm
+    return _HULLS[key]
+
+
+def repulsive_bound(d, d_activation: float, d_safe: float, xi: float) -> np.ndarray:
+    """``r(d) = xi (d_a - d)/(d_a - d_s)``: 0 at the activation distance, ``xi`` at the safety distance."""
+    return xi * (d_activation - np.asarray(d, dtype=float)) / (d_activation - d_safe)
+
+
+class PairAvoidance(Task):
+    """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair), rebuilt by the policy every step."""
+
+    dim = 0
+
+    def __init__(self, name: str):
+        super().__init__(name, None)
+        self.J = np.zeros((0, 0))
+        self.lower = np.zeros(0)
+        self.distance = np.zeros(0)
+
+    def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
+        self.J, self.lower, self.distance = np.atleast_2d(J), np.asarray(lower, float), np.asarray(distance, float)
+        self.dim = self.lower.size
+
+    def value(self, state: State) -> np.ndarray:
+        return self.distance
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return self.J
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        raise NotImplementedError("whole_body avoidance is velocity-level only")
+
+    def start(self, state: State) -> None:
+        return None
+
+    def error(self, state: State, x_d) -> np.ndarray:
+        return np.zeros(self.dim)
+
+    def reference(self, t: float):
+        return np.zeros(self.dim), np.zeros(self.dim), np.zeros(self.dim)
+
+    def level(self, state: State, t: float, order: int, extra=None) -> Level:
+        if order != 1:
+            raise ScenarioError("the whole_body policy works at velocity level only")
+        return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name)
+
+
+class WholeBody:
+    """Dynamic stack: sole hold > obstacle avoidance > self avoidance > CoM > left foot > hands."""
+
+    def __init__(self, robot, top: list[Task], below: list[Task], obstacles: list[Obstacle], *,
+                 d_obstacle_activation: float = 0.10, d_obstacle_safe: float = 0.03, xi_obstacle: float = 0.3,
+                 d_self_activation: float = 0.05, d_self_safe: float = 0.01, xi_self: float = 0.3,
+                 obstacle_rows: str = "per_obstacle", record_range: float = 0.3,
+                 geometries=CONTROL_GEOMETRIES, pairs=None):
+        for what, da, ds in (("obstacle", d_obstacle_activation, d_obstacle_safe),
+                             ("self", d_self_activation, d_self_safe)):
+            if not 0.0 <= ds < da:
+                raise ValueError(f"{what}: need 0 <= d_safe < d_activation, got {ds}, {da}")
+        if obstacle_rows not in ("per_obstacle", "closest"):
+            raise ValueError(f"obstacle_rows must be 'per_obstacle' or 'closest', got {obstacle_rows!r}")
+        self.robot = robot
+        self.top, self.below = list(top), list(below)
+        self.obstacles = list(obstacles)
+        self.d_obs = (float(d_obstacle_activation), float(d_obstacle_safe), float(xi_obstacle))
+        self.d_self = (float(d_self_activation), float(d_self_safe), float(xi_self))
+        self.obstacle_rows = obstacle_rows
+        gm = control_geometries(robot, geometries)
+        self.pairs = self_pairs(robot.model, robot.collision_model) if pairs is None else list(pairs)
+        self.field = DistanceField(robot.model, gm, (), self.obstacles,
+                                   surveillance=max(record_range, d_obstacle_activation, d_self_activation),
+                                   self_pairs=self.pairs)
+        self.avoid_obstacle = PairAvoidance("avoid_obstacle")
+        self.avoid_self = PairAvoidance("avoid_self")
+        self.thresholds = {"d_obstacle": {"activation": d_obstacle_activation, "safe": d_obstacle_safe},
+                           "d_self": {"activation": d_self_activation, "safe": d_self_safe}}
+        self._last = {"n_avoid_obstacle": 0.0, "n_avoid_self": 0.0}
+
+    def tasks(self) -> list[Task]:
+        return [*self.top, *self.below]
+
+    @property
+    def pre_policy(self):
+        return (self._update_distances,)
+
+    def _update_distances(self, state: State, t: float) -> None:
+        self.field.update(state.data, None, t)
+
+    # ------------------------------------------------------------------ rows
+    def obstacle_pairs(self) -> list[tuple[int, int, float]]:
+        """(element, obstacle, distance) of the pairs to avoid: per obstacle (or overall) closest, within activation."""
+        f = self.field
+        D = np.where(f.in_range, f.distance, np.inf)
+        if D.size == 0:
+            return []
+        if self.obstacle_rows == "closest":
+            e, j = np.unravel_index(int(np.argmin(D)), D.shape)
+            cand = [(int(e), int(j))]
+        else:
+            cand = [(int(np.argmin(D[:, j])), j) for j in range(D.shape[1])]
+        return [(e, j, float(D[e, j])) for e, j in cand if D[e, j] < self.d_obs[0]]
+
+    def __call__(self, state: State, t: float) -> Stack:
+        f, data, model = self.field, state.data, self.robot.model
+        levels: list[tuple[Task, ...]] = [(task,) for task in self.top]
+        rows = self.obstacle_pairs()
+        if rows:
+            J = np.vstack([f.normal[e, j] @ f.jacobian(data, e, j) for e, j, _ in rows])
+            d = np.array([r[2] for r in rows])
+            self.avoid_obstacle.assign(J, repulsive_bound(d, *self.d_obs), d)
+            levels.append((self.avoid_obstacle,))
+        k, d_s = f.nearest_self()
+        has_self = k >= 0 and d_s < self.d_self[0]
+        if has_self:
+            a, b = f.self_pairs[k]
+            J = (point_jacobian(model, data, f.joint_ids[a], f.self_p1[k])
+                 - point_jacobian(model, data, f.joint_ids[b], f.self_p2[k]))
+            self.avoid_self.assign(f.self_normal[k] @ J, repulsive_bound([d_s], *self.d_self), [d_s])
+            levels.append((self.avoid_self,))
+        levels += [(task,) for task in self.below]
+        self._last = {"n_avoid_obstacle": float(len(rows)), "n_avoid_self": float(has_self)}
+        return Stack(levels)
+
+    def probe(self, ctrl, res) -> dict:
+        """Per step: closest robot-obstacle and self distances (NaN beyond the recorded range), avoidance rows."""
+        f = self.field
+        d_obs = np.where(f.in_range, f.distance, np.inf).min(initial=np.inf)
+        d_self = np.where(f.self_in_range, f.self_distance, np.inf).min(initial=np.inf)
+        return {"d_obstacle": float(d_obs) if np.isfinite(d_obs) else np.nan,
+                "d_self": float(d_self) if np.isfinite(d_self) else np.nan, **self._last}
+
+
+@register_policy("whole_body")
+def build_whole_body(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> WholeBody:
+    """``[policy] type = "whole_body"``: ``levels`` (task names, as the fixed stack it extends, one task per
+    level) and ``avoid_at`` (index in ``levels`` where the avoidance levels go; default 1, below the sole hold)."""
+    raw = sec.raw("levels", ["right_sole", "com", "left_foot", "left_hand", "right_hand"])
+    if not isinstance(raw, list) or not all(isinstance(x, str) for x in raw):
+        raise ScenarioError(f"{sec.where}.levels: expected a list of task names (one task per level)")
+    for n in raw:
+        if n not in tasks:
+            raise ScenarioError(f"{sec.where}.levels: unknown task {n!r}; tasks: {', '.join(tasks)}")
+    at = sec.raw("avoid_at", 1)
+    if not isinstance(at, int) or not 0 <= at <= len(raw):
+        raise ScenarioError(f"{sec.where}.avoid_at: expected an integer in [0, {len(raw)}], got {at!r}")
+    if sc.order != 1:
+        raise ScenarioError(f"{sec.where}: the whole_body policy works at velocity level only")
+    try:
+        pol = WholeBody(robot, [tasks[n] for n in raw[:at]], [tasks[n] for n in raw[at:]], obstacles,
+                        d_obstacle_activation=sec.number("d_obstacle_activation", 0.10),
+                        d_obstacle_safe=sec.number("d_obstacle_safe", 0.03),
+                        xi_obstacle=sec.number("xi_obstacle", 0.3),
+                        d_self_activation=sec.number("d_self_activation", 0.05),
+                        d_self_safe=sec.number("d_self_safe", 0.01),
+                        xi_self=sec.number("xi_self", 0.3),
+                        obstacle_rows=sec.string("obstacle_rows", "per_obstacle", choices=("per_obstacle", "closest")),
+                        record_range=sec.number("record_range", 0.3))
+    except ValueError as exc:
+        raise ScenarioError(f"{sec.where}: {exc}") from exc
+    sec.check_unused()
+    return pol

@@ -1,0 +1,196 @@
+"""Whole-body collision avoidance on Romeo (issue 7): collision model, self pairs, policy, short runs."""
+
+import coal
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from hqp_tpm import build, runner, scenario
+from hqp_tpm.distances import DistanceField
+from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.policies import whole_body as wb
+from hqp_tpm.policies.whole_body import WholeBody
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks import CenterOfMass, FramePose, FramePosition, Gains
+
+
+@pytest.fixture(scope="module")
+def romeo():
+    return Robot.load("romeo21")
+
+
+@pytest.fixture(scope="module")
+def pairs(romeo):
+    return wb.self_pairs(romeo.model, romeo.collision_model)
+
+
+def _link_joint(romeo, name):
+    cm = romeo.collision_model
+    return cm.geometryObjects[cm.getGeometryId(name)].parentJoint
+
+
+# ----------------------------------------------------------------------------- self pairs
+def test_self_pairs_exclude_adjacent_and_srdf_disabled(romeo, pairs):
+    disabled = wb.srdf_disabled_links()
+    assert len(disabled) > 500  # romeo.srdf really was read
+    model = romeo.model
+    assert pairs, "no self pair left"
+    for a, b in pairs:
+        assert frozenset((a[:-2], b[:-2])) not in disabled, (a, b)
+        ja, jb = _link_joint(romeo, a), _link_joint(romeo, b)
+        assert ja != jb and model.parents[ja] != jb and model.parents[jb] != ja, (a, b)
+        assert not wb.adjacent(model, romeo.collision_model, a, b)
+    keys = {frozenset(p) for p in pairs}
+    # kept: hands against the torso and the thighs, the two hands against each other
+    for p in (("l_wrist_0", "torso_0"), ("r_wrist_0", "RHipPitchLink_0"), ("l_wrist_0", "r_wrist_0")):
+        assert frozenset(p) in keys, p
+    # upper arm / torso: adjacent (through the bare shoulder-pitch link) and disabled by the SRDF
+    assert wb.adjacent(model, romeo.collision_model, "LShoulderYawLink_0", "torso_0")
+    assert frozenset(("LShoulderYawLink_0", "torso_0")) not in keys
+    # forearm / same-side shin: "Never" in the SRDF, not adjacent
+    assert frozenset(("LElbowYawLink", "LKneePitchLink")) in disabled
+    assert frozenset(("LElbowYawLink_0", "LKneePitchLink_0")) not in keys
+
+
+def test_hulls_are_built_once_per_process(romeo):
+    a = wb.control_geometries(romeo)
+    b = wb.control_geometries(Robot.load("romeo21"))
+    assert a is b
+    assert [g.name for g in a.geometryObjects] == list(wb.CONTROL_GEOMETRIES)
+    assert all(isinstance(g.geometry, coal.Convex) for g in a.geometryObjects)
+
+
+# ----------------------------------------------------------------------------- distances vs coal
+OBSTACLES = [Obstacle.sphere("ball", [0.36, 0.38, -0.06], 0.05),
+             Obstacle.box("block", [0.33, -0.55, -0.17], [0.12, 0.10, 0.06])]
+
+
+def _coal_distance(s1, M1, s2, M2):
+    req, res = coal.DistanceRequest(), coal.DistanceResult()
+    req.enable_signed_distance = True
+    return coal.distance(s1, coal.Transform3s(M1.rotation, M1.translation), s2,
+                         coal.Transform3s(M2.rotation, M2.translation), req, res)
+
+
+def test_convexified_distances_agree_with_coal(romeo, pairs):
+    model, data = romeo.model, romeo.model.createData()
+    gm = wb.control_geometries(romeo)
+    gd = pin.GeometryData(gm)
+    field = DistanceField(model, gm, (), OBSTACLES, surveillance=10.0, self_pairs=pairs, broad_phase=False)
+    rng = np.random.default_rng(7)
+    lo, up = model.lowerPositionLimit.copy(), model.upperPositionLimit.copy()
+    lo[:7], up[:7] = 0.0, 0.0
+    for k in range(3):
+        q = romeo.neutral() if k == 0 else pin.neutral(model) + 0.5 * (rng.uniform(lo, up) - pin.neutral(model))
+        q[:7] = pin.neutral(model)[:7]
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        pin.updateGeometryPlacements(model, data, gm, gd)
+        field.update(data)
+        for e, g in enumerate(gm.geometryObjects):
+            for j, o in enumerate(OBSTACLES):
+                ref = _coal_distance(g.geometry, gd.oMg[e], o.shape, o.placement_at(0.0))
+                assert field.distance[e, j] == pytest.approx(ref, abs=1e-6), (g.name, o.name)
+        names = [g.name for g in gm.geometryObjects]
+        for s, (a, b) in enumerate(pairs):
+            ia, ib = names.index(a), names.index(b)
+            ref = _coal_distance(gm.geometryObjects[ia].geometry, gd.oMg[ia], gm.geometryObjects[ib].geometry,
+                                 gd.oMg[ib])
+            assert field.self_distance[s] == pytest.approx(ref, abs=1e-6), (a, b)
+
+
+# ----------------------------------------------------------------------------- policy
+def _policy(romeo, q, obstacles):
+    st = State(romeo).update(q, np.zeros(romeo.nv))
+    sole = FramePose(romeo, "r_sole", None, Gains(100.0), name="right_sole")
+    below = [CenterOfMass(None, Gains(100.0), axes="xy", name="com"),
+             FramePosition(romeo, "l_sole", None, Gains(100.0), name="left_foot"),
+             FramePosition(romeo, "l_gripper", None, Gains(100.0), name="left_hand"),
+             FramePosition(romeo, "r_gripper", None, Gains(100.0), name="right_hand")]
+    for task in [sole, *below]:
+        task.start(st)
+    pol = WholeBody(romeo, [sole], below, obstacles, d_obstacle_activation=0.10, d_self_activation=0.05)
+    for hook in pol.pre_policy:
+        hook(st, 0.0)
+    return pol, st
+
+
+BASE = "right_sole > com > left_foot > left_hand > right_hand"
+
+
+def test_obstacle_level_inserted_when_and_only_when_within_threshold(romeo):
+    q = romeo.configuration({"RShoulderYaw": -0.8, "LShoulderYaw": 0.8})
+    st = State(romeo).update(q, np.zeros(romeo.nv))
+    hand = st.position(romeo.frame_id("l_gripper"))
+    seen = set()
+    for dz in (0.09, 0.12, 0.15, 0.18, 0.25, 0.40):
+        pol, st = _policy(romeo, q, [Obstacle.sphere("ball", hand - [0.0, 0.0, dz], 0.03)])
+        stack = pol(st, 0.0)
+        rec = pol.probe(None, None)
+        inside = rec["d_obstacle"] < 0.10
+        seen.add(inside)
+        assert stack.label() == (BASE.replace("right_sole", "right_sole > avoid_obstacle") if inside else BASE)
+        assert rec["n_avoid_obstacle"] == float(inside)
+        if inside:
+            lv = stack.to_levels(st, 0.0, 1)[1]
+            assert lv.name == "avoid_obstacle" and not lv.is_equality and lv.lower[0] > 0 and lv.upper[0] == np.inf
+            assert lv.active_rows().all()  # the analytic solvers keep the row (violated at qd = 0)
+            d = rec["d_obstacle"]
+            assert lv.lower[0] == pytest.approx(wb.repulsive_bound(d, 0.10, 0.03, 0.3))
+            # the row is the distance rate: finite differences of the distance along a random qd
+            qd = np.random.default_rng(1).standard_normal(romeo.nv) * 0.1
+            qd[:6] = 0.0
+            pol2, _ = _policy(romeo, pin.integrate(romeo.model, q, qd * 1e-6), pol.obstacles)
+            rate = (pol2.probe(None, None)["d_obstacle"] - d) / 1e-6
+            assert lv.J[0] @ qd == pytest.approx(rate, abs=1e-4)
+    assert seen == {True, False}
+
+
+def test_self_level_inserted_when_and_only_when_within_threshold(romeo):
+    seen = set()
+    for yaw in (-0.3, -0.1, 0.3):
+        q = romeo.configuration({"LShoulderPitch": 0.8, "LShoulderYaw": yaw, "RShoulderYaw": -0.8})
+        pol, st = _policy(romeo, q, [Obstacle.sphere("far", [5.0, 5.0, 5.0], 0.1)])
+        stack = pol(st, 0.0)
+        rec = pol.probe(None, None)
+        inside = rec["d_self"] < 0.05
+        seen.add(inside)
+        assert rec["n_avoid_self"] == float(inside)
+        assert stack.label() == (BASE.replace("right_sole", "right_sole > avoid_self") if inside else BASE)
+        if inside:
+            lv = stack.to_levels(st, 0.0, 1)[1]
+            assert lv.lower[0] > 0 and lv.active_rows().all()
+            qd = np.random.default_rng(2).standard_normal(romeo.nv) * 0.1
+            qd[:6] = 0.0
+            pol2, _ = _policy(romeo, pin.integrate(romeo.model, q, qd * 1e-6), pol.obstacles)
+            rate = (pol2.probe(None, None)["d_self"] - rec["d_self"]) / 1e-6
+            assert lv.J[0] @ qd == pytest.approx(rate, abs=1e-4)
+    assert seen == {True, False}
+
+
+# ----------------------------------------------------------------------------- short runs
+@pytest.mark.parametrize("name", ["romeo_obstacles_sns_tpm", "romeo_obstacles_qp"])
+def test_short_run_keeps_distances_positive_and_boxes(name):
+    sc = scenario.load(name)
+    robot, ctrl, tasks, policy = build.build(sc)
+
+    def box_probe(c, res):
+        lo, up = c.box(c.state, res.t)
+        x = res.command
+        return {"box_violation": float(max(0.0, np.max(lo - x), np.max(x - up)))}
+
+    def all_distances(c, res):  # every pair, also those beyond the recorded range
+        f = policy.field
+        return {"d_obs_all": float(f.distance.min()), "d_self_all": float(f.self_distance.min())}
+
+    rec, _ = runner.run(ctrl, 900, probes=[policy.probe, box_probe, all_distances])
+    a = rec.arrays()
+    assert np.nanmin(a["d_obstacle"]) > 0.0 and a["d_obs_all"].min() > 0.0
+    assert a["d_self_all"].min() > 0.0
+    assert a["box_violation"].max() <= 1e-9
+    vmax = policy.velocity_limits
+    assert (np.abs(a["dq"]) <= vmax + 1e-9).all()
+    # the avoidance really worked: the ball is engaged in the first 0.9 s (romeo_tpm would penetrate it)
+    assert (a["n_avoid_obstacle"] > 0).any()
+    assert np.nanmin(a["d_obstacle"]) > 0.05
