@@ -149,13 +149,21 @@ def _factors(J, sizes, n, lambda_max, eps) -> TPMFactors:
     return TPMFactors(Q, R, F, Jpinv[:n], tuple(sizes), n)
 
 
-def _pivot_inverse(block: np.ndarray, lambda_max: float, eps: float) -> tuple[np.ndarray, float]:
-    """(Damped) pseudo-inverse of a pivot block and its smallest singular value; 1x1 blocks in closed form."""
+def _pivot_smin(block: np.ndarray) -> float:
+    """Smallest singular value of a pivot block (1x1 in closed form)."""
     if block.shape[0] == 1:
-        s = abs(block[0, 0])
-        return np.array([[inverted_singular_values(np.array([s]), lambda_max, eps)[0] * np.sign(block[0, 0])]]), s
-    U, s, Vt = np.linalg.svd(block)
-    return (Vt.T * inverted_singular_values(s, lambda_max, eps)) @ U.T, s[-1]
+        return abs(block[0, 0])
+    return np.linalg.svd(block, compute_uv=False)[-1]
+
+
+def _pivot_inverse(block: np.ndarray, smin: float, lambda_max: float, eps: float) -> np.ndarray:
+    """(Damped) pseudo-inverse of a pivot block: triangular inverse when regular, else the SVD law."""
+    if block.shape[0] == 1:
+        return np.array([[inverted_singular_values(np.array([smin]), lambda_max, eps)[0] * np.sign(block[0, 0])]])
+    if smin > RANK_TOL and not (lambda_max > 0.0 and smin < eps):
+        return lapack.dtrtri(block, lower=0)[0]  # exact inverse of the upper-triangular pivot
+    U, sv, Vt = np.linalg.svd(block)
+    return (Vt.T * inverted_singular_values(sv, lambda_max, eps)) @ U.T
 
 
 def _solve(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0):
@@ -167,22 +175,19 @@ def _solve(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: 
     Q, _, _ = lapack.dorgqr(qr, tau)
     Q = Q[:, :m]
     off = _offsets(sizes)
-    y = b.copy()  # y = F b = Fbar^T b, built by applying the elimination steps to b's transpose
-    Fbar = None
-    singular = False
-    for i in range(len(sizes)):
-        r = slice(off[i], off[i + 1])
-        D, smin = _pivot_inverse(R[r, r], lambda_max, eps)
-        singular |= smin <= RANK_TOL
-        regular = smin > RANK_TOL and not (lambda_max > 0.0 and smin < eps)
-        if Fbar is None and regular:
-            continue  # Steps 2-3 with an invertible undamped pivot leave F = I on this block
-        if Fbar is None:
-            Fbar = _eliminated_prefix(R, off, i, lambda_max, eps)
-        Fbar[r, off[i]:] = D @ Fbar[r, off[i]:]                       # Step 2
-        if i > 0:
-            Fbar[: off[i], off[i]:] -= Fbar[: off[i], r] @ Fbar[r, off[i]:]  # Step 3
-    if Fbar is not None:
+    blocks = [slice(off[i], off[i + 1]) for i in range(len(sizes))]
+    smins = [_pivot_smin(R[r, r]) for r in blocks]
+    singular = min(smins) <= RANK_TOL
+    regular = [sm > RANK_TOL and not (lambda_max > 0.0 and sm < eps) for sm in smins]
+    if all(regular):
+        y = b                                                         # Steps 2-4 give F = I
+    else:
+        Fbar = R.copy()                                               # Step 1
+        for i, r in enumerate(blocks):
+            D = _pivot_inverse(R[r, r], smins[i], lambda_max, eps)    # R_ii untouched by earlier steps
+            Fbar[r, off[i]:] = D @ Fbar[r, off[i]:]                   # Step 2
+            if i > 0:
+                Fbar[: off[i], off[i]:] -= Fbar[: off[i], r] @ Fbar[r, off[i]:]  # Step 3
         y = Fbar.T @ b                                                # F b, Step 5
     if singular:
         z = pinv(R.T) @ y
@@ -195,18 +200,6 @@ def _solve(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: 
         w = pinv(R.T) @ Jx0 if singular else lapack.dtrtrs(R, Jx0, lower=0, trans=1)[0]
         x = x + x0p - Q @ w                                           # eq. (14)
     return x[:n]
-
-
-def _eliminated_prefix(R: np.ndarray, off, upto: int, lambda_max: float, eps: float) -> np.ndarray:
-    """``Fbar`` after Steps 2-3 for the first ``upto`` (regular) levels: identity blocks there."""
-    Fbar = R.copy()
-    for i in range(upto):
-        r = slice(off[i], off[i + 1])
-        D, _ = _pivot_inverse(R[r, r], lambda_max, eps)
-        Fbar[r, off[i]:] = D @ Fbar[r, off[i]:]
-        if i > 0:
-            Fbar[: off[i], off[i]:] -= Fbar[: off[i], r] @ Fbar[r, off[i]:]
-    return Fbar
 
 
 def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
