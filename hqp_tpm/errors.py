@@ -47,6 +47,10 @@ class BoxError(HqpTpmError, ValueError):
     """A box (lower, upper) is malformed: lower > upper, wrong length, NaN bounds."""
 
 
+class GeometryError(HqpTpmError, ValueError):
+    """A geometric parameter is invalid: negative radius or surveillance distance, degenerate mesh, ..."""
+
+
 class ScenarioError(HqpTpmError, ValueError):
     """A scenario file is malformed: unknown task type, missing field, wrong dimension."""
 

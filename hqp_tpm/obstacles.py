@@ -16,13 +16,9 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.errors import HqpTpmError, NonFiniteError, ShapeError
+from hqp_tpm.errors import GeometryError, NonFiniteError, ShapeError
 
 __all__ = ["GeometryError", "Obstacle", "bounding_sphere", "convex_from_points"]
-
-
-class GeometryError(HqpTpmError, ValueError):
-    """A geometric parameter is invalid: negative radius or surveillance distance, degenerate mesh, ..."""
 
 
 def _vector(what: str, value, n: int = 3) -> np.ndarray:
