@@ -41,7 +41,7 @@ import scipy.linalg as sla
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
 from hqp_tpm.solvers.levels import as_levels, equality_stack
-from hqp_tpm.solvers.tpm import tpm_factors
+from hqp_tpm.solvers.tpm import tpm, tpm_factors
 
 #: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (1 + |bound|)``;
 #: the scale factor uses the box widened by the same amount, and the returned command is clipped
@@ -187,12 +187,12 @@ def _critical_joint(smax, free, violated) -> int:
     that *are* beyond a bound is taken, so that the saturated bound is always defined. -1 if no
     free joint is beyond a bound.
     """
-    cand = free & violated
-    if not cand.any():
+    cand = np.flatnonzero(free & violated)
+    if cand.size == 0:
         return -1
     j = int(np.argmin(smax))
-    if not cand[j]:
-        j = int(np.argmin(np.where(cand, smax, np.inf)))
+    if not (free[j] and violated[j]):
+        j = int(cand[np.argmin(smax[cand])])
     return j
 
 
@@ -273,29 +273,27 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     Returns ``x``, or ``(x, SNSInfo)`` with ``return_info``. Equal to :func:`tpm` when no bound is
     exceeded; otherwise joints are saturated one by one and, when ``rank(J W) < m``, the best
     scaled solution ``x = x_N + (J W)# F (s b - J x_N)`` is returned. Same numbers as
-    :func:`sns_tpm_reference`; the core step is evaluated as ``x = s a + b`` with
-    ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
+    :func:`sns_tpm_reference`; the first pass is :func:`tpm` itself, later ones evaluate the core
+    step as ``x = s a + b`` with ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
     """
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
     n = lo.shape[0]
     lv, J, xd = _stacked(levels, n)
-    f = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n)
-    F = f.F
-    Fxd = F @ xd
-    G = f.Jpinv                                  # (J W)# with W = I: the TPM's J#
+    x = tpm(lv, lambda_max=lambda_max, eps=eps, n=n)   # W = I: eq. (4) is the TPM solution (1)
     free = np.ones(n, dtype=bool)
     xN = np.zeros(n)
-    b = np.zeros(n)
+    a, b = x, np.zeros(n)
     order: list[int] = []
     best = None                                  # (s*, a, b, saturated) of the best scaled solution
     iterations = 0
+    F = G = Fxd = None
     while True:
         iterations += 1
-        a = G @ Fxd
         if order:
+            a = G @ Fxd
             b = xN - G @ (F @ (J[:, order] @ xN[order]))
-        x = a + b if order else a                # exactly tpm's J# F b while W = I
+            x = a + b
         viol = box.violated(x)
         if not viol.any():
             return _result(x, box, SNSInfo(1.0, tuple(order), iterations), return_info)
@@ -303,6 +301,9 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
         if factor >= 0.0 and (best is None or factor > best[0]):
             best = (factor, a, b, tuple(order))
         j = _critical_joint(smax, free, viol)
+        if F is None:                            # a bound is exceeded: now the TPM matrix F is needed
+            F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
+            Fxd = F @ xd
         if j >= 0:
             free[j] = False
             xN[j] = up[j] if x[j] > up[j] else lo[j]
