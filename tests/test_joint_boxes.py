@@ -126,7 +126,7 @@ def test_velocity_box_recovery_from_outside(seed):
     q = np.where(out < 0, q_min + out, q_max + out)
     lower, upper = velocity_box(q, q_min, q_max, v_max, a_max, dt)
     assert (lower <= upper).all() and (np.abs(lower) <= v_max).all() and (np.abs(upper) <= v_max).all()
-    rate = np.minimum(np.abs(out) / dt, v_max)
+    rate = np.minimum(np.maximum(q_min - q, q - q_max) / dt, v_max)
     below = out < 0
     np.testing.assert_allclose(lower[below], rate[below], rtol=1e-12)
     np.testing.assert_allclose(upper[~below], -rate[~below], rtol=1e-12)

@@ -5,8 +5,9 @@
   (computed once, :func:`hqp_tpm.solvers.tpm.tpm_factors`), ``W = diag(0/1)`` marks the saturated
   joints and one scale factor ``s`` applies to *all* tasks. Without an active bound the result
   is exactly :func:`hqp_tpm.solvers.tpm.tpm`. The reference path follows the algorithm line by
-  line with ``n x n`` matrices; the fast path works on the columns of the free joints and reuses
-  one SVD per saturation. ``tests/test_sns.py`` proves them equal.
+  line with ``n x n`` matrices; the fast path starts from :func:`tpm` itself, computes ``F`` only
+  once a bound is exceeded and then works on the columns of the free joints, one SVD per
+  saturation (rank test and ``(J W)#`` at once). ``tests/test_sns.py`` proves them equal.
 * :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
   first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
   least amount); a lower level moves only in the null space of the higher ones, so their
@@ -23,6 +24,17 @@ The functions are array-level: at acceleration level pass the stack ``b_i = xdd_
 keep ``-Jdot qd`` out of ``b`` and add its contribution yourself). Inequality :class:`Level`\\ s
 enter through their active rows, exactly as in :func:`tpm` (:mod:`hqp_tpm.solvers.levels`).
 
+Details the papers leave open, decided here (both paths alike):
+
+* ``rank(J W) < m`` is literal, ``m`` the number of active rows: a rank-deficient stack (conflicting
+  or repeated tasks, ``m > n``) stops at its first saturation and returns the best scaled solution.
+* ``s* = 0`` initially and a factor replaces it only if larger; a feasible factor of exactly 0 is
+  kept the first time (with the zero command in the box that is the paper's ``W = I, x_N = 0``).
+* The most critical joint is the argmin of ``smax_j``; if that joint is not beyond a bound (possible
+  only when no factor is feasible) the argmin over the joints that are beyond one is used.
+* Round-off: bounds are checked with the tolerance ``VIOLATION_TOL`` and the result is clipped
+  into the exact box (a change of at most that tolerance).
+
 Guarantee: if the zero command is inside the box (always true for the velocity box of a state
 inside its limits) the result is inside the box. Otherwise (e.g. acceleration boxes that force
 braking, recovery boxes) the algorithm may find no scale factor in ``[0, 1]`` that keeps the box;
@@ -37,6 +49,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
@@ -135,13 +148,22 @@ def _scaling(a, b, box: _Box, free) -> tuple[float, np.ndarray]:
     """Task scale factor (-1 if none in [0, 1]) and the per-joint ``smax`` (``+inf`` off ``free``).
 
     Per free joint, ``s a_j + b_j`` is in the box for ``s`` in ``[smin_j, smax_j]`` (all ``s`` or none
-    if ``a_j = 0``). The factor is the largest ``s <= 1`` allowed by the exact box; whether some ``s``
+    if ``a_j = 0``). Saturated joints are not scaled (``a_j = 0`` up to round-off): they only have to
+    be inside, which fails only if the null space above could not put them on their bound.
+
+    The factor is the largest ``s <= 1`` allowed by the exact box; whether some ``s``
     in ``[0, 1]`` exists is decided on the box widened by round-off, so that a ``b`` that leaves the
     box by round-off only does not make the task infeasible (the factor is then raised to the
     smallest admissible value of the widened box).
     """
     n = a.shape[0]
     smax = np.full(n, np.inf)
+    fixed = ~free                                # saturated: not scaled, they must only sit inside
+    if fixed.any():
+        ends = np.concatenate([b[fixed], a[fixed] + b[fixed]])
+        wlo, wup = np.tile(box.wlo[fixed], 2), np.tile(box.wup[fixed], 2)
+        if ((ends < wlo) | (ends > wup)).any():  # a saturation the null space could not realize
+            return -1.0, smax
     idx = np.flatnonzero(free & (a != 0.0))
     flat = free & (a == 0.0)                     # s has no effect: fine iff b is in the box
     if flat.any() and ((b[flat] < box.wlo[flat]) | (b[flat] > box.wup[flat])).any():
@@ -228,7 +250,7 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
     iterations = 0
     while True:                                                  # repeat
         iterations += 1
-        JWp = pinv(J @ W)
+        JWp = W @ pinv(J @ W)                                    # = (JW)#, whose saturated rows are 0
         x = xN + JWp @ F @ (xd - J @ xN)                         # eq. (4)
         viol = box.violated(x)
         if not viol.any():                                       # until no limit is exceeded
@@ -246,7 +268,7 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
             order.append(j)
         if j < 0 or _rank(J @ W) < m:                            # rank(JW) < m: output the best solution
             s, W, xN, order = s_star, W_star, xN_star, order_star
-            x = xN + pinv(J @ W) @ F @ (s * xd - J @ xN)
+            x = xN + W @ pinv(J @ W) @ F @ (s * xd - J @ xN)
             return _result(x, box, SNSInfo(float(s), tuple(order), iterations, found), return_info)
 
 
@@ -259,7 +281,9 @@ def _free_pinv(J, free, n):
     G = np.zeros((n, m))
     if m == 0:
         return G, True
-    U, sv, Vt = sla.svd(J[:, free], full_matrices=False, check_finite=False)
+    U, sv, Vt, info = lapack.dgesdd(J[:, free], compute_uv=1, full_matrices=0)
+    if info != 0:  # LAPACK's divide and conquer did not converge: the slower, more robust driver
+        U, sv, Vt = sla.svd(J[:, free], full_matrices=False, check_finite=False, lapack_driver="gesvd")
     G[free] = (Vt.T * inverted_singular_values(sv)) @ U.T
     return G, sv.size == m and sv[-1] > RANK_TOL
 
