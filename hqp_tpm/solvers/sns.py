@@ -32,14 +32,21 @@ Details the papers leave open, decided here (both paths alike):
   kept the first time (with the zero command in the box that is the paper's ``W = I, x_N = 0``).
 * The most critical joint is the argmin of ``smax_j``; if that joint is not beyond a bound (possible
   only when no factor is feasible) the argmin over the joints that are beyond one is used.
+* Multi-task SNS: level ``k`` saturates joint ``j`` through ``((I - W_k) P_{k-1})#``; if the rows of
+  ``P_{k-1}`` at the saturated joints become dependent (``REALIZABLE_TOL``) the levels above fix the
+  joint through the others, the saturation cannot be realized and the level stops as on a rank
+  loss. Saturated joints are set exactly on their bounds (an identity when realizable).
 * Round-off: bounds are checked with the tolerance ``VIOLATION_TOL`` and the result is clipped
   into the exact box (a change of at most that tolerance).
 
-Guarantee: if the zero command is inside the box (always true for the velocity box of a state
-inside its limits) the result is inside the box. Otherwise (e.g. acceleration boxes that force
-braking, recovery boxes) the algorithm may find no scale factor in ``[0, 1]`` that keeps the box;
-the result is then the paper's fallback ``s = 0, W = I, x_N = 0`` clipped into the box and
-``info.feasible`` is False.
+Boxes without the zero command. If 0 is inside the box (always true for the velocity box of a
+state inside its limits) the papers' algorithms return a command inside it. Otherwise (acceleration
+boxes that force a joint to brake, recovery boxes) it can happen that no scale factor in ``[0, 1]``
+keeps the box and the paper's fallback ``x = 0`` leaves it. Then the same algorithm is run around
+``x0 = clip(0, lower, upper)``, the box point nearest to zero: ``x = x0 + dx`` with ``dx`` solving
+the stack ``b_i - J_i x0`` under the box ``[lower - x0, upper - x0]``, which contains 0. The result
+is inside the box, equals the papers' algorithm whenever that one succeeds, and
+``info.feasible`` (SNS-TPM) / ``info.shifted`` (SNS) tells when it was needed.
 """
 
 from __future__ import annotations
@@ -49,7 +56,6 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.linalg as sla
-from scipy.linalg import lapack
 
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
@@ -61,6 +67,11 @@ from hqp_tpm.solvers.tpm import tpm, tpm_factors
 #: into the exact box (a change of at most this size, the round-off of the null-space products).
 VIOLATION_TOL = 1e-10
 
+#: Multi-task SNS: a joint can be saturated at level ``k`` only if the rows of ``P_{k-1}`` of the
+#: saturated joints stay independent (smallest singular value above this); otherwise the levels
+#: above fix it through the others and the level stops as on a rank loss.
+REALIZABLE_TOL = 1e-6
+
 
 @dataclass(frozen=True)
 class SNSInfo:
@@ -69,8 +80,9 @@ class SNSInfo:
     ``scale``: the task scale factor ``s`` applied (1 when no scaling was needed, 0 when the task
     could not be executed at all); ``saturated``: the joints with ``W_jj = 0`` in the returned
     command, in the order they were saturated; ``iterations``: passes through the core step;
-    ``feasible``: False only if no scale factor in ``[0, 1]`` kept the box and the command had to be
-    clipped into it (see module doc).
+    ``feasible``: SNS-TPM: False only if the zero command is outside the box and no scale factor in
+    ``[0, 1]`` kept it: the command is then solved around the box point nearest to zero (module doc);
+    one level of the multi-task SNS: False if no scale kept the box and the level was not executed.
     """
 
     scale: float
@@ -81,10 +93,13 @@ class SNSInfo:
 
 @dataclass(frozen=True)
 class SNSStackInfo:
-    """Per-level :class:`SNSInfo` of :func:`sns`, and whether the final command had to be clipped."""
+    """Per-level :class:`SNSInfo` of :func:`sns`; ``shifted``: solved around ``x0 = clip(0, box)``
+    (module doc); ``clipped``: the command left the box by more than round-off and was clipped (seen
+    only with undamped, nearly singular stacks, where ``(J_k Pbar_k)#`` amplifies round-off)."""
 
     levels: tuple[SNSInfo, ...]
     clipped: bool = False
+    shifted: bool = False
 
 
 # ----------------------------------------------------------------------------------------
@@ -189,7 +204,8 @@ def task_scaling_factor(a, b, lower, upper, free=None) -> tuple[float, int]:
     Returns ``(s, j)``: ``s`` the largest value in ``[0, 1]`` such that ``s a + b`` stays inside
     ``[lower, upper]`` on the ``free`` joints (all by default), or -1 if there is none; ``j`` the
     most critical joint, the free joint whose bound limits ``s`` first (argmin of ``smax_j``), or
-    -1 if there is no free joint.
+    -1 if there is no free joint. Joints that are not free (saturated) are not scaled: ``s`` is -1
+    if one of them is outside the box.
     """
     a = np.asarray(a, dtype=float)
     b = np.asarray(b, dtype=float)
@@ -267,9 +283,32 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
         if j < 0 or _rank(J @ W) < m:                            # rank(JW) < m: output the best solution
+            if not found:                                        # no factor kept the box (0 is outside it)
+                return _around_box_point(sns_tpm_reference, lv, box, lambda_max, eps, iterations, return_info)
             s, W, xN, order = s_star, W_star, xN_star, order_star
             x = xN + W @ pinv(J @ W) @ F @ (s * xd - J @ xN)
-            return _result(x, box, SNSInfo(float(s), tuple(order), iterations, found), return_info)
+            return _result(x, box, SNSInfo(float(s), tuple(order), iterations), return_info)
+
+
+def _shifted(lv, x0):
+    """The stack seen from ``x0``: each level's active rows ``(J_i, t_i - J_i x0)``, one pair per level."""
+    return [(J, t - J @ x0) for J, t in (level.as_equality() for level in lv)]
+
+
+def _around_box_point(solver, lv, box: _Box, lambda_max, eps, iterations, return_info):
+    """No scale factor in [0, 1] keeps a box without 0: solve around ``x0 = clip(0, box)`` instead.
+
+    ``x = x0 + dx`` with ``dx`` the SNS-TPM solution for the right-hand side ``b - J x0`` and the
+    box ``[lower - x0, upper - x0]``, which contains 0: so ``dx`` exists, ``x`` is inside the box and
+    (full-rank stack) ``J x = (1 - s) J x0 + s b``. ``info.feasible`` is False to tell.
+    """
+    x0 = np.clip(0.0, box.lo, box.up)
+    if not x0.any():  # 0 is in the box (then s = 0 is always feasible): the paper's fallback x = 0
+        return _result(x0, box, SNSInfo(0.0, (), iterations, False), return_info)
+    dx, info = solver(_shifted(lv, x0), box.lo - x0, box.up - x0, lambda_max=lambda_max, eps=eps,
+                      return_info=True)
+    info = replace(info, iterations=iterations + info.iterations, feasible=False)
+    return _result(x0 + dx, box, info, return_info)
 
 
 # ----------------------------------------------------------------------------------------
@@ -281,9 +320,7 @@ def _free_pinv(J, free, n):
     G = np.zeros((n, m))
     if m == 0:
         return G, True
-    U, sv, Vt, info = lapack.dgesdd(J[:, free], compute_uv=1, full_matrices=0)
-    if info != 0:  # LAPACK's divide and conquer did not converge: the slower, more robust driver
-        U, sv, Vt = sla.svd(J[:, free], full_matrices=False, check_finite=False, lapack_driver="gesvd")
+    U, sv, Vt = sla.svd(J[:, free], full_matrices=False, check_finite=False)
     G[free] = (Vt.T * inverted_singular_values(sv)) @ U.T
     return G, sv.size == m and sv[-1] > RANK_TOL
 
@@ -334,8 +371,8 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
             order.append(j)
             G, full_rank = _free_pinv(J, free, n)
         if j < 0 or not full_rank:
-            if best is None:                     # paper's fallback s* = 0, W* = I, x_N* = 0: x = 0
-                return _result(np.zeros(n), box, SNSInfo(0.0, (), iterations, False), return_info)
+            if best is None:                     # no factor kept the box (0 is outside it)
+                return _around_box_point(sns_tpm, lv, box, lambda_max, eps, iterations, return_info)
             s, a, b, sat = best
             return _result(s * a + b, box, SNSInfo(float(s), sat, iterations), return_info)
 
@@ -352,7 +389,7 @@ def _sns_level(J, xd, x_prev, P, box: _Box, lambda_max, eps):
     """
     n, m = P.shape[0], J.shape[0]
     free = np.ones(n, dtype=bool)
-    xN = np.zeros(n)
+    xN, xsat = np.zeros(n), np.zeros(n)
     order: list[int] = []
     xt, G = x_prev, pinv(J @ P, lambda_max, eps)
     best = None
@@ -371,18 +408,26 @@ def _sns_level(J, xd, x_prev, P, box: _Box, lambda_max, eps):
         j = _critical_joint(smax, free, viol)
         if j >= 0:
             free[j] = False
-            xN[j] = (box.up[j] if x[j] > box.up[j] else box.lo[j]) - x_prev[j]
+            xsat[j] = box.up[j] if x[j] > box.up[j] else box.lo[j]
+            xN[j] = xsat[j] - x_prev[j]
             order.append(j)
-            A = np.where(free[:, None], 0.0, P)           # (I - W_k) P_{k-1}
-            Ap = pinv(A)
-            xt = x_prev + Ap @ xN
-            JPbar = J @ (P - Ap @ A)                      # Pbar_k = (I - A#) P_{k-1} = P_{k-1} - A# A
-        if j < 0 or _rank(JPbar) < m:
+            sat = ~free
+            # (I - W_k) P_{k-1} has the rows of P_{k-1} at the saturated joints (zero elsewhere): its
+            # pseudo-inverse from the SVD of those rows, which must be independent (see module doc)
+            U, sv, Vt = np.linalg.svd(P[sat], full_matrices=False)
+            realizable = sv[-1] > REALIZABLE_TOL
+            if realizable:
+                xt = x_prev + (Vt.T / sv) @ (U.T @ xN[sat])
+                xt[sat] = xsat[sat]                       # exact identity: x_N puts them on their bounds
+                JPbar = J @ (P - Vt.T @ Vt)               # Pbar_k = P_{k-1} - A# A, A = (I - W_k) P_{k-1}
+                JPbar[:, sat] = 0.0                       # exact identity: Pbar_k is zero at saturated joints
+        if j < 0 or not realizable or _rank(JPbar) < m:
             if best is None:                              # the task is not executed
                 return x_prev, SNSInfo(0.0, (), iterations, False)
-            s, xt, G, sat = best
-            return xt + G @ (s * xd - J @ xt), SNSInfo(float(s), sat, iterations)
+            s, xt, G, saturated = best
+            return xt + G @ (s * xd - J @ xt), SNSInfo(float(s), saturated, iterations)
         G = pinv(JPbar, lambda_max, eps)
+        G[~free] = 0.0                                    # exact identity, removes round-off
 
 
 def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
@@ -416,7 +461,12 @@ def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float =
         infos.append(info)
         JP = J @ P
         P = P - pinv(JP) @ JP
-    clipped = bool(box.violated(x, 2.0).any())     # beyond round-off: only if 0 is outside the box
+    shifted = False
+    x0 = np.clip(0.0, lo, up)
+    if box.violated(x, 2.0).any() and x0.any():   # only if 0 is outside the box: solve around x0
+        dx, scales, sub = sns(_shifted(lv, x0), lo - x0, up - x0, lambda_max=lambda_max, eps=eps, return_info=True)
+        x, infos, shifted = x0 + dx, list(sub.levels), True
+    clipped = bool(box.violated(x, 2.0).any())    # round-off beyond tolerance (near-singular, undamped)
     x = np.clip(x, lo, up)
     scales = np.array(scales)
-    return (x, scales, SNSStackInfo(tuple(infos), clipped)) if return_info else (x, scales)
+    return (x, scales, SNSStackInfo(tuple(infos), clipped, shifted)) if return_info else (x, scales)
