@@ -45,7 +45,12 @@ def random_problem(rng, kind):
         while sum(sizes) > n:
             sizes.pop()
         sizes = sizes or [min(n, 2)]
-    levels = random_stack(rng, n, sizes, scale=float(rng.choice([1e-2, 1.0, 100.0])))
+    scale = float(rng.choice([1e-2, 1.0, 100.0]))
+    levels = random_stack(rng, n, sizes, scale=scale)
+    for _ in range(20):  # full rank and not nearly singular: cond(J) <= 1e3 (round-off stays ~1e-13 relative)
+        if kind != "full_rank" or np.linalg.cond(np.vstack([J for J, _ in levels])) <= 1e3:
+            break
+        levels = random_stack(rng, n, sizes, scale=scale)
     if kind != "full_rank":
         if rng.random() < 0.3:  # the same task again, another target: a conflict
             J, b = levels[0]

@@ -441,7 +441,8 @@ def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float =
     null space and, when ``rank(J_k Pbar_k) < m_k``, takes the largest scale that keeps the box. A
     level for which no scale in ``[0, 1]`` keeps the box is not executed (scale 0). ``lambda_max``,
     ``eps`` damp the task pseudo-inverses as in :func:`nullspace`; without an active bound the
-    result is :func:`nullspace`'s.
+    result is :func:`nullspace`'s. If the zero command is outside the box and the result leaves it,
+    the stack is solved around ``x0 = clip(0, box)`` instead (module doc; ``info.shifted``).
     """
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
