@@ -405,6 +405,10 @@ def test_bad_boxes_and_shapes():
         sns_tpm(levels, [-1, -1, 1.0, -1], [1, 1, 0.5, 1])
     with pytest.raises(BoxError, match=r"upper\[1\] is NaN"):
         sns(levels, -np.ones(4), [1, np.nan, 1, 1])
+    for lo, up in (([-1, np.inf, -1, -1], [1, np.inf, 1, 1]), ([-1, -np.inf, -1, -1], [1, -np.inf, 1, 1])):
+        for solver in (sns_tpm, sns, sns_tpm_reference):
+            with pytest.raises(BoxError, match=r"joint 1 is empty.*finite command"):
+                solver(levels, lo, up)
     with pytest.raises(ShapeError, match="stack has 4 columns but the box has 3 joints"):
         sns_tpm(levels, -np.ones(3), np.ones(3))
     with pytest.raises(ShapeError):

@@ -19,7 +19,6 @@ ignores ``active`` and treats the bounds as true inequalities.
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
@@ -27,63 +26,76 @@ from hqp_tpm.errors import BoxError, NonFiniteError, ShapeError
 
 
 def _vector(x, m: int, what: str, *, allow_inf: bool = False) -> np.ndarray:
-    arr = np.asarray(x, dtype=float)
-    if arr.ndim == 0:
-        arr = np.full(m, float(arr))
-    arr = arr.reshape(-1) if arr.ndim == 2 and 1 in arr.shape else arr
-    if arr.shape != (m,):
-        raise ShapeError(f"{what} has shape {np.shape(x)}, expected ({m},) to match J's {m} rows")
-    bad = np.isnan(arr) if allow_inf else ~np.isfinite(arr)
-    if bad.any():
-        raise NonFiniteError(f"{what} holds non-finite values at rows {np.flatnonzero(bad).tolist()}: {arr}")
-    return np.ascontiguousarray(arr)
+    if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (m,):  # the common case, checked cheaply
+        arr = x
+    else:
+        arr = np.asarray(x, dtype=float)
+        if arr.ndim == 0:
+            arr = np.full(m, float(arr))
+        arr = arr.reshape(-1) if arr.ndim == 2 and 1 in arr.shape else arr
+        if arr.shape != (m,):
+            raise ShapeError(f"{what} has shape {np.shape(x)}, expected ({m},) to match J's {m} rows")
+    if allow_inf:
+        if np.isnan(arr).any():
+            raise NonFiniteError(f"{what} holds NaN at rows {np.flatnonzero(np.isnan(arr)).tolist()}: {arr}")
+    elif not np.isfinite(arr).all():
+        bad = np.flatnonzero(~np.isfinite(arr)).tolist()
+        raise NonFiniteError(f"{what} holds non-finite values at rows {bad}: {arr}")
+    return arr
 
 
-@dataclass(frozen=True, eq=False)
-class Level:
-    """One priority level: ``J x = b`` or ``lower <= J x <= upper`` (row-wise).
-
-    Exactly one of ``b`` (equality) or ``lower``/``upper`` (inequality) is given.
-    ``active`` optionally fixes which inequality rows the analytic solvers keep.
-    """
-
-    J: np.ndarray
-    b: np.ndarray | None = None
-    lower: np.ndarray | None = None
-    upper: np.ndarray | None = None
-    active: np.ndarray | None = None
-    name: str = ""
-
-    def __post_init__(self) -> None:
-        J = np.asarray(self.J, dtype=float)
+def _matrix(J, name: str) -> np.ndarray:
+    if not (type(J) is np.ndarray and J.dtype == np.float64 and J.ndim == 2):
+        J = np.asarray(J, dtype=float)
         if J.ndim == 1:
             J = J.reshape(1, -1)
         if J.ndim != 2:
-            raise ShapeError(f"level {self.name!r}: J must be 2-D (m x n), got shape {np.shape(self.J)}")
-        if not np.isfinite(J).all():
-            raise NonFiniteError(f"level {self.name!r}: J holds NaN or inf at {np.argwhere(~np.isfinite(J)).tolist()}")
+            raise ShapeError(f"level {name!r}: J must be 2-D (m x n), got shape {np.shape(J)}")
+    if not np.isfinite(J).all():
+        raise NonFiniteError(f"level {name!r}: J holds NaN or inf at {np.argwhere(~np.isfinite(J)).tolist()}")
+    return J
+
+
+class Level:
+    """One priority level: ``J x = b`` or ``lower <= J x <= upper`` (row-wise), validated once.
+
+    Exactly one of ``b`` (equality) or ``lower``/``upper`` (inequality) is given.
+    ``active`` optionally fixes which inequality rows the analytic solvers keep.
+    The arrays are the caller's (not copied) and must not be changed afterwards.
+    """
+
+    __slots__ = ("J", "b", "lower", "upper", "active", "name")
+
+    def __init__(self, J, b=None, lower=None, upper=None, active=None, name: str = ""):
+        self.name = name
+        J = _matrix(J, name)
         m = J.shape[0]
-        object.__setattr__(self, "J", np.ascontiguousarray(J))
-        is_eq = self.b is not None
-        is_ineq = self.lower is not None or self.upper is not None
-        if is_eq == is_ineq:
-            raise ShapeError(f"level {self.name!r}: give either b (equality) or lower/upper (inequality), not "
+        self.J = J
+        is_eq = b is not None
+        if is_eq == (lower is not None or upper is not None):
+            raise ShapeError(f"level {name!r}: give either b (equality) or lower/upper (inequality), not "
                              f"{'both' if is_eq else 'neither'}")
+        self.active = None
         if is_eq:
-            object.__setattr__(self, "b", _vector(self.b, m, f"level {self.name!r}: b"))
+            self.b = _vector(b, m, f"level {name!r}: b")
+            self.lower = self.upper = None
             return
-        lo = _vector(-np.inf if self.lower is None else self.lower, m, f"level {self.name!r}: lower", allow_inf=True)
-        up = _vector(np.inf if self.upper is None else self.upper, m, f"level {self.name!r}: upper", allow_inf=True)
+        self.b = None
+        lo = _vector(-np.inf if lower is None else lower, m, f"level {name!r}: lower", allow_inf=True)
+        up = _vector(np.inf if upper is None else upper, m, f"level {name!r}: upper", allow_inf=True)
         if (lo > up).any():
             i = int(np.flatnonzero(lo > up)[0])
-            raise BoxError(f"level {self.name!r}: lower[{i}] = {lo[i]} > upper[{i}] = {up[i]}")
-        object.__setattr__(self, "lower", lo)
-        object.__setattr__(self, "upper", up)
-        if self.active is not None:
-            act = np.asarray(self.active, dtype=bool).reshape(-1)
+            raise BoxError(f"level {name!r}: lower[{i}] = {lo[i]} > upper[{i}] = {up[i]}")
+        self.lower, self.upper = lo, up
+        if active is not None:
+            act = np.asarray(active, dtype=bool).reshape(-1)
             if act.shape != (m,):
-                raise ShapeError(f"level {self.name!r}: active has shape {np.shape(self.active)}, expected ({m},)")
-            object.__setattr__(self, "active", act)
+                raise ShapeError(f"level {name!r}: active has shape {np.shape(active)}, expected ({m},)")
+            self.active = act
+
+    def __repr__(self) -> str:
+        kind = "J x = b" if self.b is not None else "lower <= J x <= upper"
+        return f"Level({self.name!r}, {self.m}x{self.n}, {kind})"
 
     @property
     def m(self) -> int:
@@ -154,3 +166,25 @@ def equality_stack(levels: Sequence[Level]) -> list[tuple[np.ndarray, np.ndarray
     """The analytic solvers' view: active rows of each level as ``(J_i, b_i)``; empty levels dropped."""
     pairs = (lv.as_equality() for lv in levels)
     return [(J, b) for J, b in pairs if J.shape[0] > 0]
+
+
+def stacked(levels: Iterable, n: int | None = None):
+    """Validated levels and their active rows stacked: ``(levels, J, b, sizes, n)``.
+
+    ``J`` (m x n) and ``b`` (m) hold the rows of :func:`equality_stack` in priority order,
+    ``sizes`` the row count of each non-empty level.
+    """
+    lv = as_levels(levels, n)
+    n = lv[0].n if lv else n
+    Js, bs, sizes = [], [], []
+    for level in lv:
+        J, b = (level.J, level.b) if level.b is not None else level.as_equality()
+        if J.shape[0]:
+            Js.append(J)
+            bs.append(b)
+            sizes.append(J.shape[0])
+    if not sizes:
+        return lv, np.zeros((0, n)), np.zeros(0), (), n
+    if len(Js) == 1:
+        return lv, Js[0], bs[0], (sizes[0],), n
+    return lv, np.concatenate(Js), np.concatenate(bs), tuple(sizes), n

@@ -6,8 +6,9 @@
   joints and one scale factor ``s`` applies to *all* tasks. Without an active bound the result
   is exactly :func:`hqp_tpm.solvers.tpm.tpm`. The reference path follows the algorithm line by
   line with ``n x n`` matrices; the fast path starts from :func:`tpm` itself, computes ``F`` only
-  once a bound is exceeded and then works on the columns of the free joints, one SVD per
-  saturation (rank test and ``(J W)#`` at once). ``tests/test_sns.py`` proves them equal.
+  once a bound is exceeded and then works on the columns of the free joints, one QR per
+  saturation (rank test and ``(J W)#`` at once; an SVD only when the QR cannot decide the rank).
+  ``tests/test_sns.py`` proves them equal.
 * :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
   first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
   least amount); a lower level moves only in the null space of the higher ones, so their
@@ -56,11 +57,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import scipy.linalg as sla
+from scipy.linalg import lapack
 
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
-from hqp_tpm.solvers.levels import as_levels, equality_stack
-from hqp_tpm.solvers.tpm import tpm, tpm_factors
+from hqp_tpm.solvers.levels import as_levels, stacked
+from hqp_tpm.solvers.tpm import _Factorization, _triu, tpm_factors
 
 #: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (1 + |bound|)``;
 #: the scale factor uses the box widened by the same amount, and the returned command is clipped
@@ -112,14 +114,17 @@ def _box(lower, upper, n: int | None) -> tuple[np.ndarray, np.ndarray]:
         expected = f"({n},) each" if n is not None else "the same 1-D shape"
         raise ShapeError(f"box has lower shape {np.shape(lower)} and upper shape {np.shape(upper)}, "
                          f"expected {expected}")
+    if ((lo <= up) & (lo < np.inf) & (up > -np.inf)).all():   # the common case, one pass
+        return lo, up
     for name, arr in (("lower", lo), ("upper", up)):
         if np.isnan(arr).any():
             i = int(np.flatnonzero(np.isnan(arr))[0])
             raise BoxError(f"box {name}[{i}] is NaN (joint {i})")
-    if (lo > up).any():
-        i = int(np.flatnonzero(lo > up)[0])
+    i = int(np.flatnonzero((lo > up) | (lo == np.inf) | (up == -np.inf))[0])
+    if lo[i] > up[i]:
         raise BoxError(f"box of joint {i} is empty: lower[{i}] = {lo[i]} > upper[{i}] = {up[i]}")
-    return lo, up
+    raise BoxError(f"box of joint {i} is empty: lower[{i}] = {lo[i]}, upper[{i}] = {up[i]} "
+                   f"(a finite command needs lower < inf and upper > -inf)")
 
 
 def _levels(levels, n):
@@ -132,31 +137,31 @@ def _levels(levels, n):
 
 
 def _stacked(levels, n):
-    """Validated levels and the stacked active rows ``(J, b)`` of the whole stack."""
-    lv = _levels(levels, n)
-    pairs = equality_stack(lv)
-    if not pairs:
-        return lv, np.zeros((0, n)), np.zeros(0)
-    return lv, np.vstack([p[0] for p in pairs]), np.concatenate([p[1] for p in pairs])
+    """Validated levels, the stacked active rows ``(J, b)`` of the whole stack and the level sizes."""
+    levels = tuple(levels)
+    lv, J, b, sizes, cols = stacked(levels, None if levels else n)
+    if cols != n:
+        raise ShapeError(f"the stack has {cols} columns but the box has {n} joints")
+    return lv, J, b, sizes
 
 
 class _Box:
     """The exact box and the box widened by round-off (``VIOLATION_TOL``), computed once per solve."""
 
-    __slots__ = ("lo", "up", "wlo", "wup")
+    __slots__ = ("lo", "up", "tlo", "tup", "wlo", "wup")
 
     def __init__(self, lo, up):
         self.lo, self.up = lo, up
-        with np.errstate(invalid="ignore"):
-            self.wlo = lo - VIOLATION_TOL * (1.0 + np.abs(lo))
-            self.wup = up + VIOLATION_TOL * (1.0 + np.abs(up))
+        self.tlo = VIOLATION_TOL * (1.0 + np.abs(lo))   # +inf for an infinite bound: never crossed
+        self.tup = VIOLATION_TOL * (1.0 + np.abs(up))
+        self.wlo = lo - self.tlo
+        self.wup = up + self.tup
 
     def violated(self, x, k: float = 1.0) -> np.ndarray:
         """Joints beyond the box by more than ``k`` times the round-off tolerance."""
         if k == 1.0:
             return (x < self.wlo) | (x > self.wup)
-        with np.errstate(invalid="ignore"):
-            return ((x < self.lo - k * (self.lo - self.wlo)) | (x > self.up + k * (self.wup - self.up)))
+        return (x < self.lo - k * self.tlo) | (x > self.up + k * self.tup)
 
 
 def _scaling(a, b, box: _Box, free) -> tuple[float, np.ndarray]:
@@ -175,9 +180,8 @@ def _scaling(a, b, box: _Box, free) -> tuple[float, np.ndarray]:
     smax = np.full(n, np.inf)
     fixed = ~free                                # saturated: not scaled, they must only sit inside
     if fixed.any():
-        ends = np.concatenate([b[fixed], a[fixed] + b[fixed]])
-        wlo, wup = np.tile(box.wlo[fixed], 2), np.tile(box.wup[fixed], 2)
-        if ((ends < wlo) | (ends > wup)).any():  # a saturation the null space could not realize
+        b0, b1, wlo, wup = b[fixed], a[fixed] + b[fixed], box.wlo[fixed], box.wup[fixed]
+        if ((b0 < wlo) | (b0 > wup) | (b1 < wlo) | (b1 > wup)).any():  # a saturation the null space could not realize
             return -1.0, smax
     idx = np.flatnonzero(free & (a != 0.0))
     flat = free & (a == 0.0)                     # s has no effect: fine iff b is in the box
@@ -240,11 +244,14 @@ def _rank(A) -> int:
     return int(np.sum(np.linalg.svd(A, compute_uv=False) > RANK_TOL))
 
 
-def _result(x, box: _Box, info, return_info):
-    """The command clipped into the exact box: a round-off change only, unless ``info.feasible`` is False."""
-    if info.feasible and box.violated(x, 2.0).any():  # cannot happen when a factor was found
+def _result(x, box: _Box, info, return_info, checked: bool = False):
+    """The command clipped into the exact box: a round-off change only, unless ``info.feasible`` is False.
+
+    ``checked``: ``x`` is already known to be inside the widened box.
+    """
+    if info.feasible and not checked and box.violated(x, 2.0).any():  # cannot happen when a factor was found
         info = replace(info, feasible=False)
-    x = np.clip(x, box.lo, box.up)
+    x = np.minimum(np.maximum(x, box.lo), box.up)
     return (x, info) if return_info else x
 
 
@@ -257,7 +264,7 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
     n = lo.shape[0]
-    lv, J, xd = _stacked(levels, n)
+    lv, J, xd, _ = _stacked(levels, n)
     m = J.shape[0]
     F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
     W, xN, s, s_star = np.eye(n), np.zeros(n), 1.0, 0.0          # W = I, qdot_N = 0, s = 1, s* = 0
@@ -314,13 +321,85 @@ def _around_box_point(solver, lv, box: _Box, lambda_max, eps, iterations, return
 # ----------------------------------------------------------------------------------------
 # SNS-TPM: fast path.
 # ----------------------------------------------------------------------------------------
+class _ScalarBox:
+    """The box as Python floats, for :func:`_scale_and_pick` (cheaper than numpy at these sizes)."""
+
+    __slots__ = ("lo", "up", "wlo", "wup")
+
+    def __init__(self, box: _Box):
+        self.lo, self.up, self.wlo, self.wup = (v.tolist() for v in (box.lo, box.up, box.wlo, box.wup))
+
+
+def _scale_and_pick(a, b, sb: _ScalarBox, free, viol) -> tuple[float, int]:
+    """:func:`_scaling` then :func:`_critical_joint`, joint by joint on floats: the same numbers.
+
+    ``a``, ``b``, ``viol``: lists; ``free``: list of bools. Returns ``(factor, j)``.
+    """
+    n = len(a)
+    inf = float("inf")
+    smax = [inf] * n
+    factor = None
+    for j in range(n):                           # saturated joints must sit inside, at s = 0 and s = 1
+        if not free[j]:
+            lo, up, bj = sb.wlo[j], sb.wup[j], b[j]
+            if not (lo <= bj <= up and lo <= a[j] + bj <= up):
+                factor = -1.0
+                break
+    if factor is None:
+        bad = [j for j in range(n) if free[j] and a[j] == 0.0 and not (sb.wlo[j] <= b[j] <= sb.wup[j])]
+        if bad:                                  # s has no effect on a joint outside the box
+            for j in bad:
+                smax[j] = -inf
+            factor = -1.0
+    if factor is None:
+        s_hi_w, s_lo, s_hi, any_idx = inf, -inf, inf, False
+        for j in range(n):
+            aj = a[j]
+            if free[j] and aj != 0.0:
+                any_idx = True
+                bj = b[j]
+                if aj > 0.0:
+                    sm, sw, sl = (sb.up[j] - bj) / aj, (sb.wup[j] - bj) / aj, (sb.wlo[j] - bj) / aj
+                else:
+                    sm, sw, sl = (sb.lo[j] - bj) / aj, (sb.wlo[j] - bj) / aj, (sb.wup[j] - bj) / aj
+                smax[j] = sm
+                s_hi, s_hi_w, s_lo = min(s_hi, sm), min(s_hi_w, sw), max(s_lo, sl)
+        if not any_idx:
+            factor = 1.0
+        else:
+            s_lo = max(s_lo, 0.0)
+            factor = -1.0 if s_lo > min(s_hi_w, 1.0) else max(min(s_hi, 1.0), s_lo)
+    j = min(range(n), key=smax.__getitem__)      # first argmin, as np.argmin
+    if not (free[j] and viol[j]):
+        cand = [k for k in range(n) if free[k] and viol[k]]
+        j = min(cand, key=smax.__getitem__) if cand else -1
+    return factor, j
+
+
 def _free_pinv(J, free, n):
-    """``(J W)#`` from the SVD of the free columns, and whether ``rank(J W) = m``."""
+    """``(J W)#`` and whether ``rank(J W) = m`` (``W`` keeps the ``free`` columns).
+
+    With ``p`` free columns, ``p < m`` means a rank loss. Otherwise ``(J W)^T = Q R`` gives
+    ``(J W)# = Q R^{-T}`` on the free rows; the SVD (the reference's rank test) is taken only when
+    the bounds ``1/||R^-1||_F <= sigma_min <= min |r_jj|`` do not decide ``sigma_min > RANK_TOL``.
+    """
     m = J.shape[0]
     G = np.zeros((n, m))
     if m == 0:
         return G, True
-    U, sv, Vt = sla.svd(J[:, free], full_matrices=False, check_finite=False)
+    A = J[:, free]
+    if A.shape[1] < m:
+        return None, False
+    qr, tau, _, _ = lapack.dgeqrf(A.T)
+    if np.abs(np.diagonal(qr)).min() <= RANK_TOL:  # sigma_min <= min |r_jj|: a rank loss, G not needed
+        return None, False
+    Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
+    if info == 0:
+        flat = Rinv.ravel("K")
+        if 1.0 / np.sqrt(flat @ flat) > RANK_TOL:
+            G[free] = lapack.dorgqr(qr, tau)[0][:, :m] @ Rinv.T
+            return G, True
+    U, sv, Vt = sla.svd(A, full_matrices=False, check_finite=False)
     G[free] = (Vt.T * inverted_singular_values(sv)) @ U.T
     return G, sv.size == m and sv[-1] > RANK_TOL
 
@@ -334,37 +413,41 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     Returns ``x``, or ``(x, SNSInfo)`` with ``return_info``. Equal to :func:`tpm` when no bound is
     exceeded; otherwise joints are saturated one by one and, when ``rank(J W) < m``, the best
     scaled solution ``x = x_N + (J W)# F (s b - J x_N)`` is returned. Same numbers as
-    :func:`sns_tpm_reference`; the first pass is :func:`tpm` itself, later ones evaluate the core
-    step as ``x = s a + b`` with ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
+    :func:`sns_tpm_reference`; the first pass is :func:`tpm`'s computation itself (one QR of the
+    stack gives both ``x`` and ``F``), later ones evaluate the core step as ``x = s a + b`` with
+    ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
     """
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
     n = lo.shape[0]
-    lv, J, xd = _stacked(levels, n)
-    x = tpm(lv, lambda_max=lambda_max, eps=eps, n=n)   # W = I: eq. (4) is the TPM solution (1)
+    lv, J, xd, sizes = _stacked(levels, n)
+    if sizes:                                    # W = I: eq. (4) is the TPM solution (1)
+        fac = _Factorization(J, sizes, n, lambda_max, eps)
+        F_times = fac.F_times
+        Fxd = F_times(xd)
+        x = fac.pinv_times(Fxd)[:n]
+    else:
+        F_times, Fxd, x = (lambda v: v), xd, np.zeros(n)
     free = np.ones(n, dtype=bool)
     xN = np.zeros(n)
     a, b = x, np.zeros(n)
     order: list[int] = []
     best = None                                  # (s*, a, b, saturated) of the best scaled solution
     iterations = 0
-    F = G = Fxd = None
+    G = sb = None
     while True:
         iterations += 1
         if order:
             a = G @ Fxd
-            b = xN - G @ (F @ (J[:, order] @ xN[order]))
+            b = xN - G @ F_times(J[:, order] @ xN[order])
             x = a + b
         viol = box.violated(x)
         if not viol.any():
-            return _result(x, box, SNSInfo(1.0, tuple(order), iterations), return_info)
-        factor, smax = _scaling(a, b, box, free)
+            return _result(x, box, SNSInfo(1.0, tuple(order), iterations), return_info, checked=True)
+        sb = sb or _ScalarBox(box)
+        factor, j = _scale_and_pick(a.tolist(), b.tolist(), sb, free.tolist(), viol.tolist())
         if factor >= 0.0 and (best is None or factor > best[0]):
             best = (factor, a, b, tuple(order))
-        j = _critical_joint(smax, free, viol)
-        if F is None:                            # a bound is exceeded: now the TPM matrix F is needed
-            F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
-            Fxd = F @ xd
         if j >= 0:
             free[j] = False
             xN[j] = up[j] if x[j] > up[j] else lo[j]

@@ -27,8 +27,8 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
-from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
-from hqp_tpm.solvers.levels import as_levels, equality_stack
+from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_value, inverted_singular_values, pinv
+from hqp_tpm.solvers.levels import stacked
 
 
 @dataclass(frozen=True)
@@ -56,14 +56,8 @@ class TPMFactors:
 
 
 def _stack(levels, n):
-    lv = as_levels(levels, n)
-    n = lv[0].n if lv else n
-    pairs = equality_stack(lv)
-    if not pairs:
-        return np.zeros((0, n)), np.zeros(0), (), n
-    J = np.vstack([p[0] for p in pairs])
-    b = np.concatenate([p[1] for p in pairs])
-    return J, b, tuple(p[0].shape[0] for p in pairs), n
+    _, J, b, sizes, n = stacked(levels, n)
+    return J, b, sizes, n
 
 
 def _qr_of_transpose(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -111,95 +105,131 @@ def tpm_reference(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0
 # ----------------------------------------------------------------------------------------
 # Fast path.
 # ----------------------------------------------------------------------------------------
+_UPPER: dict[int, np.ndarray] = {}
+
+
+def _triu(A: np.ndarray) -> np.ndarray:
+    """Upper triangle of a square block (``np.triu`` with a cached mask: several times cheaper)."""
+    k = A.shape[0]
+    mask = _UPPER.get(k)
+    if mask is None:
+        mask = _UPPER[k] = np.triu(np.ones((k, k), dtype=bool))
+    return A * mask
+
+
+def _pivot(block: np.ndarray, lambda_max: float, eps: float):
+    """``(D, regular, singular)``: the (damped) pseudo-inverse of an upper-triangular pivot block.
+
+    Regular (invertible, and not damped: ``sigma_min >= eps`` when ``lambda_max > 0``) pivots get
+    their exact triangular inverse. The decision is the reference path's, on ``sigma_min``, but the
+    SVD is needed only when the bound ``sigma_min >= 1/||R_ii^-1||_F`` cannot decide.
+    """
+    damped = lambda_max > 0.0
+    if block.shape[0] == 1:
+        r = block[0, 0]
+        smin = abs(r)
+        if smin > RANK_TOL and not (damped and smin < eps):
+            return np.array([[1.0 / r]]), True, False
+        inv = inverted_singular_value(smin, lambda_max, eps)
+        return np.array([[inv if r >= 0.0 else -inv]]), False, smin <= RANK_TOL
+    R = _triu(block)
+    Rinv, info = lapack.dtrtri(R, lower=0)
+    if info == 0:
+        flat = Rinv.ravel("K")
+        lower_bound = 1.0 / np.sqrt(flat @ flat)
+        if lower_bound > RANK_TOL and not (damped and lower_bound < eps):
+            return Rinv, True, False
+    U, sv, Vt, _ = lapack.dgesdd(R)
+    if sv[-1] > RANK_TOL and not (damped and sv[-1] < eps):
+        return Rinv, True, False
+    return (Vt.T * inverted_singular_values(sv, lambda_max, eps)) @ U.T, False, sv[-1] <= RANK_TOL
+
+
+class _Factorization:
+    """``J^T = Q R`` of a stacked ``J`` (LAPACK, compact form) and the pivot pseudo-inverses.
+
+    ``regular``: every pivot is invertible and undamped, so Steps 2-4 give ``F = I``;
+    ``singular``: some pivot (hence ``R``) is singular and ``J# = Q pinv(R^T)`` needs the SVD.
+    """
+
+    __slots__ = ("J", "m", "n", "qr", "tau", "off", "pivots", "regular", "singular", "_Fbar", "_Q")
+
+    def __init__(self, J: np.ndarray, sizes, n: int, lambda_max: float, eps: float):
+        m = J.shape[0]
+        self.J, self.m, self.n = J, m, n
+        JT = J.T if m <= n else np.vstack([J.T, np.zeros((m - n, m))])  # zero columns when m > n
+        self.qr, self.tau, _, _ = lapack.dgeqrf(JT)                      # eq. (8)
+        off = [0]
+        for k in sizes:
+            off.append(off[-1] + k)
+        self.off = off
+        self.pivots = [_pivot(self.qr[a:e, a:e], lambda_max, eps) for a, e in zip(off, off[1:], strict=False)]
+        self.regular = all(p[1] for p in self.pivots)
+        self.singular = any(p[2] for p in self.pivots)
+        self._Fbar = self._Q = None
+
+    def Fbar(self) -> np.ndarray:
+        """Steps 1-4 of papers/000 on the pivot blocks: ``Fbar`` with ``F = Fbar^T`` (10)."""
+        if self._Fbar is None:
+            off = self.off
+            Fbar = _triu(self.qr[: self.m, : self.m])                    # Step 1
+            for i, (D, _, _) in enumerate(self.pivots):                  # R_ii untouched by earlier steps
+                a, e = off[i], off[i + 1]
+                Fbar[a:e, a:] = D @ Fbar[a:e, a:]                        # Step 2
+                if i > 0:
+                    Fbar[:a, a:] -= Fbar[:a, a:e] @ Fbar[a:e, a:]        # Step 3
+            self._Fbar = Fbar
+        return self._Fbar
+
+    def F(self) -> np.ndarray:
+        return np.eye(self.m) if self.regular else self.Fbar().T
+
+    def F_times(self, b: np.ndarray) -> np.ndarray:
+        """``F b`` (``b`` itself when ``F = I``)."""
+        return b if self.regular else self.Fbar().T @ b
+
+    def Q(self) -> np.ndarray:
+        if self._Q is None:
+            self._Q = lapack.dorgqr(self.qr, self.tau)[0][:, : self.m]
+        return self._Q
+
+    def R(self) -> np.ndarray:
+        return _triu(self.qr[: self.m, : self.m])
+
+    def pinv_times(self, y: np.ndarray) -> np.ndarray:
+        """``J# y = Q R^{-T} y`` (eq. (11)), padded rows included when ``m > n``."""
+        if self.singular:
+            z = pinv(self.R().T) @ y
+        else:
+            z, _ = lapack.dtrtrs(self.qr[: self.m, : self.m], y, lower=0, trans=1)  # upper triangle read
+        return self.Q() @ z
+
+    def pinv_matrix(self) -> np.ndarray:
+        """``J#`` (first ``n`` rows)."""
+        if self.singular:
+            Jp = self.Q() @ pinv(self.R().T)
+        else:
+            Jp = lapack.dtrtrs(self.qr[: self.m, : self.m], self.Q().T, lower=0)[0].T  # (R^-1 Q^T)^T
+        return Jp[: self.n]
+
+    def solve(self, b: np.ndarray, x0: np.ndarray | None = None) -> np.ndarray:
+        """``J# F b``, plus ``(I - J# J) x0`` when given (eq. (14)), as ``x0 + J# (F b - J x0)``."""
+        y = self.F_times(b)
+        if x0 is None:
+            return self.pinv_times(y)[: self.n]
+        x = self.pinv_times(y - self.J @ x0)
+        return x[: self.n] + x0
+
+
 def tpm_factors(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
                 n: int | None = None) -> TPMFactors:
     """Q, R, F and J# of the stack (same numbers as :func:`tpm_reference`)."""
     J, _b, sizes, n = _stack(levels, n)
-    return _factors(J, sizes, n, lambda_max, eps)
-
-
-def _factors(J, sizes, n, lambda_max, eps) -> TPMFactors:
     m = J.shape[0]
     if m == 0:
         return TPMFactors(np.zeros((n, 0)), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((n, 0)), (), n)
-    Q, R = _qr_of_transpose(J)
-    off = _offsets(sizes)
-    # pivot SVDs decide between the identity shortcut and the general elimination
-    pivots = []
-    regular = True
-    for i in range(len(sizes)):
-        rows = slice(off[i], off[i + 1])
-        U, s, Vt = np.linalg.svd(R[rows, rows])
-        pivots.append((U, s, Vt))
-        if s[-1] <= RANK_TOL or (lambda_max > 0.0 and s[-1] < eps):
-            regular = False
-    if regular:
-        F = np.eye(m)
-        Jpinv = sla.solve_triangular(R, Q.T, check_finite=False).T  # (R^{-1} Q^T)^T = Q R^{-T}
-    else:
-        Fbar = R.copy()
-        for i, (U, s, Vt) in enumerate(pivots):
-            rows = slice(off[i], off[i + 1])
-            # the pivot block of row i is untouched by earlier steps: its SVD is R_ii's
-            Fbar[rows, off[i]:] = ((Vt.T * inverted_singular_values(s, lambda_max, eps)) @ U.T) @ Fbar[rows, off[i]:]
-            if i > 0:
-                Fbar[: off[i], off[i]:] -= Fbar[: off[i], rows] @ Fbar[rows, off[i]:]
-        F = Fbar.T
-        Jpinv = Q @ pinv(R.T)
-    return TPMFactors(Q, R, F, Jpinv[:n], tuple(sizes), n)
-
-
-def _pivot_smin(block: np.ndarray) -> float:
-    """Smallest singular value of a pivot block (1x1 in closed form)."""
-    if block.shape[0] == 1:
-        return abs(block[0, 0])
-    return np.linalg.svd(block, compute_uv=False)[-1]
-
-
-def _pivot_inverse(block: np.ndarray, smin: float, lambda_max: float, eps: float) -> np.ndarray:
-    """(Damped) pseudo-inverse of a pivot block: triangular inverse when regular, else the SVD law."""
-    if block.shape[0] == 1:
-        return np.array([[inverted_singular_values(np.array([smin]), lambda_max, eps)[0] * np.sign(block[0, 0])]])
-    if smin > RANK_TOL and not (lambda_max > 0.0 and smin < eps):
-        return lapack.dtrtri(block, lower=0)[0]  # exact inverse of the upper-triangular pivot
-    U, sv, Vt = np.linalg.svd(block)
-    return (Vt.T * inverted_singular_values(sv, lambda_max, eps)) @ U.T
-
-
-def _solve(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0):
-    """Fast ``J# F b (+ (I - J#J) x0)``: LAPACK QR, pivots only, triangular solves (no explicit J#)."""
-    m = J.shape[0]
-    JT = J.T if m <= n else np.vstack([J.T, np.zeros((m - n, m))])
-    qr, tau, _, _ = lapack.dgeqrf(JT)
-    R = np.triu(qr[:m, :m])
-    Q, _, _ = lapack.dorgqr(qr, tau)
-    Q = Q[:, :m]
-    off = _offsets(sizes)
-    blocks = [slice(off[i], off[i + 1]) for i in range(len(sizes))]
-    smins = [_pivot_smin(R[r, r]) for r in blocks]
-    singular = min(smins) <= RANK_TOL
-    regular = [sm > RANK_TOL and not (lambda_max > 0.0 and sm < eps) for sm in smins]
-    if all(regular):
-        y = b                                                         # Steps 2-4 give F = I
-    else:
-        Fbar = R.copy()                                               # Step 1
-        for i, r in enumerate(blocks):
-            D = _pivot_inverse(R[r, r], smins[i], lambda_max, eps)    # R_ii untouched by earlier steps
-            Fbar[r, off[i]:] = D @ Fbar[r, off[i]:]                   # Step 2
-            if i > 0:
-                Fbar[: off[i], off[i]:] -= Fbar[: off[i], r] @ Fbar[r, off[i]:]  # Step 3
-        y = Fbar.T @ b                                                # F b, Step 5
-    if singular:
-        z = pinv(R.T) @ y
-    else:
-        z, _ = lapack.dtrtrs(R, y, lower=0, trans=1)                  # R^{-T} y
-    x = Q @ z                                                         # eq. (11)
-    if x0 is not None:
-        x0p = x0 if m <= n else np.concatenate([x0, np.zeros(m - n)])
-        Jx0 = JT.T @ x0p
-        w = pinv(R.T) @ Jx0 if singular else lapack.dtrtrs(R, Jx0, lower=0, trans=1)[0]
-        x = x + x0p - Q @ w                                           # eq. (14)
-    return x[:n]
+    fac = _Factorization(J, sizes, n, lambda_max, eps)
+    return TPMFactors(fac.Q(), fac.R(), fac.F(), fac.pinv_matrix(), tuple(sizes), n)
 
 
 def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
@@ -221,4 +251,4 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
             raise NonFiniteError(f"x0 holds non-finite values: {x0}")
     if not sizes:
         return np.zeros(n) if x0 is None else x0.copy()
-    return _solve(J, b, sizes, n, lambda_max, eps, x0)
+    return _Factorization(J, sizes, n, lambda_max, eps).solve(b, x0)
