@@ -18,13 +18,16 @@ import numpy as np
 from hqp_tpm.errors import NonFiniteError, ShapeError, unknown_name
 from hqp_tpm.obstacles import GeometryError
 
-__all__ = ["DIRECTIONS", "Repulsion", "repulsion_direction", "repulsion_magnitude"]
+__all__ = ["DIRECTIONS", "Repulsion", "nearest_element", "repulsion_direction", "repulsion_magnitude"]
 
 #: Valid values of ``direction``.
 DIRECTIONS = ("nearest", "mean")
 
 #: Below this norm the mean direction (25) is treated as cancelled and the nearest one is used.
 MEAN_TOL = 1e-9
+
+#: Largest argument of ``exp`` with a finite result; above it ``exp`` overflows to ``+inf`` (and r = 0).
+_EXP_MAX = float(np.log(np.finfo(float).max))
 
 
 def repulsion_magnitude(d, v_max: float, rho: float, gamma: float, c: float = 2.0) -> np.ndarray:
@@ -33,8 +36,7 @@ def repulsion_magnitude(d, v_max: float, rho: float, gamma: float, c: float = 2.
     Vectorised over ``d``; ``d = +inf`` gives 0, negative ``d`` (penetration) tends to ``v_max``.
     """
     x = gamma * (np.asarray(d, dtype=float) * (c / rho) - 1.0)
-    with np.errstate(over="ignore"):
-        return v_max / (1.0 + np.exp(x))
+    return v_max / (1.0 + np.exp(np.where(x > _EXP_MAX, np.inf, x)))  # exp(inf) = inf, no overflow warning
 
 
 def _check_pairs(distance, normal, in_range):
@@ -82,6 +84,32 @@ def repulsion_direction(distance, normal, in_range=None, direction: str = "neare
         use = has & (norm > MEAN_TOL)
         r_hat = np.where(use[:, None], r_mean / np.where(use, norm, 1.0)[:, None], r_hat)  # (26)
     return d_min, nearest, r_hat
+
+
+def nearest_element(distance: np.ndarray, normal: np.ndarray, in_range: np.ndarray, direction: str = "nearest",
+                    surveillance: float | None = None) -> tuple[int, int, float, np.ndarray | None]:
+    """The element nearest to an obstacle in range, D_minimal (31), and its unit repulsion direction.
+
+    Row ``k`` of :func:`repulsion_direction` for the element ``k`` of smallest ``d_min`` (the first one
+    on ties), computed for that element only and without validation: for the arrays of a
+    :class:`~hqp_tpm.distances.DistanceField` (finite or ``+inf`` distances). Returns
+    ``(k, j, d, r_hat)`` with ``j`` its nearest obstacle, or ``(-1, -1, inf, None)`` if no pair is in range.
+    """
+    mask = in_range if surveillance is None else in_range & (distance <= surveillance)
+    Dm = np.where(mask, distance, np.inf)
+    if Dm.size == 0:
+        return -1, -1, np.inf, None
+    k, j = divmod(int(Dm.argmin()), Dm.shape[1])  # row-major: the first minimal element, then obstacle
+    d = float(Dm[k, j])
+    if d == np.inf:
+        return -1, -1, np.inf, None
+    if direction == "mean":
+        row = mask[k]
+        r_mean = np.where(row[:, None], normal[k], 0.0).sum(axis=0) / max(int(row.sum()), 1)  # (25)
+        norm = np.sqrt((r_mean * r_mean).sum())
+        if norm > MEAN_TOL:
+            return k, j, d, r_mean / norm  # (26)
+    return k, j, d, normal[k, j].copy()
 
 
 @dataclass(frozen=True)

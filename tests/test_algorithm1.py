@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from hqp_tpm.errors import UnknownNameError
 from hqp_tpm.obstacles import Obstacle
 from hqp_tpm.policies.algorithm1 import Algorithm1
 from hqp_tpm.robot import Robot
@@ -96,3 +97,9 @@ def test_avoidance_task_is_n_transpose_J(lwr):
     assert level.b[0] == pytest.approx(pol.body_repulsion.magnitude(0.10), rel=1e-12)  # qd = 0: no Jdot term
     pol3, st = make(lwr, [o], dim=3)
     assert pol3(st, 0.0).to_levels(st, 0.0, 2)[-1].J.shape == (3, 7)
+
+
+def test_unknown_direction_is_rejected_at_construction(lwr):
+    ee = FramePosition(lwr, "lwr_ee", None, Gains(40, 20), name="ee")
+    with pytest.raises(UnknownNameError, match="'mean', 'nearest'"):
+        Algorithm1(lwr, ee, None, CPS, "lwr_ee", [], direction="average")

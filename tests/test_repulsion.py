@@ -1,6 +1,7 @@
 """Sigmoid repulsion (23)-(24) with factor c, nearest and mean (25)-(26) directions, vectors (27)."""
 
 import dataclasses
+import warnings
 
 import numpy as np
 import pinocchio as pin
@@ -9,7 +10,7 @@ import pytest
 from hqp_tpm.distances import DistanceField
 from hqp_tpm.errors import NonFiniteError, ShapeError, UnknownNameError
 from hqp_tpm.obstacles import GeometryError, Obstacle
-from hqp_tpm.repulsion import Repulsion, repulsion_direction, repulsion_magnitude
+from hqp_tpm.repulsion import Repulsion, nearest_element, repulsion_direction, repulsion_magnitude
 
 EE = Repulsion(v_max=5.0, rho=0.1, gamma=10.0, c=1.5)
 BODY = Repulsion(v_max=0.15, rho=0.15, gamma=2.0, c=3.0)
@@ -122,3 +123,49 @@ def test_errors_and_frozen():
         Repulsion(np.nan, 0.1, 1.0)
     with pytest.raises(dataclasses.FrozenInstanceError):
         EE.c = 2.0
+
+
+def random_pairs(rng, M, H):
+    """(M, H) distances with culled pairs (inf), exact ties and pairs beyond a surveillance of 0.15."""
+    d = rng.choice([0.02, 0.05, 0.1, 0.12, 0.2, np.inf], size=(M, H)) + rng.choice([0.0, 1e-3], size=(M, H))
+    n = rng.standard_normal((M, H, 3))
+    n /= np.linalg.norm(n, axis=2, keepdims=True)
+    u = unit(rng.standard_normal(3))
+    n[rng.random((M, H)) < 0.2] = u  # equal and opposite normals: the mean (25) may cancel
+    n[rng.random((M, H)) < 0.2] = -u
+    return d, n, d <= 0.15
+
+
+@pytest.mark.parametrize("direction", ["nearest", "mean"])
+def test_nearest_element_equals_the_per_element_directions(direction):
+    """The policy's fast path (one element) equals repulsion_direction's row of the argmin of d_min."""
+    rng = np.random.default_rng(7)
+    for _ in range(2000):
+        M, H = int(rng.integers(0, 10)), int(rng.integers(0, 5))
+        d, n, in_range = random_pairs(rng, M, H)
+        surveillance = rng.choice([None, 0.1])
+        k, j, d_k, r_k = nearest_element(d, n, in_range, direction, surveillance)
+        if M == 0:
+            assert (k, j, d_k, r_k) == (-1, -1, np.inf, None)
+            continue
+        d_min, nearest, r_hat = repulsion_direction(d, n, in_range, direction, surveillance)
+        k_ref = int(np.argmin(d_min))
+        if not np.isfinite(d_min[k_ref]):
+            assert (k, j, d_k, r_k) == (-1, -1, np.inf, None)
+            continue
+        assert (k, j, d_k) == (k_ref, nearest[k_ref], d_min[k_ref])
+        np.testing.assert_allclose(r_k, r_hat[k_ref], rtol=0, atol=1e-15)
+        np.testing.assert_allclose(BODY.magnitude(d_k), BODY.vectors(d, n, in_range, direction, surveillance)[0][k],
+                                   rtol=1e-15)
+
+
+def test_magnitude_without_overflow_warning():
+    """Past exp's range the magnitude is exactly 0, as with an overflowing exp, and no warning is raised."""
+    rep = Repulsion(5.0, 0.1, 10.0, 1.5)
+    d = np.array([0.0, 0.05, 4.7, 4.8, 5.0, 1e3, 1e300, np.inf])  # x = 10 (15 d - 1) crosses 709.78 near d = 4.8
+    with np.errstate(over="ignore"):
+        expected = 5.0 / (1.0 + np.exp(10.0 * (d * (1.5 / 0.1) - 1.0)))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        np.testing.assert_array_equal(rep.magnitude(d), expected)
+        assert rep.magnitude(1e300) == 0.0

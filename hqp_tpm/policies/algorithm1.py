@@ -21,9 +21,9 @@ import numpy as np
 
 from hqp_tpm.build import register_policy
 from hqp_tpm.distances import DistanceField
-from hqp_tpm.errors import ScenarioError
+from hqp_tpm.errors import ScenarioError, unknown_name
 from hqp_tpm.obstacles import Obstacle
-from hqp_tpm.repulsion import Repulsion
+from hqp_tpm.repulsion import DIRECTIONS, Repulsion, nearest_element
 from hqp_tpm.stack import Stack
 from hqp_tpm.state import State
 from hqp_tpm.tasks import Pointing
@@ -72,8 +72,11 @@ class Algorithm1:
         self.ee_frame = ee_frame
         self.field = DistanceField(robot.model, None, [*control_points, ee_frame], self.obstacles,
                                    surveillance=max(record_range, thresholds.eps2, thresholds.eps_ee))
-        self.body = np.arange(len(control_points))
+        if direction not in DIRECTIONS:
+            raise unknown_name("direction", direction, DIRECTIONS)
+        self.body = slice(0, len(control_points))  # field rows: the control points, then the EE frame
         self.ee_index = len(control_points)
+        self.ee = slice(self.ee_index, self.ee_index + 1)
         self.avoid = Avoidance("avoid", avoidance_dim)
         self.thresholds = {"d_minimal": {"eps1": thresholds.eps1, "eps2": thresholds.eps2},
                            "d_ee": {"eps_ee": thresholds.eps_ee}}
@@ -92,28 +95,22 @@ class Algorithm1:
 
     # the algorithm -------------------------------------------------------------------------
     def __call__(self, state: State, t: float) -> Stack:
-        f, th = self.field, self.th
-        # EE control point: repulsion added to the EE command (30) while d_ee <= eps_ee
-        d_ee_all = np.where(f.in_range[self.ee_index], f.distance[self.ee_index], np.inf)
-        j_ee = int(np.argmin(d_ee_all)) if d_ee_all.size else -1
-        d_ee = float(d_ee_all[j_ee]) if j_ee >= 0 else np.inf
+        f, th, body, ee = self.field, self.th, self.body, self.ee
+        # EE control point: repulsion added to the EE command (30) while d_ee <= eps_ee; the obstacle of
+        # largest magnitude is the nearest, direction (p_ee - o)/||p_ee - o||
+        _, _, d_ee, n_ee = nearest_element(f.distance[ee], f.normal[ee], f.in_range[ee])
         extras = {}
         if d_ee <= th.eps_ee:
-            # the obstacle of largest magnitude is the nearest; direction (p_ee - o)/||p_ee - o||
-            extras[self.ee_task.name] = self.ee_repulsion.magnitude(d_ee) * f.normal[self.ee_index, j_ee]
+            extras[self.ee_task.name] = self.ee_repulsion.magnitude(d_ee) * n_ee
         # critical body point: largest repulsion magnitude = nearest within eps2 (31)
-        mag, r_hat, d_min, nearest = self.body_repulsion.vectors(
-            f.distance[self.body], f.normal[self.body], f.in_range[self.body], self.direction, th.eps2)
-        k = int(np.argmin(d_min)) if d_min.size else -1
-        d_minimal = float(d_min[k]) if k >= 0 else np.inf
-        critical = k >= 0 and np.isfinite(d_minimal)
+        k, j, d_minimal, r_hat = nearest_element(f.distance[body], f.normal[body], f.in_range[body],
+                                                 self.direction, th.eps2)
+        critical = k >= 0
         levels: list[tuple[Task, ...]] = [(self.ee_task,)]
         placed = False
         if critical:
-            j = int(nearest[k])
-            self.avoid.assign(f.jacobian(state.data, int(self.body[k]), j),
-                              f.jdot_qdot(state.data, int(self.body[k]), j), r_hat[k], mag[k],
-                              f.p_robot[self.body[k], j])
+            self.avoid.assign(f.jacobian(state.data, k, j), f.jdot_qdot(state.data, k, j), r_hat,
+                              self.body_repulsion.magnitude(d_minimal), f.p_robot[k, j])
             if d_minimal <= th.eps1:
                 d_ee_eff = d_ee if d_ee <= th.eps_ee else th.d_ee_default
                 levels.insert(0 if d_minimal <= d_ee_eff else 1, (self.avoid,))
@@ -122,7 +119,7 @@ class Algorithm1:
             levels.append((self.pointing,))
         if critical and not placed:
             levels.append((self.avoid,))
-        self._last = {"d_minimal": d_minimal, "d_ee": d_ee, "active_point": k if critical else -1}
+        self._last = {"d_minimal": d_minimal, "d_ee": d_ee, "active_point": k}
         return Stack(levels, extras)
 
     def probe(self, ctrl, res) -> dict:
