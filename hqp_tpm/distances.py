@@ -43,7 +43,7 @@ import pinocchio as pin
 
 from hqp_tpm.errors import ShapeError, UnknownFrameError, unknown_name
 from hqp_tpm.obstacles import GeometryError, Obstacle, bounding_sphere, convex_from_points
-from hqp_tpm.spatial import cross as _cross
+from hqp_tpm.spatial import cross, cross3
 
 __all__ = ["ELEMENT_KINDS", "DistanceField", "Nearest", "point_jacobian", "point_jdot_qdot"]
 
@@ -55,6 +55,9 @@ BATCH_MIN = 8
 
 _TINY = 1e-12
 _EZ = np.array([0.0, 0.0, 1.0])
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+#: Rows of a 6 x nv Jacobian for ``r x J_w`` (see :func:`point_jacobian`): angular rows 2, 0, 1, 1, 2, 0.
+_CROSS_ROWS = np.array([5, 3, 4, 4, 5, 3])
 
 
 class Nearest(NamedTuple):
@@ -74,10 +77,11 @@ def point_jacobian(model: pin.Model, data: pin.Data, joint_id: int, p_world) -> 
     Needs ``data.J`` and ``data.oMi``: run ``pin.computeJointJacobians(model, data, q)`` first.
     ``J_c = J_v - [r]x J_w`` with ``r = p_world - o_joint`` and ``J`` the joint's LOCAL_WORLD_ALIGNED Jacobian.
     """
-    J = pin.getJointJacobian(model, data, int(joint_id), pin.ReferenceFrame.LOCAL_WORLD_ALIGNED)
-    r = np.asarray(p_world, dtype=float) - data.oMi[int(joint_id)].translation
-    Jv, Jw = J[:3], J[3:]
-    return Jv - np.array([r[1] * Jw[2] - r[2] * Jw[1], r[2] * Jw[0] - r[0] * Jw[2], r[0] * Jw[1] - r[1] * Jw[0]])
+    J = pin.getJointJacobian(model, data, int(joint_id), _LWA)
+    r0, r1, r2 = (np.asarray(p_world, dtype=float) - data.oMi[int(joint_id)].translation).tolist()
+    # rows (r1, r2, r0) * (Jw_2, Jw_0, Jw_1) minus rows (r2, r0, r1) * (Jw_1, Jw_2, Jw_0): r x J_w
+    P = np.array([[r1], [r2], [r0], [r2], [r0], [r1]]) * J[_CROSS_ROWS]
+    return J[:3] - (P[:3] - P[3:])
 
 
 def point_jdot_qdot(model: pin.Model, data: pin.Data, joint_id: int, p_world) -> np.ndarray:
@@ -90,14 +94,15 @@ def point_jdot_qdot(model: pin.Model, data: pin.Data, joint_id: int, p_world) ->
     jid = int(joint_id)
     M = data.oMi[jid]
     R = M.rotation
-    v = data.v[jid]
-    a = data.a[jid]
-    w_l, v_l = v.angular, v.linear
-    a_o = R @ (a.linear + _cross(w_l, v_l))  # classical acceleration of the joint origin
-    alpha = R @ a.angular
-    w = R @ w_l
-    r = np.asarray(p_world, dtype=float) - M.translation
-    return a_o + _cross(alpha, r) + _cross(w, _cross(w, r))
+    v = data.v[jid].vector  # local (linear, angular)
+    a = data.a[jid].vector
+    w_l = v[3:]
+    a_o = (R @ (a[:3] + cross(w_l, v[:3]))).tolist()  # classical acceleration of the joint origin
+    alpha = (R @ a[3:]).tolist()
+    w = (R @ w_l).tolist()
+    r = (np.asarray(p_world, dtype=float) - M.translation).tolist()
+    c1, c2 = cross3(alpha, r), cross3(w, cross3(w, r))
+    return np.array([a_o[0] + c1[0] + c2[0], a_o[1] + c1[1] + c2[1], a_o[2] + c1[2] + c2[2]])
 
 
 def _as_slice(index: np.ndarray):

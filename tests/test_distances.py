@@ -401,6 +401,27 @@ def test_point_jacobian_and_jdot_qdot_against_finite_differences(panda):
         np.testing.assert_allclose(point_jdot_qdot(probe, d2, jid, p), a, atol=1e-12)
 
 
+
+def test_point_kinematics_equal_their_literal_formulas(panda):
+    """The row-permuted J_c and the float-level J-dot_c q-dot equal np.cross forms of (28)-(29) to the last bit."""
+    model, _ = panda
+    rng = np.random.default_rng(3)
+    LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+    for _ in range(50):
+        q = pin.randomConfiguration(model)
+        data = kinematics(model, q, rng.standard_normal(model.nv))
+        pin.computeJointJacobians(model, data, q)
+        jid = int(rng.integers(1, model.njoints))
+        p = rng.uniform(-1.0, 1.0, 3)
+        J = pin.getJointJacobian(model, data, jid, LWA)
+        r = p - data.oMi[jid].translation
+        np.testing.assert_array_equal(point_jacobian(model, data, jid, p), J[:3] - np.cross(r, J[3:], axis=0))
+        M, v, a = data.oMi[jid], data.v[jid], data.a[jid]
+        w = M.rotation @ v.angular
+        expected = (M.rotation @ (a.linear + np.cross(v.angular, v.linear)) + np.cross(M.rotation @ a.angular, r)
+                    + np.cross(w, np.cross(w, r)))
+        np.testing.assert_array_equal(point_jdot_qdot(model, data, jid, p), expected)
+
 def test_field_jacobian_of_witness_point():
     model, geom = tiny()
     q = np.array([0.3, -0.5, 0.8])
