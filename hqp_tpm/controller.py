@@ -82,7 +82,7 @@ class Controller:
         """State update, policy, solve: the command at the current state (no integration)."""
         if not self._started:
             self.start()
-        st = self.state.update(self.q, self.v, self.t)
+        st = self.state.update(self.q, self.v, self.t, validate=False)  # checked by __init__/set_state/step
         for hook in self.pre_policy:
             hook(st, self.t)
         stack = self.policy(st, self.t)

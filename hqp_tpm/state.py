@@ -44,12 +44,17 @@ class State:
                 raise NonFiniteError(f"{what} holds non-finite values at {np.flatnonzero(~np.isfinite(arr)).tolist()}")
         return q, v
 
-    def update(self, q, v, t: float = 0.0) -> State:
-        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once."""
-        q, v = self.check(q, v)
+    def update(self, q, v, t: float = 0.0, *, validate: bool = True) -> State:
+        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
+
+        ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the
+        controller's ``q``, ``v``): float vectors of the right sizes, finite, not modified afterwards.
+        """
+        if validate:
+            q, v = self.check(q, v)
         self.q, self.v, self.t = q, v, float(t)
         pin.forwardKinematics(self.model, self.data, q, v, self._zero)
-        pin.computeJointJacobians(self.model, self.data, q)
+        pin.computeJointJacobians(self.model, self.data)  # from the placements computed just above
         pin.updateFramePlacements(self.model, self.data)
         self._cache.clear()
         self.updates += 1

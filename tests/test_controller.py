@@ -1,6 +1,7 @@
 """The control loop: integration rule, null-space damping, and state kept on rejected input."""
 
 import numpy as np
+import pinocchio as pin
 import pytest
 
 from hqp_tpm.controller import Controller
@@ -8,6 +9,7 @@ from hqp_tpm.errors import HqpTpmError, NonFiniteError, ShapeError, UnknownNameE
 from hqp_tpm.robot import Robot
 from hqp_tpm.solvers import tpm
 from hqp_tpm.stack import Stack
+from hqp_tpm.state import State
 from hqp_tpm.tasks import FramePosition, Gains, Pointing
 from hqp_tpm.trajectories import Harmonic
 
@@ -92,3 +94,24 @@ def test_bad_controller_settings(lwr):
         Controller(lwr, [ee], dt=0.0)
     with pytest.raises(ShapeError, match="nq = 7"):
         Controller(lwr, [ee], q0=np.zeros(3))
+
+
+def test_unvalidated_state_update_equals_the_validated_one():
+    """The controller's update (q, v not re-checked; joint Jacobians from the placements just computed) gives the
+    same kinematics as a checked update with the Jacobians recomputed from q, free flyer included."""
+    rng = np.random.default_rng(5)
+    for robot in (Robot.load("lwr4"), Robot.load("romeo")):
+        fast, ref = State(robot), State(robot)
+        for _ in range(10):
+            q, v = pin.randomConfiguration(robot.model), rng.standard_normal(robot.nv)
+            if robot.has_free_flyer:
+                q[:3] = rng.uniform(-1, 1, 3)
+            fast.update(q, v, validate=False)
+            ref.update(q, v)
+            pin.computeJointJacobians(ref.model, ref.data, ref.q)
+            np.testing.assert_array_equal(fast.data.J, ref.data.J)
+            for fid in range(0, robot.model.nframes, 7):
+                np.testing.assert_array_equal(fast.jacobian(fid), ref.jacobian(fid))
+                np.testing.assert_array_equal(fast.jdot_qdot(fid), ref.jdot_qdot(fid))
+        with pytest.raises(NonFiniteError):
+            fast.update(np.full(robot.model.nq, np.nan), v)  # validated by default
