@@ -69,11 +69,58 @@ def _project(p_lo, p_up, lo, up, violated_lo, violated_up):
     rate limits have precedence: a joint outside its range returns at the largest admissible rate.
     """
     empty = p_lo > p_up
-    p_up = np.where(empty & violated_lo, p_lo, p_up)
-    p_lo = np.where(empty & ~violated_lo & violated_up, p_up, p_lo)
+    if empty.any():
+        p_up = np.where(empty & violated_lo, p_lo, p_up)
+        p_lo = np.where(empty & ~violated_lo & violated_up, p_up, p_lo)
     # the last case (empty box, neither side flagged) cannot occur: keep the ordering anyway
     p_up = np.maximum(p_up, p_lo)
     return np.clip(p_lo, lo, up), np.clip(p_up, lo, up)
+
+
+class BoxLimits:
+    """Joint limits validated once, for the boxes of many states (a controller's every step).
+
+    The parts of the formulas that depend on the limits only are computed here;
+    :meth:`velocity_box` and :meth:`acceleration_box` take a state already known to be finite
+    float vectors of the right size (the functions :func:`velocity_box`, :func:`acceleration_box`
+    validate it first). Errors name the joint and the offending limit, as those functions do.
+    """
+
+    def __init__(self, q_min, q_max, v_max, a_max, dt):
+        n = _as_vector(q_min, None, "q_min", finite=False).shape[0]
+        _, _, q_min, q_max, v_max, a_max, dt = _check_limits(np.zeros(n), q_min, q_max, v_max, a_max, dt)
+        self.q_min, self.q_max, self.v_max, self.a_max, self.dt = q_min, q_max, v_max, a_max, dt
+        lo_inf, up_inf = np.isneginf(q_min), np.isposinf(q_max)
+        # velocity box: the braking term sqrt(2 a_max gap) is used where the limit is finite and a_max > 0;
+        # elsewhere it is -inf/+inf (infinite limit) or 0 (a_max = 0). Infinite limits are replaced by 0 in
+        # the gap (only the used entries matter; 0 * inf would be NaN).
+        self._two_a = 2.0 * a_max
+        self._q_min0, self._q_max0 = np.where(lo_inf, 0.0, q_min), np.where(up_inf, 0.0, q_max)
+        self._brake_lo, self._brake_up = ~lo_inf & (a_max != 0.0), ~up_inf & (a_max != 0.0)
+        self._stop_lo, self._stop_up = np.where(lo_inf, -np.inf, 0.0), np.where(up_inf, np.inf, 0.0)
+        self._minus_v = -v_max
+
+    def velocity_box(self, q) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`velocity_box` at ``q`` (finite float vector, not validated)."""
+        q_min, q_max, dt = self.q_min, self.q_max, self.dt
+        stop_lo = np.where(self._brake_lo, -np.sqrt(self._two_a * np.maximum(q - self._q_min0, 0.0)), self._stop_lo)
+        stop_up = np.where(self._brake_up, np.sqrt(self._two_a * np.maximum(self._q_max0 - q, 0.0)), self._stop_up)
+        p_lo = np.maximum((q_min - q) / dt, stop_lo)
+        p_up = np.minimum((q_max - q) / dt, stop_up)
+        return _project(p_lo, p_up, self._minus_v, self.v_max, q < q_min, q > q_max)
+
+    def acceleration_box(self, q, dq) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`acceleration_box` at ``(q, dq)`` (finite float vectors, not validated)."""
+        a_max, dt = self.a_max, self.dt
+        lo_v = np.clip((self._minus_v - dq) / dt, -a_max, a_max)
+        up_v = np.clip((self.v_max - dq) / dt, -a_max, a_max)
+        delta_up = self.q_max - q - 0.5 * dq * dt
+        delta_lo = q - self.q_min + 0.5 * dq * dt
+        w_up = _braking_velocity(delta_up, a_max, dt)
+        w_lo = -_braking_velocity(delta_lo, a_max, dt)
+        p_lo = (w_lo - dq) / dt
+        p_up = (w_up - dq) / dt
+        return _project(p_lo, p_up, lo_v, up_v, delta_lo < 0.0, delta_up < 0.0)
 
 
 def velocity_box(q, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray, np.ndarray]:
@@ -92,14 +139,7 @@ def velocity_box(q, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray, np.ndar
     violated side wins). Mirrored for ``q > q_max``. ``|qdot| <= v_max`` always.
     """
     q, _, q_min, q_max, v_max, a_max, dt = _check_limits(q, q_min, q_max, v_max, a_max, dt)
-    with np.errstate(invalid="ignore"):  # a_max = 0 with an infinite limit gives 0 * inf: fixed below
-        stop_lo = -np.sqrt(2.0 * a_max * np.maximum(q - q_min, 0.0))
-        stop_up = np.sqrt(2.0 * a_max * np.maximum(q_max - q, 0.0))
-    stop_lo = np.where(np.isneginf(q_min), -np.inf, np.where(a_max == 0.0, 0.0, stop_lo))
-    stop_up = np.where(np.isposinf(q_max), np.inf, np.where(a_max == 0.0, 0.0, stop_up))
-    p_lo = np.maximum((q_min - q) / dt, stop_lo)
-    p_up = np.minimum((q_max - q) / dt, stop_up)
-    return _project(p_lo, p_up, -v_max, v_max, q < q_min, q > q_max)
+    return BoxLimits(q_min, q_max, v_max, a_max, dt).velocity_box(q)
 
 
 def _braking_velocity(delta, a_max, dt):
@@ -110,9 +150,8 @@ def _braking_velocity(delta, a_max, dt):
     position bound ``w = 2 delta / dt``. Both branches are 0 at ``delta = 0``.
     """
     ad = a_max * dt
-    with np.errstate(invalid="ignore"):
-        root = -ad + np.sqrt(ad * ad + 2.0 * a_max * np.maximum(delta, 0.0))
-    root = np.where(np.isposinf(delta), np.inf, root)
+    inf = np.isposinf(delta)  # its gap is replaced by 0 (a_max = 0 would give 0 * inf = NaN)
+    root = np.where(inf, np.inf, -ad + np.sqrt(ad * ad + 2.0 * a_max * np.where(inf, 0.0, np.maximum(delta, 0.0))))
     return np.where(delta >= 0.0, root, 2.0 * delta / dt)
 
 
@@ -149,22 +188,14 @@ def acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray,
     and ``lower <= upper`` always. Positions are checked at the sampling instants only.
     """
     q, dq, q_min, q_max, v_max, a_max, dt = _check_limits(q, q_min, q_max, v_max, a_max, dt, dq=dq)
-    lo_v = np.clip((-v_max - dq) / dt, -a_max, a_max)
-    up_v = np.clip((v_max - dq) / dt, -a_max, a_max)
-    delta_up = q_max - q - 0.5 * dq * dt
-    delta_lo = q - q_min + 0.5 * dq * dt
-    w_up = _braking_velocity(delta_up, a_max, dt)
-    w_lo = -_braking_velocity(delta_lo, a_max, dt)
-    p_lo = (w_lo - dq) / dt
-    p_up = (w_up - dq) / dt
-    return _project(p_lo, p_up, lo_v, up_v, delta_lo < 0.0, delta_up < 0.0)
+    return BoxLimits(q_min, q_max, v_max, a_max, dt).acceleration_box(q, dq)
 
 
 def is_viable(q, dq, q_min, q_max, v_max, a_max, dt, *, tol: float = 0.0) -> np.ndarray:
     """Per joint: is the state inside the limits and able to stop before them (see :func:`acceleration_box`)?"""
     q, dq, q_min, q_max, v_max, a_max, dt = _check_limits(q, q_min, q_max, v_max, a_max, dt, dq=dq)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        brake = np.where(a_max > 0.0, dq * dq / (2.0 * a_max), np.where(dq == 0.0, 0.0, np.inf))
+    brake = np.where(a_max > 0.0, dq * dq / (2.0 * np.where(a_max > 0.0, a_max, 1.0)),  # no division by 0
+                     np.where(dq == 0.0, 0.0, np.inf))
     ahead_up = q + np.where(dq > 0.0, brake + 0.5 * dq * dt, 0.0)
     ahead_lo = q - np.where(dq < 0.0, brake - 0.5 * dq * dt, 0.0)
     return ((q >= q_min - tol) & (q <= q_max + tol) & (np.abs(dq) <= v_max + tol)

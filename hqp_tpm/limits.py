@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.joint_boxes import acceleration_box, velocity_box
+from hqp_tpm.joint_boxes import BoxLimits
 from hqp_tpm.robot import Robot
 from hqp_tpm.state import State
 
@@ -28,17 +28,18 @@ class JointLimits:
         v = robot.velocity_limits()[self.cols] * float(velocity_scale)
         self.v_max = v if velocity else np.full(self.cols.size, 1e6)
         self.a_max = np.full(self.cols.size, float(acceleration_limit))
+        self.limits = BoxLimits(self.q_min, self.q_max, self.v_max, self.a_max, self.dt)  # validated once
         self._lo = np.full(robot.nv, -np.inf)
         self._up = np.full(robot.nv, np.inf)
         self.velocity_limits = np.full(robot.nv, np.inf)
         self.velocity_limits[self.cols] = self.v_max
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
-        q = state.q[self.qidx]
+        q = state.q[self.qidx]  # the state's q, v are finite and of the right sizes
         if self.order == 1:
-            lo, up = velocity_box(q, self.q_min, self.q_max, self.v_max, self.a_max, self.dt)
+            lo, up = self.limits.velocity_box(q)
         else:
-            lo, up = acceleration_box(q, state.v[self.cols], self.q_min, self.q_max, self.v_max, self.a_max, self.dt)
+            lo, up = self.limits.acceleration_box(q, state.v[self.cols])
         self._lo[self.cols] = lo
         self._up[self.cols] = up
         return self._lo.copy(), self._up.copy()

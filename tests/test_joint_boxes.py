@@ -2,6 +2,7 @@
 their invariance over long random rollouts, the recovery from states outside the limits, bad input."""
 
 import os
+import warnings
 
 import numpy as np
 import pytest
@@ -10,7 +11,7 @@ from hypothesis import strategies as st
 from threadpoolctl import threadpool_limits
 
 from hqp_tpm.errors import BoxError, HqpTpmError, ShapeError
-from hqp_tpm.joint_boxes import acceleration_box, is_viable, velocity_box
+from hqp_tpm.joint_boxes import BoxLimits, acceleration_box, is_viable, velocity_box
 
 #: Number of hypothesis draws of (limits, state); rollouts are 2,000 steps each.
 DRAWS = int(os.environ.get("HQP_TPM_SNS_DRAWS", "2000"))
@@ -281,3 +282,74 @@ def test_infinite_limits_and_zero_rates():
     np.testing.assert_array_equal([lower[0], upper[0]], [0.0, 0.0])  # a_max = 0 and a limit: cannot move
     lower, upper = acceleration_box([0.0], [0.5], [-np.inf], [np.inf], [1.0], [3.0], 0.01)
     np.testing.assert_allclose([lower[0], upper[0]], [-3.0, 3.0])
+
+
+# ----------------------------------------------------------------------------------------
+# The precomputed limits (BoxLimits, a controller's every step) against the literal formulas.
+# ----------------------------------------------------------------------------------------
+def literal_velocity_box(q, q_min, q_max, v_max, a_max, dt):
+    """velocity_box as first written: every term per call, np.errstate for 0 * inf."""
+    with np.errstate(invalid="ignore"):
+        stop_lo = -np.sqrt(2.0 * a_max * np.maximum(q - q_min, 0.0))
+        stop_up = np.sqrt(2.0 * a_max * np.maximum(q_max - q, 0.0))
+    stop_lo = np.where(np.isneginf(q_min), -np.inf, np.where(a_max == 0.0, 0.0, stop_lo))
+    stop_up = np.where(np.isposinf(q_max), np.inf, np.where(a_max == 0.0, 0.0, stop_up))
+    return literal_project(np.maximum((q_min - q) / dt, stop_lo), np.minimum((q_max - q) / dt, stop_up),
+                           -v_max, v_max, q < q_min, q > q_max)
+
+
+def literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt):
+    """acceleration_box as first written."""
+    def braking(delta):
+        ad = a_max * dt
+        with np.errstate(invalid="ignore"):
+            root = -ad + np.sqrt(ad * ad + 2.0 * a_max * np.maximum(delta, 0.0))
+        root = np.where(np.isposinf(delta), np.inf, root)
+        return np.where(delta >= 0.0, root, 2.0 * delta / dt)
+
+    delta_up, delta_lo = q_max - q - 0.5 * dq * dt, q - q_min + 0.5 * dq * dt
+    return literal_project((-braking(delta_lo) - dq) / dt, (braking(delta_up) - dq) / dt,
+                           np.clip((-v_max - dq) / dt, -a_max, a_max), np.clip((v_max - dq) / dt, -a_max, a_max),
+                           delta_lo < 0.0, delta_up < 0.0)
+
+
+def literal_project(p_lo, p_up, lo, up, violated_lo, violated_up):
+    empty = p_lo > p_up
+    p_up = np.where(empty & violated_lo, p_lo, p_up)
+    p_lo = np.where(empty & ~violated_lo & violated_up, p_up, p_lo)
+    p_up = np.maximum(p_up, p_lo)
+    return np.clip(p_lo, lo, up), np.clip(p_up, lo, up)
+
+
+def test_box_limits_equal_the_literal_formulas_without_warnings():
+    """Same bits as the literal boxes, with zero a_max, infinite limits and states outside; no RuntimeWarning."""
+    rng = np.random.default_rng(11)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for _ in range(500):
+            n = int(rng.integers(1, 30))
+            q_min, q_max, v_max, a_max, dt = random_limits(rng, n)
+            a_max[rng.random(n) < 0.1] = 0.0
+            limits = BoxLimits(q_min, q_max, v_max, a_max, dt)
+            q = np.where(rng.random(n) < 0.8, inside(rng, q_min, q_max), rng.uniform(-8.0, 8.0, n))
+            dq = rng.uniform(-2.0, 2.0, n) * v_max
+            for got, expected in ((limits.velocity_box(q), literal_velocity_box(q, q_min, q_max, v_max, a_max, dt)),
+                                  (velocity_box(q, q_min, q_max, v_max, a_max, dt), limits.velocity_box(q)),
+                                  (limits.acceleration_box(q, dq),
+                                   literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt)),
+                                  (acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt),
+                                   limits.acceleration_box(q, dq))):
+                np.testing.assert_array_equal(got[0], expected[0])
+                np.testing.assert_array_equal(got[1], expected[1])
+                assert np.signbit(got[0]).tolist() == np.signbit(expected[0]).tolist()  # even the zeros' signs
+        viable = is_viable([0.0, 0.5], [0.0, 0.1], [-1.0, -1.0], [1.0, 1.0], 1.0, [0.0, 0.0], 0.01)  # a_max = 0
+        assert viable.tolist() == [True, False]
+
+
+def test_box_limits_check_the_limits_once_at_construction():
+    with pytest.raises(BoxError, match=r"joint 1.*q_min\[1\] = 2\.0 > .*q_max\[1\] = 1\.0"):
+        BoxLimits([-1.0, 2.0], [1.0, 1.0], 1.0, 1.0, 0.01)
+    with pytest.raises(BoxError, match=r"v_max\[0\]"):
+        BoxLimits([-1.0], [1.0], [np.nan], 1.0, 0.01)
+    with pytest.raises(ShapeError, match="q_min"):
+        BoxLimits(np.zeros((2, 2)), np.ones(2), 1.0, 1.0, 0.01)
