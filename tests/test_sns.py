@@ -13,9 +13,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from threadpoolctl import threadpool_limits
 
-from hqp_tpm.errors import BoxError, ShapeError
+from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError
 from hqp_tpm.joint_boxes import acceleration_box, velocity_box
-from hqp_tpm.solvers import Level, nullspace, tpm
+from hqp_tpm.solvers import Level, cascaded_qp, nullspace, tpm
 from hqp_tpm.solvers.sns import sns, sns_tpm, sns_tpm_reference, task_scaling_factor
 
 DRAWS = int(os.environ.get("HQP_TPM_SNS_DRAWS", "2000"))
@@ -109,6 +109,38 @@ def test_sns_tpm_fast_equals_reference(p):
     assert info.saturated == info_r.saturated and info.iterations == info_r.iterations
     assert abs(info.scale - info_r.scale) < 1e-9
     assert rel_diff(x, xr) < 1e-9
+
+
+def first_level_residual(level, x) -> float:
+    """``||J x - b||`` of an equality level, the bound violation ``||max(0, lo - J x, J x - up)||`` else."""
+    lv = level if isinstance(level, Level) else Level(*level)
+    y = lv.J @ x
+    if lv.is_equality:
+        return float(np.linalg.norm(y - lv.b))
+    return float(np.linalg.norm(np.maximum(0.0, np.maximum(lv.lower - y, y - lv.upper))))
+
+
+def lexicographic_qp(levels, lo, up):
+    """The cascaded QP with the hard box (proxqp; daqp if proxqp gives up): the reference optimum."""
+    try:
+        return cascaded_qp(levels, solver="proxqp", lower=lo, upper=up)
+    except SolverFailedError:
+        return cascaded_qp(levels, solver="daqp", lower=lo, upper=up)
+
+
+@SETTINGS
+@given(problems)
+def test_qp_first_level_residual_is_never_larger(p):
+    """The cascade's first level is the box-constrained least-squares optimum: no SNS variant beats it."""
+    seed, kind = p
+    levels, lo, up, _ = random_problem(np.random.default_rng(seed), kind)  # undamped: the plain residual
+    xq = lexicographic_qp(levels, lo, up)
+    assert in_box(xq, lo, up)
+    rq = first_level_residual(levels[0], xq)
+    J1 = levels[0].J if isinstance(levels[0], Level) else levels[0][0]
+    for x in (sns_tpm(levels, lo, up), sns(levels, lo, up)[0]):
+        tol = 1e-7 * (1.0 + np.abs(J1).max()) * (1.0 + np.abs(x).max())  # the QP's KKT tolerance, scaled
+        assert rq <= first_level_residual(levels[0], x) + tol, (rq, x, xq)
 
 
 # ----------------------------------------------------------------------------------------
