@@ -4,6 +4,7 @@ The random draws of (stack, box) are hypothesis examples; their number is ``HQP_
 (default 2,000; the long run of the issue uses 100,000).
 """
 
+import importlib
 import os
 
 import numpy as np
@@ -18,6 +19,7 @@ from hqp_tpm.joint_boxes import acceleration_box, velocity_box
 from hqp_tpm.solvers import Level, cascaded_qp, nullspace, tpm
 from hqp_tpm.solvers.sns import sns, sns_tpm, sns_tpm_reference, task_scaling_factor
 
+sns_module = importlib.import_module("hqp_tpm.solvers.sns")  # the package re-exports the function sns
 DRAWS = int(os.environ.get("HQP_TPM_SNS_DRAWS", "2000"))
 SETTINGS = settings(max_examples=DRAWS, deadline=None, suppress_health_check=[HealthCheck.too_slow],
                     derandomize=True)
@@ -141,6 +143,21 @@ def test_qp_first_level_residual_is_never_larger(p):
     for x in (sns_tpm(levels, lo, up), sns(levels, lo, up)[0]):
         tol = 1e-7 * (1.0 + np.abs(J1).max()) * (1.0 + np.abs(x).max())  # the QP's KKT tolerance, scaled
         assert rq <= first_level_residual(levels[0], x) + tol, (rq, x, xq)
+
+
+@FEW
+@given(st.integers(0, 2**32 - 1))
+def test_sns_tpm_fast_equals_reference_above_the_scalar_size(seed):
+    """n > SCALAR_MAX_N: the fast path's numpy scale factor, same numbers as the reference."""
+    rng = np.random.default_rng(seed)
+    n = sns_module.SCALAR_MAX_N + int(rng.integers(1, 30))
+    levels = random_stack(rng, n, [int(rng.integers(1, 7)) for _ in range(int(rng.integers(1, 5)))])
+    c = np.abs(tpm(levels)).max()
+    lo, up = -rng.uniform(0.2, 1.2, n) * c, rng.uniform(0.2, 1.2, n) * c
+    x, info = sns_tpm(levels, lo, up, return_info=True)
+    xr, info_r = sns_tpm_reference(levels, lo, up, return_info=True)
+    assert info.saturated == info_r.saturated and abs(info.scale - info_r.scale) < 1e-9
+    assert rel_diff(x, xr) < 1e-9 and in_box(x, lo, up)
 
 
 # ----------------------------------------------------------------------------------------
@@ -413,6 +430,31 @@ def test_empty_stack_returns_the_zero_command_projected_on_the_box():
     np.testing.assert_array_equal(x, [0.0, 0.5, -1.0])
     assert scales.size == 0
     np.testing.assert_array_equal(sns_tpm([], -np.ones(3), np.ones(3)), np.zeros(3))
+
+
+@SETTINGS
+@given(st.integers(0, 2**32 - 1))
+def test_scalar_scale_factor_equals_the_numpy_one(seed):
+    """The fast path's float loop (n <= SCALAR_MAX_N) and the numpy version pick the same factor and joint."""
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(1, 12))
+    lo, up = -rng.uniform(0.0, 2.0, n), rng.uniform(0.0, 2.0, n)
+    lo[rng.random(n) < 0.1] = -np.inf
+    up[rng.random(n) < 0.1] = np.inf
+    a, b = rng.standard_normal(n), rng.standard_normal(n)
+    a[rng.random(n) < 0.15] = 0.0
+    free = rng.random(n) < 0.8
+    on_bound = ~free & (rng.random(n) < 0.8)  # saturated joints mostly on a bound, as in the solver
+    b[on_bound] = np.where(rng.random(n) < 0.5, lo, up)[on_bound]
+    b[on_bound & ~np.isfinite(b)] = 0.0
+    a[on_bound] = 0.0
+    box = sns_module._Box(lo, up)
+    x = a + b
+    viol = box.violated(x)
+    factor, smax = sns_module._scaling(a, b, box, free)
+    j = sns_module._critical_joint(smax, free, viol)
+    assert sns_module._scale_and_pick(a.tolist(), b.tolist(), sns_module._ScalarBox(box), free.tolist(),
+                                      viol.tolist()) == (factor, j)
 
 
 def test_task_scaling_factor():

@@ -69,6 +69,10 @@ from hqp_tpm.solvers.tpm import _Factorization, _triu, tpm_factors
 #: into the exact box (a change of at most this size, the round-off of the null-space products).
 VIOLATION_TOL = 1e-10
 
+#: SNS-TPM fast path: up to this many joints the scale factor is computed on Python floats (fewer calls),
+#: above it with numpy (fewer operations); both give the same numbers.
+SCALAR_MAX_N = 40
+
 #: Multi-task SNS: a joint can be saturated at level ``k`` only if the rows of ``P_{k-1}`` of the
 #: saturated joints stay independent (smallest singular value above this); otherwise the levels
 #: above fix it through the others and the level stops as on a rank loss.
@@ -444,8 +448,12 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
         viol = box.violated(x)
         if not viol.any():
             return _result(x, box, SNSInfo(1.0, tuple(order), iterations), return_info, checked=True)
-        sb = sb or _ScalarBox(box)
-        factor, j = _scale_and_pick(a.tolist(), b.tolist(), sb, free.tolist(), viol.tolist())
+        if n <= SCALAR_MAX_N:
+            sb = sb or _ScalarBox(box)
+            factor, j = _scale_and_pick(a.tolist(), b.tolist(), sb, free.tolist(), viol.tolist())
+        else:
+            factor, smax = _scaling(a, b, box, free)
+            j = _critical_joint(smax, free, viol)
         if factor >= 0.0 and (best is None or factor > best[0]):
             best = (factor, a, b, tuple(order))
         if j >= 0:
