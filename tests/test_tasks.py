@@ -8,6 +8,7 @@ from hqp_tpm.errors import NonFiniteError, RobotFileError, ShapeError, UnknownFr
 from hqp_tpm.robot import Robot
 from hqp_tpm.state import State
 from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePosition, Gains, Pointing, Posture
+from hqp_tpm.trajectories import Constant, Harmonic, Hold
 
 H = 1e-6
 
@@ -129,3 +130,48 @@ def test_bad_robot_inputs_raise_typed_errors(panda, tmp_path):
         FramePosition(panda, "panda_hand", [0.0, np.inf, 0.0])
     with pytest.raises(ShapeError, match=r"expected \(3,\)"):
         FramePosition(panda, "panda_hand", [0.0, 1.0])
+
+
+def test_fast_task_paths_equal_their_literal_formulas(panda):
+    """Pointing J-dot q-dot on floats, the row views of FramePosition/CenterOfMass: equal to the literal forms."""
+    rng = np.random.default_rng(4)
+    tasks = [Pointing(panda, "panda_hand", [1, 0, 0], np.deg2rad(5)), FramePosition(panda, "panda_hand"),
+             FramePosition(panda, "panda_link4", axes="xz"), CenterOfMass(axes="xy"), CenterOfMass()]
+    for _ in range(20):
+        st = State(panda).update(*random_state(panda, rng))
+        pt = tasks[0]
+        z_e, omega = st.rotation(pt.fid)[:, 2], st.velocity(pt.fid)[3:]
+        alpha = st.jdot_qdot(pt.fid)[3:]
+        np.testing.assert_array_equal(pt.jdot_qdot(st), [pt.z_d @ (np.cross(alpha, z_e)
+                                                                   + np.cross(omega, np.cross(omega, z_e)))])
+        for task in tasks[1:3]:
+            np.testing.assert_array_equal(task.jacobian(st), st.jacobian(task.fid)[task.rows])
+            np.testing.assert_array_equal(task.jdot_qdot(st), st.jdot_qdot(task.fid)[task.rows])
+        for task in tasks[3:]:
+            np.testing.assert_array_equal(task.jacobian(st), st.com_jacobian()[task.rows])
+            np.testing.assert_array_equal(task.jdot_qdot(st), st.com_jdot_qdot()[task.rows])
+
+
+def test_references_equal_their_numpy_formulas():
+    """Harmonic on floats (math.cos/sin) equals the array expressions; constant references are computed once per
+    start, read-only, and follow a new start."""
+    rng = np.random.default_rng(6)
+    for k in range(100):
+        a, b, c, x0 = rng.standard_normal((4, 3))
+        w, phi = float(rng.choice([1.0, np.pi, rng.uniform(0.0, 10.0)])), float(rng.uniform(-3.0, 3.0))
+        h = Harmonic(center=c, cos_amplitude=a, sin_amplitude=b, omega=w, phase=phi, relative=bool(k % 2))
+        h.start(x0)
+        for t in np.concatenate([np.arange(0.0, 20.0, 0.037), rng.uniform(0.0, 1e3, 20)]):
+            cos, sin = np.cos(w * t + phi), np.sin(w * t + phi)
+            x, xd, xdd = h.reference(float(t))
+            np.testing.assert_allclose(x, c + (x0 if k % 2 else 0.0) + a * cos + b * sin, rtol=0, atol=1e-15)
+            np.testing.assert_allclose(xd, w * (-a * sin + b * cos), rtol=0, atol=1e-15)
+            np.testing.assert_allclose(xdd, -w * w * (a * cos + b * sin), rtol=0, atol=1e-15)
+    for traj in (Constant(value=[1.0, 2.0], relative=True), Hold()):
+        traj.start(np.array([0.5, 0.5]))
+        x, xd, xdd = traj.reference(0.0)
+        assert traj.reference(1.0)[0] is x and not x.flags.writeable and not xd.any() and not xdd.any()
+        with pytest.raises(ValueError):
+            x[0] = 0.0
+        traj.start(np.array([1.0, 1.0]))
+        np.testing.assert_array_equal(traj.reference(2.0)[0], traj.offset(2) + getattr(traj, "value", 0.0))

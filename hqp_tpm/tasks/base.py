@@ -105,3 +105,10 @@ def select_axes(axes: str) -> np.ndarray:
     if not axes or any(a not in "xyz" for a in axes) or len(set(axes)) != len(axes):
         raise ValueError(f"axes {axes!r} must be distinct letters among 'x', 'y', 'z'")
     return np.array(["xyz".index(a) for a in axes])
+
+
+def row_selector(rows: np.ndarray) -> slice | np.ndarray:
+    """``rows`` as a slice if they are contiguous and increasing (indexing then gives a view), else ``rows``."""
+    if rows.size and np.array_equal(rows, np.arange(rows[0], rows[0] + rows.size)):
+        return slice(int(rows[0]), int(rows[0]) + rows.size)
+    return rows

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.state import State
-from hqp_tpm.tasks.base import Gains, Task, select_axes
+from hqp_tpm.tasks.base import Gains, Task, row_selector, select_axes
 
 
 class CenterOfMass(Task):
@@ -13,6 +13,7 @@ class CenterOfMass(Task):
 
     def __init__(self, target=None, gains: Gains | None = None, *, axes: str = "xyz", name: str = "com"):
         self.rows = select_axes(axes)
+        self._sel = row_selector(self.rows)  # a view of the cached CoM Jacobian for "xy", "xyz"
         self.dim = len(self.rows)
         super().__init__(name, target, gains)
 
@@ -20,7 +21,7 @@ class CenterOfMass(Task):
         return state.com()[self.rows]
 
     def jacobian(self, state: State) -> np.ndarray:
-        return state.com_jacobian()[self.rows]
+        return state.com_jacobian()[self._sel]
 
     def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.com_jdot_qdot()[self.rows]
+        return state.com_jdot_qdot()[self._sel]

@@ -6,7 +6,7 @@ import numpy as np
 
 from hqp_tpm.robot import Robot
 from hqp_tpm.state import State
-from hqp_tpm.tasks.base import Gains, Task, select_axes
+from hqp_tpm.tasks.base import Gains, Task, row_selector, select_axes
 
 
 class FramePosition(Task):
@@ -17,6 +17,7 @@ class FramePosition(Task):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         self.rows = select_axes(axes)
+        self._sel = row_selector(self.rows)  # a view of the cached frame Jacobian for "xyz"
         self.dim = len(self.rows)
         super().__init__(name or f"{frame}_position", target, gains)
 
@@ -24,7 +25,7 @@ class FramePosition(Task):
         return state.position(self.fid)[self.rows]
 
     def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)[self.rows]
+        return state.jacobian(self.fid)[self._sel]
 
     def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)[self.rows]
+        return state.jdot_qdot(self.fid)[self._sel]

@@ -13,7 +13,7 @@ import numpy as np
 
 from hqp_tpm.robot import Robot
 from hqp_tpm.solvers.levels import Level
-from hqp_tpm.spatial import cross
+from hqp_tpm.spatial import cross, cross3
 from hqp_tpm.state import State
 from hqp_tpm.tasks.base import Gains, Task
 from hqp_tpm.trajectories import Constant
@@ -51,10 +51,11 @@ class Pointing(Task):
         return (cross(z_e, self.z_d) @ state.jacobian(self.fid)[3:]).reshape(1, -1)
 
     def jdot_qdot(self, state: State) -> np.ndarray:
-        z_e = self.axis(state)
-        omega = state.velocity(self.fid)[3:]
-        alpha = state.jdot_qdot(self.fid)[3:]
-        return np.array([self.z_d @ (cross(alpha, z_e) + cross(omega, cross(omega, z_e)))])
+        z_e = self.axis(state).tolist()
+        omega = state.velocity(self.fid)[3:].tolist()
+        alpha = state.jdot_qdot(self.fid)[3:].tolist()
+        a, w = cross3(alpha, z_e), cross3(omega, cross3(omega, z_e))  # z_d^T (alpha x z_e + omega x (omega x z_e))
+        return np.array([self.z_d @ np.array([a[0] + w[0], a[1] + w[1], a[2] + w[2]])])
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
