@@ -90,9 +90,9 @@ class State:
 
     # -- centre of mass --------------------------------------------------------------------------
     def _com_all(self):
-        if "com" not in self._cache:
-            pin.centerOfMass(self.model, self.data, self.q, self.v, self._zero)
-            Jc = pin.jacobianCenterOfMass(self.model, self.data, self.q, False)
+        if "com" not in self._cache:  # from the kinematics of update() (no second forward pass)
+            pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
+            Jc = pin.jacobianCenterOfMass(self.model, self.data, False)
             d = self.data
             self._cache["com"] = (d.com[0].copy(), Jc.copy(), d.acom[0].copy(), d.vcom[0].copy())
         return self._cache["com"]

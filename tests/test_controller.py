@@ -97,8 +97,8 @@ def test_bad_controller_settings(lwr):
 
 
 def test_unvalidated_state_update_equals_the_validated_one():
-    """The controller's update (q, v not re-checked; joint Jacobians from the placements just computed) gives the
-    same kinematics as a checked update with the Jacobians recomputed from q, free flyer included."""
+    """The controller's update (q, v not re-checked; joint Jacobians and CoM from the kinematics just computed)
+    gives the same kinematics as a checked update with them recomputed from q, free flyer included."""
     rng = np.random.default_rng(5)
     for robot in (Robot.load("lwr4"), Robot.load("romeo")):
         fast, ref = State(robot), State(robot)
@@ -113,5 +113,10 @@ def test_unvalidated_state_update_equals_the_validated_one():
             for fid in range(0, robot.model.nframes, 7):
                 np.testing.assert_array_equal(fast.jacobian(fid), ref.jacobian(fid))
                 np.testing.assert_array_equal(fast.jdot_qdot(fid), ref.jdot_qdot(fid))
+            data = robot.model.createData()  # the CoM with its own forward passes from q, v
+            pin.centerOfMass(robot.model, data, q, v, np.zeros(robot.nv))
+            np.testing.assert_array_equal(fast.com_jdot_qdot(), data.acom[0])
+            np.testing.assert_array_equal(fast.com_jacobian(), pin.jacobianCenterOfMass(robot.model, data, q, False))
+            np.testing.assert_array_equal(fast.com(), data.com[0])
         with pytest.raises(NonFiniteError):
             fast.update(np.full(robot.model.nq, np.nan), v)  # validated by default
