@@ -35,6 +35,9 @@ def repulsion_magnitude(d, v_max: float, rho: float, gamma: float, c: float = 2.
 
     Vectorised over ``d``; ``d = +inf`` gives 0, negative ``d`` (penetration) tends to ``v_max``.
     """
+    if isinstance(d, float):  # one distance (Algorithm 1): the same operations on floats
+        x = gamma * (d * (c / rho) - 1.0)
+        return 0.0 if x > _EXP_MAX else v_max / (1.0 + float(np.exp(x)))
     x = gamma * (np.asarray(d, dtype=float) * (c / rho) - 1.0)
     return v_max / (1.0 + np.exp(np.where(x > _EXP_MAX, np.inf, x)))  # exp(inf) = inf, no overflow warning
 

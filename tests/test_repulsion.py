@@ -168,4 +168,8 @@ def test_magnitude_without_overflow_warning():
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         np.testing.assert_array_equal(rep.magnitude(d), expected)
+        np.testing.assert_array_equal([rep.magnitude(float(x)) for x in d], expected)  # the float path
         assert rep.magnitude(1e300) == 0.0
+    d = np.random.default_rng(2).uniform(-0.1, 1.0, 5000)
+    for r in (EE, BODY):
+        np.testing.assert_array_equal([r.magnitude(float(x)) for x in d], r.magnitude(d))
