@@ -244,6 +244,7 @@ class DistanceField:
             self._sph_grid = np.ix_(self._sph_e, self._sph_o)
         in_block = np.zeros((M, H), dtype=bool)
         in_block[np.ix_(self._sph_e, self._sph_o)] = True
+        self._sph_all = bool(in_block.all())  # every pair analytic: each update overwrites every entry
         ce, co = np.nonzero(~in_block)
         self._coal_e, self._coal_o = ce, co
         point_shape = coal.Sphere(0.0)
@@ -364,11 +365,12 @@ class DistanceField:
             self.obstacle_placements[j] = Mo
             self._obs_center[j] = Mo.act(o.local_center)
 
-        self.distance.fill(np.inf)
-        self.p_robot.fill(np.nan)
-        self.p_obstacle.fill(np.nan)
-        self.normal.fill(0.0)
-        self.computed.fill(False)
+        if not self._sph_all:
+            self.distance.fill(np.inf)
+            self.p_robot.fill(np.nan)
+            self.p_obstacle.fill(np.nan)
+            self.normal.fill(0.0)
+            self.computed.fill(False)
         if self._sph_e.size and self._sph_o.size:
             self._update_spheres()
         if self._coal_fun:
