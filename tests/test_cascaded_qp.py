@@ -1,5 +1,7 @@
 """Cascaded QP (lexicographic reference) against TPM, bounded least squares and its own guarantees."""
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import qpsolvers
@@ -257,3 +259,15 @@ def test_damped_cascade_equals_damped_tpm(backend):
         x0 = rng.standard_normal(n)
         x = cascaded_qp(levels, solver=backend, x0=x0, **damping)
         assert np.abs(x - tpm(levels, x0=x0, **damping)).max() < 1e-8
+
+
+def test_romeo_level_that_needs_many_proxqp_iterations():
+    """A real Romeo stack (romeo_sns_tpm solved by the cascade, step 3221, one BLAS thread) whose
+    third level takes ProxQP about 1,300 iterations: it must be solved, and agree with DAQP."""
+    data = np.load(Path(__file__).parent / "data" / "romeo_step3221_levels.npz")
+    levels = [Level(data[f"J{i}"], data[f"b{i}"], name=str(data[f"name{i}"])) for i in range(5)]
+    kw = {"lower": data["lower"], "upper": data["upper"], "lambda_max": float(data["lambda_max"]),
+          "eps": float(data["eps"])}
+    x = cascaded_qp(levels, "proxqp", **kw)
+    assert ((x >= kw["lower"]) & (x <= kw["upper"])).all()
+    assert np.abs(x - cascaded_qp(levels, "daqp", **kw)).max() < 1e-6

@@ -70,7 +70,7 @@ DEFAULT_OPTIONS = {
 RETRY_OPTIONS = {
     "proxqp": [{"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 0.1},
                {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 1e-3, "compute_preconditioner": False},
-               {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000}],
+               {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 20_000}],  # slow convergence seen on Romeo: ~1,300
     "osqp": [{"eps_abs": 1e-9, "eps_rel": 1e-9, POLISH: True, "max_iter": 100_000, "rho": r, "raise_error": False}
              for r in (0.1, 1e-6)],
 }
