@@ -8,7 +8,10 @@ Two paths compute the same numbers:
 * :func:`tpm` / :func:`tpm_factors` are the fast path. When every pivot block ``R_ii`` is
   invertible and undamped, Gauss-Jordan elimination turns ``Fbar`` into the identity, so
   ``F = I`` and ``x = Q R^{-T} b`` by one triangular solve; otherwise it runs the same
-  elimination on the pivot blocks only. ``tests/test_tpm.py`` proves the two paths equal.
+  elimination on the pivot blocks only. Whether a pivot is regular is decided on its smallest
+  singular value, as in the reference, but a norm bound spares the SVD in most cases. The
+  factorization (:class:`_Factorization`) is shared with :func:`hqp_tpm.solvers.sns.sns_tpm`,
+  which needs ``x`` and ``F`` of the same stack. ``tests/test_tpm.py`` proves the paths equal.
 
 At acceleration level the same call gives ``qdd = J# F (pdd - Jdot qd)`` (12); pass
 ``x0 = qdd_0`` to add the null-space term ``(I - J# J) qdd_0`` of (14).
