@@ -5,6 +5,10 @@ Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` wit
 null-space damping ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then
 ``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T`` (reference page).
 
+A policy with a ``blend(state, t, stack, x, resolve)`` method gets the solution ``x`` and returns the
+command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth
+stack transitions of papers/003, eq. (8) (:mod:`hqp_tpm.policies.switching`).
+
 A step that fails on bad input (non-finite command, wrong shapes, solver error) raises a
 typed error and leaves the controller exactly as it was before the step.
 """
@@ -91,6 +95,12 @@ class Controller:
         box = self.box(st, self.t) if self.box is not None else None
         x, info = solve(self.solver, levels, self.robot.nv, x0=x0, box=box,
                         lambda_max=self.lambda_max, eps=self.eps)
+        blend = getattr(self.policy, "blend", None)
+        if blend is not None:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
+            def resolve(other: Stack) -> np.ndarray:
+                return solve(self.solver, other.to_levels(st, self.t, self.order), self.robot.nv, x0=x0, box=box,
+                             lambda_max=self.lambda_max, eps=self.eps)[0]
+            x = blend(st, self.t, stack, x, resolve)
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
         return StepResult(self.t, stack, levels, x, info)
