@@ -9,7 +9,19 @@ from hqp_tpm.errors import HqpTpmError, ScenarioError
 from hqp_tpm.robot import Robot
 from hqp_tpm.scenario import Scenario, Section
 from hqp_tpm.stack import FixedStack, Stack
-from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePose, FramePosition, Gains, Pointing, Posture
+from hqp_tpm.tasks import (
+    CenterOfMass,
+    Force,
+    FrameOrientation,
+    FramePose,
+    FramePosition,
+    Gains,
+    JointLimit,
+    Manipulability,
+    Pointing,
+    Posture,
+    QuaternionOrientation,
+)
 from hqp_tpm.trajectories import Constant, Harmonic, Hold
 
 POLICY_BUILDERS: dict = {}  # filled by modules that define dynamic policies (see register_policy)
@@ -86,6 +98,34 @@ def _posture(robot, sec):
     return task
 
 
+def _joints(sec):
+    joints = sec.raw("joints", None)
+    if joints is not None and (not isinstance(joints, list) or not all(isinstance(j, str) for j in joints)):
+        raise ScenarioError(f"{sec.where}.joints: expected a list of joint names")
+    return joints
+
+
+def _force(robot, sec):
+    return Force(robot, sec.string("frame"), None, gains(sec), target=sec.vector("target", 3, [0.0, 0.0, 0.0]),
+                 name=sec.string("name"))
+
+
+def _quaternion_orientation(robot, sec):
+    target = sec.raw("target", None)
+    if target is not None and target != "hold":
+        target = sec.vector("target", 9)
+    return QuaternionOrientation(robot, sec.string("frame"), target, gains(sec), axes=sec.string("axes", "xy"),
+                                 name=sec.string("name"))
+
+
+def _manipulability(robot, sec):
+    return Manipulability(robot, sec.number("target", 2.0), gains(sec), joints=_joints(sec), name=sec.string("name"))
+
+
+def _joint_limit(robot, sec):
+    return JointLimit(robot, [0.0], gains(sec), joints=_joints(sec), name=sec.string("name"))
+
+
 TASK_BUILDERS = {
     "frame_position": _frame_position,
     "frame_orientation": _frame_orientation,
@@ -93,6 +133,10 @@ TASK_BUILDERS = {
     "pointing": _pointing,
     "com": _com,
     "posture": _posture,
+    "force": _force,
+    "quaternion_orientation": _quaternion_orientation,
+    "manipulability": _manipulability,
+    "joint_limit": _joint_limit,
 }
 
 

@@ -1,0 +1,64 @@
+"""Interaction-force task of papers/003, Sec. 4.3: ``sigma_f = R_s f^s``, desired 0, Jacobian ``J_p``."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task
+
+ForceSource = Callable[[State, float], np.ndarray]
+
+
+def no_force(state: State, t: float) -> np.ndarray:
+    """The default source: nobody touches the sensor."""
+    return np.zeros(3)
+
+
+class Force(Task):
+    """Zero-force task: the EE moves along the force the operator applies on the sensor.
+
+    ``source(state, t)`` returns ``f^s``, the force the operator applies on the sensor, in the sensor
+    frame (the frame ``frame``: the flange; the sensor tip offset is neglected, as in the paper).
+    :meth:`value` is ``sigma_f = R_s f^s`` (world frame). As in the paper's position task
+    (``sigma_p = p^* - p``), ``sigma_f`` is used as the error (desired 0): the velocity-level command is
+    ``J_p qd = Lambda_f (sigma_f - f_d)`` (f_d = 0), an admittance with damping ``1/Lambda_f``.
+    The Jacobian is the paper's approximation ``J_p`` of the flange: the exact one,
+    ``J_p - S(p_s - p) J_o``, has the sensor-tip offset ``p_s - p`` that is neglected.
+    ``J`` is not the derivative of :meth:`value` (the force depends on the operator, not on ``q``).
+    """
+
+    dim = 3
+
+    def __init__(self, robot: Robot, frame: str, source: ForceSource | None = None, gains: Gains | None = None,
+                 *, target=(0.0, 0.0, 0.0), name: str = "force"):
+        self.frame = frame
+        self.fid = robot.frame_id(frame)
+        self.source: ForceSource = source or no_force
+        super().__init__(name, target, gains)
+
+    def sensor_force(self, state: State) -> np.ndarray:
+        """``f^s`` from the source, validated."""
+        f = np.asarray(self.source(state, state.t), dtype=float)
+        if f.shape != (3,):
+            raise ShapeError(f"task {self.name!r}: force source returned shape {f.shape}, expected (3,)")
+        if not np.isfinite(f).all():
+            raise NonFiniteError(f"task {self.name!r}: force source returned non-finite values {f}")
+        return f
+
+    def value(self, state: State) -> np.ndarray:
+        return state.rotation(self.fid) @ self.sensor_force(state)  # sigma_f = R_s f^s
+
+    def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
+        """``sigma_f - f_d``: the EE moves along the applied force until it vanishes."""
+        return self.value(state) - x_d
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return state.jacobian(self.fid)[:3]
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        return state.jdot_qdot(self.fid)[:3]

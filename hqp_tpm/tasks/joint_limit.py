@@ -1,0 +1,60 @@
+"""Joint-limit task of papers/003, eqs. (11)-(12): distance from the middle of the joint ranges."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.errors import BoxError
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.tasks.manipulability import joint_columns
+
+
+class JointLimit(Task):
+    """``sigma_l = 1/(2n) sum ((q_i - q_i^*)/(q_Hi - q_Li))^2`` (11), ``q^* = (q_L + q_H)/2``, target 0.
+
+    ``J_l = 1/n [(q_i - q_i^*)/(q_Hi - q_Li)^2]`` (12) is the exact gradient of (11);
+    ``Jdot qd = 1/n sum qd_i^2/(q_Hi - q_Li)^2``. ``joints``: default every 1-DOF joint (all must
+    have finite limits). :meth:`deviation` gives ``|q_i - q_i^*|``, the quantity the switching
+    policy compares with its threshold ``sigma_bar_l``.
+    """
+
+    dim = 1
+
+    def __init__(self, robot: Robot, target=(0.0,), gains: Gains | None = None, *, joints=None,
+                 name: str = "joint_limit"):
+        self.joints, self.cols, self.q_idx = joint_columns(robot, joints)
+        lo, up = robot.position_limits()
+        self.q_low, self.q_high = lo[self.cols], up[self.cols]
+        bad = [j for j, a, b in zip(self.joints, self.q_low, self.q_high, strict=True)
+               if not (np.isfinite(a) and np.isfinite(b) and a < b)]
+        if bad:
+            raise BoxError(f"joint-limit task: joints without a finite range lower < upper: {bad}")
+        self.q_mid = self.q_low + 0.5 * (self.q_high - self.q_low)  # q^* of (11)
+        self.w = 1.0 / (self.q_high - self.q_low) ** 2
+        self.n = self.cols.size
+        self.nv = robot.nv
+        super().__init__(name, target, gains)
+
+    def deviation(self, state: State) -> np.ndarray:
+        """``|q_i - q_i^*|`` per joint (rad)."""
+        return np.abs(state.q[self.q_idx] - self.q_mid)
+
+    def margin(self, state: State) -> np.ndarray:
+        """Distance of each joint to its nearer limit (rad; negative beyond it)."""
+        q = state.q[self.q_idx]
+        return np.minimum(q - self.q_low, self.q_high - q)
+
+    def value(self, state: State) -> np.ndarray:
+        d = state.q[self.q_idx] - self.q_mid
+        return np.array([float(d * d @ self.w) / (2 * self.n)])  # eq. (11)
+
+    def jacobian(self, state: State) -> np.ndarray:
+        J = np.zeros((1, self.nv))
+        J[0, self.cols] = (state.q[self.q_idx] - self.q_mid) * self.w / self.n  # eq. (12)
+        return J
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        qd = state.v[self.cols]
+        return np.array([float(qd * qd @ self.w) / self.n])

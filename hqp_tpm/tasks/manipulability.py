@@ -1,0 +1,57 @@
+"""Manipulability index of papers/003, eq. (14): ``sigma_m = 1/2 sum_{i=2}^{n-1} sin^2 q_i``."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.robot import Robot
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Gains, Task
+
+
+def joint_columns(robot: Robot, joints=None) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """Names, velocity columns and configuration indices of ``joints`` (default: every 1-DOF joint)."""
+    names = list(joints) if joints is not None else [
+        n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
+    cols = np.array([robot.joint_index(j) for j in names], dtype=int)
+    model = robot.model
+    q_idx = np.array([model.joints[model.getJointId(j)].idx_q for j in names], dtype=int)
+    return names, cols, q_idx
+
+
+class Manipulability(Task):
+    """1-D task ``sigma_m = 1/2 sum sin^2 q_i`` over the 2nd to the (n-1)-th joint (eq. (14) of papers/003).
+
+    Its gradient is ``J_m = [0, sin q_2 cos q_2, ..., sin q_{n-1} cos q_{n-1}, 0]``. The paper's printed
+    eq. (15), ``[cos q_1 sin q_1 ... cos q_n sin q_n]``, is *not* the gradient of (14): it keeps the
+    first and last joints, which (14) leaves out. ``Jdot qd = sum cos(2 q_i) qd_i^2``. The target is
+    the paper's ``sigma_m^*`` (tuned; default 2.0). ``joints``: the joints of the sum (default: the
+    1-DOF joints without the first and the last one).
+    """
+
+    dim = 1
+
+    def __init__(self, robot: Robot, target=2.0, gains: Gains | None = None, *, joints=None,
+                 name: str = "manipulability"):
+        if joints is None:
+            joints = joint_columns(robot)[0][1:-1]
+        self.joints, self.cols, self.q_idx = joint_columns(robot, joints)
+        if self.cols.size == 0:
+            raise ValueError("manipulability task: no joints in the sum (the robot needs at least 3 joints)")
+        self.nv = robot.nv
+        super().__init__(name, [float(target)] if np.isscalar(target) and not isinstance(target, str) else target,
+                         gains)
+
+    def value(self, state: State) -> np.ndarray:
+        s = np.sin(state.q[self.q_idx])
+        return np.array([0.5 * float(s @ s)])  # eq. (14)
+
+    def jacobian(self, state: State) -> np.ndarray:
+        q = state.q[self.q_idx]
+        J = np.zeros((1, self.nv))
+        J[0, self.cols] = np.sin(q) * np.cos(q)  # the gradient of (14), not the printed (15)
+        return J
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        q, qd = state.q[self.q_idx], state.v[self.cols]
+        return np.array([float(np.cos(2.0 * q) @ (qd * qd))])
