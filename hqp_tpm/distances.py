@@ -97,9 +97,9 @@ def point_jdot_qdot(model: pin.Model, data: pin.Data, joint_id: int, p_world) ->
     v = data.v[jid].vector  # local (linear, angular)
     a = data.a[jid].vector
     w_l = v[3:]
-    a_o = (R @ (a[:3] + cross(w_l, v[:3]))).tolist()  # classical acceleration of the joint origin
-    alpha = (R @ a[3:]).tolist()
-    w = (R @ w_l).tolist()
+    a_o = R.dot(a[:3] + cross(w_l, v[:3])).tolist()  # classical acceleration of the joint origin
+    alpha = R.dot(a[3:]).tolist()
+    w = R.dot(w_l).tolist()
     r = (np.asarray(p_world, dtype=float) - M.translation).tolist()
     c1, c2 = cross3(alpha, r), cross3(w, cross3(w, r))
     return np.array([a_o[0] + c1[0] + c2[0], a_o[1] + c1[1] + c2[1], a_o[2] + c1[2] + c2[2]])

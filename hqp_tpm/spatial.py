@@ -1,7 +1,9 @@
 """Small 3-D vector helpers (numpy's general versions cost ~10x more at this size).
 
 They work on Python floats (``ndarray.tolist()``): the same IEEE products and sums as numpy's
-elementwise operations, without numpy's per-call overhead on 3-vectors.
+elementwise operations, without numpy's per-call overhead on 3-vectors. For the same reason the
+per-step matrix-vector products are written ``A.dot(x)``: the same BLAS call as ``A @ x`` (equal
+to the last bit, tested) at about a third of its call overhead.
 """
 
 from __future__ import annotations

@@ -60,6 +60,13 @@ class State:
         self.updates += 1
         return self
 
+    def memo(self, key, compute):
+        """``compute()`` once per update under ``key``: a derived quantity shared by its users within a step."""
+        cache = self._cache
+        if key not in cache:
+            cache[key] = compute()
+        return cache[key]
+
     # -- frames --------------------------------------------------------------------------------
     def placement(self, fid: int) -> pin.SE3:
         return self.data.oMf[fid]

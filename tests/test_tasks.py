@@ -144,6 +144,13 @@ def test_fast_task_paths_equal_their_literal_formulas(panda):
         alpha = st.jdot_qdot(pt.fid)[3:]
         np.testing.assert_array_equal(pt.jdot_qdot(st), [pt.z_d @ (np.cross(alpha, z_e)
                                                                    + np.cross(omega, np.cross(omega, z_e)))])
+        np.testing.assert_array_equal(pt.jacobian(st), (np.cross(z_e, pt.z_d) @ st.jacobian(pt.fid)[3:])[None])
+        p_rp = pt.value(st)  # computed once per update, read-only
+        assert p_rp[0] == pt.z_d @ z_e and pt.value(st) is p_rp and not p_rp.flags.writeable
+        ee = FramePosition(panda, "panda_hand", [0.3, 0.1, 0.5], Gains(kp=40, kd=20))
+        e = np.array([0.3, 0.1, 0.5]) - st.position(ee.fid)
+        np.testing.assert_array_equal(ee.command(st, 0.0, 2),  # eq. (12) with @ for J qd
+                                      0.0 + 20.0 * (0.0 - ee.jacobian(st) @ st.v) + 40.0 * e - ee.jdot_qdot(st))
         for task in tasks[1:3]:
             np.testing.assert_array_equal(task.jacobian(st), st.jacobian(task.fid)[task.rows])
             np.testing.assert_array_equal(task.jdot_qdot(st), st.jdot_qdot(task.fid)[task.rows])

@@ -46,15 +46,15 @@ class Avoidance(Task):
             raise RuntimeError(f"avoidance task {self.name!r} used before assign(): no pair for this step")
 
     def value(self, state: State) -> np.ndarray:
-        return self.point if self.dim == 3 else np.array([self.normal @ self.point])
+        return self.point if self.dim == 3 else np.array([self.normal.dot(self.point)])
 
     def jacobian(self, state: State) -> np.ndarray:
         self._require()
-        return self._J_c if self.dim == 3 else (self.normal @ self._J_c).reshape(1, -1)
+        return self._J_c if self.dim == 3 else self.normal.dot(self._J_c).reshape(1, -1)
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         self._require()
-        return self._jdqd_c if self.dim == 3 else np.array([self.normal @ self._jdqd_c])
+        return self._jdqd_c if self.dim == 3 else np.array([self.normal.dot(self._jdqd_c)])
 
     def start(self, state: State) -> None:  # no target to initialise
         return None

@@ -60,7 +60,7 @@ class Task(ABC):
 
     def rate(self, state: State) -> np.ndarray:
         """Task velocity ``J qd``."""
-        return self.jacobian(state) @ state.v
+        return self.jacobian(state).dot(state.v)
 
     # lifecycle --------------------------------------------------------------------------
     def start(self, state: State) -> None:
@@ -88,7 +88,7 @@ class Task(ABC):
         if order != 2:
             raise ValueError(f"order must be 1 (velocity) or 2 (acceleration), got {order!r}")
         xdd = xdd_d if extra is None else xdd_d + extra
-        rate = (self.jacobian(state) if J is None else J) @ state.v
+        rate = (self.jacobian(state) if J is None else J).dot(state.v)
         return xdd + self.gains.kd * (xd_d - rate) + self.gains.kp * e - self.jdot_qdot(state)
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:

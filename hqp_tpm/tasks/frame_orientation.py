@@ -36,7 +36,7 @@ class FrameOrientation(Task):
         return pin.log3(state.rotation(self.fid))
 
     def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
-        return pin.log3(self._R_target @ state.rotation(self.fid).T)
+        return pin.log3(self._R_target.dot(state.rotation(self.fid).T))
 
     def jacobian(self, state: State) -> np.ndarray:
         return state.jacobian(self.fid)[3:]

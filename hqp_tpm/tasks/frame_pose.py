@@ -38,7 +38,7 @@ class FramePose(Task):
     def error(self, state: State, x_d) -> np.ndarray:
         M = state.placement(self.fid)
         return np.concatenate([self._M_target.translation - M.translation,
-                               pin.log3(self._M_target.rotation @ M.rotation.T)])
+                               pin.log3(self._M_target.rotation.dot(M.rotation.T))])
 
     def jacobian(self, state: State) -> np.ndarray:
         return state.jacobian(self.fid)

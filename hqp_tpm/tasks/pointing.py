@@ -43,19 +43,25 @@ class Pointing(Task):
         return state.rotation(self.fid)[:, 2]
 
     def value(self, state: State) -> np.ndarray:
-        return np.array([self.z_d @ self.axis(state)])               # eq. (16)
+        """``p_rp`` (16), computed once per state update (the policy and the level both use it)."""
+        return state.memo((id(self), "p_rp"), lambda: self._p_rp(state))
+
+    def _p_rp(self, state: State) -> np.ndarray:
+        p = np.array([self.z_d.dot(self.axis(state))])               # eq. (16)
+        p.flags.writeable = False  # shared within the step
+        return p
 
     def jacobian(self, state: State) -> np.ndarray:
         z_e = self.axis(state)
         # z_d^T S(z_e)^T J_O = (z_e x z_d)^T J_O, since S(z_e)^T w = w x z_e                  eq. (19)
-        return (cross(z_e, self.z_d) @ state.jacobian(self.fid)[3:]).reshape(1, -1)
+        return cross(z_e, self.z_d).dot(state.jacobian(self.fid)[3:]).reshape(1, -1)
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         z_e = self.axis(state).tolist()
         omega = state.velocity(self.fid)[3:].tolist()
         alpha = state.jdot_qdot(self.fid)[3:].tolist()
         a, w = cross3(alpha, z_e), cross3(omega, cross3(omega, z_e))  # z_d^T (alpha x z_e + omega x (omega x z_e))
-        return np.array([self.z_d @ np.array([a[0] + w[0], a[1] + w[1], a[2] + w[2]])])
+        return np.array([self.z_d.dot(np.array([a[0] + w[0], a[1] + w[1], a[2] + w[2]]))])
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
