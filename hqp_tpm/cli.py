@@ -39,6 +39,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     results.standard_aliases(arrays, tasks)
     summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
                **results.metrics(arrays, timing, tasks)}
+    if hasattr(policy, "summary"):  # policy-specific numbers (e.g. the co-manipulation indices)
+        summary.update(policy.summary(arrays))
     results.write(out, arrays, summary)
     if figures:
         from hqp_tpm import figures as figs

@@ -1,0 +1,245 @@
+"""The stack-switching policy of papers/003 (Sec. 5, Fig. 3) with the smooth transitions of eq. (8).
+
+Four stacks, highest priority first (Fig. 7 numbers them 1-4):
+
+1. force:          force > orientation > manipulability > joint limit
+2. manipulability: position (held) > orientation > manipulability > joint limit
+3. joint limit:    position (held) > orientation > joint limit > manipulability
+4. pose:           position (held) > orientation
+
+Selection at every step: no operator force (``||f|| <= force_threshold``) -> pose; else some
+``|q_i - q_i^*| > sigma_bar_l`` -> joint limit; else ``sigma_m < sigma_bar_m`` -> manipulability; else
+force. (When both conditions hold the joint-limit stack wins: a mechanical limit is the harder
+constraint; the paper does not say.) "Held": the position target is set to the flange position at
+the moment of the switch from a stack without the position task (force) into one with it; between
+the holding stacks it is kept.
+
+Transitions (eq. (8), after Caccavale et al. 2013): at a switch at ``t_s`` the offset
+``d = qd_old(t_s) - qd_new(t_s)`` is taken between the old and the new stack's solutions *at the
+same state*, and the command is ``qd(t) = qd_new(t) + exp(-(t - t_s)/tau) d``. Both solutions come
+from the controller's own solver (the ``blend`` hook re-solves the old stack with it), so this
+works with any solver (tpm, sns_tpm, qp...). ``qd_old(t_s)`` includes what is left of a transition
+still under way, so a switch during a transition is continuous too (the paper waits ``t >> tau``;
+an operator near a threshold does not). At the switch step the command equals the old one; from
+then on it changes per step by at most ``(1 - exp(-T/tau)) ||d||`` more than the new stack's own
+command does. At acceleration level the same blend acts on ``qdd``.
+
+``tau = 0.1 s`` (default; the paper gives no value): with T = 1 ms a switch adds at most 1 % of
+the jump per step; and the old motion goes on for about ``tau``, so a joint moving at
+``qd`` passes its threshold by about ``qd tau`` -- 0.05 rad at 0.5 rad/s, less than the 0.094 rad
+between ``sigma_bar_l = 2 rad`` and the +-120 deg limits of the iiwa joints 2, 4, 6. ``tau = 0``
+switches without smoothing.
+
+``probe`` records per step: ``stack_id`` (1-4 as above), ``sigma_m``, ``sigma_l``,
+``joint_deviation_max`` (max ``|q_i - q_i^*|``), ``joint_limit_margin`` (smallest distance of a joint
+to its limit, rad), ``operator_force`` (world, N) and ``operator_force_norm``, ``marker``,
+``blend_weight`` and ``blend_offset`` (``||exp(-(t - t_s)/tau) d||``, rad/s).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hqp_tpm.build import register_policy
+from hqp_tpm.errors import ScenarioError
+from hqp_tpm.operator import Operator
+from hqp_tpm.stack import Stack
+from hqp_tpm.state import State
+from hqp_tpm.tasks import Force, FramePosition, JointLimit, Manipulability, QuaternionOrientation
+from hqp_tpm.tasks.base import Task
+from hqp_tpm.trajectories import Constant
+
+#: Stack names in the order of the paper's Fig. 7 (stack_id = index + 1).
+STACKS = ("force", "manipulability", "joint_limit", "pose")
+
+
+class ComanipulationIndices:
+    """The quantities recorded by both co-manipulation policies (switching and admittance)."""
+
+    def __init__(self, manipulability: Manipulability, joint_limit: JointLimit, operator: Operator | None):
+        self.manipulability, self.joint_limit, self.operator = manipulability, joint_limit, operator
+
+    def probe(self, ctrl, res) -> dict:
+        st = ctrl.state
+        f = self.operator.force if self.operator is not None else np.zeros(3)
+        return {"sigma_m": float(self.manipulability.value(st)[0]), "sigma_l": float(self.joint_limit.value(st)[0]),
+                "joint_deviation_max": float(self.joint_limit.deviation(st).max()),
+                "joint_limit_margin": float(self.joint_limit.margin(st).min()),
+                "operator_force": f.copy(), "operator_force_norm": float(np.linalg.norm(f)),
+                "marker": float(self.operator.marker if self.operator is not None else -1)}
+
+    def summary(self, arrays: dict, sigma_m_bar: float) -> dict:
+        """Run summary: extreme values, time below the manipulability threshold, markers reached."""
+        dt = float(arrays["t"][1] - arrays["t"][0]) if arrays["t"].size > 1 else 0.0
+        out = {"sigma_m_min": float(arrays["sigma_m"].min()), "sigma_m_mean": float(arrays["sigma_m"].mean()),
+               "sigma_m_below_threshold_s": float((arrays["sigma_m"] < sigma_m_bar).sum() * dt),
+               "sigma_l_max": float(arrays["sigma_l"].max()),
+               "joint_deviation_max": float(arrays["joint_deviation_max"].max()),
+               "joint_limit_margin_min": float(arrays["joint_limit_margin"].min()),
+               "operator_force_max": float(arrays["operator_force_norm"].max())}
+        if self.operator is not None:
+            out["markers_reached"] = [int(k) for k, _ in self.operator.reached]
+            out["markers_reached_t"] = [float(t) for _, t in self.operator.reached]
+            out["markers_skipped"] = [int(k) for k, _ in self.operator.skipped]
+        return out
+
+
+class Switching:
+    """Fig. 3 of papers/003: pose / force / manipulability / joint-limit stacks, eq. (8) transitions."""
+
+    def __init__(self, position: FramePosition, orientation: Task, force: Force, manipulability: Manipulability,
+                 joint_limit: JointLimit, *, sigma_m_bar: float = 1.5, sigma_l_bar: float = 2.0,
+                 force_threshold: float = 2.0, tau: float = 0.1, operator: Operator | None = None):
+        for name, v in (("sigma_m_bar", sigma_m_bar), ("sigma_l_bar", sigma_l_bar),
+                        ("force_threshold", force_threshold), ("tau", tau)):
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"switching policy: {name} = {v!r} must be finite and >= 0")
+        self.position, self.orientation, self.force = position, orientation, force
+        self.manipulability, self.joint_limit = manipulability, joint_limit
+        self.sigma_m_bar, self.sigma_l_bar = float(sigma_m_bar), float(sigma_l_bar)
+        self.force_threshold, self.tau = float(force_threshold), float(tau)
+        self.operator = operator
+        if operator is not None:
+            force.source = operator.sensor_force
+        self.stacks = {
+            "force": Stack.of(force, orientation, manipulability, joint_limit),
+            "manipulability": Stack.of(position, orientation, manipulability, joint_limit),
+            "joint_limit": Stack.of(position, orientation, joint_limit, manipulability),
+            "pose": Stack.of(position, orientation),
+        }
+        self.indices = ComanipulationIndices(manipulability, joint_limit, operator)
+        self.thresholds = {"sigma_m": {"sigma_bar_m": sigma_m_bar}}
+        self.active: str | None = None
+        self.switches: list[tuple[float, str, str]] = []  # (t, from, to)
+        self._switched = False
+        self._old: Stack | None = None
+        self._offset: np.ndarray | None = None
+        self._t_switch = 0.0
+
+    # hooks -------------------------------------------------------------------------------------
+    def tasks(self) -> list[Task]:
+        return [self.position, self.orientation, self.force, self.manipulability, self.joint_limit]
+
+    @property
+    def pre_policy(self):
+        return (self.operator.update,) if self.operator is not None else ()
+
+    # the policy --------------------------------------------------------------------------------
+    def select(self, state: State) -> str:
+        """The stack the switching conditions of Fig. 3 ask for at ``state``."""
+        if np.linalg.norm(self.force.value(state)) <= self.force_threshold:
+            return "pose"
+        if self.joint_limit.deviation(state).max() > self.sigma_l_bar:
+            return "joint_limit"
+        if self.manipulability.value(state)[0] < self.sigma_m_bar:
+            return "manipulability"
+        return "force"
+
+    def __call__(self, state: State, t: float) -> Stack:
+        name = self.select(state)
+        if name != self.active:
+            if self.active is None or self.active == "force":  # the position is held from the switch on
+                p = self.position.value(state).copy()
+                self.position.trajectory = Constant(value=p)
+                self.position.trajectory.start(p)
+            if self.active is not None:
+                self.switches.append((t, self.active, name))
+                self._old = self.stacks[self.active]
+                self._switched = True
+            self.active = name
+        return self.stacks[name]
+
+    def weight(self, t: float) -> float:
+        """``exp(-(t - t_s)/tau)`` of eq. (8) (0 without a transition)."""
+        if self._offset is None or self.tau == 0:
+            return 0.0
+        return math.exp(-(t - self._t_switch) / self.tau)
+
+    def blend(self, state: State, t: float, stack: Stack, x: np.ndarray, resolve) -> np.ndarray:
+        """Eq. (8): ``qd_new(t) + exp(-(t - t_s)/tau) (qd_old(t_s) - qd_new(t_s))``."""
+        if self._switched:
+            self._switched = False
+            if self.tau > 0:
+                old = resolve(self._old)
+                if self._offset is not None:
+                    old = old + self.weight(t) * self._offset  # a transition still under way
+                self._offset, self._t_switch = old - x, t
+        w = self.weight(t)
+        if w < 1e-12:
+            self._offset = None
+            return x
+        return x + w * self._offset
+
+    def probe(self, ctrl, res) -> dict:
+        w = self.weight(res.t)
+        return {**self.indices.probe(ctrl, res), "stack_id": float(STACKS.index(self.active) + 1),
+                "blend_weight": w,
+                "blend_offset": float(w * np.linalg.norm(self._offset)) if self._offset is not None else 0.0}
+
+    def summary(self, arrays: dict) -> dict:
+        out = self.indices.summary(arrays, self.sigma_m_bar)
+        dt = float(arrays["t"][1] - arrays["t"][0]) if arrays["t"].size > 1 else 0.0
+        out["time_in_named_stack_s"] = {s: float((arrays["stack_id"] == i + 1).sum() * dt)
+                                        for i, s in enumerate(STACKS)}
+        return out
+
+
+def task_of(sec, tasks: dict, key: str, cls, default: str):
+    """The task named by ``sec.key`` (default ``default``), checked to be a ``cls``."""
+    name = sec.string(key, default)
+    task = tasks.get(name)
+    if not isinstance(task, cls):
+        kinds = ", ".join(f"{n} ({type(t).__name__})" for n, t in tasks.items())
+        raise ScenarioError(f"{sec.where}.{key}: {name!r} is not a {cls.__name__} task; tasks: {kinds}")
+    return task
+
+
+def operator_from(sec, robot, frame: str) -> Operator | None:
+    """``operator = { markers = [[x, y, z], ...], stiffness, damping, f_max, noise, seed, reach, give_up,
+    t_start }`` (:class:`~hqp_tpm.operator.Operator`); absent: no operator (zero force)."""
+    tab = sec.table("operator", None)
+    if tab is None:
+        return None
+    raw = tab.raw("markers")
+    if not isinstance(raw, list) or not raw:
+        raise ScenarioError(f"{tab.where}.markers: expected a list of [x, y, z] positions")
+    markers = [_point(tab, m, i) for i, m in enumerate(raw)]
+    try:
+        op = Operator(robot, frame, markers, stiffness=tab.number("stiffness", 200.0),
+                      damping=tab.number("damping", 20.0), f_max=tab.number("f_max", 20.0),
+                      noise=tab.number("noise", 0.5), seed=int(tab.number("seed", 0)),
+                      reach=tab.number("reach", 0.02), give_up=tab.number("give_up", 10.0),
+                      t_start=tab.number("t_start", 0.5), lag=tab.number("lag", 0.1))
+    except ValueError as exc:
+        raise ScenarioError(f"{tab.where}: {exc}") from exc
+    tab.check_unused()
+    return op
+
+
+def _point(tab, m, i) -> list[float]:
+    if not isinstance(m, list) or len(m) != 3 or not all(isinstance(x, (int, float)) for x in m):
+        raise ScenarioError(f"{tab.where}.markers[{i}]: expected 3 numbers, got {m!r}")
+    return [float(x) for x in m]
+
+
+@register_policy("switching")
+def build_switching(sc, robot, tasks: dict, sec, obstacles) -> Switching:
+    """``[policy] type = "switching"``: ``position_task``, ``orientation_task``, ``force_task``,
+    ``manipulability_task``, ``joint_limit_task`` (task names; defaults: position, orientation, force,
+    manipulability, joint_limit), ``sigma_m_bar``, ``sigma_l_bar``, ``force_threshold``, ``tau``, ``operator``."""
+    pos = task_of(sec, tasks, "position_task", FramePosition, "position")
+    ori = task_of(sec, tasks, "orientation_task", QuaternionOrientation, "orientation")
+    force = task_of(sec, tasks, "force_task", Force, "force")
+    man = task_of(sec, tasks, "manipulability_task", Manipulability, "manipulability")
+    lim = task_of(sec, tasks, "joint_limit_task", JointLimit, "joint_limit")
+    op = operator_from(sec, robot, force.frame)
+    try:
+        pol = Switching(pos, ori, force, man, lim, sigma_m_bar=sec.number("sigma_m_bar", 1.5),
+                        sigma_l_bar=sec.number("sigma_l_bar", 2.0),
+                        force_threshold=sec.number("force_threshold", 2.0), tau=sec.number("tau", 0.1), operator=op)
+    except ValueError as exc:
+        raise ScenarioError(f"{sec.where}: {exc}") from exc
+    sec.check_unused()
+    return pol
