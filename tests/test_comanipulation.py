@@ -1,6 +1,8 @@
 """papers/003 (co-manipulation, LBR iiwa 7): tasks against finite differences, the switching policy's
 conditions, the eq. (8) transition, and the paper's claims on short runs against the admittance baseline."""
 
+import re
+
 import numpy as np
 import pinocchio as pin
 import pytest
@@ -273,3 +275,50 @@ def test_paper_claims_against_the_admittance_baseline(tmp_path):
     assert 3 in h["stack_id"]  # the joint-limit stack did the work
     assert h["sigma_l"].max() > b["sigma_l"].max()  # Fig. 5's claim on sigma_l does not reproduce here
     assert bs["markers_reached"] == [0, 1, 2, 3] and hs["markers_reached"] == [0, 1, 2]
+
+
+# --------------------------------------------------------------------------- operator and scenario files
+def test_operator_model(iiwa):
+    """Spring-damper force towards the marker, saturated, lagged, seeded noise; next marker when reached."""
+    from hqp_tpm.operator import Operator
+
+    st = State(iiwa).update(START, np.zeros(7))
+    p = st.position(iiwa.frame_id(FLANGE)).copy()
+    markers = [p + [0.5, 0, 0], p + [0.01, 0, 0], p + [0, 0.3, 0]]
+    op = Operator(iiwa, FLANGE, markers, stiffness=200.0, f_max=15.0, noise=0.0, lag=0.0, t_start=0.1)
+    op.update(st, 0.0)
+    np.testing.assert_array_equal(op.force, 0.0)  # before t_start
+    op.update(st, 0.1)
+    np.testing.assert_allclose(op.force, [15.0, 0, 0], atol=1e-12)  # 200 N/m * 0.5 m saturated at 15 N
+    np.testing.assert_allclose(op.sensor_force(st, 0.1), st.rotation(op.fid).T @ op.force)
+    op.marker = 1
+    op.update(st, 0.2)  # within reach of marker 1: on to marker 2
+    assert op.reached == [(1, 0.2)] and op.marker == 2
+    np.testing.assert_allclose(op.force, [0, 15.0, 0], atol=1e-12)
+    op.update(st, 20.0)  # give_up (10 s) on marker 2: done, hand off
+    assert op.skipped == [(2, 20.0)] and op.done and not op.touching
+    lagged = Operator(iiwa, FLANGE, markers, noise=0.0, lag=0.1, t_start=0.0)
+    for k in range(101):
+        lagged.update(st, k * 1e-3)
+    np.testing.assert_allclose(np.linalg.norm(lagged.force), 20.0 * (1 - np.exp(-1.0)), rtol=1e-9)
+    a = [Operator(iiwa, FLANGE, markers, noise=0.5, seed=7, t_start=0.0) for _ in range(2)]
+    for op in a:
+        op.update(st, 0.0)
+    np.testing.assert_array_equal(a[0].force, a[1].force)
+    with pytest.raises(ShapeError, match="N x 3"):
+        Operator(iiwa, FLANGE, [[0, 0]])
+
+
+def test_scenario_errors_name_the_field(tmp_path):
+    from hqp_tpm import build, scenario
+    from hqp_tpm.errors import ScenarioError
+
+    cases = [("[policy]\nforce_task = \"orientation\"\n", "force_task: 'orientation' is not a Force task"),
+             ("[policy]\noperator = { markers = [[0.5, 0.0]] }\n", "markers[0]: expected 3 numbers"),
+             ("[policy]\ntau = -1.0\n", "tau = -1.0 must be finite and >= 0"),
+             ("[policy]\nsigma_m = 1.0\n", "unknown field(s) 'sigma_m'")]
+    for i, (body, msg) in enumerate(cases):
+        f = tmp_path / f"bad{i}.toml"
+        f.write_text(f"[scenario]\nextends = \"iiwa_comanipulation\"\nname = \"bad\"\n\n{body}")
+        with pytest.raises(ScenarioError, match=re.escape(msg)):
+            build.build(scenario.load(f))

@@ -14,6 +14,12 @@ constraint; the paper does not say.) "Held": the position target is set to the f
 the moment of the switch from a stack without the position task (force) into one with it; between
 the holding stacks it is kept.
 
+On the iiwa (a spherical wrist, flange offset d7 along the flange z axis) the held position and the
+2-D orientation fix the wrist centre, and with it the elbow angle q_4 (it sets the shoulder-wrist
+distance): the joint-limit stack stops a joint-4 excursion but cannot undo it, whatever the gain of
+the joint-limit task; only the operator pulling back does (iiwa_comanipulation: joint 4 stays at
+2.00 rad until the simulated operator gives up on its marker).
+
 Transitions (eq. (8), after Caccavale et al. 2013): at a switch at ``t_s`` the offset
 ``d = qd_old(t_s) - qd_new(t_s)`` is taken between the old and the new stack's solutions *at the
 same state*, and the command is ``qd(t) = qd_new(t) + exp(-(t - t_s)/tau) d``. Both solutions come
