@@ -103,6 +103,34 @@ def distances(path: Path, arrays: dict, thresholds: dict, title: str = "") -> No
     _save(fig, path)
 
 
+def comanipulation(path: Path, runs: dict, sigma_m_bar: float = 1.5, sigma_l_bar: float = 2.0,
+                   title: str = "") -> None:
+    """Co-manipulation indices over time (Figs. 5-7 of papers/003): sigma_l (11), sigma_m (14) with its
+    threshold, max |q_i - q_i^*| with its threshold, and the active stack (1 force, 2 manipulability,
+    3 joint limit, 4 pose). ``runs``: label -> arrays (one run, or the hierarchy and the baseline)."""
+    stacks = [a for a in runs.values() if "stack_id" in a]
+    fig, axes = plt.subplots(3 + bool(stacks), 1, figsize=(8, 2.0 * (3 + bool(stacks))), sharex=True)
+    colors = iter(["b", "r", "g", "k"])
+    for label, a in runs.items():
+        c = next(colors)
+        axes[0].plot(a["t"], a["sigma_l"], c, lw=0.9, label=label)
+        axes[1].plot(a["t"], a["sigma_m"], c, lw=0.9, label=label)
+        axes[2].plot(a["t"], a["joint_deviation_max"], c, lw=0.9, label=label)
+    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.7, label="threshold")
+    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.7, label="threshold")
+    for ax, name in zip(axes, ("sigma_l", "sigma_m", "max |q_i - q_i*| [rad]"), strict=False):
+        ax.set_ylabel(name)
+        ax.legend(fontsize=7)
+    if stacks:
+        a = stacks[0]
+        axes[3].plot(a["t"], a["stack_id"], "b.", ms=1)
+        axes[3].set_yticks([1, 2, 3, 4], ["force", "manip.", "joint lim.", "pose"])
+        axes[3].set_ylim(0.5, 4.5)
+    axes[-1].set_xlabel("t [s]")
+    fig.suptitle(title)
+    _save(fig, path)
+
+
 def write_all(out: Path, arrays: dict, sc, tasks: dict, policy) -> list[Path]:
     """The figures that apply to this run; returns their paths."""
     written = []
@@ -122,5 +150,10 @@ def write_all(out: Path, arrays: dict, sc, tasks: dict, policy) -> list[Path]:
     if any(k in arrays for k in ("d_ee", "d_minimal", "d_obstacle", "d_self")):
         p = out / "distances.png"
         distances(p, arrays, getattr(policy, "thresholds", {}), f"{sc.name}: distances")
+        written.append(p)
+    if "sigma_m" in arrays:
+        p = out / "comanipulation.png"
+        comanipulation(p, {sc.name: arrays}, getattr(policy, "sigma_m_bar", 1.5), getattr(policy, "sigma_l_bar", 2.0),
+                       f"{sc.name}: co-manipulation indices")
         written.append(p)
     return written

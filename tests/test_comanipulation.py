@@ -322,3 +322,11 @@ def test_scenario_errors_name_the_field(tmp_path):
         f.write_text(f"[scenario]\nextends = \"iiwa_comanipulation\"\nname = \"bad\"\n\n{body}")
         with pytest.raises(ScenarioError, match=re.escape(msg)):
             build.build(scenario.load(f))
+
+
+def test_comanipulation_figure(tmp_path):
+    from hqp_tpm.figures import comanipulation
+
+    a, _ = run(tmp_path, "iiwa_comanipulation", 600)
+    comanipulation(tmp_path / "c.png", {"hierarchy": a})
+    assert (tmp_path / "c.png").stat().st_size > 10_000
