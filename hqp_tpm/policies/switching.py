@@ -28,7 +28,10 @@ works with any solver (tpm, sns_tpm, qp...). ``qd_old(t_s)`` includes what is le
 still under way, so a switch during a transition is continuous too (the paper waits ``t >> tau``;
 an operator near a threshold does not). At the switch step the command equals the old one; from
 then on it changes per step by at most ``(1 - exp(-T/tau)) ||d||`` more than the new stack's own
-command does. At acceleration level the same blend acts on ``qdd``.
+command does. At acceleration level the same blend acts on ``qdd``. With a box (sns_tpm, sns, qp
+with ``[limits]``) both solutions are in the box but the blend is not clipped again: during a
+transition the command may leave the box by up to the decaying offset. ``--crosscheck`` compares
+the blended command with the other solver's unblended one (the difference includes the offset).
 
 ``tau = 0.1 s`` (default; the paper gives no value): with T = 1 ms a switch adds at most 1 % of
 the jump per step; and the old motion goes on for about ``tau``, so a joint moving at
