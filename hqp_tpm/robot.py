@@ -19,7 +19,8 @@ from hqp_tpm.errors import RobotFileError, UnknownFrameError, unknown_name
 ROBOTS_DIR = Path(os.environ.get("HQP_TPM_ROBOTS", Path(__file__).resolve().parents[1] / "robots"))
 
 #: Robots shipped in ``robots/``: short name -> URDF path relative to ROBOTS_DIR.
-PROJECT_ROBOTS = {"lwr4": "kuka_lwr4/lwr4.urdf", "iiwa7": "kuka_iiwa7/iiwa7.urdf"}
+PROJECT_ROBOTS = {"lwr4": "kuka_lwr4/lwr4.urdf", "iiwa7": "kuka_iiwa7/iiwa7.urdf",
+                  "planar5": "planar/planar5.urdf", "planar4": "planar/planar4.urdf"}
 
 #: The 21 joints of the papers' simplified Romeo (reference page romeo_four_tasks.md).
 ROMEO21_JOINTS = (
