@@ -52,7 +52,7 @@ def merge_levels(parts: Sequence[Level]) -> Level:
     name = "+".join(p.name for p in parts)
     J = np.vstack([p.J for p in parts])
     if all(p.is_equality for p in parts):
-        return Level(J, np.concatenate([p.b for p in parts]), name=name)
+        return Level(J, np.concatenate([p.b for p in parts]), name=name, defer_finite=True)
     lo = np.concatenate([p.b if p.is_equality else p.lower for p in parts])
     up = np.concatenate([p.b if p.is_equality else p.upper for p in parts])
     act = np.concatenate([p.active_rows() for p in parts])

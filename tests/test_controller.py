@@ -120,3 +120,26 @@ def test_unvalidated_state_update_equals_the_validated_one():
             np.testing.assert_array_equal(fast.com(), data.com[0])
         with pytest.raises(NonFiniteError):
             fast.update(np.full(robot.model.nq, np.nan), v)  # validated by default
+
+
+class _BrokenPosition(FramePosition):
+    """A task whose Jacobian turns NaN (e.g. a user task with a bug): ``defer_finite`` levels must still be caught."""
+
+    def jacobian(self, state):
+        J = super().jacobian(state).copy()
+        J[1, 3] = np.nan
+        return J
+
+
+@pytest.mark.parametrize("solver", ["tpm", "nullspace", "sns_tpm", "sns", "qp"])
+def test_task_with_a_nan_jacobian_is_named_and_the_state_kept(lwr, solver):
+    ee = FramePosition(lwr, "lwr_ee", ellipse(), Gains(40, 20), name="ee")
+    broken = _BrokenPosition(lwr, "lwr_elbow", "hold", Gains(5, 2), name="elbow")
+    box = (lambda st, t: (np.full(7, -10.0), np.full(7, 10.0))) if solver.startswith("sns") or solver == "qp" else None
+    ctrl = Controller(lwr, [ee, broken], order=2, dt=1e-3, q0=Q0, solver=solver, box=box)
+    q, v = ctrl.q.copy(), ctrl.v.copy()
+    with pytest.raises(NonFiniteError, match=r"level 'elbow': J holds NaN or inf at \[\[1, 3\]\]"):
+        ctrl.step()
+    np.testing.assert_array_equal(ctrl.q, q)
+    np.testing.assert_array_equal(ctrl.v, v)
+    assert ctrl.steps == 0

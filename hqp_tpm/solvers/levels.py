@@ -25,7 +25,7 @@ import numpy as np
 from hqp_tpm.errors import BoxError, NonFiniteError, ShapeError
 
 
-def _vector(x, m: int, what: str, *, allow_inf: bool = False) -> np.ndarray:
+def _vector(x, m: int, what: str, *, allow_inf: bool = False, check: bool = True) -> np.ndarray:
     if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (m,):  # the common case, checked cheaply
         arr = x
     else:
@@ -35,23 +35,28 @@ def _vector(x, m: int, what: str, *, allow_inf: bool = False) -> np.ndarray:
         arr = arr.reshape(-1) if arr.ndim == 2 and 1 in arr.shape else arr
         if arr.shape != (m,):
             raise ShapeError(f"{what} has shape {np.shape(x)}, expected ({m},) to match J's {m} rows")
+    if check:
+        _check_vector(arr, what, allow_inf)
+    return arr
+
+
+def _check_vector(arr: np.ndarray, what: str, allow_inf: bool) -> None:
     if allow_inf:
         if np.isnan(arr).any():
             raise NonFiniteError(f"{what} holds NaN at rows {np.flatnonzero(np.isnan(arr)).tolist()}: {arr}")
     elif not np.isfinite(arr).all():
         bad = np.flatnonzero(~np.isfinite(arr)).tolist()
         raise NonFiniteError(f"{what} holds non-finite values at rows {bad}: {arr}")
-    return arr
 
 
-def _matrix(J, name: str) -> np.ndarray:
+def _matrix(J, name: str, check: bool = True) -> np.ndarray:
     if not (type(J) is np.ndarray and J.dtype == np.float64 and J.ndim == 2):
         J = np.asarray(J, dtype=float)
         if J.ndim == 1:
             J = J.reshape(1, -1)
         if J.ndim != 2:
             raise ShapeError(f"level {name!r}: J must be 2-D (m x n), got shape {np.shape(J)}")
-    if not np.isfinite(J).all():
+    if check and not np.isfinite(J).all():
         raise NonFiniteError(f"level {name!r}: J holds NaN or inf at {np.argwhere(~np.isfinite(J)).tolist()}")
     return J
 
@@ -62,13 +67,20 @@ class Level:
     Exactly one of ``b`` (equality) or ``lower``/``upper`` (inequality) is given.
     ``active`` optionally fixes which inequality rows the analytic solvers keep.
     The arrays are the caller's (not copied) and must not be changed afterwards.
+
+    ``defer_finite=True`` (used by the tasks, every control step) checks shapes now and leaves the
+    NaN/inf checks to the solver, which checks the stacked rows of such levels once per solve
+    (:func:`stacked`; the other solvers through :func:`as_levels`) and then names the level at fault.
     """
 
-    __slots__ = ("J", "b", "lower", "upper", "active", "name")
+    __slots__ = ("J", "b", "lower", "upper", "active", "name", "checked")
 
-    def __init__(self, J, b=None, lower=None, upper=None, active=None, name: str = ""):
+    def __init__(self, J, b=None, lower=None, upper=None, active=None, name: str = "", *,
+                 defer_finite: bool = False):
         self.name = name
-        J = _matrix(J, name)
+        check = not defer_finite
+        self.checked = check
+        J = _matrix(J, name, check)
         m = J.shape[0]
         self.J = J
         is_eq = b is not None
@@ -77,12 +89,12 @@ class Level:
                              f"{'both' if is_eq else 'neither'}")
         self.active = None
         if is_eq:
-            self.b = _vector(b, m, f"level {name!r}: b")
+            self.b = _vector(b, m, f"level {name!r}: b", check=check)
             self.lower = self.upper = None
             return
         self.b = None
-        lo = _vector(-np.inf if lower is None else lower, m, f"level {name!r}: lower", allow_inf=True)
-        up = _vector(np.inf if upper is None else upper, m, f"level {name!r}: upper", allow_inf=True)
+        lo = _vector(-np.inf if lower is None else lower, m, f"level {name!r}: lower", allow_inf=True, check=check)
+        up = _vector(np.inf if upper is None else upper, m, f"level {name!r}: upper", allow_inf=True, check=check)
         if (lo > up).any():
             i = int(np.flatnonzero(lo > up)[0])
             raise BoxError(f"level {name!r}: lower[{i}] = {lo[i]} > upper[{i}] = {up[i]}")
@@ -92,6 +104,18 @@ class Level:
             if act.shape != (m,):
                 raise ShapeError(f"level {name!r}: active has shape {np.shape(active)}, expected ({m},)")
             self.active = act
+
+    def check_finite(self) -> Level:
+        """The NaN/inf checks a ``defer_finite`` level skipped (typed errors naming the level)."""
+        if not self.checked:
+            _matrix(self.J, self.name)
+            if self.b is not None:
+                _check_vector(self.b, f"level {self.name!r}: b", False)
+            else:
+                _check_vector(self.lower, f"level {self.name!r}: lower", True)
+                _check_vector(self.upper, f"level {self.name!r}: upper", True)
+            self.checked = True
+        return self
 
     def __repr__(self) -> str:
         kind = "J x = b" if self.b is not None else "lower <= J x <= upper"
@@ -148,8 +172,11 @@ def as_level(level, index: int = 0) -> Level:
     return Level(J, b, name=str(index))
 
 
-def as_levels(levels: Iterable, n: int | None = None) -> tuple[Level, ...]:
-    """Validate a stack: every level well formed, all with the same number of columns ``n``."""
+def as_levels(levels: Iterable, n: int | None = None, *, check_finite: bool = True) -> tuple[Level, ...]:
+    """Validate a stack: every level well formed, all with the same number of columns ``n``.
+
+    ``check_finite=False`` leaves the NaN/inf checks of ``defer_finite`` levels to the caller.
+    """
     out = tuple(as_level(lv, i) for i, lv in enumerate(levels))
     if not out:
         if n is None:
@@ -159,6 +186,8 @@ def as_levels(levels: Iterable, n: int | None = None) -> tuple[Level, ...]:
     for i, lv in enumerate(out):
         if lv.n != n0:
             raise ShapeError(f"level {i} ({lv.name!r}) has {lv.n} columns, expected n = {n0}")
+        if check_finite and not lv.checked:
+            lv.check_finite()
     return out
 
 
@@ -172,19 +201,27 @@ def stacked(levels: Iterable, n: int | None = None):
     """Validated levels and their active rows stacked: ``(levels, J, b, sizes, n)``.
 
     ``J`` (m x n) and ``b`` (m) hold the rows of :func:`equality_stack` in priority order,
-    ``sizes`` the row count of each non-empty level.
+    ``sizes`` the row count of each non-empty level. The ``defer_finite`` equality levels are
+    checked here through the stacked arrays, once.
     """
-    lv = as_levels(levels, n)
+    lv = as_levels(levels, n, check_finite=False)
     n = lv[0].n if lv else n
     Js, bs, sizes = [], [], []
+    deferred = False
     for level in lv:
-        J, b = (level.J, level.b) if level.b is not None else level.as_equality()
+        if level.b is not None:
+            J, b = level.J, level.b
+            deferred = deferred or not level.checked
+        else:
+            J, b = level.check_finite().as_equality()
         if J.shape[0]:
             Js.append(J)
             bs.append(b)
             sizes.append(J.shape[0])
     if not sizes:
         return lv, np.zeros((0, n)), np.zeros(0), (), n
-    if len(Js) == 1:
-        return lv, Js[0], bs[0], (sizes[0],), n
-    return lv, np.concatenate(Js), np.concatenate(bs), tuple(sizes), n
+    J, b = (Js[0], bs[0]) if len(Js) == 1 else (np.concatenate(Js), np.concatenate(bs))
+    if deferred and not (np.isfinite(J).all() and np.isfinite(b).all()):
+        for level in lv:
+            level.check_finite()  # raises, naming the level
+    return lv, J, b, tuple(sizes), n

@@ -67,4 +67,4 @@ class Avoidance(Task):
         return r if order == 1 else r - self.jdot_qdot(state)
 
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        return Level(self.jacobian(state), self.command(state, t, order), name=self.name)
+        return Level(self.jacobian(state), self.command(state, t, order), name=self.name, defer_finite=True)

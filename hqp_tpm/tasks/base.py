@@ -94,7 +94,7 @@ class Task(ABC):
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
         """The task as a solver level (equality ``J x = b``)."""
         J = self.jacobian(state)
-        return Level(J, self.command(state, t, order, extra, J), name=self.name)
+        return Level(J, self.command(state, t, order, extra, J), name=self.name, defer_finite=True)
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"

@@ -75,5 +75,5 @@ class Pointing(Task):
         J = self.jacobian(state)
         b = self.command(state, t, order, extra, J)
         if not self.inequality:
-            return Level(J, b, name=self.name)
+            return Level(J, b, name=self.name, defer_finite=True)
         return Level(J, lower=b, upper=[np.inf], active=[self.pointing_error(state) > 0.0], name=self.name)
