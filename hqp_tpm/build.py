@@ -43,9 +43,14 @@ def trajectory(sec: Section, key: str, dim: int):
     if isinstance(raw, list):
         return Constant(value=sec.vector(key, dim))
     tab = sec.table(key)
-    kind = tab.string("type", choices=("harmonic", "constant"))
+    kind = tab.string("type", choices=("harmonic", "constant", "line"))
     rel = tab.boolean("relative", False)
-    if kind == "constant":
+    if kind == "line":  # papers/004: straight line, trapezoidal velocity profile
+        from hqp_tpm.line_trajectory import Line
+
+        tr = Line(start_point=tab.vector("start", dim), end_point=tab.vector("end", dim), v_max=tab.number("v_max"),
+                  a_max=tab.number("a_max"), t_start=tab.number("t_start", 0.0), relative=rel)
+    elif kind == "constant":
         tr = Constant(value=tab.vector("value", dim), relative=rel)
     else:
         tr = Harmonic(center=tab.vector("center", dim), cos_amplitude=tab.vector("cos_amplitude", dim),
