@@ -1,0 +1,58 @@
+"""A joint-space velocity as a task: ``J = I``, command ``qd_0`` (velocity level only).
+
+Below other levels it adds the projected term of the classic solution (5) of papers/004: the stack
+``[T, JointVelocity(qd_0)]`` solves to ``J_T^# xd_T + N_T qd_0`` (``N_T`` the null-space projector of ``J_T``,
+which is symmetric and idempotent, so ``(I N_T)^# = N_T``), with TPM, the recursion and the cascaded QP alike.
+That is how the approximate avoidance (22)-(23) and the literal primary-task form (25) of papers/004 are
+expressed as stacks (``hqp_tpm/policies/petric.py``). The policy sets ``qd_0`` every step with :meth:`assign`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.solvers.levels import Level
+from hqp_tpm.state import State
+from hqp_tpm.tasks.base import Task
+
+
+class JointVelocity(Task):
+    """``J = I_n``; velocity command ``qd_0`` (set by :meth:`assign`)."""
+
+    def __init__(self, n: int, name: str = "joint_velocity"):
+        self.dim = int(n)
+        super().__init__(name, np.zeros(self.dim))
+        self._I = np.eye(self.dim)
+        self.qd0 = np.zeros(self.dim)
+
+    def assign(self, qd0) -> None:
+        qd0 = np.asarray(qd0, dtype=float)
+        if qd0.shape != (self.dim,):
+            raise ShapeError(f"task {self.name!r}: qd_0 has shape {qd0.shape}, expected ({self.dim},)")
+        if not np.isfinite(qd0).all():
+            raise NonFiniteError(f"task {self.name!r}: qd_0 holds non-finite values: {qd0}")
+        self.qd0 = qd0
+
+    def value(self, state: State) -> np.ndarray:
+        return state.q[: self.dim]
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return self._I
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        return np.zeros(self.dim)
+
+    def start(self, state: State) -> None:
+        return None
+
+    def error(self, state: State, x_d) -> np.ndarray:
+        return np.zeros(self.dim)
+
+    def command(self, state: State, t: float, order: int, extra=None, J=None) -> np.ndarray:
+        if order != 1:
+            raise ValueError(f"task {self.name!r}: a joint velocity is a velocity-level task (order 1), got {order!r}")
+        return self.qd0
+
+    def level(self, state: State, t: float, order: int, extra=None) -> Level:
+        return Level(self._I, self.command(state, t, order), name=self.name)
