@@ -271,7 +271,7 @@ def test_tpm_and_cascaded_qp_give_the_same_commands(planar5, scheme, secondary):
 def run(tmp_path, stem, **kw):
     from hqp_tpm.cli import run_scenario
 
-    out = tmp_path / stem
+    out = tmp_path / f"out_{Path(stem).stem}"
     summary = run_scenario(stem, out, progress=False, figures=False, replay=False, **kw)
     return dict(np.load(out / "trajectory.npz")), summary
 
@@ -329,3 +329,19 @@ def test_scenario_errors(tmp_path):
     f.write_text('[scenario]\nextends = "planar5_exact"\nname = "bad"\nlevel = "acceleration"\n')
     with pytest.raises(ScenarioError, match="velocity level"):
         build.build(scenario.load(f))
+
+
+def test_two_obstacles_weighted_sum_is_continuous(tmp_path):
+    """(19)-(20): with two active obstacles the weighted sum of the homogeneous solutions gives continuous joint
+    velocities; the worst-case obstacle alone (combine = "nearest") jumps when the nearest obstacle changes
+    (Sec. 4.3: "a discontinuity in the joint velocities may occur"). The weighted one lets the links come a little
+    closer (below d_m by < 1.5 cm: the weights scale each homogeneous solution down)."""
+    a, s = run(tmp_path, "planar5_two_obstacles")
+    spec = tmp_path / "nearest.toml"
+    spec.write_text('[scenario]\nextends = "planar5_two_obstacles"\nname = "nearest"\n\n'
+                    '[policy]\ncombine = "nearest"\n')
+    b, t = run(tmp_path, str(spec))
+    assert (a["active_obstacles"] == 2).sum() > 1500
+    assert s["max_dq_jump"] < 0.01 < 1.0 < t["max_dq_jump"]
+    assert s["d_obstacle_min"] > D_M - 0.015 and t["d_obstacle_min"] > D_M - 0.01
+    assert s["ee_error_max"] < 1e-4 and t["ee_error_max"] < 1e-4

@@ -16,7 +16,8 @@ combination done in the controller's ``blend`` hook with ``resolve`` (other stac
 
 * ``"exact"``, (17) and (19)-(20): ``qd = x_E + sum_i w_i alpha_h,i (x_i - x_E)`` with ``x_E`` the solution of
   ``[ee]`` and ``x_i`` that of ``[ee > avoid_i]`` (``x_i - x_E`` is the homogeneous solution
-  ``(J_do N)^# (xd_o - J_do J^# xd)`` of (11)), ``w_i`` (20) over the obstacles within ``d_i``. The returned
+  ``(J_do N)^# (xd_o - J_do J^# xd)`` of (11)), ``w_i`` (20) over the obstacles within ``d_i``
+  (``combine = "nearest"``: the worst-case obstacle alone, the variant the paper improves on). The returned
   stack is ``[ee > avoid_nearest]``. (The paper compensates ``J_do J^# xd_e`` with the feed-forward velocity
   only; here the whole EE command ``xd = xd_d + K e`` (12), which the stack solution gives.)
 * ``"approximate"``, (22)-(23): ``[ee > JointVelocity(sum_i J_do,i^# xd_o,i)]`` = ``J^# xd + N sum_i ...``
@@ -59,6 +60,7 @@ from hqp_tpm.tasks.joint_velocity import JointVelocity
 
 SCHEMES = ("exact", "approximate", "primary", "transition")
 SECONDARY = ("projected", "prioritized")
+COMBINE = ("weighted", "nearest")
 
 
 def alpha_v(d: float, d_m: float) -> float:
@@ -99,12 +101,14 @@ class Petric:
     """The avoidance schemes of papers/004 for an EE task and the link geometries of the robot."""
 
     def __init__(self, robot, ee_task: Task, obstacles: list[Obstacle], *, scheme: str = "exact",
-                 d_m: float = 0.2, d_i: float = 0.3, v_o: float = 0.5, d_b: float = 0.02, secondary: str = "projected",
-                 record_range: float = 1.0):
+                 d_m: float = 0.2, d_i: float = 0.3, v_o: float = 0.5, d_b: float = 0.02,
+                 secondary: str = "projected", combine: str = "weighted", record_range: float = 1.0):
         if scheme not in SCHEMES:
             raise unknown_name("scheme", scheme, SCHEMES, ScenarioError)
         if secondary not in SECONDARY:
             raise unknown_name("secondary", secondary, SECONDARY, ScenarioError)
+        if combine not in COMBINE:
+            raise unknown_name("combine", combine, COMBINE, ScenarioError)
         for name, v in (("d_m", d_m), ("d_i", d_i), ("v_o", v_o), ("d_b", d_b), ("record_range", record_range)):
             if not (np.isfinite(v) and v >= 0):
                 raise ScenarioError(f"petric policy: {name} = {v!r} must be finite and >= 0")
@@ -114,7 +118,7 @@ class Petric:
         if robot.collision_model is None or not len(robot.collision_model.geometryObjects):
             raise ScenarioError(f"petric policy: robot {robot.name!r} has no collision geometry (the links)")
         self.robot, self.ee_task, self.obstacles = robot, ee_task, list(obstacles)
-        self.scheme, self.secondary = scheme, secondary
+        self.scheme, self.secondary, self.combine = scheme, secondary, combine
         self.d_m, self.d_i, self.v_o, self.d_b = float(d_m), float(d_i), float(v_o), float(d_b)
         self.field = DistanceField(robot.model, robot.collision_model, [], self.obstacles,
                                    surveillance=max(record_range, d_i))
@@ -204,6 +208,8 @@ class Petric:
         ee = self.ee_task
         if self.scheme == "exact":  # (19)-(20); x = solution of [ee > avoid_nearest]
             x_E = resolve(Stack.of(ee))
+            if self.combine == "nearest":
+                crit = crit[:1]
             w = weights([d for _, d in crit], self.d_i)
             out = x_E.copy()
             for (j, d), wj in zip(crit, w, strict=True):
@@ -256,7 +262,8 @@ class Petric:
 @register_policy("petric")
 def build_petric(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> Petric:
     """``[policy] type = "petric"``: ``ee_task``, ``scheme`` (exact | approximate | primary | transition),
-    ``d_m``, ``d_i``, ``v_o``, ``d_b``, ``secondary`` (projected | prioritized), ``record_range``."""
+    ``d_m``, ``d_i``, ``v_o``, ``d_b``, ``secondary`` (projected | prioritized), ``combine`` (weighted | nearest),
+    ``record_range``."""
     if sc.order != 1:
         raise ScenarioError(f"{sec.where}.type: the petric policy works at velocity level (papers/004), "
                             f"the scenario says level = {sc.level!r}")
@@ -269,6 +276,7 @@ def build_petric(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> Petr
                  d_m=sec.number("d_m", 0.2), d_i=sec.number("d_i", 0.3), v_o=sec.number("v_o", 0.5),
                  d_b=sec.number("d_b", 0.02),
                  secondary=sec.string("secondary", "projected", choices=SECONDARY),
+                 combine=sec.string("combine", "weighted", choices=COMBINE),
                  record_range=sec.number("record_range", 1.0))
     sec.check_unused()
     return pol
