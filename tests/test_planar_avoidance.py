@@ -197,12 +197,12 @@ def paper_terms(robot, ctrl, tasks, pol, j=0):
 @pytest.mark.parametrize("d", [0.12, 0.25])
 def test_stacks_equal_the_papers_closed_forms(planar5, d):
     """At a state with one obstacle at d (below d_m, between d_m and d_i), each scheme's command equals the paper's
-    formula computed with numpy pseudo-inverses: (17), (22), (25), (30)."""
+    formula computed with numpy pseudo-inverses: (17), (22), (25), (30), (37)-(39)."""
     obs = [obstacle_at_distance(planar5, Q_NEAR, d, link=3)]
     v = np.full(5, 0.1)
     got = {}
-    for scheme in ("exact", "approximate", "primary", "transition"):
-        robot, ctrl, tasks, pol = controller(scheme=scheme, obstacles=obs)
+    for scheme in ("exact", "approximate", "primary", "transition", "pwdls"):
+        robot, ctrl, tasks, pol = controller(scheme=scheme, obstacles=obs, p_ee=25.0, pwdls_damping=0.01)
         got[scheme] = at(ctrl, Q_NEAR, v).command
     J, xd, Jp, N, J_do, xo, dd = paper_terms(robot, ctrl, tasks, pol)
     assert abs(dd - d) < 1e-9
@@ -213,7 +213,11 @@ def test_stacks_equal_the_papers_closed_forms(planar5, d):
     N_o = np.eye(5) - np.linalg.pinv(J_do) @ J_do
     primary = np.linalg.pinv(J_do) @ np.array([xo]) + N_o @ x_E if d < D_M else x_E  # (25)
     transition = np.linalg.pinv(J_do) @ np.array([xo]) + (np.eye(5) - ah * np.linalg.pinv(J_do) @ J_do) @ x_E  # (30)
-    for name, want in (("exact", exact), ("approximate", approx), ("primary", primary), ("transition", transition)):
+    J_E = np.vstack([J, J_do])
+    P = np.diag([25.0, 25.0, 1.0 / ah])
+    pw = J_E.T @ np.linalg.solve(J_E @ J_E.T + 0.01**2 * P, np.array([*xd, xo]))  # (37)-(39)
+    for name, want in (("exact", exact), ("approximate", approx), ("primary", primary), ("transition", transition),
+                       ("pwdls", pw)):
         np.testing.assert_allclose(got[name], want, atol=1e-10, err_msg=name)
     if d < D_M:  # the exact solution gives the critical point exactly xd_o (11), the approximate one less (Sec. 4.4)
         np.testing.assert_allclose(J_do @ got["exact"], [xo], atol=1e-10)
@@ -279,7 +283,7 @@ def run(tmp_path, stem, **kw):
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("planar")
-    return {s: run(tmp, f"planar5_{s}") for s in ("exact", "approximate", "primary", "transition")}
+    return {s: run(tmp, f"planar5_{s}") for s in ("exact", "approximate", "primary", "transition", "pwdls")}
 
 
 def test_exact_and_approximate_runs_figs_2_5(runs):
@@ -345,3 +349,15 @@ def test_two_obstacles_weighted_sum_is_continuous(tmp_path):
     assert s["max_dq_jump"] < 0.01 < 1.0 < t["max_dq_jump"]
     assert s["d_obstacle_min"] > D_M - 0.015 and t["d_obstacle_min"] > D_M - 0.01
     assert s["ee_error_max"] < 1e-4 and t["ee_error_max"] < 1e-4
+
+
+def test_pwdls_run_figs_12_13(runs):
+    """Figs. 12-13: with the priority-weighted DLS the arm passes the obstacle on the EE's path and reaches P_2; as the
+    paper says, it comes closer to the obstacle than with the smooth transition (0.175 m vs 0.2006 m, below d_m), and
+    here the EE leaves its line by less (0.19 m vs 0.40 m)."""
+    pw, pw_s = runs["pwdls"]
+    tr, tr_s = runs["transition"]
+    assert 0.15 < pw_s["d_obstacle_min"] < tr_s["d_obstacle_min"] - 0.02
+    assert pw_s["ee_error_max"] < 0.6 * tr_s["ee_error_max"]
+    assert np.linalg.norm(pw["ee_error"][-1]) < 5e-3
+    assert pw_s["max_dq_jump"] < 0.2

@@ -28,6 +28,11 @@ combination done in the controller's ``blend`` hook with ``resolve`` (other stac
   J_b^# xd_b`` for the nearest obstacle, i.e. ``alpha_h x_P + (1 - alpha_h) (x_A + x_E)`` with ``x_P`` the
   primary-task solution (25), ``x_A`` the solution of ``[avoid]`` alone and ``x_E`` that of ``[ee]``.
 
+* ``"pwdls"``, (37)-(39), Figs. 12-13: no hierarchy, ``qd = J_E^# xd_E`` for the EE task and the nearest
+  obstacle's avoidance with priority factors ``p_ee`` and ``p_avoid / alpha_h`` (41) and damping
+  ``pwdls_damping`` (:mod:`hqp_tpm.pwdls`): the avoidance weighs nothing at ``d_i`` and ``1/p_avoid`` from ``d_m``
+  on, so the priority changes continuously (the paper leaves the choice of ``p_i`` open).
+
 ``secondary`` says what "secondary" means in (25)/(30): ``"projected"`` (default) the paper's printed
 ``N_a J_b^# xd_b`` (stack ``[avoid > JointVelocity(x_E)]``), ``"prioritized"`` the hierarchy of the solvers
 ``(J_b N_a)^# (xd_b - J_b J_a^# xd_a)`` (stack ``[avoid > ee]``); they differ in how much of the EE task
@@ -52,13 +57,14 @@ from hqp_tpm.build import register_policy
 from hqp_tpm.distances import DistanceField
 from hqp_tpm.errors import ScenarioError, unknown_name
 from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.pwdls import pwdls
 from hqp_tpm.stack import Stack
 from hqp_tpm.state import State
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.joint_velocity import JointVelocity
 
-SCHEMES = ("exact", "approximate", "primary", "transition")
+SCHEMES = ("exact", "approximate", "primary", "transition", "pwdls")
 SECONDARY = ("projected", "prioritized")
 COMBINE = ("weighted", "nearest")
 
@@ -102,16 +108,20 @@ class Petric:
 
     def __init__(self, robot, ee_task: Task, obstacles: list[Obstacle], *, scheme: str = "exact",
                  d_m: float = 0.2, d_i: float = 0.3, v_o: float = 0.5, d_b: float = 0.02,
-                 secondary: str = "projected", combine: str = "weighted", record_range: float = 1.0):
+                 secondary: str = "projected", combine: str = "weighted", p_ee: float = 5.0, p_avoid: float = 1.0,
+                 pwdls_damping: float = 0.01, record_range: float = 1.0):
         if scheme not in SCHEMES:
             raise unknown_name("scheme", scheme, SCHEMES, ScenarioError)
         if secondary not in SECONDARY:
             raise unknown_name("secondary", secondary, SECONDARY, ScenarioError)
         if combine not in COMBINE:
             raise unknown_name("combine", combine, COMBINE, ScenarioError)
-        for name, v in (("d_m", d_m), ("d_i", d_i), ("v_o", v_o), ("d_b", d_b), ("record_range", record_range)):
+        for name, v in (("d_m", d_m), ("d_i", d_i), ("v_o", v_o), ("d_b", d_b), ("record_range", record_range),
+                        ("pwdls_damping", pwdls_damping)):
             if not (np.isfinite(v) and v >= 0):
                 raise ScenarioError(f"petric policy: {name} = {v!r} must be finite and >= 0")
+        if not (p_ee > 0 and p_avoid > 0):
+            raise ScenarioError(f"petric policy: p_ee = {p_ee!r} and p_avoid = {p_avoid!r} must be > 0 (41)")
         if not 0 < d_b < d_m < d_i:
             raise ScenarioError(f"petric policy: need 0 < d_b < d_m < d_i, got d_b = {d_b!r}, d_m = {d_m!r}, "
                                 f"d_i = {d_i!r}")
@@ -119,6 +129,7 @@ class Petric:
             raise ScenarioError(f"petric policy: robot {robot.name!r} has no collision geometry (the links)")
         self.robot, self.ee_task, self.obstacles = robot, ee_task, list(obstacles)
         self.scheme, self.secondary, self.combine = scheme, secondary, combine
+        self.p_ee, self.p_avoid, self.pwdls_damping = float(p_ee), float(p_avoid), float(pwdls_damping)
         self.d_m, self.d_i, self.v_o, self.d_b = float(d_m), float(d_i), float(v_o), float(d_b)
         self.field = DistanceField(robot.model, robot.collision_model, [], self.obstacles,
                                    surveillance=max(record_range, d_i))
@@ -183,6 +194,10 @@ class Petric:
                 stack, prio = Stack.of(ee, self.joint), 1
             else:
                 stack = Stack.of(ee)
+        elif self.scheme == "pwdls":  # (37)-(39) in blend; [ee] is solved first, unused
+            a = self.avoid[crit[0][0]]
+            weight = alpha_h(crit[0][1], self.d_m, self.d_i)
+            stack, prio = LabeledStack([(ee,)], f"{a.name} ~ {ee.name} (pwdls)"), 2
         else:
             j, d = crit[0]
             weight = (1.0 if d < self.d_m else 0.0) if self.scheme == "primary" else alpha_h(d, self.d_m, self.d_i)
@@ -218,6 +233,12 @@ class Petric:
             return out
         if self.scheme == "approximate":
             return x
+        if self.scheme == "pwdls":  # p of the avoidance p_avoid / alpha_h: no weight at d_i, p_avoid from d_m on
+            a, lam = self.avoid[crit[0][0]], self._last["weight"]
+            if lam == 0.0:
+                return x
+            levels = [ee.level(state, t, 1), a.level(state, t, 1)]
+            return pwdls(levels, [self.p_ee, self.p_avoid / lam], self.pwdls_damping)
         j = crit[0][0]
         a = self.avoid[j]
         lam = self._last["weight"]
@@ -263,7 +284,7 @@ class Petric:
 def build_petric(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> Petric:
     """``[policy] type = "petric"``: ``ee_task``, ``scheme`` (exact | approximate | primary | transition),
     ``d_m``, ``d_i``, ``v_o``, ``d_b``, ``secondary`` (projected | prioritized), ``combine`` (weighted | nearest),
-    ``record_range``."""
+    ``p_ee``, ``p_avoid``, ``pwdls_damping`` (scheme pwdls), ``record_range``."""
     if sc.order != 1:
         raise ScenarioError(f"{sec.where}.type: the petric policy works at velocity level (papers/004), "
                             f"the scenario says level = {sc.level!r}")
@@ -276,7 +297,8 @@ def build_petric(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> Petr
                  d_m=sec.number("d_m", 0.2), d_i=sec.number("d_i", 0.3), v_o=sec.number("v_o", 0.5),
                  d_b=sec.number("d_b", 0.02),
                  secondary=sec.string("secondary", "projected", choices=SECONDARY),
-                 combine=sec.string("combine", "weighted", choices=COMBINE),
+                 combine=sec.string("combine", "weighted", choices=COMBINE), p_ee=sec.number("p_ee", 5.0),
+                 p_avoid=sec.number("p_avoid", 1.0), pwdls_damping=sec.number("pwdls_damping", 0.01),
                  record_range=sec.number("record_range", 1.0))
     sec.check_unused()
     return pol
