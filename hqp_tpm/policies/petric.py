@@ -5,11 +5,11 @@ from the :class:`~hqp_tpm.distances.DistanceField` of the robot's link geometrie
 ||d_o,i||`` and unit direction ``n_o`` (obstacle -> arm). Its avoidance task is one-dimensional, the reduced
 operational space (14): ``J_do = n_o^T J_o`` (the 1-D :class:`~hqp_tpm.tasks.avoidance.Avoidance`), with the
 avoiding velocity (15)-(16) ``xd_o = alpha_v v_o``, ``alpha_v = (d_m/d)^2 - 1`` below the critical distance
-``d_m`` and 0 above it, and the smoothing gain (18) ``alpha_h`` (1 below ``d_m``, ``(1 - cos(pi (d - d_m)/(d_i -
-d_m)))/2`` up to the influence distance ``d_i``, 0 beyond). (The printed (18) rises from 0 at ``d_m`` to 1 at
-``d_i``, the opposite of the text -- "between d_m and d_i only a part of the homogeneous solution is
-included", "alpha_h close to zero ... while it is away from the obstacle" -- and it would jump from 1 to 0 at
-``d_m``; the transition implemented here is the continuous one the text describes, ``1 - (18)``.)
+``d_m`` and 0 above it, and the smoothing gain (18) ``alpha_h`` (1 below ``d_m``, ``(1 + cos(pi (d - d_m)/(d_i -
+d_m)))/2`` up to the influence distance ``d_i``, 0 beyond). (The printed (18) has ``1 - cos``: it rises from 0 at
+``d_m`` to 1 at ``d_i``, the opposite of the text -- "between d_m and d_i only a part of the homogeneous solution
+is included", "alpha_h close to zero ... while it is away from the obstacle" -- and jumps at ``d_m`` and at
+``d_i``; the gain implemented here is the continuous one the text describes.)
 
 The schemes (``scheme``), each as stacks solved by the controller's own solver (tpm, nullspace, qp...), the
 combination done in the controller's ``blend`` hook with ``resolve`` (other stacks, same solver):
@@ -27,7 +27,6 @@ combination done in the controller's ``blend`` hook with ``resolve`` (other stac
 * ``"transition"``, (26)-(31) with ``lambda = alpha_h`` (30)-(31): ``qd = J_a^# xd_a + (I - alpha_h J_a^# J_a)
   J_b^# xd_b`` for the nearest obstacle, i.e. ``alpha_h x_P + (1 - alpha_h) (x_A + x_E)`` with ``x_P`` the
   primary-task solution (25), ``x_A`` the solution of ``[avoid]`` alone and ``x_E`` that of ``[ee]``.
-
 * ``"pwdls"``, (37)-(39), Figs. 12-13: no hierarchy, ``qd = J_E^# xd_E`` for the EE task and the nearest
   obstacle's avoidance with priority factors ``p_ee`` and ``p_avoid / alpha_h`` (41) and damping
   ``pwdls_damping`` (:mod:`hqp_tpm.pwdls`): the avoidance weighs nothing at ``d_i`` and ``1/p_avoid`` from ``d_m``
@@ -43,8 +42,11 @@ penetration (``d <= 0``, where (16) is undefined) still pushes out along ``n_o``
 ``probe`` records per step ``d_obstacle`` (smallest link-obstacle distance), ``d_obstacle_<name>`` per
 obstacle, ``alpha_h`` and ``alpha_v`` of the nearest obstacle, ``transition_weight`` (the weight of the
 avoidance-first solution: ``alpha_h`` for ``transition``, 1/0 for ``primary``, 0 otherwise),
-``avoid_priority`` (0 no avoidance task, 1 below the EE task, 2 above it), ``active_obstacles`` (within
-``d_i``) and ``avoid_rate`` (``J_do qd`` of the nearest obstacle's critical point, m/s).
+``avoid_priority`` (0 no avoidance task, 1 below the EE task, 2 above it or, pwdls, weighted with it),
+``active_obstacles`` (within ``d_i``) and ``avoid_rate`` (``J_do qd`` of the nearest obstacle's critical point,
+m/s). ``hqp-tpm run --crosscheck`` compares the other solver's solution of the returned stack with the blended
+command, so it reports the blend too; ``tests/test_planar_avoidance.py`` compares the blended commands of
+both solvers.
 """
 
 from __future__ import annotations
