@@ -7,7 +7,7 @@ import numpy as np
 from hqp_tpm.controller import Controller
 from hqp_tpm.errors import HqpTpmError, ScenarioError
 from hqp_tpm.robot import Robot
-from hqp_tpm.scenario import Scenario, Section
+from hqp_tpm.scenario import Scenario, Section, vector
 from hqp_tpm.stack import FixedStack, Stack
 from hqp_tpm.tasks import (
     CenterOfMass,
@@ -43,7 +43,19 @@ def trajectory(sec: Section, key: str, dim: int):
     if isinstance(raw, list):
         return Constant(value=sec.vector(key, dim))
     tab = sec.table(key)
-    kind = tab.string("type", choices=("harmonic", "constant", "line"))
+    kind = tab.string("type", choices=("harmonic", "constant", "line", "dmp"))
+    if kind == "dmp":  # papers/004 Sec. 6: DMP with obstacle coupling, relative to the start value
+        from hqp_tpm.dmp import Coupling, DmpTrajectory
+
+        obs = tab.raw("obstacles", [])
+        if not isinstance(obs, list):
+            raise ScenarioError(f"{tab.where}.obstacles: expected a list of [x, y, z] points")
+        pts = [vector(o, f"{tab.where}.obstacles[{i}]", 3) for i, o in enumerate(obs)]
+        cp = Coupling(tab.number("gamma", 1000.0), tab.number("beta", 20.0 / np.pi), tab.number("eta", 50.0),
+                      tab.number("d", 0.15))
+        tr = DmpTrajectory(tab.vector("end", dim), tab.number("tau"), pts, cp, horizon=tab.number("horizon", None))
+        tab.check_unused()
+        return tr
     rel = tab.boolean("relative", False)
     if kind == "line":  # papers/004: straight line, trapezoidal velocity profile
         from hqp_tpm.line_trajectory import Line
