@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hqp_tpm.dmp import DMP, Coupling, rotation
-from hqp_tpm.errors import ShapeError
+from hqp_tpm.errors import ScenarioError, ShapeError
 
 Y0, G = np.zeros(3), np.array([1.0, 0.0, 0.0])
 
@@ -67,3 +67,34 @@ def test_fig17_obstacle_on_the_path(line_dmp):
     assert np.linalg.norm(Yc[-1] - G) < 1e-6
     active = np.linalg.norm(C, axis=1) > 1e-3
     assert np.linalg.norm(Yc[active] - o, axis=1).max() < 0.5
+
+
+def test_dmp_target_on_the_planar_arm(tmp_path):
+    """Figs. 17-19 on planar5_dmp: the DMP with coupling moves the EE round the ball on its line (the plain DMP, gamma
+    = 0, goes through it), the arm tracks it (EE error < 1e-4 m) with smooth joint velocities, the target returns to
+    the goal, and the coupling acts only near the ball."""
+    from hqp_tpm import build, scenario
+    from hqp_tpm.cli import run_scenario
+
+    s = run_scenario("planar5_dmp", tmp_path / "dmp", progress=False, figures=False, replay=False)
+    a = dict(np.load(tmp_path / "dmp" / "trajectory.npz"))
+    assert s["d_obstacle_min"] > 0.1 and s["ee_error_max"] < 1e-4 and s["max_dq_jump"] < 0.02
+    assert np.linalg.norm(a["ee_error"][-1]) < 1e-8
+    spec = tmp_path / "plain.toml"
+    spec.write_text('[scenario]\nextends = "planar5_dmp"\nname = "plain"\n\n[[tasks]]\nname = "ee"\n'
+                    'target = { gamma = 0.0 }\n')
+    p = run_scenario(str(spec), tmp_path / "plain", progress=False, figures=False, replay=False)
+    assert p["d_obstacle_min"] < 0.0  # without the coupling the EE goes through the ball
+    sc = scenario.load("planar5_dmp")
+    _, ctrl, tasks, _ = build.build(sc)
+    ctrl.start()
+    T, Y, V, A, C = tasks["ee"].trajectory._roll
+    np.testing.assert_allclose(Y[-1] - Y[0], [0.0, -1.2], atol=1e-9)
+    r = np.linalg.norm(Y - [1.99, 0.0], axis=1)
+    c = np.linalg.norm(C, axis=1)
+    assert c[r > 0.5].max() < 0.01 * c.max()
+    with pytest.raises(ScenarioError, match="obstacles"):
+        bad = tmp_path / "bad.toml"
+        bad.write_text('[scenario]\nextends = "planar5_dmp"\nname = "bad"\n\n[[tasks]]\nname = "ee"\n'
+                       'target = { obstacles = [[1.0, 2.0]] }\n')
+        build.build(scenario.load(bad))
