@@ -179,3 +179,17 @@ def test_bad_stacks_raise_typed_errors(levels, error, match):
     for solve in (tpm, nullspace, tpm_reference):
         with pytest.raises(error, match=match):
             solve(levels)
+
+
+@given(st.integers(0, 2**32 - 1))
+@settings(max_examples=300, deadline=None)
+def test_row_targets_one_row_equals_the_array_rule(seed):
+    """The float path of one-row inequality targets makes the same choice as the vectorized rule."""
+    from hqp_tpm.solvers.levels import row_targets
+
+    rng = np.random.default_rng(seed)
+    vals = np.concatenate([rng.standard_normal(6), [0.0, -0.0, np.inf, -np.inf]])
+    lo, up = np.sort(rng.choice(vals, size=2))[:, None]
+    one = row_targets(lo, up)
+    two = row_targets(np.repeat(lo, 2), np.repeat(up, 2))  # the array path
+    assert one.shape == (1,) and np.array_equal(one, two[:1])

@@ -18,6 +18,7 @@ ignores ``active`` and treats the bounds as true inequalities.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
@@ -145,17 +146,29 @@ class Level:
         """Per-row target of the active rows, as an equality right-hand side (see module doc)."""
         if self.b is not None:
             return self.b
-        lo, up = self.lower, self.upper
-        nearest = np.where(np.isfinite(lo) & (~np.isfinite(up) | (np.abs(lo) <= np.abs(up))), lo, up)
-        t = np.where(lo > 0.0, lo, np.where(up < 0.0, up, nearest))
-        return t[self.active_rows()]
+        rows = self.active_rows()
+        return row_targets(self.lower[rows], self.upper[rows])
 
     def as_equality(self) -> tuple[np.ndarray, np.ndarray]:
         """``(J_active, target)``: the level as the analytic solvers see it (may have 0 rows)."""
         if self.b is not None:
             return self.J, self.b
         rows = self.active_rows()
-        return self.J[rows], self.target()
+        return self.J[rows], row_targets(self.lower[rows], self.upper[rows])
+
+
+def row_targets(lo: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Targets of active inequality rows: the bound violated at zero, else the finite bound nearest to zero."""
+    if lo.shape[0] == 1:  # one row (a cone, a distance): the same choice on floats, far fewer calls
+        a, b = float(lo[0]), float(up[0])
+        if a > 0.0:
+            return np.array([a])
+        if b < 0.0:
+            return np.array([b])
+        near_lo = math.isfinite(a) and (not math.isfinite(b) or abs(a) <= abs(b))
+        return np.array([a if near_lo else b])
+    nearest = np.where(np.isfinite(lo) & (~np.isfinite(up) | (np.abs(lo) <= np.abs(up))), lo, up)
+    return np.where(lo > 0.0, lo, np.where(up < 0.0, up, nearest))
 
 
 LevelLike = Level | tuple | Sequence
