@@ -361,12 +361,13 @@ def cylinders_to_capsules(geom_model):
     return geom_model
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def write_or_check(files: dict[Path, str], script: str, argv: list[str] | None = None) -> int:
+    """Write the generated ``files``, or with ``--check`` exit 1 if one differs (shared by the generators)."""
+    parser = argparse.ArgumentParser(description=f"Generate the robot files of robots/{script}.")
     parser.add_argument("--check", action="store_true", help="do not write; exit 1 if a file differs")
     args = parser.parse_args(argv)
     stale = []
-    for path, text in generate().items():
+    for path, text in files.items():
         rel = path.relative_to(HERE.parent)
         if args.check:
             if not path.exists() or path.read_bytes() != text.encode():
@@ -376,9 +377,13 @@ def main(argv: list[str] | None = None) -> int:
         path.write_bytes(text.encode())
         print(f"wrote {rel}")
     if stale:
-        print("out of date: " + ", ".join(map(str, stale)) + " (run python robots/dh_to_urdf.py)", file=sys.stderr)
+        print("out of date: " + ", ".join(map(str, stale)) + f" (run python robots/{script})", file=sys.stderr)
         return 1
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    return write_or_check(generate(), "dh_to_urdf.py", argv)
 
 
 if __name__ == "__main__":

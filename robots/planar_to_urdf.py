@@ -25,7 +25,6 @@ No hqp_tpm imports.
 
 from __future__ import annotations
 
-import argparse
 import math
 import sys
 from dataclasses import dataclass
@@ -146,23 +145,10 @@ def generate() -> dict[Path, str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--check", action="store_true", help="do not write; exit 1 if a file differs")
-    args = parser.parse_args(argv)
-    stale = []
-    for path, text in generate().items():
-        rel = path.relative_to(HERE.parent)
-        if args.check:
-            if not path.exists() or path.read_bytes() != text.encode():
-                stale.append(rel)
-            continue
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_bytes(text.encode())
-        print(f"wrote {rel}")
-    if stale:
-        print("out of date: " + ", ".join(map(str, stale)) + " (run python robots/planar_to_urdf.py)", file=sys.stderr)
-        return 1
-    return 0
+    sys.path.insert(0, str(HERE))
+    from dh_to_urdf import write_or_check  # the same write/--check as the DH generator
+
+    return write_or_check(generate(), "planar_to_urdf.py", argv)
 
 
 if __name__ == "__main__":
