@@ -31,7 +31,7 @@ def _vector(what: str, value, n: int = 3) -> np.ndarray:
     return arr.copy()
 
 
-def _scalar(what: str, value, minimum: float = 0.0, strict: bool = False) -> float:
+def checked_scalar(what: str, value, minimum: float = 0.0, strict: bool = False) -> float:
     """``value`` as a finite float ``>= minimum`` (``> minimum`` if ``strict``)."""
     try:
         x = float(value)
@@ -154,7 +154,7 @@ class Obstacle:
     def sphere(cls, name: str, center, radius: float = 0.0, **motion) -> Obstacle:
         """A sphere; ``radius = 0`` is the paper's point obstacle ``o_j`` (eqs. (22), (25))."""
         c = _vector(f"obstacle {name!r} center", center)
-        r = _scalar(f"obstacle {name!r} radius", radius)
+        r = checked_scalar(f"obstacle {name!r} radius", radius)
         return cls(name, coal.Sphere(r), pin.SE3(np.eye(3), c), **motion)
 
     @classmethod
@@ -172,7 +172,7 @@ class Obstacle:
         """A capsule around the segment from ``a`` to ``b`` (world frame) with ``radius`` (0: a segment)."""
         pa = _vector(f"obstacle {name!r} end point a", a)
         pb = _vector(f"obstacle {name!r} end point b", b)
-        r = _scalar(f"obstacle {name!r} radius", radius)
+        r = checked_scalar(f"obstacle {name!r} radius", radius)
         axis = pb - pa
         length = float(np.linalg.norm(axis))
         R = np.eye(3)

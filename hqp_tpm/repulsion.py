@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError, unknown_name
-from hqp_tpm.obstacles import GeometryError
+from hqp_tpm.obstacles import checked_scalar
 
 __all__ = ["DIRECTIONS", "Repulsion", "nearest_element", "repulsion_direction", "repulsion_magnitude"]
 
@@ -129,16 +129,7 @@ class Repulsion:
 
     def __post_init__(self):
         for name in ("v_max", "rho", "gamma", "c"):
-            value = getattr(self, name)
-            try:
-                x = float(value)
-            except (TypeError, ValueError) as exc:
-                raise GeometryError(f"Repulsion.{name} must be a number, got {value!r}") from exc
-            if not np.isfinite(x):
-                raise NonFiniteError(f"Repulsion.{name} must be finite, got {x}")
-            if x < 0.0 or (x == 0.0 and name != "v_max"):
-                op = ">=" if name == "v_max" else ">"
-                raise GeometryError(f"Repulsion.{name} must be {op} 0, got {x}")
+            x = checked_scalar(f"Repulsion.{name}", getattr(self, name), strict=name != "v_max")
             object.__setattr__(self, name, x)
 
     def magnitude(self, d) -> np.ndarray:
