@@ -7,7 +7,8 @@ null-space damping ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then
 
 A policy with a ``blend(state, t, stack, x, resolve)`` method gets the solution ``x`` and returns the
 command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth
-stack transitions of papers/003, eq. (8) (:mod:`hqp_tpm.policies.switching`).
+stack transitions of papers/003, eq. (8) (:mod:`hqp_tpm.policies.switching`). With a solver that
+keeps a hard box (SNS, QP) the blended command is clipped into the box.
 
 A step that fails on bad input (non-finite command, wrong shapes, solver error) raises a
 typed error and leaves the controller exactly as it was before the step.
@@ -22,7 +23,7 @@ import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, SolverFailedError
 from hqp_tpm.robot import Robot
-from hqp_tpm.solve import check_solver_name, solve
+from hqp_tpm.solve import ANALYTIC, check_solver_name, solve
 from hqp_tpm.stack import FixedStack, Stack
 from hqp_tpm.state import State
 from hqp_tpm.tasks.base import Task
@@ -101,6 +102,8 @@ class Controller:
                 return solve(self.solver, other.to_levels(st, self.t, self.order), self.robot.nv, x0=x0, box=box,
                              lambda_max=self.lambda_max, eps=self.eps)[0]
             x = blend(st, self.t, stack, x, resolve)
+            if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
+                x = np.minimum(np.maximum(x, box[0]), box[1])
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
         return StepResult(self.t, stack, levels, x, info)

@@ -143,3 +143,32 @@ def test_task_with_a_nan_jacobian_is_named_and_the_state_kept(lwr, solver):
     np.testing.assert_array_equal(ctrl.q, q)
     np.testing.assert_array_equal(ctrl.v, v)
     assert ctrl.steps == 0
+
+
+class _PushingBlend:
+    """A policy whose eq. (8)-style blend adds an offset far outside any joint box."""
+
+    def __init__(self, tasks):
+        self.stack = Stack.of(*tasks)
+
+    def tasks(self):
+        return self.stack.tasks()
+
+    def __call__(self, state, t):
+        return self.stack
+
+    def blend(self, state, t, stack, x, resolve):
+        return x + 100.0
+
+
+@pytest.mark.parametrize("solver", ["sns_tpm", "sns", "qp", "tpm"])
+def test_a_blended_command_keeps_the_hard_box(lwr, solver):
+    ee = FramePosition(lwr, "lwr_ee", ellipse(), Gains(40, 0), name="ee")
+    lo, up = np.full(7, -0.3), np.full(7, 0.3)
+    ctrl = Controller(lwr, _PushingBlend([ee]), order=1, dt=1e-3, q0=Q0, solver=solver, box=lambda st, t: (lo, up))
+    res = ctrl.step()
+    x = res.command
+    if solver == "tpm":  # the analytic solvers ignore boxes: the blend is left alone
+        np.testing.assert_allclose(x - 100.0, tpm(res.levels), atol=1e-12)
+    else:
+        assert ((x >= lo) & (x <= up)).all() and np.allclose(x, up)

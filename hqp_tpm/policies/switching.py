@@ -29,8 +29,8 @@ still under way, so a switch during a transition is continuous too (the paper wa
 an operator near a threshold does not). At the switch step the command equals the old one; from
 then on it changes per step by at most ``(1 - exp(-T/tau)) ||d||`` more than the new stack's own
 command does. At acceleration level the same blend acts on ``qdd``. With a box (sns_tpm, sns, qp
-with ``[limits]``) both solutions are in the box but the blend is not clipped again: during a
-transition the command may leave the box by up to the decaying offset. ``--crosscheck`` compares
+with ``[limits]``) the controller clips the blended command into the box (the offset was taken at
+the switch, the box is the current one), so the hard limits hold during a transition. ``--crosscheck`` compares
 the blended command with the other solver's unblended one (the difference includes the offset).
 
 ``tau = 0.1 s`` (default; the paper gives no value): with T = 1 ms a switch adds at most 1 % of
