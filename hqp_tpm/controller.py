@@ -65,13 +65,31 @@ class Controller:
         self.state = State(robot)
         q = robot.neutral() if q0 is None else q0
         v = np.zeros(robot.nv) if v0 is None else v0
-        self.q, self.v = self.state.check(q, v)
+        self._q, self._v = self.state.check(q, v)
         self.a = np.zeros(robot.nv)
         self.t = float(t0)
         self.steps = 0
         self._started = False
 
     # ------------------------------------------------------------------------------------------
+    @property
+    def q(self) -> np.ndarray:
+        """Joint configuration (assigning it validates it, like :meth:`set_state`)."""
+        return self._q
+
+    @q.setter
+    def q(self, value) -> None:
+        self._q, _ = self.state.check(value, self._v)
+
+    @property
+    def v(self) -> np.ndarray:
+        """Joint velocity (assigning it validates it)."""
+        return self._v
+
+    @v.setter
+    def v(self, value) -> None:
+        _, self._v = self.state.check(self._q, value)
+
     def tasks(self) -> list[Task]:
         """All tasks the policy may use (for start-up and logging)."""
         return list(self.policy.tasks()) if hasattr(self.policy, "tasks") else []
@@ -87,7 +105,7 @@ class Controller:
         """State update, policy, solve: the command at the current state (no integration)."""
         if not self._started:
             self.start()
-        st = self.state.update(self.q, self.v, self.t, validate=False)  # checked by __init__/set_state/step
+        st = self.state.update(self._q, self._v, self.t, validate=False)  # checked whenever they are set
         for hook in self.pre_policy:
             hook(st, self.t)
         stack = self.policy(st, self.t)
@@ -111,10 +129,10 @@ class Controller:
     def step(self) -> StepResult:
         """One control step. On any error the controller keeps its previous state."""
         res = self.compute()
-        q, v = self.state.integrate(self.q, self.v, res.command, self.dt, self.order)
+        q, v = self.state.integrate(self._q, self._v, res.command, self.dt, self.order)
         if not (np.isfinite(q).all() and np.isfinite(v).all()):
             raise NonFiniteError(f"integration produced a non-finite state at t = {self.t:.6f}")
-        self.q, self.v = q, v
+        self._q, self._v = q, v
         self.a = res.command.copy() if self.order == 2 else self.a
         self.t += self.dt
         self.steps += 1
@@ -122,5 +140,4 @@ class Controller:
 
     def set_state(self, q, v=None) -> None:
         """Replace the state after validation (nothing changes if it is rejected)."""
-        q, v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)
-        self.q, self.v = q, v
+        self._q, self._v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)

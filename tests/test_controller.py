@@ -172,3 +172,18 @@ def test_a_blended_command_keeps_the_hard_box(lwr, solver):
         np.testing.assert_allclose(x - 100.0, tpm(res.levels), atol=1e-12)
     else:
         assert ((x >= lo) & (x <= up)).all() and np.allclose(x, up)
+
+
+def test_assigning_q_or_v_is_validated(lwr):
+    ctrl, _ = tracking(lwr)
+    ctrl.step()
+    q, v = ctrl.q.copy(), ctrl.v.copy()
+    with pytest.raises(NonFiniteError, match="q holds non-finite values at \\[2\\]"):
+        ctrl.q = np.where(np.arange(7) == 2, np.nan, q)
+    with pytest.raises(ShapeError, match="v has 6 entries"):
+        ctrl.v = np.zeros(6)
+    np.testing.assert_array_equal(ctrl.q, q)
+    np.testing.assert_array_equal(ctrl.v, v)
+    ctrl.q = q + 0.01  # a valid assignment is taken, as a copy
+    assert np.allclose(ctrl.q, q + 0.01) and ctrl.q is not q
+    ctrl.step()
