@@ -74,10 +74,12 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         if args.command == "list":
-            from hqp_tpm.scenario import SCENARIO_DIR
+            from hqp_tpm.scenario import SCENARIO_DIR, load
 
-            for f in sorted(SCENARIO_DIR.glob("*.toml")):
-                print(f.stem)
+            files = sorted(SCENARIO_DIR.glob("*.toml"))
+            width = max((len(f.stem) for f in files), default=0)
+            for f in files:
+                print(f"{f.stem:{width}s}  {load(f).description}")
             return 0
         out = args.out or Path("runs") / Path(args.scenario).stem
         summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,

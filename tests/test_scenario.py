@@ -103,3 +103,16 @@ def test_unknown_scenario_lists_the_known_ones():
 def test_invalid_toml(tmp_path):
     with pytest.raises(ScenarioError, match="not valid TOML"):
         scenario.load(write(tmp_path, "[scenario\nrobot ="))
+
+
+def test_cli_list_names_every_scenario_with_its_description(capsys):
+    from hqp_tpm.cli import main
+    from hqp_tpm.scenario import SCENARIO_DIR, load
+
+    assert main(["list"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    files = sorted(SCENARIO_DIR.glob("*.toml"))
+    assert len(lines) == len(files)
+    for line, f in zip(lines, files, strict=True):
+        name, _, description = line.partition(" ")
+        assert name == f.stem and description.strip() == load(f).description != ""
