@@ -18,6 +18,12 @@ from hqp_tpm.state import State
 from hqp_tpm.tasks.base import Gains, Task
 from hqp_tpm.trajectories import Constant
 
+#: The cone (21) as a one-row inequality level: no upper bound, active while the axis is outside.
+_NO_UPPER = np.array([np.inf])
+_ACTIVE, _INACTIVE = np.array([True]), np.array([False])
+for _a in (_NO_UPPER, _ACTIVE, _INACTIVE):
+    _a.flags.writeable = False
+
 
 class Pointing(Task):
     """Point the frame's z axis at ``axis`` within the cone half-angle ``alpha_d`` (radians)."""
@@ -76,4 +82,5 @@ class Pointing(Task):
         b = self.command(state, t, order, extra, J)
         if not self.inequality:
             return Level(J, b, name=self.name, defer_finite=True)
-        return Level(J, lower=b, upper=[np.inf], active=[self.pointing_error(state) > 0.0], name=self.name)
+        active = _ACTIVE if self.pointing_error(state) > 0.0 else _INACTIVE
+        return Level(J, lower=b, upper=_NO_UPPER, active=active, name=self.name, defer_finite=True)
