@@ -422,7 +422,6 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
     """
     lo, up = _box(lower, upper, None)
-    box = _Box(lo, up)
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
     if sizes:                                    # W = I: eq. (4) is the TPM solution (1)
@@ -432,6 +431,9 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
         x = fac.pinv_times(Fxd)[:n]
     else:
         F_times, Fxd, x = (lambda v: v), xd, np.zeros(n)
+    if ((x >= lo) & (x <= up)).all():            # no bound reached (the common case): the TPM solution
+        return (x, SNSInfo(1.0, (), 1)) if return_info else x
+    box = _Box(lo, up)
     free = np.ones(n, dtype=bool)
     xN = np.zeros(n)
     a, b = x, np.zeros(n)

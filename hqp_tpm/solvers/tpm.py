@@ -148,6 +148,34 @@ def _pivot(block: np.ndarray, lambda_max: float, eps: float):
     return (Vt.T * inverted_singular_values(sv, lambda_max, eps)) @ U.T, False, sv[-1] <= RANK_TOL
 
 
+def _pivots(qr: np.ndarray, off: list[int], lambda_max: float, eps: float) -> list:
+    """:func:`_pivot` of every pivot block, the regular ones from one triangular inverse of all of ``R``.
+
+    The diagonal blocks of ``R^{-1}`` are the ``R_ii^{-1}``; a block whose bound proves it regular takes
+    its block of ``R^{-1}``, any other block (damped, singular or undecided) goes through :func:`_pivot`.
+    """
+    blocks = list(zip(off, off[1:], strict=False))
+    m = off[-1]
+    if len(blocks) < 3:
+        return [_pivot(qr[a:e, a:e], lambda_max, eps) for a, e in blocks]
+    Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
+    if info != 0:
+        return [_pivot(qr[a:e, a:e], lambda_max, eps) for a, e in blocks]
+    damped = lambda_max > 0.0
+    out = []
+    for a, e in blocks:
+        if e - a == 1:
+            bound = abs(qr[a, a])                                 # a 1 x 1 block: sigma_min itself
+        else:
+            D = Rinv[a:e, a:e]
+            bound = 1.0 / np.sqrt(np.einsum("ij,ij->", D, D))    # sigma_min >= 1/||R_ii^-1||_F
+        if bound > RANK_TOL and not (damped and bound < eps):
+            out.append((Rinv[a:e, a:e], True, False))
+        else:
+            out.append(_pivot(qr[a:e, a:e], lambda_max, eps))
+    return out
+
+
 class _Factorization:
     """``J^T = Q R`` of a stacked ``J`` (LAPACK, compact form) and the pivot pseudo-inverses.
 
@@ -166,7 +194,7 @@ class _Factorization:
         for k in sizes:
             off.append(off[-1] + k)
         self.off = off
-        self.pivots = [_pivot(self.qr[a:e, a:e], lambda_max, eps) for a, e in zip(off, off[1:], strict=False)]
+        self.pivots = _pivots(self.qr, off, lambda_max, eps)
         self.regular = all(p[1] for p in self.pivots)
         self.singular = any(p[2] for p in self.pivots)
         self._Fbar = self._Q = None
