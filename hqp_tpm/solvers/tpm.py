@@ -156,7 +156,8 @@ def _pivots(qr: np.ndarray, off: list[int], lambda_max: float, eps: float) -> li
     """
     blocks = list(zip(off, off[1:], strict=False))
     m = off[-1]
-    if len(blocks) < 3:
+    # a (nearly) singular R, as dependent tasks give, makes the whole inverse useless: block by block then
+    if len(blocks) < 3 or np.abs(np.diagonal(qr)[:m]).min() <= 1e3 * RANK_TOL:
         return [_pivot(qr[a:e, a:e], lambda_max, eps) for a, e in blocks]
     Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
     if info != 0:
