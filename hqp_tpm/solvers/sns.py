@@ -62,7 +62,7 @@ from scipy.linalg import lapack
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
 from hqp_tpm.solvers.levels import as_levels, stacked
-from hqp_tpm.solvers.tpm import _Factorization, _triu, tpm_factors
+from hqp_tpm.solvers.tpm import _Factorization, _smin_lower_bound, _triu, tpm_factors
 
 #: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (1 + |bound|)``;
 #: the scale factor uses the box widened by the same amount, and the returned command is clipped
@@ -398,11 +398,9 @@ def _free_pinv(J, free, n):
     if np.abs(np.diagonal(qr)).min() <= RANK_TOL:  # sigma_min <= min |r_jj|: a rank loss, G not needed
         return None, False
     Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
-    if info == 0:
-        flat = Rinv.ravel("K")
-        if 1.0 / np.sqrt(flat @ flat) > RANK_TOL:
-            G[free] = lapack.dorgqr(qr, tau)[0][:, :m] @ Rinv.T
-            return G, True
+    if info == 0 and _smin_lower_bound(Rinv) > RANK_TOL:
+        G[free] = lapack.dorgqr(qr, tau)[0][:, :m] @ Rinv.T
+        return G, True
     U, sv, Vt = sla.svd(A, full_matrices=False, check_finite=False)
     G[free] = (Vt.T * inverted_singular_values(sv)) @ U.T
     return G, sv.size == m and sv[-1] > RANK_TOL

@@ -120,30 +120,36 @@ def _triu(A: np.ndarray) -> np.ndarray:
     return A * mask
 
 
+def _regular(smin: float, lambda_max: float, eps: float) -> bool:
+    """A pivot whose smallest singular value is (at least) ``smin`` is inverted exactly: invertible, undamped."""
+    return smin > RANK_TOL and not (lambda_max > 0.0 and smin < eps)
+
+
+def _smin_lower_bound(Rinv: np.ndarray) -> float:
+    """``sigma_min(R) >= 1/||R^-1||_F``: a certificate from a triangular inverse, without an SVD."""
+    flat = Rinv.ravel("K")
+    return 1.0 / np.sqrt(flat @ flat)
+
+
 def _pivot(block: np.ndarray, lambda_max: float, eps: float):
     """``(D, regular, singular)``: the (damped) pseudo-inverse of an upper-triangular pivot block.
 
-    Regular (invertible, and not damped: ``sigma_min >= eps`` when ``lambda_max > 0``) pivots get
-    their exact triangular inverse. The decision is the reference path's, on ``sigma_min``, but the
-    SVD is needed only when the bound ``sigma_min >= 1/||R_ii^-1||_F`` cannot decide.
+    Regular pivots (:func:`_regular`) get their exact triangular inverse. The decision is the reference
+    path's, on ``sigma_min``, but the SVD is needed only when :func:`_smin_lower_bound` cannot decide.
     """
-    damped = lambda_max > 0.0
     if block.shape[0] == 1:
         r = block[0, 0]
         smin = abs(r)
-        if smin > RANK_TOL and not (damped and smin < eps):
+        if _regular(smin, lambda_max, eps):
             return np.array([[1.0 / r]]), True, False
         inv = inverted_singular_value(smin, lambda_max, eps)
         return np.array([[inv if r >= 0.0 else -inv]]), False, smin <= RANK_TOL
     R = _triu(block)
     Rinv, info = lapack.dtrtri(R, lower=0)
-    if info == 0:
-        flat = Rinv.ravel("K")
-        lower_bound = 1.0 / np.sqrt(flat @ flat)
-        if lower_bound > RANK_TOL and not (damped and lower_bound < eps):
-            return Rinv, True, False
+    if info == 0 and _regular(_smin_lower_bound(Rinv), lambda_max, eps):
+        return Rinv, True, False
     U, sv, Vt, _ = lapack.dgesdd(R)
-    if sv[-1] > RANK_TOL and not (damped and sv[-1] < eps):
+    if _regular(sv[-1], lambda_max, eps):
         return Rinv, True, False
     return (Vt.T * inverted_singular_values(sv, lambda_max, eps)) @ U.T, False, sv[-1] <= RANK_TOL
 
@@ -153,27 +159,22 @@ def _pivots(qr: np.ndarray, off: list[int], lambda_max: float, eps: float) -> li
 
     The diagonal blocks of ``R^{-1}`` are the ``R_ii^{-1}``; a block whose bound proves it regular takes
     its block of ``R^{-1}``, any other block (damped, singular or undecided) goes through :func:`_pivot`.
+    With fewer than 3 blocks, or a nearly singular ``R`` (dependent tasks), the whole inverse does not pay.
     """
-    blocks = list(zip(off, off[1:], strict=False))
     m = off[-1]
-    # a (nearly) singular R, as dependent tasks give, makes the whole inverse useless: block by block then
-    if len(blocks) < 3 or np.abs(np.diagonal(qr)[:m]).min() <= 1e3 * RANK_TOL:
-        return [_pivot(qr[a:e, a:e], lambda_max, eps) for a, e in blocks]
-    Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
-    if info != 0:
-        return [_pivot(qr[a:e, a:e], lambda_max, eps) for a, e in blocks]
-    damped = lambda_max > 0.0
+    Rinv = None
+    if len(off) > 3 and np.abs(np.diagonal(qr)[:m]).min() > 1e3 * RANK_TOL:
+        Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
+        Rinv = Rinv if info == 0 else None
     out = []
-    for a, e in blocks:
-        if e - a == 1:
-            bound = abs(qr[a, a])                                 # a 1 x 1 block: sigma_min itself
-        else:
+    for a, e in zip(off, off[1:], strict=False):
+        if Rinv is not None:
             D = Rinv[a:e, a:e]
-            bound = 1.0 / np.sqrt(np.einsum("ij,ij->", D, D))    # sigma_min >= 1/||R_ii^-1||_F
-        if bound > RANK_TOL and not (damped and bound < eps):
-            out.append((Rinv[a:e, a:e], True, False))
-        else:
-            out.append(_pivot(qr[a:e, a:e], lambda_max, eps))
+            bound = abs(qr[a, a]) if e - a == 1 else _smin_lower_bound(D)  # 1 x 1: sigma_min itself
+            if _regular(bound, lambda_max, eps):
+                out.append((D, True, False))
+                continue
+        out.append(_pivot(qr[a:e, a:e], lambda_max, eps))
     return out
 
 
