@@ -131,10 +131,10 @@ def _box(lower, upper, n: int | None) -> tuple[np.ndarray, np.ndarray]:
                    f"(a finite command needs lower < inf and upper > -inf)")
 
 
-def _levels(levels, n):
-    """Validated levels whose column count must be the box's ``n``."""
+def _levels(levels, n, check_finite: bool = True):
+    """Validated levels whose column count must be the box's ``n`` (see :func:`as_levels`)."""
     levels = tuple(levels)
-    lv = as_levels(levels) if levels else ()
+    lv = as_levels(levels, check_finite=check_finite) if levels else ()
     if lv and lv[0].n != n:
         raise ShapeError(f"the stack has {lv[0].n} columns but the box has {n} joints")
     return lv
@@ -142,10 +142,7 @@ def _levels(levels, n):
 
 def _stacked(levels, n):
     """Validated levels, the stacked active rows ``(J, b)`` of the whole stack and the level sizes."""
-    levels = tuple(levels)
-    lv, J, b, sizes, cols = stacked(levels, None if levels else n)
-    if cols != n:
-        raise ShapeError(f"the stack has {cols} columns but the box has {n} joints")
+    lv, J, b, sizes, _ = stacked(_levels(levels, n, check_finite=False), n)
     return lv, J, b, sizes
 
 
