@@ -33,7 +33,7 @@ bench: $(VENV)/.dev
 	$(PY) benchmarks/run_all.py
 
 scenarios: $(VENV)/.base
-	for s in tasks/*.toml; do $(VENV)/bin/hqp-tpm run $$s --out $(OUT)/$$(basename $$s .toml) || exit 1; done
+	for s in $$($(VENV)/bin/hqp-tpm list --names); do $(VENV)/bin/hqp-tpm run $$s --out $(OUT)/$$s || exit 1; done
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .ruff_cache

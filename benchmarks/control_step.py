@@ -8,7 +8,7 @@
    the motion), and where the time goes (the controller's own calls wrapped with timers: state update,
    pre-policy hooks = distances, policy, task levels, box, solve, integration).
 2. The complete ``lwr_relaxed`` run (18,850 steps): wall time of ``ctrl.step()`` in a loop (nothing
-   recorded) and of :func:`hqp_tpm.runner.run` (recording every step).
+   recorded) and of :func:`hqp_tpm.app.runner.run` (recording every step).
 3. A 7-DOF SNS-TPM velocity solve: one 6-D task (LWR IV end-effector pose Jacobian at random
    configurations) with joint velocity boxes small enough that joints saturate; tpm and the cascaded
    QP (proxqp, same box) on the same problems for the ratio.
@@ -52,8 +52,8 @@ ARM_SNS_US = 40.0
 
 
 def build(name: str, solver: str | None = None):
-    from hqp_tpm import build as hb
-    from hqp_tpm import scenario
+    from hqp_tpm.app import build as hb
+    from hqp_tpm.app import scenario
 
     sc = scenario.load(name)
     robot, ctrl, tasks, policy = hb.build(sc, solver=solver)
@@ -80,9 +80,9 @@ class PhaseTimer:
 
     def patches(self, ctrl):
         """Context managers that install the timers on ``ctrl`` (and the classes/functions it calls)."""
-        import hqp_tpm.controller as hc
-        from hqp_tpm.stack import Stack
-        from hqp_tpm.state import State
+        import hqp_tpm.control.controller as hc
+        from hqp_tpm.control.stack import Stack
+        from hqp_tpm.robot.state import State
 
         out = [mock.patch.object(State, "update", self.wrap("state update", State.update)),
                mock.patch.object(State, "integrate", self.wrap("integration", State.integrate)),
@@ -166,7 +166,7 @@ def step_timing(name: str, solver: str | None, steps: int | None, warmup: int) -
 
 def whole_run(name: str, steps: int | None) -> dict:
     """Wall time of the complete run: ``ctrl.step()`` loop, then ``runner.run`` (fresh controllers)."""
-    from hqp_tpm import runner
+    from hqp_tpm.app import runner
 
     sc, _, ctrl, _ = build(name)
     n = steps or sc.steps
@@ -185,9 +185,9 @@ def whole_run(name: str, steps: int | None) -> dict:
 
 def arm_sns(draws: int, seed: int, v_scale: float) -> dict:
     """SNS-TPM on one 6-D LWR IV end-effector task with a small joint velocity box; tpm and QP alongside."""
-    from hqp_tpm.robot import Robot
+    from hqp_tpm.robot.model import Robot
+    from hqp_tpm.robot.state import State
     from hqp_tpm.solvers import cascaded_qp, sns_tpm, tpm
-    from hqp_tpm.state import State
 
     robot = Robot.load("lwr4")
     state = State(robot)
@@ -412,7 +412,7 @@ def report(args, env, steps, run, arm, romeo) -> dict:
         ["lwr_relaxed complete run", "steps", "wall s", "µs / step", "process CPU s"],
         [["ctrl.step() loop, no recording", run["steps"], f"{run['loop_s']:.2f}", fmt(run["loop_us_per_step"]),
           f"{run['loop_cpu_s']:.2f}"],
-         ["hqp_tpm.runner.run (recording)", run["steps"], f"{run['runner_s']:.2f}", fmt(run["runner_us_per_step"]),
+         ["hqp_tpm.app.runner.run (recording)", run["steps"], f"{run['runner_s']:.2f}", fmt(run["runner_us_per_step"]),
           ""]])
     arm_table = common.md_table(
         ["7-DOF, 6-D EE task", "draws", "median µs", "p99 µs", "mean µs", "CPU median µs"],
@@ -451,7 +451,7 @@ def report(args, env, steps, run, arm, romeo) -> dict:
          phase_table + "\n\nThe controller's own calls are wrapped with timers on a second fresh controller over "
          "the same steps: state update = `State.update` (pinocchio kinematics), pre-policy = the policy's hooks (coal "
          "distances of Algorithm 1), policy = the policy call (stack choice, distance Jacobians), task levels = "
-         "`Stack.to_levels`, box = the joint-limit box, solve = `hqp_tpm.solve.solve`, integration = "
+         "`Stack.to_levels`, box = the joint-limit box, solve = `hqp_tpm.solvers.registry.solve`, integration = "
          "`State.integrate`; rest = the step minus these."),
         ("Complete run", run_table),
         ("7-DOF SNS-TPM velocity solve", arm_table + "\n\n" + arm_note),

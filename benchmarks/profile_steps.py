@@ -29,7 +29,7 @@ SCENARIOS = ("lwr_relaxed", "romeo_sns_tpm")
 
 
 def _build(name: str):
-    from hqp_tpm import build, scenario
+    from hqp_tpm.app import build, scenario
 
     return build.build(scenario.load(name))[1]
 
@@ -38,7 +38,7 @@ def profile_scenario(name: str, steps: int | None, warmup: int, interval: float)
     """``steps`` after ``warmup`` under pyinstrument, then the same steps of a fresh controller under cProfile."""
     from pyinstrument import Profiler
 
-    from hqp_tpm import scenario
+    from hqp_tpm.app import scenario
 
     steps = steps or scenario.load(name).steps - warmup
     ctrl = _build(name)

@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hqp_tpm.figures import comanipulation
+from hqp_tpm.app.figures import comanipulation
 
 ROOT = Path(__file__).resolve().parents[1]
 

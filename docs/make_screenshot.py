@@ -16,7 +16,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 
 from browser import screenshot  # noqa: E402
 
-from hqp_tpm.cli import run_scenario  # noqa: E402
+from hqp_tpm.app.cli import run_scenario  # noqa: E402
 
 
 def main(out: Path = ROOT / "docs" / "img" / "viewer_lwr_relaxed.png", at: float = 0.6) -> Path:

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hqp_tpm.robot import Robot
+from hqp_tpm.robot.model import Robot
 
 LWR = ["lwr_relaxed", "lwr_velocity", "lwr_avoid3d", "lwr_point35_equality", "lwr_point35_inequality"]
 ROMEO = ["romeo_tpm", "romeo_sns_tpm", "romeo_sns", "romeo_qp"]

@@ -49,7 +49,7 @@ def relative_gaps(draws: int, seed: int) -> dict[str, dict[str, np.ndarray]]:
 
 def romeo_residuals(every: int) -> tuple[list[str], dict[str, np.ndarray]]:
     """Residual ``||J_i x - b_i||`` of every level on the romeo_sns_tpm stacks, per solver (steps x levels)."""
-    from hqp_tpm import build, scenario
+    from hqp_tpm.app import build, scenario
 
     ctrl = build.build(scenario.load("romeo_sns_tpm"))[1]
     names, res = None, {"sns_tpm": [], "sns": [], "qp": []}

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 
 from hqp_tpm.errors import UnknownNameError
-from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.policies.algorithm1 import Algorithm1
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import FramePosition, Gains, Pointing
 
 Q0 = np.array([0.923, -0.854, 0.903, 1.195, 0.971, 1.796, 0.0])

@@ -8,8 +8,8 @@ import pinocchio as pin
 import pytest
 
 from hqp_tpm.errors import ShapeError
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import Force, JointLimit, Manipulability, QuaternionOrientation
 from hqp_tpm.tasks.quaternion_orientation import quaternion_error
 
@@ -200,7 +200,7 @@ def test_eq8_blend_formula(iiwa):
 # --------------------------------------------------------------------------- runs
 def run(tmp_path, stem, steps, solver=None, **policy):
     """Run ``stem`` (optionally overriding [policy] fields) and return its arrays and metrics."""
-    from hqp_tpm.cli import run_scenario
+    from hqp_tpm.app.cli import run_scenario
 
     spec = stem
     if policy:
@@ -280,7 +280,7 @@ def test_paper_claims_against_the_admittance_baseline(tmp_path):
 # --------------------------------------------------------------------------- operator and scenario files
 def test_operator_model(iiwa):
     """Spring-damper force towards the marker, saturated, lagged, seeded noise; next marker when reached."""
-    from hqp_tpm.operator import Operator
+    from hqp_tpm.references.operator import Operator
 
     st = State(iiwa).update(START, np.zeros(7))
     p = st.position(iiwa.frame_id(FLANGE)).copy()
@@ -310,7 +310,7 @@ def test_operator_model(iiwa):
 
 
 def test_scenario_errors_name_the_field(tmp_path):
-    from hqp_tpm import build, scenario
+    from hqp_tpm.app import build, scenario
     from hqp_tpm.errors import ScenarioError
 
     cases = [("[policy]\nforce_task = \"orientation\"\n", "force_task: 'orientation' is not a Force task"),
@@ -325,7 +325,7 @@ def test_scenario_errors_name_the_field(tmp_path):
 
 
 def test_comanipulation_figure(tmp_path):
-    from hqp_tpm.figures import comanipulation
+    from hqp_tpm.app.figures import comanipulation
 
     a, _ = run(tmp_path, "iiwa_comanipulation", 600)
     comanipulation(tmp_path / "c.png", {"hierarchy": a})

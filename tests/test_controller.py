@@ -4,14 +4,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm.controller import Controller
+from hqp_tpm.control.controller import Controller
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import HqpTpmError, NonFiniteError, ShapeError, UnknownNameError
-from hqp_tpm.robot import Robot
+from hqp_tpm.references.trajectories import Harmonic
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.solvers import tpm
-from hqp_tpm.stack import Stack
-from hqp_tpm.state import State
 from hqp_tpm.tasks import FramePosition, Gains, Pointing
-from hqp_tpm.trajectories import Harmonic
 
 Q0 = np.array([0.923, -0.854, 0.903, 1.195, 0.971, 1.796, 0.0])
 

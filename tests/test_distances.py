@@ -7,10 +7,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm import distances
-from hqp_tpm.distances import DistanceField, point_jacobian, point_jdot_qdot
 from hqp_tpm.errors import HqpTpmError, NonFiniteError, ShapeError, UnknownFrameError, UnknownNameError
-from hqp_tpm.obstacles import GeometryError, Obstacle
+from hqp_tpm.geometry import distances
+from hqp_tpm.geometry.distances import DistanceField, point_jacobian, point_jdot_qdot
+from hqp_tpm.geometry.obstacles import GeometryError, Obstacle
 
 TOL = 1e-9
 

@@ -5,8 +5,8 @@ import math
 import numpy as np
 import pytest
 
-from hqp_tpm.dmp import DMP, Coupling, rotation
 from hqp_tpm.errors import ScenarioError, ShapeError
+from hqp_tpm.references.dmp import DMP, Coupling, rotation
 
 Y0, G = np.zeros(3), np.array([1.0, 0.0, 0.0])
 
@@ -73,8 +73,8 @@ def test_dmp_target_on_the_planar_arm(tmp_path):
     """Figs. 17-19 on planar5_dmp: the DMP with coupling moves the EE round the ball on its line (the plain DMP, gamma
     = 0, goes through it), the arm tracks it (EE error < 1e-4 m) with smooth joint velocities, the target returns to
     the goal, and the coupling acts only near the ball."""
-    from hqp_tpm import build, scenario
-    from hqp_tpm.cli import run_scenario
+    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app.cli import run_scenario
 
     s = run_scenario("planar5_dmp", tmp_path / "dmp", progress=False, figures=False, replay=False)
     a = dict(np.load(tmp_path / "dmp" / "trajectory.npz"))

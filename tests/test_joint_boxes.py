@@ -1,4 +1,4 @@
-"""Joint boxes (hqp_tpm.joint_boxes): the reference page's velocity box, the derived acceleration box,
+"""Joint boxes (hqp_tpm.robot.joint_boxes): the reference page's velocity box, the derived acceleration box,
 their invariance over long random rollouts, the recovery from states outside the limits, bad input."""
 
 import os
@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from threadpoolctl import threadpool_limits
 
 from hqp_tpm.errors import BoxError, HqpTpmError, ShapeError
-from hqp_tpm.joint_boxes import BoxLimits, acceleration_box, is_viable, velocity_box
+from hqp_tpm.robot.joint_boxes import BoxLimits, acceleration_box, is_viable, velocity_box
 
 #: Number of hypothesis draws of (limits, state); rollouts are 2,000 steps each.
 DRAWS = int(os.environ.get("HQP_TPM_SNS_DRAWS", "2000"))

@@ -11,11 +11,11 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm import build, scenario
+from hqp_tpm.app import build, scenario
 from hqp_tpm.errors import ScenarioError
 from hqp_tpm.policies.petric import alpha_h, alpha_v, weights
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 
 ROOT = Path(__file__).resolve().parents[1]
 H = 1e-6
@@ -42,7 +42,7 @@ def segment_distance(c, a, b):
 
 # --------------------------------------------------------------------------- the model
 def test_planar_urdfs_are_generated_and_match_the_planar_kinematics(planar5):
-    spec = importlib.util.spec_from_file_location("planar_to_urdf", ROOT / "robots" / "planar_to_urdf.py")
+    spec = importlib.util.spec_from_file_location("planar_to_urdf", ROOT / "tools" / "planar_to_urdf.py")
     gen = importlib.util.module_from_spec(spec)
     sys.modules["planar_to_urdf"] = gen
     spec.loader.exec_module(gen)
@@ -51,8 +51,8 @@ def test_planar_urdfs_are_generated_and_match_the_planar_kinematics(planar5):
     model = planar5.model
     data = model.createData()
     rng = np.random.default_rng(0)
-    from hqp_tpm.distances import DistanceField
-    from hqp_tpm.obstacles import Obstacle
+    from hqp_tpm.geometry.distances import DistanceField
+    from hqp_tpm.geometry.obstacles import Obstacle
 
     field = DistanceField(model, planar5.collision_model, [], [Obstacle.sphere("o", [0.7, -0.4, 0.0], 0.2)],
                           surveillance=10.0, broad_phase=False)
@@ -119,7 +119,7 @@ def controller(stem="planar5_exact", solver=None, obstacles=None, **policy):
     data["policy"].update(policy)
     if obstacles is not None:
         data["obstacles"] = obstacles
-    sc = scenario.parse(data, ROOT / "tasks" / f"{stem}.toml")
+    sc = scenario.parse(data, scenario.SCENARIO_DIR / f"{stem}.toml")
     robot, ctrl, tasks, pol = build.build(sc, solver=solver)
     ctrl.start()
     return robot, ctrl, tasks, pol
@@ -273,7 +273,7 @@ def test_tpm_and_cascaded_qp_give_the_same_commands(planar5, scheme, secondary):
 
 # --------------------------------------------------------------------------- scenario runs
 def run(tmp_path, stem, **kw):
-    from hqp_tpm.cli import run_scenario
+    from hqp_tpm.app.cli import run_scenario
 
     out = tmp_path / f"out_{Path(stem).stem}"
     summary = run_scenario(stem, out, progress=False, figures=False, replay=False, **kw)

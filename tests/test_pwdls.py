@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
-from hqp_tpm.pwdls import pwdls, pwdls_inverse, task_mapping
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
+from hqp_tpm.solvers.pwdls import pwdls, pwdls_inverse, task_mapping
 
 
 def random_levels(rng, n=5, sizes=(2, 1, 3)):

@@ -7,10 +7,10 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm.distances import DistanceField
 from hqp_tpm.errors import NonFiniteError, ShapeError, UnknownNameError
-from hqp_tpm.obstacles import GeometryError, Obstacle
-from hqp_tpm.repulsion import Repulsion, nearest_element, repulsion_direction, repulsion_magnitude
+from hqp_tpm.geometry.distances import DistanceField
+from hqp_tpm.geometry.obstacles import GeometryError, Obstacle
+from hqp_tpm.geometry.repulsion import Repulsion, nearest_element, repulsion_direction, repulsion_magnitude
 
 EE = Repulsion(v_max=5.0, rho=0.1, gamma=10.0, c=1.5)
 BODY = Repulsion(v_max=0.15, rho=0.15, gamma=2.0, c=3.0)

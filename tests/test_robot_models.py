@@ -1,4 +1,4 @@
-"""robots/kuka_lwr4/lwr4.urdf and robots/kuka_iiwa7/iiwa7.urdf against their DH tables (robots/README.md)."""
+"""The shipped LWR IV and LBR iiwa 7 URDFs (hqp_tpm/data/robots/) against their DH tables (docs/robots.md)."""
 
 import importlib.util
 import math
@@ -11,11 +11,14 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-ROBOTS = Path(__file__).resolve().parents[1] / "robots"
+from hqp_tpm.data import robots_dir
+
+TOOLS = Path(__file__).resolve().parents[1] / "tools"
+ROBOTS = robots_dir()
 N_SAMPLES = 1000
 TOL = 1e-12
 
-_spec = importlib.util.spec_from_file_location("dh_to_urdf", ROBOTS / "dh_to_urdf.py")
+_spec = importlib.util.spec_from_file_location("dh_to_urdf", TOOLS / "dh_to_urdf.py")
 dh_to_urdf = importlib.util.module_from_spec(_spec)
 sys.modules["dh_to_urdf"] = dh_to_urdf  # dataclasses look their module up there
 _spec.loader.exec_module(dh_to_urdf)
@@ -209,7 +212,7 @@ def test_generator_reproduces_committed_files():
     generated = dh_to_urdf.generate()
     assert {p.name for p in generated} == {"lwr4.urdf", "iiwa7.urdf"}
     for path, text in generated.items():
-        assert path.read_bytes() == text.encode(), f"{path} is stale: run python robots/dh_to_urdf.py"
+        assert path.read_bytes() == text.encode(), f"{path} is stale: run python tools/dh_to_urdf.py"
     assert dh_to_urdf.generate() == generated  # deterministic
-    run = subprocess.run([sys.executable, str(ROBOTS / "dh_to_urdf.py"), "--check"], capture_output=True, text=True)
+    run = subprocess.run([sys.executable, str(TOOLS / "dh_to_urdf.py"), "--check"], capture_output=True, text=True)
     assert run.returncode == 0, run.stderr

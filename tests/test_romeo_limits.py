@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from hqp_tpm import build, scenario
+from hqp_tpm.app import build, scenario
 from hqp_tpm.solvers import sns_tpm, tpm
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hqp_tpm import build, scenario
+from hqp_tpm.app import build, scenario
 from hqp_tpm.errors import ScenarioError
 
 SHIPPED = sorted(p.stem for p in scenario.SCENARIO_DIR.glob("*.toml"))
@@ -106,8 +106,8 @@ def test_invalid_toml(tmp_path):
 
 
 def test_cli_list_names_every_scenario_with_its_description(capsys):
-    from hqp_tpm.cli import main
-    from hqp_tpm.scenario import SCENARIO_DIR, load
+    from hqp_tpm.app.cli import main
+    from hqp_tpm.app.scenario import SCENARIO_DIR, load
 
     assert main(["list"]) == 0
     lines = capsys.readouterr().out.splitlines()

@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from threadpoolctl import threadpool_limits
 
 from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError
-from hqp_tpm.joint_boxes import acceleration_box, velocity_box
+from hqp_tpm.robot.joint_boxes import acceleration_box, velocity_box
 from hqp_tpm.solvers import Level, cascaded_qp, nullspace, tpm
 from hqp_tpm.solvers.sns import sns, sns_tpm, sns_tpm_reference, task_scaling_factor
 

@@ -5,10 +5,10 @@ import pinocchio as pin
 import pytest
 
 from hqp_tpm.errors import NonFiniteError, RobotFileError, ShapeError, UnknownFrameError
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePosition, Gains, Pointing, Posture
-from hqp_tpm.trajectories import Constant, Harmonic, Hold
 
 H = 1e-6
 

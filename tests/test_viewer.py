@@ -13,8 +13,8 @@ import pinocchio as pin
 import pytest
 import umsgpack
 
-from hqp_tpm.obstacles import Obstacle
-from hqp_tpm.robot import Robot
+from hqp_tpm.geometry.obstacles import Obstacle
+from hqp_tpm.robot.model import Robot
 
 STEPS = 3000  # 3 s of lwr_relaxed (dt = 1 ms)
 
@@ -60,8 +60,8 @@ def coloured_mask(img: np.ndarray) -> np.ndarray:
 @pytest.fixture(scope="module")
 def lwr_run(tmp_path_factory):
     """A real 3 s run of lwr_relaxed with its replay; returns (out dir, robot, arrays, policy)."""
-    from hqp_tpm import build, scenario
-    from hqp_tpm.cli import run_scenario
+    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app.cli import run_scenario
 
     out = tmp_path_factory.mktemp("lwr_relaxed")
     run_scenario("lwr_relaxed", out, steps=STEPS, progress=False, figures=False, replay=True)
@@ -107,7 +107,7 @@ def test_replay_is_self_contained_and_animates_the_robot(lwr_run):
 
 
 def test_replay_subsamples_and_is_quick(lwr_run, tmp_path):
-    from hqp_tpm.viewer import write_replay
+    from hqp_tpm.app.viewer import write_replay
 
     _, robot, arrays, policy = lwr_run
     long = {k: (np.concatenate([v] * 6) if k in ("q", "active_point") else v) for k, v in arrays.items()}
@@ -122,7 +122,7 @@ def test_replay_subsamples_and_is_quick(lwr_run, tmp_path):
 
 
 def test_replay_draws_any_obstacle_and_policy_markers(tmp_path):
-    from hqp_tpm.viewer import write_replay
+    from hqp_tpm.app.viewer import write_replay
 
     robot = Robot.load("lwr4")
     cube = np.array([[x, y, z] for x in (0, 0.1) for y in (0, 0.1) for z in (0, 0.1)]) + [0.3, 0.3, 0.3]
@@ -184,7 +184,7 @@ def test_browser_replay_shows_the_robot_moving(lwr_run, tmp_path):
 def test_browser_live_viewer_shows_the_robot(lwr_run, tmp_path):
     from browser import chromium, screenshot
 
-    from hqp_tpm.viewer import LiveViewer
+    from hqp_tpm.app.viewer import LiveViewer
 
     chromium()  # skip (with the reason) before starting a server when there is no browser
     _, robot, arrays, policy = lwr_run

@@ -5,13 +5,13 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm import build, runner, scenario
-from hqp_tpm.distances import DistanceField
-from hqp_tpm.obstacles import Obstacle
+from hqp_tpm.app import build, runner, scenario
+from hqp_tpm.geometry.distances import DistanceField
+from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.policies import whole_body as wb
 from hqp_tpm.policies.whole_body import WholeBody
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import CenterOfMass, FramePose, FramePosition, Gains
 
 

@@ -1,4 +1,3 @@
-"""Dynamic stack policies; importing this package registers them with the scenario builder."""
-
-import hqp_tpm.policies.whole_body  # noqa: F401
-from hqp_tpm.policies import admittance, algorithm1, petric, switching  # noqa: F401
+"""Dynamic stack policies (papers/000 Algorithm 1, papers/003 switching and admittance, papers/004 schemes,
+Romeo whole-body avoidance). Each follows :class:`hqp_tpm.control.policy.Policy`; scenario files build
+them through :mod:`hqp_tpm.app.policy_builders`."""

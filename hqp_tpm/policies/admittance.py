@@ -20,15 +20,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.build import register_policy
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ScenarioError
-from hqp_tpm.operator import Operator
-from hqp_tpm.policies.switching import ComanipulationIndices, operator_from, task_of
-from hqp_tpm.robot import Robot
+from hqp_tpm.policies.switching import ComanipulationIndices
+from hqp_tpm.references.operator import Operator
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
-from hqp_tpm.stack import Stack
-from hqp_tpm.state import State
-from hqp_tpm.tasks import JointLimit, Manipulability, QuaternionOrientation
+from hqp_tpm.tasks import JointLimit, Manipulability
 from hqp_tpm.tasks.base import Gains, Task
 
 
@@ -111,28 +110,3 @@ class Admittance:
     def summary(self, arrays: dict) -> dict:
         return {**self.indices.summary(arrays, self.sigma_m_bar),
                 "admittance_lag_max": float(arrays["admittance_lag"].max())}
-
-
-@register_policy("admittance")
-def build_admittance(sc, robot, tasks: dict, sec, obstacles) -> Admittance:
-    """``[policy] type = "admittance"``: ``frame``, ``orientation_task`` (or ``""``: none), ``mass``,
-    ``damping``, ``stiffness``, ``kp``, ``manipulability_task``, ``joint_limit_task`` (recorded only),
-    ``sigma_m_bar`` (for the summary), ``operator``."""
-    if sc.order != 1:
-        raise ScenarioError(f"{sec.where}: the admittance baseline works at velocity level only")
-    frame = sec.string("frame")
-    robot.frame_id(frame)
-    ori_name = sec.string("orientation_task", "orientation")
-    ori = task_of(sec, tasks, "orientation_task", QuaternionOrientation, "orientation") if ori_name else None
-    man = task_of(sec, tasks, "manipulability_task", Manipulability, "manipulability")
-    lim = task_of(sec, tasks, "joint_limit_task", JointLimit, "joint_limit")
-    op = operator_from(sec, robot, frame)
-    try:
-        adm = AdmittancePosition(robot, frame, op, dt=sc.period, mass=sec.number("mass", 1.0),
-                                 damping=sec.number("damping", 100.0), stiffness=sec.number("stiffness", 0.001),
-                                 kp=sec.number("kp", 5.5))
-    except ValueError as exc:
-        raise ScenarioError(f"{sec.where}: {exc}") from exc
-    pol = Admittance(robot, adm, ori, man, lim, op, sigma_m_bar=sec.number("sigma_m_bar", 1.5))
-    sec.check_unused()
-    return pol

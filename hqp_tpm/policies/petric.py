@@ -1,7 +1,7 @@
 """Kinematic obstacle avoidance of papers/004 (Petrič, Gams, Likar, Žlajpah), velocity level, as stacks.
 
 Every link-obstacle pair gives a *critical point* ``A_o`` (the nearest point of the arm to obstacle ``i``,
-from the :class:`~hqp_tpm.distances.DistanceField` of the robot's link geometries) with distance ``d_i =
+from the :class:`~hqp_tpm.geometry.distances.DistanceField` of the robot's link geometries) with distance ``d_i =
 ||d_o,i||`` and unit direction ``n_o`` (obstacle -> arm). Its avoidance task is one-dimensional, the reduced
 operational space (14): ``J_do = n_o^T J_o`` (the 1-D :class:`~hqp_tpm.tasks.avoidance.Avoidance`), with the
 avoiding velocity (15)-(16) ``xd_o = alpha_v v_o``, ``alpha_v = (d_m/d)^2 - 1`` below the critical distance
@@ -29,7 +29,8 @@ combination done in the controller's ``blend`` hook with ``resolve`` (other stac
   primary-task solution (25), ``x_A`` the solution of ``[avoid]`` alone and ``x_E`` that of ``[ee]``.
 * ``"pwdls"``, (37)-(39), Figs. 12-13: no hierarchy, ``qd = J_E^# xd_E`` for the EE task and the nearest
   obstacle's avoidance with priority factors ``p_ee`` and ``p_avoid / alpha_h`` (41) and damping
-  ``pwdls_damping`` (:mod:`hqp_tpm.pwdls`): the avoidance weighs nothing at ``d_i`` and ``1/p_avoid`` from ``d_m``
+  ``pwdls_damping`` (:mod:`hqp_tpm.solvers.pwdls`): the avoidance weighs nothing at ``d_i`` and
+  ``1/p_avoid`` from ``d_m``
   on, so the priority changes continuously (the paper leaves the choice of ``p_i`` open).
 
 ``secondary`` says what "secondary" means in (25)/(30): ``"projected"`` (default) the paper's printed
@@ -55,13 +56,12 @@ import math
 
 import numpy as np
 
-from hqp_tpm.build import register_policy
-from hqp_tpm.distances import DistanceField
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ScenarioError, unknown_name
-from hqp_tpm.obstacles import Obstacle
-from hqp_tpm.pwdls import pwdls
-from hqp_tpm.stack import Stack
-from hqp_tpm.state import State
+from hqp_tpm.geometry.distances import DistanceField
+from hqp_tpm.geometry.obstacles import Obstacle
+from hqp_tpm.robot.state import State
+from hqp_tpm.solvers.pwdls import pwdls
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.joint_velocity import JointVelocity
@@ -280,27 +280,3 @@ class Petric:
                 "time_below_d_m_s": float((d < self.d_m).sum() * dt),
                 "time_avoidance_primary_s": float((arrays["avoid_priority"] == 2).sum() * dt),
                 "time_avoidance_secondary_s": float((arrays["avoid_priority"] == 1).sum() * dt)}
-
-
-@register_policy("petric")
-def build_petric(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> Petric:
-    """``[policy] type = "petric"``: ``ee_task``, ``scheme`` (exact | approximate | primary | transition),
-    ``d_m``, ``d_i``, ``v_o``, ``d_b``, ``secondary`` (projected | prioritized), ``combine`` (weighted | nearest),
-    ``p_ee``, ``p_avoid``, ``pwdls_damping`` (scheme pwdls), ``record_range``."""
-    if sc.order != 1:
-        raise ScenarioError(f"{sec.where}.type: the petric policy works at velocity level (papers/004), "
-                            f"the scenario says level = {sc.level!r}")
-    name = sec.string("ee_task", "ee")
-    if name not in tasks:
-        raise ScenarioError(f"{sec.where}.ee_task: unknown task {name!r}; tasks: {', '.join(tasks)}")
-    if not obstacles:
-        raise ScenarioError(f"{sec.where}: the petric policy needs at least one [[obstacles]] entry")
-    pol = Petric(robot, tasks[name], obstacles, scheme=sec.string("scheme", "exact", choices=SCHEMES),
-                 d_m=sec.number("d_m", 0.2), d_i=sec.number("d_i", 0.3), v_o=sec.number("v_o", 0.5),
-                 d_b=sec.number("d_b", 0.02),
-                 secondary=sec.string("secondary", "projected", choices=SECONDARY),
-                 combine=sec.string("combine", "weighted", choices=COMBINE), p_ee=sec.number("p_ee", 5.0),
-                 p_avoid=sec.number("p_avoid", 1.0), pwdls_damping=sec.number("pwdls_damping", 0.01),
-                 record_range=sec.number("record_range", 1.0))
-    sec.check_unused()
-    return pol

@@ -25,14 +25,17 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-import qpsolvers
 from scipy import sparse
 
 from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError, SolverNotAvailableError, unknown_name
 from hqp_tpm.solvers.damping import RANK_TOL
 from hqp_tpm.solvers.levels import as_levels
+
+if TYPE_CHECKING:  # qpsolvers is imported on first use (it takes ~1 s to import)
+    import qpsolvers
 
 #: pip package that provides each qpsolvers backend (name not listed: ``pip install qpsolvers[<name>]``).
 PIP_PACKAGE = {
@@ -178,6 +181,8 @@ class _Cascade:
 
     def backend(self, P, q, G, h, A, b, where: str) -> tuple[np.ndarray, np.ndarray]:
         """One QP through qpsolvers: solution and multipliers of ``G``; on failure the retry settings."""
+        import qpsolvers
+
         m = G.shape[0]
         problem = _problem(self.solver, P, q, G, h, A, b)
         error = None
@@ -205,6 +210,8 @@ class _Cascade:
 
 def _problem(solver: str, P, q, G, h, A, b) -> qpsolvers.Problem:
     """A qpsolvers problem without empty blocks, sparse for the backends that only take sparse matrices."""
+    import qpsolvers
+
     G, h = (G, h) if G.shape[0] else (None, None)
     A, b = (A, b) if A.shape[0] else (None, None)
     if solver not in qpsolvers.dense_solvers:
@@ -287,6 +294,8 @@ def split(A: np.ndarray) -> _Split:
 
 def check_solver(solver: str) -> str:
     """Return ``solver`` if qpsolvers can use it, else raise :class:`SolverNotAvailableError`."""
+    import qpsolvers
+
     installed = sorted(qpsolvers.available_solvers)
     if solver in installed:
         return solver

@@ -20,7 +20,7 @@ each free joint allows ``s`` in ``[smin_j, smax_j]``; the factor is the largest 
 allowed by all free joints and the most critical joint is the argmin of ``smax_j``.
 
 The functions are array-level: at acceleration level pass the stack ``b_i = xdd_i - Jdot_i qd``
-(TPM eq. (12) of papers/000) and a box on ``qdd`` (:func:`hqp_tpm.joint_boxes.acceleration_box`);
+(TPM eq. (12) of papers/000) and a box on ``qdd`` (:func:`hqp_tpm.robot.joint_boxes.acceleration_box`);
 ``s`` then scales the whole right-hand side ``b`` (the T-RO paper scales only ``xdd``; to do so,
 keep ``-Jdot qd`` out of ``b`` and add its contribution yourself). Inequality :class:`Level`\\ s
 enter through their active rows, exactly as in :func:`tpm` (:mod:`hqp_tpm.solvers.levels`).

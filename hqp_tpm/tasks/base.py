@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.references.trajectories import Trajectory, as_trajectory
+from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
-from hqp_tpm.state import State
-from hqp_tpm.trajectories import Trajectory, as_trajectory
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.state import State
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task, row_selector, select_axes
 
 

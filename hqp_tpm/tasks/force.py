@@ -7,8 +7,8 @@ from collections.abc import Callable
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
 
 ForceSource = Callable[[State, float], np.ndarray]

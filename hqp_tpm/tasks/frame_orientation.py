@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.references.trajectories import Constant, Hold
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
-from hqp_tpm.trajectories import Constant, Hold
 
 
 class FrameOrientation(Task):

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.errors import BoxError
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
 from hqp_tpm.tasks.manipulability import joint_columns
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
-from hqp_tpm.state import State
 from hqp_tpm.tasks.base import Task
 
 

@@ -11,12 +11,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.robot import Robot
+from hqp_tpm.references.trajectories import Constant
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.spatial import cross, cross3
+from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
-from hqp_tpm.spatial import cross, cross3
-from hqp_tpm.state import State
 from hqp_tpm.tasks.base import Gains, Task
-from hqp_tpm.trajectories import Constant
 
 #: The cone (21) as a one-row inequality level: no upper bound, active while the axis is outside.
 _NO_UPPER = np.array([np.inf])

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
 
 

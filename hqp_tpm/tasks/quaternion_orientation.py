@@ -12,8 +12,8 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ShapeError
-from hqp_tpm.robot import Robot
-from hqp_tpm.state import State
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task, select_axes
 
 

@@ -1,0 +1,263 @@
+"""Turn a parsed :class:`~hqp_tpm.app.scenario.Scenario` into robot, tasks, policy and controller."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.app.policy_builders import POLICY_BUILDERS
+from hqp_tpm.app.scenario import Scenario, Section, vector
+from hqp_tpm.control.controller import Controller
+from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.errors import HqpTpmError, ScenarioError
+from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.tasks import (
+    CenterOfMass,
+    Force,
+    FrameOrientation,
+    FramePose,
+    FramePosition,
+    Gains,
+    JointLimit,
+    Manipulability,
+    Pointing,
+    Posture,
+    QuaternionOrientation,
+)
+
+
+def trajectory(sec: Section, key: str, dim: int):
+    """``target``: a list (constant), ``"hold"``/absent (start value), or a table ``{type = "harmonic", ...}``."""
+    raw = sec.raw(key, None)
+    if raw is None or raw == "hold":
+        return Hold()
+    if isinstance(raw, list):
+        return Constant(value=sec.vector(key, dim))
+    tab = sec.table(key)
+    kind = tab.string("type", choices=("harmonic", "constant", "line", "dmp"))
+    if kind == "dmp":  # papers/004 Sec. 6: DMP with obstacle coupling, relative to the start value
+        from hqp_tpm.references.dmp import Coupling, DmpTrajectory
+
+        obs = tab.raw("obstacles", [])
+        if not isinstance(obs, list):
+            raise ScenarioError(f"{tab.where}.obstacles: expected a list of [x, y, z] points")
+        pts = [vector(o, f"{tab.where}.obstacles[{i}]", 3) for i, o in enumerate(obs)]
+        cp = Coupling(tab.number("gamma", 1000.0), tab.number("beta", 20.0 / np.pi), tab.number("eta", 50.0),
+                      tab.number("d", 0.15))
+        tr = DmpTrajectory(tab.vector("end", dim), tab.number("tau"), pts, cp, horizon=tab.number("horizon", None))
+        tab.check_unused()
+        return tr
+    rel = tab.boolean("relative", False)
+    if kind == "line":  # papers/004: straight line, trapezoidal velocity profile
+        from hqp_tpm.references.line import Line
+
+        tr = Line(start_point=tab.vector("start", dim), end_point=tab.vector("end", dim), v_max=tab.number("v_max"),
+                  a_max=tab.number("a_max"), t_start=tab.number("t_start", 0.0), relative=rel)
+    elif kind == "constant":
+        tr = Constant(value=tab.vector("value", dim), relative=rel)
+    else:
+        tr = Harmonic(center=tab.vector("center", dim), cos_amplitude=tab.vector("cos_amplitude", dim),
+                      sin_amplitude=tab.vector("sin_amplitude", dim), omega=tab.number("omega"),
+                      phase=tab.number("phase", 0.0), relative=rel)
+    tab.check_unused()
+    return tr
+
+
+def gains(sec: Section) -> Gains:
+    return Gains(kp=sec.number("kp", 1.0), kd=sec.number("kd", 0.0))
+
+
+def _axes(sec: Section) -> str:
+    axes = sec.string("axes", "xyz")
+    if not axes or any(a not in "xyz" for a in axes) or len(set(axes)) != len(axes):
+        raise ScenarioError(f"{sec.where}.axes: {axes!r} must be distinct letters among 'x', 'y', 'z'")
+    return axes
+
+
+def _frame_position(robot, sec):
+    axes = _axes(sec)
+    return FramePosition(robot, sec.string("frame"), trajectory(sec, "target", len(axes)), gains(sec),
+                         axes=axes, name=sec.string("name"))
+
+
+def _frame_orientation(robot, sec):
+    return FrameOrientation(robot, sec.string("frame"), None, gains(sec), name=sec.string("name"))
+
+
+def _frame_pose(robot, sec):
+    return FramePose(robot, sec.string("frame"), None, gains(sec), name=sec.string("name"))
+
+
+def _pointing(robot, sec):
+    alpha = np.deg2rad(sec.number("alpha_d_deg")) if sec.has("alpha_d_deg") else sec.number("alpha_d")
+    return Pointing(robot, sec.string("frame"), sec.vector("axis", 3), alpha, gains(sec),
+                    inequality=sec.boolean("inequality", True), name=sec.string("name"))
+
+
+def _com(robot, sec):
+    axes = _axes(sec)
+    return CenterOfMass(trajectory(sec, "target", len(axes)), gains(sec), axes=axes, name=sec.string("name"))
+
+
+def _posture(robot, sec):
+    joints = sec.raw("joints", None)
+    task = Posture(robot, None, gains(sec), joints=joints, name=sec.string("name"))
+    task.trajectory = trajectory(sec, "target", task.dim)
+    return task
+
+
+def _joints(sec):
+    joints = sec.raw("joints", None)
+    if joints is not None and (not isinstance(joints, list) or not all(isinstance(j, str) for j in joints)):
+        raise ScenarioError(f"{sec.where}.joints: expected a list of joint names")
+    return joints
+
+
+def _force(robot, sec):
+    return Force(robot, sec.string("frame"), None, gains(sec), target=sec.vector("target", 3, [0.0, 0.0, 0.0]),
+                 name=sec.string("name"))
+
+
+def _quaternion_orientation(robot, sec):
+    target = sec.raw("target", None)
+    if target is not None and target != "hold":
+        target = sec.vector("target", 9)
+    return QuaternionOrientation(robot, sec.string("frame"), target, gains(sec), axes=sec.string("axes", "xy"),
+                                 name=sec.string("name"))
+
+
+def _manipulability(robot, sec):
+    return Manipulability(robot, sec.number("target", 2.0), gains(sec), joints=_joints(sec), name=sec.string("name"))
+
+
+def _joint_limit(robot, sec):
+    return JointLimit(robot, [0.0], gains(sec), joints=_joints(sec), name=sec.string("name"))
+
+
+TASK_BUILDERS = {
+    "frame_position": _frame_position,
+    "frame_orientation": _frame_orientation,
+    "frame_pose": _frame_pose,
+    "pointing": _pointing,
+    "com": _com,
+    "posture": _posture,
+    "force": _force,
+    "quaternion_orientation": _quaternion_orientation,
+    "manipulability": _manipulability,
+    "joint_limit": _joint_limit,
+}
+
+
+def build_task(robot: Robot, sec: Section):
+    kind = sec.string("type")
+    if kind not in TASK_BUILDERS:
+        raise ScenarioError(f"{sec.where}.type: unknown task type {kind!r}; valid types: "
+                            f"{', '.join(sorted(TASK_BUILDERS))}")
+    try:
+        task = TASK_BUILDERS[kind](robot, sec)
+    except ScenarioError:
+        raise
+    except (HqpTpmError, ValueError) as exc:
+        raise ScenarioError(f"{sec.where} ({kind}): {exc}") from exc
+    sec.check_unused()
+    return task
+
+
+def initial_configuration(robot: Robot, sec: Section) -> np.ndarray:
+    """``q`` (radians, full vector), ``q_deg``, or ``joints_deg = {name = value}`` on top of neutral."""
+    if sec.has("q"):
+        q = np.array(sec.vector("q", robot.nq))
+    elif sec.has("q_deg"):
+        q = np.deg2rad(sec.vector("q_deg", robot.nq))
+    else:
+        q = robot.neutral()
+        joints = sec.raw("joints_deg", {})
+        if not isinstance(joints, dict):
+            raise ScenarioError(f"{sec.where}.joints_deg: expected a table of joint = degrees")
+        try:
+            q = robot.configuration({k: np.deg2rad(float(v)) for k, v in joints.items()}, base=None)
+        except HqpTpmError as exc:
+            raise ScenarioError(f"{sec.where}.joints_deg: {exc}") from exc
+    return q
+
+
+def obstacles_from(sc: Scenario) -> list:
+    """The scenario's ``[[obstacles]]``: spheres (radius 0 = point), boxes, capsules."""
+    from hqp_tpm.geometry.obstacles import Obstacle
+
+    out = []
+    for sec in sc.obstacles:
+        kind = sec.string("type", choices=("sphere", "point", "box", "capsule"))
+        name = sec.string("name")
+        motion = {}
+        if sec.has("velocity"):
+            motion["velocity"] = sec.vector("velocity", 3)
+        if kind in ("sphere", "point"):
+            out.append(Obstacle.sphere(name, sec.vector("center", 3), sec.number("radius", 0.0), **motion))
+        elif kind == "box":
+            out.append(Obstacle.box(name, sec.vector("center", 3), sec.vector("half_extents", 3), **motion))
+        else:
+            out.append(Obstacle.capsule(name, sec.vector("a", 3), sec.vector("b", 3), sec.number("radius"),
+                                        **motion))
+        sec.check_unused()
+    return out
+
+
+def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list):
+    sec = sc.policy
+    kind = sec.string("type", "fixed")
+    if kind == "fixed":
+        levels = sec.raw("levels", None)
+        if levels is None:
+            stack = Stack.of(*tasks.values())
+        else:
+            if not isinstance(levels, list):
+                raise ScenarioError(f"{sec.where}.levels: expected a list of task names or lists of names")
+            out = []
+            for i, lv in enumerate(levels):
+                names = [lv] if isinstance(lv, str) else lv
+                for n in names:
+                    if n not in tasks:
+                        raise ScenarioError(f"{sec.where}.levels[{i}]: unknown task {n!r}; tasks: "
+                                            f"{', '.join(tasks)}")
+                out.append(tuple(tasks[n] for n in names))
+            stack = Stack(out)
+        sec.check_unused()
+        return FixedStack(stack)
+    if kind not in POLICY_BUILDERS:
+        raise ScenarioError(f"{sec.where}.type: unknown policy {kind!r}; valid: "
+                            f"{', '.join(['fixed', *sorted(POLICY_BUILDERS)])}")
+    return POLICY_BUILDERS[kind](sc, robot, tasks, sec, obstacles)
+
+
+def build(sc: Scenario, solver: str | None = None):
+    """Robot, controller and the context a run needs (obstacles, distance field...)."""
+
+    try:
+        robot = Robot.load(sc.robot)
+    except HqpTpmError as exc:
+        raise ScenarioError(f"{sc.path.name}.scenario.robot: {exc}") from exc
+    tasks = {t.string("name"): build_task(robot, t) for t in sc.tasks}
+    q0 = initial_configuration(robot, sc.initial)
+    v0 = np.zeros(robot.nv)
+    obstacles = obstacles_from(sc)
+    policy = build_policy(sc, robot, tasks, obstacles)
+    policy.obstacles = getattr(policy, "obstacles", obstacles)
+    box = getattr(policy, "box", None)
+    if sc.limits is not None:
+        from hqp_tpm.robot.limits import JointLimits
+
+        lim = sc.limits
+        box = JointLimits(robot, order=sc.order, dt=sc.period, position=lim.boolean("position", True),
+                          velocity=lim.boolean("velocity", True),
+                          acceleration_limit=lim.number("acceleration_limit", 50.0),
+                          velocity_scale=lim.number("velocity_scale", 1.0))
+        lim.check_unused()
+        policy.box = box
+        policy.velocity_limits = box.velocity_limits
+    hooks = getattr(policy, "pre_policy", ())
+    ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,
+                      lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,
+                      box=box, q0=q0, v0=v0, pre_policy=hooks)
+    sc.initial.check_unused()
+    return robot, ctrl, tasks, policy

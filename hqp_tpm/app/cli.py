@@ -1,0 +1,103 @@
+"""Command line: ``hqp-tpm run SCENARIO --out DIR`` (and ``hqp-tpm list``)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from hqp_tpm.errors import HqpTpmError
+
+
+def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
+                 progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
+                 steps: int | None = None) -> dict:
+    """Load, build, run and write one scenario; returns its metrics."""
+    from threadpoolctl import threadpool_limits
+
+    from hqp_tpm.app import build, results, runner, scenario
+
+    sc = scenario.load(spec)
+    robot, ctrl, tasks, policy = build.build(sc, solver=solver)
+    probes = [results.task_error_probe(tasks)]
+    if hasattr(policy, "probe"):
+        probes.append(policy.probe)
+    other = None
+    if crosscheck:
+        other = "qp" if ctrl.solver in ("tpm", "nullspace", "sns_tpm", "sns") else "tpm"
+    live = None
+    if viz:
+        from hqp_tpm.app.viewer import LiveViewer
+
+        live = LiveViewer(robot, policy)
+        probes.append(live.probe)
+    with threadpool_limits(limits=1):
+        rec, timing = runner.run(ctrl, steps or sc.steps, progress=progress, crosscheck=other, probes=probes,
+                                 label=sc.name)
+    arrays = rec.arrays()
+    results.standard_aliases(arrays, tasks)
+    summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
+               **results.metrics(arrays, timing, tasks)}
+    if hasattr(policy, "summary"):  # policy-specific numbers (e.g. the co-manipulation indices)
+        summary.update(policy.summary(arrays))
+    results.write(out, arrays, summary)
+    if figures:
+        from hqp_tpm.app import figures as figs
+
+        figs.write_all(out, arrays, sc, tasks, policy)
+    if replay:
+        try:
+            from hqp_tpm.app.viewer import write_replay
+        except ImportError:
+            write_replay = None
+        if write_replay is not None:
+            write_replay(out / "replay.html", robot, arrays, policy)
+    return summary
+
+
+def main(argv=None) -> int:
+    from hqp_tpm import __version__
+
+    parser = argparse.ArgumentParser(prog="hqp-tpm", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"hqp-tpm {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    p_run = sub.add_parser("run", help="run a scenario (a TOML file, or the name of a shipped scenario)")
+    p_run.add_argument("scenario")
+    p_run.add_argument("--out", type=Path, default=None, help="output folder (default runs/<scenario>)")
+    p_run.add_argument("--solver", default=None, help="override the scenario's solver: tpm, nullspace, sns_tpm, "
+                       "sns, qp, qp:<backend>")
+    p_run.add_argument("--crosscheck", action="store_true", help="also solve every step with the other solver")
+    p_run.add_argument("--viz", action="store_true", help="show the run live in meshcat")
+    p_run.add_argument("--no-figures", action="store_true")
+    p_run.add_argument("--no-replay", action="store_true")
+    p_run.add_argument("--steps", type=int, default=None, help="run only this many steps")
+    p_run.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_list = sub.add_parser("list", help="list the shipped scenarios")
+    p_list.add_argument("--names", action="store_true", help="names only, one a line")
+    args = parser.parse_args(argv)
+    try:
+        if args.command == "list":
+            from hqp_tpm.app.scenario import SCENARIO_DIR, load
+
+            files = sorted(SCENARIO_DIR.glob("*.toml"))
+            width = max((len(f.stem) for f in files), default=0)
+            for f in files:
+                print(f.stem if args.names else f"{f.stem:{width}s}  {load(f).description}")
+            return 0
+        out = args.out or Path("runs") / Path(args.scenario).stem
+        summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,
+                               progress=not args.quiet, figures=not args.no_figures, replay=not args.no_replay,
+                               viz=args.viz, steps=args.steps)
+    except HqpTpmError as exc:
+        print(f"hqp-tpm: error: {exc}", file=sys.stderr)
+        return 2
+    keys = [k for k in summary if k.endswith(("_max", "_rms", "_min")) or k in ("max_dq_jump", "wall_time_s",
+                                                                             "crosscheck_max_diff")]
+    print(json.dumps({k: summary[k] for k in keys}, indent=2))
+    print(f"wrote {out}/trajectory.npz, {out}/metrics.json")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

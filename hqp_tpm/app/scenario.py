@@ -1,0 +1,250 @@
+"""Scenario files: declarative task stacks in TOML (``hqp_tpm/data/scenarios/*.toml`` and users' own files).
+
+A scenario names the robot, the initial state, obstacles, tasks with their parameters, the
+policy that orders them, the solver, the level (velocity/acceleration), the period and the
+duration. The format is documented in ``docs/scenario_format.md``; every error names the file, the
+field and the valid choices.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+from hqp_tpm.data import scenarios_dir
+from hqp_tpm.errors import ScenarioError
+from hqp_tpm.solvers.registry import SOLVER_NAMES, check_solver_name
+
+#: Folder of the shipped scenario files (package data ``hqp_tpm/data/scenarios/``).
+SCENARIO_DIR = scenarios_dir()
+
+LEVELS = {"velocity": 1, "acceleration": 2}
+_EXPR = re.compile(r"^[0-9eE+\-*/(). pi]+$")
+
+
+def number(value: Any, where: str) -> float:
+    """A float from a number or a tiny arithmetic string such as ``"6*pi"``."""
+    if isinstance(value, bool):
+        raise ScenarioError(f"{where}: expected a number, got {value!r}")
+    if isinstance(value, (int, float)):
+        out = float(value)
+    elif isinstance(value, str) and _EXPR.match(value):
+        try:
+            out = float(eval(value, {"__builtins__": {}}, {"pi": math.pi}))  # noqa: S307 - charset checked
+        except Exception as exc:  # noqa: BLE001
+            raise ScenarioError(f"{where}: cannot evaluate {value!r} ({exc})") from None
+    else:
+        raise ScenarioError(f"{where}: expected a number or an expression like '6*pi', got {value!r}")
+    if not math.isfinite(out):
+        raise ScenarioError(f"{where}: {value!r} is not finite")
+    return out
+
+
+def vector(value: Any, where: str, dim: int | None = None) -> list[float]:
+    """A list of floats, optionally of a given length."""
+    if not isinstance(value, (list, tuple)):
+        raise ScenarioError(f"{where}: expected a list of numbers, got {value!r}")
+    out = [number(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    if dim is not None and len(out) != dim:
+        raise ScenarioError(f"{where}: expected {dim} numbers, got {len(out)}")
+    return out
+
+
+@dataclass
+class Section:
+    """A table of the file with the path used in error messages; fields are read and checked."""
+
+    data: dict
+    where: str
+    used: set = field(default_factory=set)
+
+    def has(self, key: str) -> bool:
+        return key in self.data
+
+    def raw(self, key: str, default: Any = ...) -> Any:
+        self.used.add(key)
+        if key not in self.data:
+            if default is ...:
+                raise ScenarioError(f"{self.where}: missing field {key!r}")
+            return default
+        return self.data[key]
+
+    def number(self, key: str, default: Any = ...) -> float:
+        v = self.raw(key, default)
+        return v if v is None or (default is not ... and v is default) else number(v, f"{self.where}.{key}")
+
+    def vector(self, key: str, dim: int | None = None, default: Any = ...) -> list[float] | None:
+        v = self.raw(key, default)
+        return v if v is None or (default is not ... and v is default) else vector(v, f"{self.where}.{key}", dim)
+
+    def string(self, key: str, default: Any = ..., choices=None) -> str:
+        v = self.raw(key, default)
+        if v is None or (default is not ... and v is default):
+            return v
+        if not isinstance(v, str):
+            raise ScenarioError(f"{self.where}.{key}: expected a string, got {v!r}")
+        if choices is not None and v not in choices:
+            raise ScenarioError(f"{self.where}.{key}: {v!r} is not one of {', '.join(map(repr, choices))}")
+        return v
+
+    def boolean(self, key: str, default: Any = ...) -> bool:
+        v = self.raw(key, default)
+        if not isinstance(v, bool):
+            raise ScenarioError(f"{self.where}.{key}: expected true or false, got {v!r}")
+        return v
+
+    def table(self, key: str, default: Any = ...) -> Section | None:
+        v = self.raw(key, default)
+        if v is None or (default is not ... and v is default):
+            return v
+        if not isinstance(v, dict):
+            raise ScenarioError(f"{self.where}.{key}: expected a table, got {v!r}")
+        return Section(v, f"{self.where}.{key}")
+
+    def tables(self, key: str) -> list[Section]:
+        v = self.raw(key, [])
+        if not isinstance(v, list) or not all(isinstance(x, dict) for x in v):
+            raise ScenarioError(f"{self.where}.{key}: expected an array of tables ([[{key}]])")
+        return [Section(x, f"{self.where}.{key}[{i}]") for i, x in enumerate(v)]
+
+    def check_unused(self) -> None:
+        """Unknown fields are errors: a typo must not be silently ignored."""
+        extra = sorted(set(self.data) - self.used)
+        if extra:
+            raise ScenarioError(f"{self.where}: unknown field(s) {', '.join(map(repr, extra))}; known fields: "
+                                f"{', '.join(map(repr, sorted(self.used)))}")
+
+
+@dataclass
+class Scenario:
+    """A parsed scenario: plain data, built into robot/tasks/policy by :mod:`hqp_tpm.app.runner`."""
+
+    name: str
+    path: Path
+    robot: str
+    level: str
+    solver: str
+    period: float
+    duration: float
+    lambda_max: float
+    eps: float
+    nullspace_damping: float
+    description: str
+    initial: Section
+    obstacles: list[Section]
+    tasks: list[Section]
+    policy: Section
+    limits: Section | None
+    raw: dict
+
+    @property
+    def order(self) -> int:
+        return LEVELS[self.level]
+
+    @property
+    def steps(self) -> int:
+        """Samples of ``t = 0 : T : duration`` (18,850 for 6 pi s at 1 ms)."""
+        return int(math.floor(self.duration / self.period + 1e-9)) + 1
+
+
+def resolve_path(spec: str | Path) -> Path:
+    """``spec``: a path to a TOML file or the stem of a file in ``tasks/``."""
+    p = Path(spec)
+    if p.suffix == ".toml" or p.exists():
+        if not p.is_file():
+            raise ScenarioError(f"scenario file not found: {str(p)!r}")
+        return p
+    candidate = SCENARIO_DIR / f"{spec}.toml"
+    if candidate.is_file():
+        return candidate
+    known = sorted(f.stem for f in SCENARIO_DIR.glob("*.toml"))
+    raise ScenarioError(f"unknown scenario {str(spec)!r}; scenarios in {SCENARIO_DIR}: {', '.join(known)}")
+
+
+def merge(base: dict, over: dict) -> dict:
+    """Deep merge for ``extends``: tables merge key by key; arrays of named tables merge by ``name``
+    (a table with ``remove = true`` drops that entry); anything else is replaced."""
+    out = dict(base)
+    for key, value in over.items():
+        old = out.get(key)
+        if isinstance(old, dict) and isinstance(value, dict):
+            out[key] = merge(old, value)
+        elif (isinstance(old, list) and isinstance(value, list) and all(isinstance(x, dict) and "name" in x
+                                                                        for x in [*old, *value])):
+            items = {x["name"]: dict(x) for x in old}
+            for x in value:
+                if x.get("remove") is True:
+                    items.pop(x["name"], None)
+                else:
+                    items[x["name"]] = merge(items.get(x["name"], {}), x)
+            out[key] = list(items.values())
+        else:
+            out[key] = value
+    return out
+
+
+def read(path: Path, seen: tuple = ()) -> dict:
+    """The file's TOML, with ``[scenario] extends = "other"`` resolved (the other file's stem or path)."""
+    try:
+        data = tomllib.loads(path.read_text())
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
+    parent = data.get("scenario", {}).pop("extends", None) if isinstance(data.get("scenario"), dict) else None
+    if parent is None:
+        return data
+    base_path = resolve_path(parent) if not Path(parent).suffix else path.parent / parent
+    if base_path.resolve() in seen:
+        raise ScenarioError(f"{path.name}.scenario.extends: cycle through {base_path.name}")
+    base = read(base_path, (*seen, path.resolve()))
+    base.get("scenario", {}).pop("name", None)
+    base.get("scenario", {}).pop("description", None)
+    return merge(base, data)
+
+
+def load(spec: str | Path) -> Scenario:
+    """Read and validate a scenario file (structure and scalar fields; tasks are built later)."""
+    path = resolve_path(spec)
+    return parse(read(path), path)
+
+
+def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
+    top = Section(data, path.name)
+    sc = top.table("scenario")
+    solver = sc.string("solver", "tpm")
+    try:
+        check_solver_name(solver)
+    except Exception:
+        raise ScenarioError(f"{sc.where}.solver: unknown solver {solver!r}; valid: {', '.join(SOLVER_NAMES)}") from None
+    period = sc.number("period")
+    if period <= 0:
+        raise ScenarioError(f"{sc.where}.period: must be > 0, got {period}")
+    duration = sc.number("duration")
+    if duration < 0:
+        raise ScenarioError(f"{sc.where}.duration: must be >= 0, got {duration}")
+    out = Scenario(
+        name=sc.string("name", path.stem), path=path, robot=sc.string("robot"),
+        level=sc.string("level", choices=tuple(LEVELS)), solver=solver, period=period, duration=duration,
+        lambda_max=sc.number("lambda_max", 0.0), eps=sc.number("eps", 0.0),
+        nullspace_damping=sc.number("nullspace_damping", 0.0), description=sc.string("description", ""),
+        initial=top.table("initial", None) or Section({}, f"{path.name}.initial"),
+        obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
+        policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
+        limits=top.table("limits", None), raw=data,
+    )
+    sc.check_unused()
+    top.check_unused()
+    if not out.tasks:
+        raise ScenarioError(f"{path.name}: no [[tasks]] given")
+    names = [t.string("name") for t in out.tasks]
+    dup = {n for n in names if names.count(n) > 1}
+    if dup:
+        raise ScenarioError(f"{path.name}: task names must be unique, repeated: {', '.join(sorted(dup))}")
+    return out

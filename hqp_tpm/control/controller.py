@@ -1,0 +1,143 @@
+"""The control loop: one state update, the policy's stack, one solve, one integration per step.
+
+Velocity level (``order=1``): ``qd = solve(levels)``, ``q <- q + qd T``.
+Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` with the
+null-space damping ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then
+``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T`` (reference page).
+
+A policy with a ``blend(state, t, stack, x, resolve)`` method gets the solution ``x`` and returns the
+command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth
+stack transitions of papers/003, eq. (8) (:mod:`hqp_tpm.policies.switching`). With a solver that
+keeps a hard box (SNS, QP) the blended command is clipped into the box.
+
+A step that fails on bad input (non-finite command, wrong shapes, solver error) raises a
+typed error and leaves the controller exactly as it was before the step.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
+from hqp_tpm.solvers.registry import ANALYTIC, check_solver_name, solve
+from hqp_tpm.tasks.base import Task
+
+BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
+
+
+@dataclass
+class StepResult:
+    """What one step computed (before integration): the stack, the command and solver info."""
+
+    t: float
+    stack: Stack
+    levels: list
+    command: np.ndarray
+    info: dict = field(default_factory=dict)
+
+
+class Controller:
+    """Holds the robot state, a policy (or fixed stack), a solver name and the integration rule."""
+
+    def __init__(self, robot: Robot, policy, *, order: int = 2, dt: float = 1e-3, solver: str = "tpm",
+                 lambda_max: float = 0.0, eps: float = 0.0, nullspace_damping: float = 0.0,
+                 box: BoxFn | None = None, q0=None, v0=None, t0: float = 0.0,
+                 pre_policy: Sequence[Callable[[State, float], None]] = ()):
+        if order not in (1, 2):
+            raise ValueError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
+        if not (np.isfinite(dt) and dt > 0):
+            raise ValueError(f"period dt = {dt!r} must be finite and > 0")
+        self.robot = robot
+        self.policy = policy if callable(policy) and not isinstance(policy, (list, tuple)) else FixedStack(policy)
+        self.order = order
+        self.dt = float(dt)
+        self.solver = check_solver_name(solver)
+        self.lambda_max, self.eps = float(lambda_max), float(eps)
+        self.nullspace_damping = float(nullspace_damping)
+        self.box = box
+        self.pre_policy = list(pre_policy)
+        self.state = State(robot)
+        q = robot.neutral() if q0 is None else q0
+        v = np.zeros(robot.nv) if v0 is None else v0
+        self._q, self._v = self.state.check(q, v)
+        self.a = np.zeros(robot.nv)
+        self.t = float(t0)
+        self.steps = 0
+        self._started = False
+
+    # ------------------------------------------------------------------------------------------
+    @property
+    def q(self) -> np.ndarray:
+        """Joint configuration (assigning it validates it, like :meth:`set_state`)."""
+        return self._q
+
+    @q.setter
+    def q(self, value) -> None:
+        self._q, _ = self.state.check(value, self._v)
+
+    @property
+    def v(self) -> np.ndarray:
+        """Joint velocity (assigning it validates it)."""
+        return self._v
+
+    @v.setter
+    def v(self, value) -> None:
+        _, self._v = self.state.check(self._q, value)
+
+    def tasks(self) -> list[Task]:
+        """All tasks the policy may use (for start-up and logging)."""
+        return list(self.policy.tasks()) if hasattr(self.policy, "tasks") else []
+
+    def start(self) -> None:
+        """Initialise relative targets from the initial state (called by the first step)."""
+        self.state.update(self.q, self.v, self.t)
+        for task in self.tasks():
+            task.start(self.state)
+        self._started = True
+
+    def compute(self) -> StepResult:
+        """State update, policy, solve: the command at the current state (no integration)."""
+        if not self._started:
+            self.start()
+        st = self.state.update(self._q, self._v, self.t, validate=False)  # checked whenever they are set
+        for hook in self.pre_policy:
+            hook(st, self.t)
+        stack = self.policy(st, self.t)
+        levels = stack.to_levels(st, self.t, self.order)
+        x0 = -self.nullspace_damping * self.v if (self.order == 2 and self.nullspace_damping) else None
+        box = self.box(st, self.t) if self.box is not None else None
+        x, info = solve(self.solver, levels, self.robot.nv, x0=x0, box=box,
+                        lambda_max=self.lambda_max, eps=self.eps)
+        blend = getattr(self.policy, "blend", None)
+        if blend is not None:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
+            def resolve(other: Stack) -> np.ndarray:
+                return solve(self.solver, other.to_levels(st, self.t, self.order), self.robot.nv, x0=x0, box=box,
+                             lambda_max=self.lambda_max, eps=self.eps)[0]
+            x = blend(st, self.t, stack, x, resolve)
+            if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
+                x = np.minimum(np.maximum(x, box[0]), box[1])
+        if not np.isfinite(x).all():
+            raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
+        return StepResult(self.t, stack, levels, x, info)
+
+    def step(self) -> StepResult:
+        """One control step. On any error the controller keeps its previous state."""
+        res = self.compute()
+        q, v = self.state.integrate(self._q, self._v, res.command, self.dt, self.order)
+        if not (np.isfinite(q).all() and np.isfinite(v).all()):
+            raise NonFiniteError(f"integration produced a non-finite state at t = {self.t:.6f}")
+        self._q, self._v = q, v
+        self.a = res.command.copy() if self.order == 2 else self.a
+        self.t += self.dt
+        self.steps += 1
+        return res
+
+    def set_state(self, q, v=None) -> None:
+        """Replace the state after validation (nothing changes if it is rejected)."""
+        self._q, self._v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)

@@ -1,0 +1,72 @@
+"""A stack orders tasks into priority levels; policies build the stack of each step.
+
+A :class:`Stack` is a list of levels (highest first), each one or more tasks of equal
+priority, plus optional extra commands added to a task's command (eq. (30) of papers/000).
+A *policy* is any callable ``policy(state, t) -> Stack``; :class:`FixedStack` returns the
+same stack every step, dynamic policies (Algorithm 1 of papers/000, the switching of
+papers/003) rebuild it from the state.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from hqp_tpm.robot.state import State
+from hqp_tpm.solvers.levels import Level
+from hqp_tpm.tasks.base import Task
+
+
+@dataclass
+class Stack:
+    """Levels of tasks, highest priority first, and extra commands by task name."""
+
+    levels: list[tuple[Task, ...]]
+    extras: dict[str, np.ndarray] = field(default_factory=dict)
+
+    @classmethod
+    def of(cls, *levels) -> Stack:
+        """``Stack.of(task_a, (task_b, task_c))``: one level per argument."""
+        return cls([tuple(lv) if isinstance(lv, (tuple, list)) else (lv,) for lv in levels])
+
+    def tasks(self) -> list[Task]:
+        return [t for lv in self.levels for t in lv]
+
+    def label(self) -> str:
+        """``"a > b+c"``: the stack as text (recorded per step)."""
+        return " > ".join("+".join(t.name for t in lv) for lv in self.levels)
+
+    def to_levels(self, state: State, t: float, order: int) -> list[Level]:
+        """Solver levels: each task's level at this state, tasks of one level merged."""
+        out = []
+        for lv in self.levels:
+            parts = [task.level(state, t, order, self.extras.get(task.name)) for task in lv]
+            out.append(parts[0] if len(parts) == 1 else merge_levels(parts))
+        return out
+
+
+def merge_levels(parts: Sequence[Level]) -> Level:
+    """Tasks of equal priority as one level (equality rows become ``lower = upper = b``, active)."""
+    name = "+".join(p.name for p in parts)
+    J = np.vstack([p.J for p in parts])
+    if all(p.is_equality for p in parts):
+        return Level(J, np.concatenate([p.b for p in parts]), name=name, defer_finite=True)
+    lo = np.concatenate([p.b if p.is_equality else p.lower for p in parts])
+    up = np.concatenate([p.b if p.is_equality else p.upper for p in parts])
+    act = np.concatenate([p.active_rows() for p in parts])
+    return Level(J, lower=lo, upper=up, active=act, name=name)
+
+
+class FixedStack:
+    """The policy that returns the same stack at every step."""
+
+    def __init__(self, stack: Stack | Sequence):
+        self.stack = stack if isinstance(stack, Stack) else Stack.of(*stack)
+
+    def tasks(self) -> list[Task]:
+        return self.stack.tasks()
+
+    def __call__(self, state: State, t: float) -> Stack:
+        return self.stack

@@ -1,0 +1,45 @@
+"""Joint limits of a robot as a per-step box on the command (joint velocity or acceleration).
+
+The box covers every velocity column; free-flyer columns are unbounded. Position limits look
+one period ahead and keep a braking margin (:mod:`hqp_tpm.robot.joint_boxes`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hqp_tpm.robot.joint_boxes import BoxLimits
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
+
+
+class JointLimits:
+    """``box(state, t) -> (lower, upper)`` for the controller (velocity level: on qd; acceleration: on qdd)."""
+
+    def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
+                 acceleration_limit: float = 50.0, velocity_scale: float = 1.0):
+        self.robot, self.order, self.dt = robot, order, float(dt)
+        m = robot.model
+        self.cols = np.array([m.joints[j].idx_v for j in range(1, m.njoints) if m.joints[j].nv == 1], dtype=int)
+        self.qidx = np.array([m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nv == 1], dtype=int)
+        lo, up = robot.position_limits()
+        self.q_min = lo[self.cols] if position else np.full(self.cols.size, -np.inf)
+        self.q_max = up[self.cols] if position else np.full(self.cols.size, np.inf)
+        v = robot.velocity_limits()[self.cols] * float(velocity_scale)
+        self.v_max = v if velocity else np.full(self.cols.size, 1e6)
+        self.a_max = np.full(self.cols.size, float(acceleration_limit))
+        self.limits = BoxLimits(self.q_min, self.q_max, self.v_max, self.a_max, self.dt)  # validated once
+        self._lo = np.full(robot.nv, -np.inf)
+        self._up = np.full(robot.nv, np.inf)
+        self.velocity_limits = np.full(robot.nv, np.inf)
+        self.velocity_limits[self.cols] = self.v_max
+
+    def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
+        q = state.q[self.qidx]  # the state's q, v are finite and of the right sizes
+        if self.order == 1:
+            lo, up = self.limits.velocity_box(q)
+        else:
+            lo, up = self.limits.acceleration_box(q, state.v[self.cols])
+        self._lo[self.cols] = lo
+        self._up[self.cols] = up
+        return self._lo.copy(), self._up.copy()

@@ -1,0 +1,122 @@
+"""One state update per control step: kinematics, Jacobians and J-dot q-dot computed once.
+
+:meth:`State.update` runs pinocchio's second-order forward kinematics with zero joint
+acceleration, so the classical acceleration of any frame *is* its ``J-dot q-dot``; joint
+Jacobians are computed in the same pass. Frame quantities and the centre of mass are then
+read lazily and cached until the next update, so tasks never recompute kinematics.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+
+from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.robot.model import Robot
+
+LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+
+
+class State:
+    """Robot state ``(q, v)`` at time ``t`` with its cached kinematic quantities."""
+
+    def __init__(self, robot: Robot):
+        self.robot = robot
+        self.model = robot.model
+        self.data = robot.model.createData()
+        self.q = robot.neutral()
+        self.v = np.zeros(robot.nv)
+        self.t = 0.0
+        self._zero = np.zeros(robot.nv)
+        self._cache: dict = {}
+        self.updates = 0
+
+    def check(self, q, v) -> tuple[np.ndarray, np.ndarray]:
+        """Validated copies of ``q`` and ``v`` (shape and finiteness), without touching the state."""
+        q = np.array(q, dtype=float).reshape(-1)
+        v = np.array(v, dtype=float).reshape(-1)
+        if q.shape != (self.model.nq,):
+            raise ShapeError(f"q has {q.size} entries, the robot {self.robot.name!r} has nq = {self.model.nq}")
+        if v.shape != (self.model.nv,):
+            raise ShapeError(f"v has {v.size} entries, the robot {self.robot.name!r} has nv = {self.model.nv}")
+        for arr, what in ((q, "q"), (v, "v")):
+            if not np.isfinite(arr).all():
+                raise NonFiniteError(f"{what} holds non-finite values at {np.flatnonzero(~np.isfinite(arr)).tolist()}")
+        return q, v
+
+    def update(self, q, v, t: float = 0.0, *, validate: bool = True) -> State:
+        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
+
+        ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the
+        controller's ``q``, ``v``): float vectors of the right sizes, finite, not modified afterwards.
+        """
+        if validate:
+            q, v = self.check(q, v)
+        self.q, self.v, self.t = q, v, float(t)
+        pin.forwardKinematics(self.model, self.data, q, v, self._zero)
+        pin.computeJointJacobians(self.model, self.data)  # from the placements computed just above
+        pin.updateFramePlacements(self.model, self.data)
+        self._cache.clear()
+        self.updates += 1
+        return self
+
+    def memo(self, key, compute):
+        """``compute()`` once per update under ``key``: a derived quantity shared by its users within a step."""
+        cache = self._cache
+        if key not in cache:
+            cache[key] = compute()
+        return cache[key]
+
+    # -- frames --------------------------------------------------------------------------------
+    def placement(self, fid: int) -> pin.SE3:
+        return self.data.oMf[fid]
+
+    def position(self, fid: int) -> np.ndarray:
+        return self.data.oMf[fid].translation
+
+    def rotation(self, fid: int) -> np.ndarray:
+        return self.data.oMf[fid].rotation
+
+    def jacobian(self, fid: int) -> np.ndarray:
+        """6 x nv frame Jacobian, world-aligned at the frame origin (linear rows first)."""
+        key = ("J", fid)
+        if key not in self._cache:
+            self._cache[key] = pin.getFrameJacobian(self.model, self.data, fid, LWA)
+        return self._cache[key]
+
+    def jdot_qdot(self, fid: int) -> np.ndarray:
+        """6-vector J-dot q-dot of the frame: classical linear and angular acceleration at zero q-ddot."""
+        key = ("Jdqd", fid)
+        if key not in self._cache:
+            self._cache[key] = pin.getFrameClassicalAcceleration(self.model, self.data, fid, LWA).vector.copy()
+        return self._cache[key]
+
+    def velocity(self, fid: int) -> np.ndarray:
+        """6-vector frame velocity (linear, angular), world-aligned."""
+        return pin.getFrameVelocity(self.model, self.data, fid, LWA).vector
+
+    # -- centre of mass --------------------------------------------------------------------------
+    def _com_all(self):
+        if "com" not in self._cache:  # from the kinematics of update() (no second forward pass)
+            pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
+            Jc = pin.jacobianCenterOfMass(self.model, self.data, False)
+            d = self.data
+            self._cache["com"] = (d.com[0].copy(), Jc.copy(), d.acom[0].copy(), d.vcom[0].copy())
+        return self._cache["com"]
+
+    def com(self) -> np.ndarray:
+        return self._com_all()[0]
+
+    def com_jacobian(self) -> np.ndarray:
+        return self._com_all()[1]
+
+    def com_jdot_qdot(self) -> np.ndarray:
+        return self._com_all()[2]
+
+    # -- integration ---------------------------------------------------------------------------
+    def integrate(self, q, v, a, dt: float, order: int) -> tuple[np.ndarray, np.ndarray]:
+        """Next ``(q, v)``: velocity level ``q + v dt``; acceleration level
+        ``q + v dt + a dt^2 / 2`` and ``v + a dt`` (reference page, 'Initial state and run')."""
+        if order == 1:
+            return pin.integrate(self.model, q, a * dt), a.copy()
+        return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
