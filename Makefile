@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= runs
 
-.PHONY: demo test lint bench scenarios clean
+.PHONY: demo test lint bench bench-peers bench-venvs scenarios clean
 
 $(VENV)/.base: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -37,3 +37,35 @@ scenarios: $(VENV)/.base
 
 clean:
 	rm -rf $(VENV) $(OUT) .pytest_cache .ruff_cache
+
+# Side-by-side benchmark against pink, PlaCo and TSID (benchmarks/peers/). The peers pin different
+# pinocchio versions, so each gets its own virtual environment (git-ignored), all from PyPI, each
+# with this checkout installed (editable) beside them.
+BENCH_VENVS ?= .bench-venvs
+PEERS_ARGS ?=
+
+$(BENCH_VENVS)/pin4/.ok: pyproject.toml
+	rm -rf $(BENCH_VENVS)/pin4 && $(PYTHON) -m venv $(BENCH_VENVS)/pin4
+	$(BENCH_VENVS)/pin4/bin/python -m pip install -q --upgrade pip
+	$(BENCH_VENVS)/pin4/bin/python -m pip install -q -e . 'pin>=4,<5' 'pin-pink==4.4.0' daqp
+	touch $@
+
+$(BENCH_VENVS)/pin38/.ok: pyproject.toml
+	rm -rf $(BENCH_VENVS)/pin38 && $(PYTHON) -m venv $(BENCH_VENVS)/pin38
+	$(BENCH_VENVS)/pin38/bin/python -m pip install -q --upgrade pip
+	$(BENCH_VENVS)/pin38/bin/python -m pip install -q -e . 'pin==3.8.0' 'placo==0.10.2' 'pin-pink==4.4.0' daqp
+	touch $@
+
+$(BENCH_VENVS)/pin34/.ok: pyproject.toml
+	rm -rf $(BENCH_VENVS)/pin34 && $(PYTHON) -m venv $(BENCH_VENVS)/pin34
+	$(BENCH_VENVS)/pin34/bin/python -m pip install -q --upgrade pip
+	$(BENCH_VENVS)/pin34/bin/python -m pip install -q -e . 'pin==3.4.0' 'tsid==1.7.1' 'cmeel-urdfdom==4.0.1' 'cmeel-tinyxml2<11'
+	touch $@
+
+bench-venvs: $(BENCH_VENVS)/pin4/.ok $(BENCH_VENVS)/pin38/.ok $(BENCH_VENVS)/pin34/.ok
+
+bench-peers: bench-venvs
+	$(BENCH_VENVS)/pin4/bin/python benchmarks/peers/run.py --env pin4 --scenarios $(PEERS_ARGS)
+	$(BENCH_VENVS)/pin38/bin/python benchmarks/peers/run.py --env pin38 $(PEERS_ARGS)
+	$(BENCH_VENVS)/pin34/bin/python benchmarks/peers/run.py --env pin34 $(PEERS_ARGS)
+	$(BENCH_VENVS)/pin4/bin/python benchmarks/peers/report.py

@@ -1,0 +1,211 @@
+"""Merge the per-environment results of ``run.py`` into ``benchmarks/results/peers.md`` and ``peers.csv``.
+
+    python benchmarks/peers/report.py [--dir benchmarks/results/peers]
+
+Ratios are contender time / hqp-tpm ``tpm`` time, per configuration, measured in the same process
+(so a ratio never mixes environments); the summary table takes pink from the pin 4 environment,
+PlaCo from the pin 3.8 one and TSID from the pin 3.4 one, and names the environment of every cell.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+from benchmarks import common  # noqa: E402
+
+ENV_ORDER = ("pin4", "pin38", "pin34")
+SUMMARY_COLUMNS = (  # (column title, contender, environments to take it from, in order of preference)
+    ("hqp-tpm `tpm`", "hqp-tpm tpm", ("pin4", "pin34", "pin38")),
+    ("hqp-tpm `sns_tpm`", "hqp-tpm sns_tpm", ("pin4", "pin34", "pin38")),
+    ("hqp-tpm cascaded QP (daqp)", "hqp-tpm qp:daqp", ("pin4", "pin34", "pin38")),
+    ("pink 4.4 (weighted QP, daqp)", "pink", ("pin4", "pin38")),
+    ("pink + limits", "pink + limits", ("pin4", "pin38")),
+    ("PlaCo 0.10 (hard > soft)", "PlaCo", ("pin38",)),
+    ("PlaCo + limits", "PlaCo + limits", ("pin38",)),
+    ("TSID 1.7 (HQP)", "TSID", ("pin34",)),
+)
+SUMMARY_ROWS = (
+    ("iiwa_vel", "solve", "iiwa 7, EE pose (6) > posture (7), velocity level: solve alone"),
+    ("iiwa_vel", "step", "same, full step (kinematics + tasks + solve)"),
+    ("romeo_vel", "solve", "Romeo 27 nv, sole > CoM > foot > hands > posture: solve alone"),
+    ("romeo_vel", "step", "same, full step"),
+    ("iiwa_acc", "solve", "iiwa, acceleration level, EE priority 0 + posture: solve alone"),
+    ("iiwa_acc", "step", "same, full step"),
+    ("iiwa_circle_vel", "loop", "2,000-step closed loop, iiwa circle, velocity level"),
+    ("iiwa_circle_acc", "loop", "2,000-step closed loop, iiwa circle, acceleration level"),
+)
+
+
+def read(path: Path) -> tuple[dict[str, str], list[dict]]:
+    env, lines = {}, []
+    for line in path.read_text().splitlines():
+        if line.startswith("# "):
+            k, _, v = line[2:].partition(": ")
+            env[k] = v
+        else:
+            lines.append(line)
+    return env, list(csv.DictReader(lines))
+
+
+def num(r: dict, k: str) -> float:
+    try:
+        return float(r.get(k, "") or "nan")
+    except ValueError:
+        return math.nan
+
+
+def f(x: float, d: int = 2) -> str:
+    if not math.isfinite(x):
+        return "–"
+    if abs(x) >= 100:
+        return f"{x:,.0f}"
+    if abs(x) >= 10:
+        return f"{x:.1f}"
+    return f"{x:.{d}f}"
+
+
+def g(x: float) -> str:
+    return "–" if not math.isfinite(x) else f"{x:.1e}"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--dir", type=Path, default=common.RESULTS / "peers")
+    ap.add_argument("--out", type=Path, default=common.RESULTS)
+    args = ap.parse_args(argv)
+    envs, rows = {}, []
+    for name in ENV_ORDER:
+        p = args.dir / f"{name}.csv"
+        if p.is_file():
+            envs[name], r = read(p)
+            rows += r
+    if not rows:
+        print(f"no results in {args.dir}", file=sys.stderr)
+        return 1
+    index = {(r["env"], r["problem"], r["phase"], r["contender"]): r for r in rows}
+
+    # summary --------------------------------------------------------------------------------
+    head = ["problem", *[c[0] for c in SUMMARY_COLUMNS]]
+    body = []
+    for prob, phase, title in SUMMARY_ROWS:
+        cells, any_ = [title], False
+        for _, cont, prefs in SUMMARY_COLUMNS:
+            r = next((index[(e, prob, phase, cont)] for e in prefs if (e, prob, phase, cont) in index), None)
+            if r is None:
+                cells.append("—")
+                continue
+            any_ = True
+            ratio = num(r, "ratio_median")
+            if not math.isfinite(ratio):
+                cells.append(f"failed ({r.get('failed', '')[:60]})")
+                continue
+            cell = f"{ratio:.2f}" + (f" (p99 {num(r, 'ratio_p99'):.2f})" if math.isfinite(num(r, "ratio_p99")) else "")
+            cell += f" · {f(num(r, 'median_us'), 1)} µs [{r['env']}]"
+            fc = int(num(r, "failed_configs")) if math.isfinite(num(r, "failed_configs")) else 0
+            if fc:
+                cell += f" · failed on {fc} configs"
+            cells.append(cell)
+        if any_:
+            body.append(cells)
+    summary = common.md_table(head, body)
+
+    # quality --------------------------------------------------------------------------------
+    qhead = ["env", "problem", "contender", "top-level residual |J1 x - b1| (median / max)",
+             "relative (median)", "box violation max (rad/s)", "configs/steps violating", "failed configs",
+             "EE tracking RMS / max (mm)"]
+    qbody = []
+    for r in rows:
+        scenario = r["problem"].startswith(("lwr", "romeo_obs"))
+        if r["phase"] not in ("step", "loop") or not r.get("ratio_median") or scenario:
+            continue
+        viol_n = int(num(r, "box_violated_configs")) if math.isfinite(num(r, "box_violated_configs")) else -1
+        track = (f"{f(num(r, 'tracking_rms_mm'))} / {f(num(r, 'tracking_max_mm'))}"
+                 if math.isfinite(num(r, "tracking_rms_mm")) else "")
+        qbody.append([r["env"], r["problem"], r["contender"],
+                      f"{g(num(r, 'top_residual_median'))} / {g(num(r, 'top_residual_max'))}"
+                      if math.isfinite(num(r, "top_residual_median")) else "",
+                      g(num(r, "top_residual_rel_median")), g(num(r, "box_violation_max")),
+                      str(viol_n) if viol_n >= 0 else "n/a", r.get("failed_configs", "") or "0", track])
+    quality = common.md_table(qhead, qbody)
+
+    # all rows -------------------------------------------------------------------------------
+    dhead = ["env", "pin", "problem", "phase", "contender", "n", "median µs", "p99 µs", "ratio median",
+             "ratio p99", "loop ms", "failed"]
+    dbody = [[r["env"], r["pin"], r["problem"], r["phase"], r["contender"], r.get("configs", ""),
+              f(num(r, "median_us"), 1), f(num(r, "p99_us"), 1), f(num(r, "ratio_median")), f(num(r, "ratio_p99")),
+              f(num(r, "loop_ms"), 1), (r.get("failed", "") or "")[:80]] for r in rows
+             if not r["problem"].startswith(("lwr", "romeo_obs"))]
+    detail = common.md_table(dhead, dbody)
+
+    shead = ["env", "scenario", "solver", "steps timed", "median µs", "p99 µs"]
+    sbody = [[r["env"], r["problem"], r["contender"], r.get("configs", ""), f(num(r, "median_us"), 1),
+              f(num(r, "p99_us"), 1)] for r in rows if r["problem"].startswith(("lwr", "romeo_obs"))]
+    scen = common.md_table(shead, sbody)
+
+    keys = ["date", "cpu", "cores", "load average at start", "load average at end", "CPU share of this process",
+            "python", "hqp-tpm", "pin", "pin-pink", "placo", "tsid", "daqp", "qpsolvers", "numpy", "scipy",
+            "eigenpy", "coal", "BLAS threads"]
+    ehead = ["", *envs.keys()]
+    ebody = [[k, *[envs[e].get(k, "") for e in envs]] for k in keys]
+    environ = common.md_table(ehead, ebody)
+
+    text = "\n".join([
+        "# hqp-tpm side by side with pink, PlaCo and TSID",
+        "",
+        "Written by `make bench-peers` (`benchmarks/peers/`, see `benchmarks/README.md`). One process per",
+        "virtual environment (each peer pins its own pinocchio); in each process the contenders are",
+        "interleaved configuration by configuration, one BLAS thread. **Ratios** are the contender's time",
+        "divided by hqp-tpm `tpm`'s at the same configuration in the same process (median over 200",
+        "configurations, 99th percentile in brackets); µs are medians over configurations of the median of",
+        "the repeats; the environment ([pin4] = pin 4.x, [pin38] = pin 3.8.0, [pin34] = pin 3.4.0) says",
+        "where a cell was measured. Closed loops: ratio of whole-loop times (median of the interleaved",
+        "rounds), µs per step. Absolute times depend on the machine's load (below); compare ratios.",
+        "",
+        "## Time relative to hqp-tpm `tpm` (lower is faster)",
+        "",
+        summary,
+        "",
+        "## Quality of the commands (same configurations)",
+        "",
+        "Top-level residual: `|J1 x - b1|` against hqp-tpm's first level (EE pose / right sole) at each",
+        "configuration; a hierarchy solves it exactly (up to rounding) unless a joint box binds, a weighted",
+        "QP trades it against the lower levels. Box violation: largest `|x_j| - v_max_j` over joints of the",
+        "URDF velocity limits (velocity level only). Tracking: EE position error to the circle over the loop.",
+        "",
+        quality,
+        "",
+        "## hqp-tpm scenario steps (no peer equivalent)",
+        "",
+        scen,
+        "",
+        "## All rows",
+        "",
+        detail,
+        "",
+        "## Environments",
+        "",
+        environ,
+        "",
+    ])
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "peers.md").write_text(text)
+    keys_all: list[str] = []
+    for r in rows:
+        keys_all += [k for k in r if k not in keys_all]
+    with open(args.out / "peers.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=keys_all)
+        w.writeheader()
+        w.writerows(rows)
+    print(f"wrote {args.out / 'peers.md'} and peers.csv", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
