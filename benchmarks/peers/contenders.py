@@ -70,12 +70,12 @@ class Hqp:
 class Pink:
     """pink: one weighted QP (daqp); ``limits``: pink's default configuration + velocity limits."""
 
-    def __init__(self, robot, problem, limits: bool):
+    def __init__(self, robot, problem, limits: bool, hard_top: bool = False):
         import pink
         from pink.tasks import ComTask, FrameTask, PostureTask
 
         self.robot, self.problem, self.limits = robot, problem, (None if limits else [])
-        self.name = "pink + limits" if limits else "pink"
+        self.name = ("pink, top as constraint" if hard_top else "pink") + (" + limits" if limits else "")
         model = robot.model
         self.conf = pink.Configuration(model, model.createData(), robot.neutral())
         dt = P.DT
@@ -92,6 +92,8 @@ class Pink:
             self.com = ComTask(cost=np.array([10.0, 10.0, 0.0]), gain=g)
             self.posture = PostureTask(cost=1e-3, gain=P.KP_ROMEO_POSTURE * dt)
             self.tasks = [*self.frames.values(), self.com, self.posture]
+        # hard_top: the top task as an equality constraint of the QP (pink's ``constraints``), the rest weighted
+        self.constraints = [self.tasks.pop(0)] if hard_top else None
         self._build = pink.build_ik if hasattr(pink, "build_ik") else __import__("pink.solve_ik").solve_ik.build_ik
         self._solve_ik = pink.solve_ik
         import qpsolvers
@@ -115,14 +117,22 @@ class Pink:
             q_ref = cfg.q.copy()
             q_ref[7:] = t["posture"]
         self.posture.set_target(q_ref)
-        self.problem_qp = self._build(self.conf, self.tasks, P.DT, limits=self.limits)
+        self.problem_qp = self._build(self.conf, self.tasks, P.DT, limits=self.limits, constraints=self.constraints)
 
     def step(self):
         self.conf.update(self.q)
-        return self._solve_ik(self.conf, self.tasks, P.DT, solver="daqp", limits=self.limits, safety_break=False)
+        return self._solve_ik(self.conf, self.tasks, P.DT, solver="daqp", limits=self.limits,
+                              constraints=self.constraints, safety_break=False)
 
     def solve(self):
         return self._qp(self.problem_qp, solver="daqp").x / P.DT
+
+    def own_residual(self, x):
+        """Top task's residual in pink's own formulation, ``|J dq + gain e| / dt`` (velocity units)."""
+        top = self.constraints[0] if self.constraints else self.tasks[0]
+        self.conf.update(self.q)
+        J, e = top.compute_jacobian(self.conf), top.compute_error(self.conf)
+        return float(np.linalg.norm(J @ (x * P.DT) + top.gain * e) / P.DT)
 
 
 # -- PlaCo --------------------------------------------------------------------------------------
@@ -247,6 +257,7 @@ class Placo:
                                 for i, n in enumerate(self.joint_names)})
 
     def step(self):
+        self.pr.state.q = self.q
         self.pr.update_kinematics()
         return self.solver.solve(False)[self.vi] / P.DT
 
@@ -296,8 +307,8 @@ class Tsid:
     def set_ee_reference(self, M, vel=None, acc=None):
         s = self.tsid.TrajectorySE3Constant("ee_ref", M).computeNext()
         if vel is not None:
-            s.vel(np.asarray(vel))
-            s.acc(np.asarray(acc))
+            s.derivative(np.asarray(vel))
+            s.second_derivative(np.asarray(acc))
         self.ee.setReference(s)
 
     def setup(self, cfg):

@@ -58,7 +58,8 @@ def contenders_for(problem, robot, quick: bool):
     out = [C.Hqp(robot, problem, s) for s in HQP_SOLVERS]
     if problem.order == 1:
         if has("pink"):
-            out += [C.Pink(robot, problem, False), C.Pink(robot, problem, True)]
+            out += [C.Pink(robot, problem, False), C.Pink(robot, problem, True),
+                    C.Pink(robot, problem, False, hard_top=True)]
         if has("placo"):
             out += [C.Placo(robot, problem, False), C.Placo(robot, problem, True)]
     elif has("tsid"):
@@ -82,7 +83,7 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
     names = [c.name for c in cons]
     v_max = robot.velocity_limits() if problem.order == 1 else None
     per = {n: {"step": [], "solve": [], "step_all": [], "solve_all": [], "res": [], "viol": [], "rel": [],
-               "step_ratio": [], "solve_ratio": []} for n in names}
+               "step_ratio": [], "solve_ratio": [], "own": []} for n in names}
     failures: dict[str, str] = {}   # first error message per contender
     failed = dict.fromkeys(names, 0)  # configurations where the contender raised
     ref = C.Hqp(robot, problem, "tpm")
@@ -107,6 +108,8 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
             d["step_all"] += ts
             d["solve_all"] += tv
             res, viol = P.quality(J0, b0, x, v_max)
+            own = getattr(c, "own_residual", None)
+            d["own"].append(own(x) if own is not None else res)
             d["res"].append(res)
             d["rel"].append(res / max(np.linalg.norm(b0), 1e-12))
             d["viol"].append(viol)
@@ -130,9 +133,11 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
             rows.append({
                 "problem": problem.name, "phase": phase, "contender": n, "configs": len(t),
                 "median_us": float(np.median(t)), "p99_us": float(np.percentile(np.array(d[f"{phase}_all"]) / 1e3, 99)),
+                "p99_cfg_us": float(np.percentile(t, 99)),
                 "ratio_median": float(np.median(ratio)), "ratio_p99": float(np.percentile(ratio, 99)),
                 "top_residual_median": float(np.median(d["res"])), "top_residual_max": float(np.max(d["res"])),
                 "top_residual_rel_median": float(np.median(d["rel"])),
+                "own_top_residual_median": float(np.median(d["own"])), "own_top_residual_max": float(np.max(d["own"])),
                 "box_violation_max": float(np.nanmax(viol)) if np.isfinite(viol).any() else float("nan"),
                 "box_violated_configs": int(np.sum(viol > 1e-9)) if np.isfinite(viol).any() else -1,
                 "failed_configs": failed[n], "failed": failures.get(n, ""),
