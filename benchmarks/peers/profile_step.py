@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-
 import pstats
 import sys
 import time
