@@ -83,7 +83,7 @@ def test_circle_loop(iiwa, order):
 
 
 def test_reduced_urdf(tmp_path):
-    from hqp_tpm.robot import ROMEO21_JOINTS
+    from hqp_tpm.robot.model import ROMEO21_JOINTS
 
     path = C.reduced_urdf(C.romeo_urdf(), set(ROMEO21_JOINTS), tmp_path)
     text = path.read_text()

@@ -177,7 +177,7 @@ class Placo:
         if problem.robot_name == P.IIWA:
             path = P.urdf_path(robot)
         else:
-            from hqp_tpm.robot import ROMEO21_JOINTS
+            from hqp_tpm.robot.model import ROMEO21_JOINTS
 
             Placo._tmp = Placo._tmp or tempfile.mkdtemp(prefix="peers-")
             path = reduced_urdf(romeo_urdf(), set(ROMEO21_JOINTS), Path(Placo._tmp))

@@ -51,7 +51,7 @@ ROMEO_FRAMES = {"right_sole": "r_sole", "left_foot": "l_sole", "left_hand": "l_g
 
 
 def load_robot(name: str):
-    from hqp_tpm.robot import Robot
+    from hqp_tpm import Robot
 
     return Robot.load(name)
 
@@ -166,7 +166,7 @@ def circle_reference(p0: np.ndarray, t: float):
 # -- hqp-tpm side --------------------------------------------------------------------------------
 def hqp_tasks(robot, problem: Problem, cfg: Config):
     """hqp-tpm stack levels (highest first) for one configuration's targets."""
-    from hqp_tpm.tasks import CenterOfMass, FramePose, FramePosition, Gains, Posture
+    from hqp_tpm import CenterOfMass, FramePose, FramePosition, Gains, Posture
 
     if problem.robot_name == IIWA:
         if problem.order == 1:
@@ -187,15 +187,14 @@ def hqp_tasks(robot, problem: Problem, cfg: Config):
 
 def joint_limits_box(robot, order: int):
     """hqp-tpm's joint box (URDF velocity limits, position limits one period ahead)."""
-    from hqp_tpm.limits import JointLimits
+    from hqp_tpm import JointLimits
 
     return JointLimits(robot, order=order, dt=DT, position=True, velocity=True)
 
 
 def hqp_controller(robot, problem: Problem, cfg: Config, solver: str = "tpm"):
     """A controller at ``cfg`` with the problem's stack (``solver``: ``tpm``, ``sns_tpm``, ``qp:daqp``...)."""
-    from hqp_tpm.controller import Controller
-    from hqp_tpm.stack import Stack
+    from hqp_tpm import Controller, Stack
 
     stack = Stack.of(*hqp_tasks(robot, problem, cfg))
     box = joint_limits_box(robot, problem.order) if solver != "tpm" else None
@@ -204,10 +203,7 @@ def hqp_controller(robot, problem: Problem, cfg: Config, solver: str = "tpm"):
 
 def hqp_circle_controller(robot, order: int, solver: str = "tpm"):
     """The closed loop of ``iiwa_circle`` in hqp-tpm: EE position on the circle + orientation held > posture."""
-    from hqp_tpm.controller import Controller
-    from hqp_tpm.stack import Stack
-    from hqp_tpm.tasks import FrameOrientation, FramePosition, Gains, Posture
-    from hqp_tpm.trajectories import Harmonic
+    from hqp_tpm import Controller, FrameOrientation, FramePosition, Gains, Harmonic, Posture, Stack
 
     q0 = circle_start(robot)
     fid = robot.frame_id(IIWA_EE)

@@ -212,8 +212,8 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
 
 def run_scenarios(steps: int, warmup: int) -> list[dict]:
     """hqp-tpm only: ``lwr_relaxed``'s step (coal distances, Algorithm 1) and ``romeo_obstacles_sns_tpm``'s."""
-    from hqp_tpm import build as hb
-    from hqp_tpm import scenario
+    from hqp_tpm.app import build as hb
+    from hqp_tpm.app import scenario
 
     rows = []
     for name, n in (("lwr_relaxed", steps), ("romeo_obstacles_sns_tpm", None)):
