@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import sparse
 
 from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError, SolverNotAvailableError, unknown_name
 from hqp_tpm.solvers.damping import RANK_TOL
@@ -48,12 +47,14 @@ PIP_PACKAGE = {
 
 
 def _osqp_polish_key() -> str:
-    """OSQP 1.0 renamed its ``polish`` setting ``polishing``."""
+    """OSQP 1.0 renamed its ``polish`` setting ``polishing`` (version read from metadata: importing osqp is slow)."""
+    from importlib.metadata import PackageNotFoundError, version
+
     try:
-        import osqp
-    except ImportError:
+        major = int(version("osqp").split(".")[0])
+    except (PackageNotFoundError, ValueError):
         return "polish"
-    return "polishing" if int(osqp.__version__.split(".")[0]) >= 1 else "polish"
+    return "polishing" if major >= 1 else "polish"
 
 
 POLISH = _osqp_polish_key()
@@ -211,6 +212,7 @@ class _Cascade:
 def _problem(solver: str, P, q, G, h, A, b) -> qpsolvers.Problem:
     """A qpsolvers problem without empty blocks, sparse for the backends that only take sparse matrices."""
     import qpsolvers
+    from scipy import sparse  # loaded by qpsolvers anyway; not at package import
 
     G, h = (G, h) if G.shape[0] else (None, None)
     A, b = (A, b) if A.shape[0] else (None, None)
