@@ -59,3 +59,17 @@ def unknown_name(kind: str, name: object, valid, cls=UnknownNameError) -> Unknow
     """Build an error naming the bad ``name`` and listing the ``valid`` choices."""
     choices = ", ".join(repr(v) for v in sorted(map(str, valid)))
     return cls(f"unknown {kind} {name!r}; valid {kind}s are: {choices}")
+
+
+class InfeasibleError(SolverFailedError):
+    """Hard constraints that no command meets. ``conflict`` holds the labels of an irreducible
+    infeasible subset of them (e.g. ``"box upper of joint 2 (0.5)"``, ``"level 'top' row 0 (= 1)"``),
+    found by a small LP certificate (:func:`hqp_tpm.solvers.account.check_feasible`)."""
+
+    def __init__(self, message: str, conflict=()):
+        super().__init__(message)
+        self.conflict = tuple(conflict)
+
+
+class EmptyBoxError(InfeasibleError, BoxError):
+    """The hard box itself is empty (``lower > upper`` at some joint)."""
