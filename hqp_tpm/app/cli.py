@@ -1,4 +1,4 @@
-"""Command line: ``hqp-tpm run SCENARIO --out DIR`` (and ``hqp-tpm list``)."""
+"""Command line: ``hqp-tpm run SCENARIO --out DIR`` (and ``hqp-tpm list``, ``hqp-tpm explain RUN_DIR --t T``)."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ from hqp_tpm.errors import HqpTpmError
 
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
                  progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
-                 steps: int | None = None) -> dict:
+                 steps: int | None = None, explain: bool = False) -> dict:
     """Load, build, run and write one scenario; returns its metrics."""
     from threadpoolctl import threadpool_limits
 
@@ -23,6 +23,12 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     probes = [results.task_error_probe(tasks)]
     if hasattr(policy, "probe"):
         probes.append(policy.probe)
+    explainer = None
+    if explain:  # the per-step account (hqp_tpm.app.explain); nothing is computed without it
+        from hqp_tpm.app.explain import Explainer
+
+        explainer = Explainer(ctrl)
+        probes.append(explainer.probe)
     other = None
     if crosscheck:
         other = "qp" if ctrl.solver in ("tpm", "nullspace", "sns_tpm", "sns") else "tpm"
@@ -36,12 +42,22 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         rec, timing = runner.run(ctrl, steps or sc.steps, progress=progress, crosscheck=other, probes=probes,
                                  label=sc.name)
     arrays = rec.arrays()
+    if explainer is not None:
+        explainer.finish(arrays)
     results.standard_aliases(arrays, tasks)
     summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
                **results.metrics(arrays, timing, tasks)}
     if hasattr(policy, "summary"):  # policy-specific numbers (e.g. the co-manipulation indices)
         summary.update(policy.summary(arrays))
+    if explainer is not None:
+        from hqp_tpm.app.explain import summary as explain_summary
+
+        summary["explain"] = explain_summary(arrays)
     results.write(out, arrays, summary)
+    if figures and explainer is not None:
+        from hqp_tpm.app.explain import figure as explain_figure
+
+        explain_figure(out / "explain.png", arrays, title=f"{sc.name}: fraction of each task met")
     if figures:
         from hqp_tpm.app import figures as figs
 
@@ -73,10 +89,20 @@ def main(argv=None) -> int:
     p_run.add_argument("--no-replay", action="store_true")
     p_run.add_argument("--steps", type=int, default=None, help="run only this many steps")
     p_run.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_run.add_argument("--explain", action="store_true", help="record every step's account: each task's fraction "
+                       "met and what blocked it (hqp-tpm explain RUN_DIR --t T prints it)")
     p_list = sub.add_parser("list", help="list the shipped scenarios")
     p_list.add_argument("--names", action="store_true", help="names only, one a line")
+    p_explain = sub.add_parser("explain", help="why a task was not met at time T of a run: its account")
+    p_explain.add_argument("run_dir", type=Path)
+    p_explain.add_argument("--t", type=float, required=True, help="time (s); the nearest recorded step is shown")
     args = parser.parse_args(argv)
     try:
+        if args.command == "explain":
+            from hqp_tpm.app.explain import explain_run
+
+            print(explain_run(args.run_dir, args.t))
+            return 0
         if args.command == "list":
             from hqp_tpm.app.scenario import SCENARIO_DIR, load
 
@@ -88,7 +114,7 @@ def main(argv=None) -> int:
         out = args.out or Path("runs") / Path(args.scenario).stem
         summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,
                                progress=not args.quiet, figures=not args.no_figures, replay=not args.no_replay,
-                               viz=args.viz, steps=args.steps)
+                               viz=args.viz, steps=args.steps, explain=args.explain)
     except HqpTpmError as exc:
         print(f"hqp-tpm: error: {exc}", file=sys.stderr)
         return 2

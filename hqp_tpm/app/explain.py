@@ -1,0 +1,370 @@
+"""Explain every step: which task lost how much, and which joint bound or higher task took it.
+
+The robot-aware layer above :mod:`hqp_tpm.solvers.account`: task names (a level of several tasks is
+split by the tasks' dimensions), joint names, and the kind of each joint bound reached (velocity,
+position one period ahead, braking distance, acceleration; :mod:`hqp_tpm.robot.joint_boxes`).
+
+* :class:`Explainer` -- a runner probe (``hqp-tpm run ... --explain``): per step it records, compactly,
+  each task's fraction met, residual, damping, cause bits and blocking set, and each joint's bound;
+  nothing is computed when it is not attached (the controller and the solvers never compute it).
+* :func:`summary` -- ``metrics.json`` numbers: time each task spent degraded, per cause, per blocking
+  joint bound and per blocking task.
+* :func:`figure` -- each task's fraction met over the run, the saturated joints as a band below.
+* :func:`explain_run` -- the text ``hqp-tpm explain RUN_DIR --t T`` prints: from the recording when the
+  run stored the account, else by re-running the run's scenario up to that step.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from hqp_tpm.solvers.account import StepAccount, account, explain
+
+#: Cause bits of ``explain_cause`` (0: met; NaN: the task is not in the stack at that step).
+CAUSE_BITS = {"higher_levels": 1, "damping": 2, "joint_bounds": 4, "unexplained": 8}
+#: Bound kinds of ``explain_bound`` (its sign is the side: + upper, - lower; 0: not at a bound).
+BOUND_KINDS = {1: "velocity", 2: "position", 3: "braking", 4: "acceleration", 5: "box"}
+_KIND_CODE = {v: k for k, v in BOUND_KINDS.items()}
+
+
+def bound_kinds(limits, state, x_bound: np.ndarray, joints, sides, *, columns=None) -> list[str]:
+    """Which limit defines the box bound each of ``joints`` sits at (side +1 upper, -1 lower).
+
+    ``x_bound[j]`` is the bound's value for ``j`` in ``joints``; ``columns`` (default ``joints``): the
+    joints' velocity columns.
+    ``limits``: the controller's :class:`hqp_tpm.robot.limits.JointLimits` (any other box function: "box").
+    Velocity level: ``v_max``, the position limit one period ahead, or the braking term; acceleration
+    level: ``a_max``, the velocity limit one period ahead, or the position/braking (viability) term.
+    """
+    cols = getattr(limits, "cols", None)
+    if cols is None or not hasattr(limits, "limits"):
+        return ["box"] * len(joints)
+    lim = limits.limits
+    where = {int(c): k for k, c in enumerate(cols)}
+    q = state.q[limits.qidx]
+    v = state.v[cols]
+    out = []
+    columns = joints if columns is None else columns
+    for j, c, side in zip(joints, columns, sides, strict=True):
+        k = where.get(int(c))
+        if k is None:
+            out.append("box")
+            continue
+        b = float(x_bound[j])
+        tol = 1e-9 * (1.0 + abs(b))
+        qk, vmax, amax, dt = q[k], lim.v_max[k], lim.a_max[k], lim.dt
+        qlim = lim.q_max[k] if side > 0 else lim.q_min[k]
+        if limits.order == 1:
+            cands = [("velocity", side * vmax), ("position", (qlim - qk) / dt)]
+            if np.isfinite(qlim) and amax > 0:
+                cands.append(("braking", side * np.sqrt(2 * amax * max(side * (qlim - qk), 0.0))))
+        else:
+            cands = [("acceleration", side * amax), ("velocity", (side * vmax - v[k]) / dt)]
+            if np.isfinite(qlim):
+                cands.append(("position", None))
+        kind = next((name for name, val in cands if val is not None and abs(val - b) <= tol), None)
+        out.append(kind or ("position" if limits.order == 2 else "box"))
+    return out
+
+
+def _task_split(stack_level, m: int) -> list[tuple[str, slice]]:
+    """Rows of a level per task: by the tasks' dimensions when they add up, else all rows to each."""
+    dims = [int(getattr(t, "dim", 0) or 0) for t in stack_level]
+    if len(stack_level) > 1 and sum(dims) == m:
+        edges = np.cumsum([0, *dims])
+        return [(t.name, slice(int(a), int(b))) for t, a, b in zip(stack_level, edges, edges[1:], strict=False)]
+    return [(t.name, slice(0, m)) for t in stack_level]
+
+
+class Explainer:
+    """Runner probe recording each step's account (module doc). ``causes=False``: the account only."""
+
+    def __init__(self, ctrl, *, causes: bool = True):
+        self.tasks = [t.name for t in ctrl.tasks()]
+        self.index = {name: i for i, name in enumerate(self.tasks)}
+        self.dims = {t.name: int(getattr(t, "dim", 0) or 0) for t in ctrl.tasks()}
+        self.joint_names = list(ctrl.robot.joint_names)
+        self.causes = causes
+        self.last: StepAccount | None = None
+        self.hints: dict = {}  # the last step's joint blocking sets, re-verified at the next step
+
+    # -- the account of one step -----------------------------------------------------------------
+    def account(self, ctrl, res, *, causes: bool | None = None) -> StepAccount:
+        """The :class:`StepAccount` of the step ``res`` just computed by ``ctrl`` (before the next one)."""
+        st = ctrl.state  # still the step's state: the controller updates it at the next compute()
+        box = ctrl.box(st, res.t) if ctrl.box is not None else None
+        x0 = -ctrl.nullspace_damping * st.v if (ctrl.order == 2 and ctrl.nullspace_damping) else None
+        kw = {"box": box, "info": res.info, "solver": ctrl.solver, "lambda_max": ctrl.lambda_max, "eps": ctrl.eps}
+        want = self.causes if causes is None else causes
+        if not want:
+            return account(res.levels, res.command, **kw)
+        acc = explain(res.levels, res.command, x0=x0, hints=self.hints, **kw)
+        self.hints = {la.name: tuple(zip(c.joints, c.sides, strict=True))
+                      for la, cs in zip(acc.levels, acc.causes, strict=True) for c in cs if c.kind == "joint_bounds"}
+        return acc
+
+    def row(self, ctrl, res, acc: StepAccount) -> dict:
+        """The compact per-step values of ``acc`` (see :func:`summary` for their meaning)."""
+        nt, nv = len(self.tasks), len(self.joint_names)
+        frac, resid, damp, cause = (np.full(nt, np.nan) for _ in range(4))
+        block_levels, without = np.full(nt, np.nan), np.full(nt, np.nan)
+        block_joints = np.zeros((nt, nv))
+        desired = {name: np.full(self.dims.get(name, 0), np.nan) for name in self.tasks}
+        achieved = {name: np.full(self.dims.get(name, 0), np.nan) for name in self.tasks}
+        level_tasks = [_task_split(lv, la.achieved.size) for lv, la in zip(res.stack.levels, acc.levels, strict=False)]
+        for k, la in enumerate(acc.levels):
+            causes = acc.causes[k] if acc.causes is not None else ()
+            bits = sum(CAUSE_BITS[c.kind] for c in causes)
+            blockers = {t for c in causes for j in c.levels for t, _ in level_tasks[j]}
+            for name, rows in level_tasks[k]:
+                i = self.index.get(name)
+                if i is None:
+                    continue
+                frac[i], resid[i], damp[i] = la.fraction, la.residual_norm, la.damping
+                cause[i] = bits if (acc.causes is not None or la.met) else np.nan
+                block_levels[i] = float(sum(2.0**self.index[t] for t in blockers if t in self.index))
+                for c in causes:
+                    if c.joints:
+                        kinds = self._kinds(ctrl, acc, c.joints, c.sides)
+                        block_joints[i, list(c.joints)] = [s * _KIND_CODE[kd] for s, kd in zip(c.sides, kinds,
+                                                                                               strict=True)]
+                        without[i] = c.fraction_without
+                d, a = la.desired[rows], la.achieved[rows]
+                if desired[name].size == d.size:
+                    desired[name], achieved[name] = d, a
+        bound = np.zeros(nv)
+        if acc.at_bound:
+            kinds = self._kinds(ctrl, acc, acc.at_bound, acc.sides)
+            for j, s, kind in zip(acc.at_bound, acc.sides, kinds, strict=True):
+                bound[j] = s * _KIND_CODE[kind]
+        out = {"explain_fraction": frac, "explain_residual": resid, "explain_damping": damp, "explain_cause": cause,
+               "explain_block_levels": block_levels, "explain_block_joints": block_joints, "explain_bound": bound,
+               "explain_fraction_without": without}
+        for name in self.tasks:
+            out[f"explain_desired_{name}"] = desired[name]
+            out[f"explain_achieved_{name}"] = achieved[name]
+        return out
+
+    @staticmethod
+    def _kinds(ctrl, acc: StepAccount, joints, sides) -> list[str]:
+        if acc.box is None:
+            return ["box"] * len(joints)
+        lo, up = acc.box
+        return bound_kinds(ctrl.box, ctrl.state, np.where(np.asarray(sides) > 0, up[list(joints)], lo[list(joints)]),
+                           range(len(joints)), sides, columns=joints)
+
+    def probe(self, ctrl, res) -> dict:
+        acc = self.account(ctrl, res)
+        self.last = acc
+        return self.row(ctrl, res, acc)
+
+    __call__ = probe
+
+    def finish(self, arrays: dict) -> None:
+        """Add the names the compact columns refer to (after ``Recording.arrays()``)."""
+        arrays["explain_tasks"] = np.array(self.tasks, dtype=str)
+
+
+# -- metrics.json --------------------------------------------------------------------------------
+def _names(arrays, key, default):
+    return [str(s) for s in arrays[key]] if key in arrays else default
+
+
+def summary(arrays: dict) -> dict:
+    """``explain`` section of ``metrics.json``: seconds each task was degraded, per cause kind, per
+    blocking joint bound (``"RElbowRoll upper velocity"``) and per blocking higher task."""
+    if "explain_fraction" not in arrays:
+        return {}
+    t = arrays["t"]
+    dt = float(t[1] - t[0]) if t.size > 1 else 0.0
+    tasks = _names(arrays, "explain_tasks", [])
+    joints = _names(arrays, "joint_names", [])
+    frac, cause = arrays["explain_fraction"], arrays["explain_cause"]
+    bj, bl = arrays["explain_block_joints"], arrays["explain_block_levels"]
+    out: dict = {"degraded_s": {}, "by_cause_s": {}, "by_joint_bound_s": {}, "by_higher_task_s": {},
+                 "fraction_met_min": {}}
+    for i, name in enumerate(tasks):
+        present = ~np.isnan(frac[:, i])
+        bad = present & (cause[:, i] > 0)
+        out["degraded_s"][name] = round(float(bad.sum() * dt), 6)
+        out["fraction_met_min"][name] = float(np.nanmin(frac[:, i])) if present.any() else None
+        bits = np.nan_to_num(cause[:, i]).astype(int)
+        out["by_cause_s"][name] = {kind: round(float(((bits & bit) > 0).sum() * dt), 6)
+                                   for kind, bit in CAUSE_BITS.items()}
+        per_joint = {}
+        for j in np.flatnonzero(np.abs(bj[:, i, :]).sum(axis=0)):
+            for code in np.unique(bj[:, i, j]):
+                if code == 0:
+                    continue
+                label = f"{joints[j] if j < len(joints) else j} {'upper' if code > 0 else 'lower'} " \
+                        f"{BOUND_KINDS.get(int(abs(code)), 'box')}"
+                per_joint[label] = round(float((bj[:, i, j] == code).sum() * dt), 6)
+        out["by_joint_bound_s"][name] = dict(sorted(per_joint.items(), key=lambda kv: -kv[1]))
+        masks = np.nan_to_num(bl[:, i]).astype(np.int64)
+        out["by_higher_task_s"][name] = {other: round(float(((masks >> h) & 1).sum() * dt), 6)
+                                        for h, other in enumerate(tasks) if ((masks >> h) & 1).any()}
+    return out
+
+
+# -- the figure ----------------------------------------------------------------------------------
+def figure(path: Path, arrays: dict, title: str = "") -> Path | None:
+    """Each task's fraction met over the run; below, the joints at a bound as a band (red upper, blue lower)."""
+    if "explain_fraction" not in arrays:
+        return None
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = arrays["t"]
+    tasks = _names(arrays, "explain_tasks", [])
+    joints = _names(arrays, "joint_names", [])
+    bound = arrays["explain_bound"]
+    used = np.flatnonzero(np.abs(bound).sum(axis=0))
+    fig, (ax, band) = plt.subplots(2, 1, sharex=True, figsize=(9, 5 + 0.12 * len(used)),
+                                   gridspec_kw={"height_ratios": [3, max(1, 0.25 * len(used))]})
+    for i, name in enumerate(tasks):
+        ax.plot(t, 100 * arrays["explain_fraction"][:, i], label=name, lw=1.2)
+    ax.set_ylabel("fraction met (%)")
+    ax.set_ylim(-5, 105)
+    ax.legend(loc="lower left", fontsize=8, ncol=min(4, max(1, len(tasks))))
+    ax.set_title(title or "fraction of each task met")
+    if used.size:
+        img = np.sign(bound[:, used]).T
+        band.imshow(img, aspect="auto", interpolation="nearest", cmap="bwr", vmin=-1, vmax=1,
+                    extent=(t[0], t[-1], used.size - 0.5, -0.5))
+        band.set_yticks(range(used.size))
+        band.set_yticklabels([joints[j] if j < len(joints) else str(j) for j in used], fontsize=7)
+    else:
+        band.text(0.5, 0.5, "no joint at a bound", ha="center", va="center", transform=band.transAxes)
+        band.set_yticks([])
+    band.set_xlabel("t (s)")
+    band.set_ylabel("at a bound")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+# -- text ----------------------------------------------------------------------------------------
+def _fmt_vec(v) -> str:
+    return "[" + ", ".join(f"{x:+.3f}" for x in np.asarray(v)) + "]"
+
+
+def format_step(arrays: dict, i: int, *, solver: str = "") -> str:
+    """The account of step ``i`` of a recording with ``explain_*`` columns, as text."""
+    tasks = _names(arrays, "explain_tasks", [])
+    joints = _names(arrays, "joint_names", [])
+    frac, cause = arrays["explain_fraction"][i], arrays["explain_cause"][i]
+    resid, damp = arrays["explain_residual"][i], arrays["explain_damping"][i]
+    bound, bj, bl = arrays["explain_bound"][i], arrays["explain_block_joints"][i], arrays["explain_block_levels"][i]
+
+    def jname(j):
+        return joints[j] if j < len(joints) else str(j)
+
+    head = f"t = {float(arrays['t'][i]):.4f} s (step {i})"
+    if solver:
+        head += f", solver {solver}"
+    if "scale" in arrays:
+        head += f", scale {float(arrays['scale'][i]):.3g}"
+    if "stack" in arrays:
+        head += f"\nstack: {arrays['stack'][i]}"
+    lines = [head]
+    width = max((len(n) for n in tasks), default=4)
+    for k, name in enumerate(tasks):
+        if np.isnan(frac[k]):
+            lines.append(f"  {name:{width}s}  not in the stack")
+            continue
+        c = int(np.nan_to_num(cause[k]))
+        text = f"  {name:{width}s}  met {100 * frac[k]:5.1f} %"
+        if c:
+            text += f"  (residual {resid[k]:.3g})"
+        des, ach = arrays.get(f"explain_desired_{name}"), arrays.get(f"explain_achieved_{name}")
+        if c and des is not None and des.ndim == 2 and des.shape[1]:
+            text += f"\n  {'':{width}s}    desired {_fmt_vec(des[i])}\n  {'':{width}s}    achieved {_fmt_vec(ach[i])}"
+        reasons = []
+        if c & CAUSE_BITS["joint_bounds"]:
+            js = np.flatnonzero(bj[k])
+            text_j = ", ".join(f"{jname(j)} {'upper' if bj[k, j] > 0 else 'lower'} "
+                               f"{BOUND_KINDS.get(int(abs(bj[k, j])), 'box')}" for j in js)
+            wo = arrays.get("explain_fraction_without")
+            after = f" (released: met {100 * wo[i][k]:.0f} %)" if wo is not None and np.isfinite(wo[i][k]) else ""
+            reasons.append(f"joint bounds {text_j}{after}")
+        mask = int(np.nan_to_num(bl[k]))
+        above = [tasks[h] for h in range(len(tasks)) if (mask >> h) & 1]
+        if c & CAUSE_BITS["higher_levels"]:
+            reasons.append(f"{', '.join(above) or 'higher tasks'} above it take the directions it needs")
+        if c & CAUSE_BITS["damping"]:
+            who = f"its rows depend on {', '.join(above)}" if above else "its own rows are near singular"
+            reasons.append(f"damped pivot (lambda = {damp[k]:.3g}): {who}")
+        if c & CAUSE_BITS["unexplained"]:
+            reasons.append("no verified cause (solver tolerance?)")
+        for r in reasons:
+            text += f"\n  {'':{width}s}    <- {r}"
+        lines.append(text)
+    at = np.flatnonzero(bound)
+    if at.size:
+        lines.append("joints at a bound: " + ", ".join(
+            f"{jname(j)} ({'upper' if bound[j] > 0 else 'lower'}, {BOUND_KINDS.get(int(abs(bound[j])), 'box')})"
+            for j in at))
+    else:
+        lines.append("joints at a bound: none")
+    return "\n".join(lines)
+
+
+def headline(arrays: dict, i: int) -> str:
+    """One sentence for the worst task of step ``i``: ``"right_hand met 12 % at t = 2.31 s: ..."``."""
+    frac = arrays["explain_fraction"][i]
+    if np.all(np.isnan(frac)) or np.nanmin(frac) >= 1.0:
+        return f"every task met at t = {float(arrays['t'][i]):.3f} s"
+    k = int(np.nanargmin(frac))
+    text = format_step(arrays, i).splitlines()
+    name = _names(arrays, "explain_tasks", [])[k]
+    reasons = []
+    on = False
+    for line in text:
+        if line.strip().startswith(name + " "):
+            on = True
+            continue
+        if on:
+            if line.strip().startswith("<-"):
+                reasons.append(line.strip()[3:])
+            elif not line.startswith("      "):
+                break
+    return f"{name} met {100 * frac[k]:.0f} % at t = {float(arrays['t'][i]):.3f} s: {'; '.join(reasons)}"
+
+
+def _rerun(run_dir: Path, step: int):
+    """Re-run the scenario of ``run_dir`` (its ``metrics.json``) up to ``step``; the recording of that step."""
+    from hqp_tpm.app import build, runner, scenario
+
+    meta = json.loads((run_dir / "metrics.json").read_text())
+    sc = scenario.load(meta["scenario"])
+    robot, ctrl, tasks, policy = build.build(sc, solver=meta.get("solver"))
+    for _ in range(step):
+        ctrl.step()
+    ex = Explainer(ctrl)
+    rec, _ = runner.run(ctrl, 1, probes=[ex.probe])
+    arrays = rec.arrays()
+    ex.finish(arrays)
+    return arrays, ctrl.solver
+
+
+def explain_run(run_dir, t: float) -> str:
+    """The text of ``hqp-tpm explain RUN_DIR --t T`` (module doc)."""
+    run_dir = Path(run_dir)
+    arrays = dict(np.load(run_dir / "trajectory.npz"))
+    meta = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").exists() else {}
+    i = int(np.argmin(np.abs(arrays["t"] - t)))
+    if "explain_fraction" in arrays:
+        return format_step(arrays, i, solver=meta.get("solver", ""))
+    one, solver = _rerun(run_dir, i)
+    for key in ("t", "scale", "stack"):  # keep the recorded step's own values where they exist
+        if key in arrays:
+            one[key] = arrays[key][i: i + 1]
+    return (format_step(one, 0, solver=solver) + "\n(the run did not store the account, "
+            "`hqp-tpm run ... --explain` does: re-ran the scenario to this step)")
