@@ -1,104 +1,216 @@
-"""Matplotlib figures of a run, in the style of the papers' figures (PNG files)."""
+"""Matplotlib figures of a run, in the style of the papers' figures (PNG files).
+
+Figures are drawn on explicit :class:`matplotlib.figure.Figure` objects with the Agg canvas:
+importing this module never touches pyplot or the user's backend, so a notebook that writes
+figure files keeps showing its own inline plots.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
-import matplotlib
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+from matplotlib.lines import Line2D
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+#: Colours and line styles of threshold lines, in the order the thresholds are given (distinct pairs).
+THRESHOLD_STYLES = [("tab:red", "--"), ("tab:green", ":"), ("tab:orange", "-."), ("tab:purple", (0, (5, 1, 1, 1)))]
+
+#: Labels and units of the recorded distances.
+DISTANCE_LABELS = {"d_ee": "EE distance D_ee [m]", "d_minimal": "control-point distance D_minimal [m]",
+                   "d_obstacle": "robot-obstacle distance [m]", "d_self": "self distance [m]"}
 
 
-def _save(fig, path: Path) -> None:
+def _figure(width: float, height: float) -> Figure:
+    fig = Figure(figsize=(width, height))
+    FigureCanvasAgg(fig)  # the figure draws into memory; no pyplot, no global backend change
+    return fig
+
+
+def _save(fig: Figure, path: Path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
+# ------------------------------------------------------------------------------------------ units of task errors
+def error_groups(tasks: dict) -> list[tuple[str, str, slice | None, str]]:
+    """How each task's recorded error ``error_<name>`` is plotted: ``(task name, quantity label, rows, unit)``.
+
+    Tasks are grouped by physical unit (one axis each): positions in m, orientations in rad, forces in N,
+    joint angles in rad, pointing in degrees, indices without unit. ``rows`` selects part of the error
+    (a pose is split into its position and orientation rows); None means the whole vector.
+    """
+    out = []
+    for name, task in tasks.items():
+        kind = type(task).__name__
+        if kind == "FramePose":
+            out += [(name, "position", slice(0, 3), "m"), (name, "orientation", slice(3, 6), "rad")]
+        elif kind in ("FramePosition", "CenterOfMass"):
+            out.append((name, "position", None, "m"))
+        elif kind == "FrameOrientation":
+            out.append((name, "orientation", None, "rad"))
+        elif kind == "Posture":
+            out.append((name, "joint angles", None, "rad"))
+        elif kind == "Force":
+            out.append((name, "force", None, "N"))
+        elif kind == "Pointing":
+            out.append((name, "pointing angle", None, "deg"))
+        else:  # quaternion vector part, manipulability and joint-limit indices, avoidance: no unit
+            out.append((name, kind, None, "1"))
+    return out
+
+
+_UNIT_TITLES = {"m": "position error [m]", "rad": "angle error [rad]", "N": "force error [N]",
+                "deg": "pointing: angle outside the cone [deg]", "1": "error (dimensionless)"}
+
+
+def _pointing_angle_deg(e: np.ndarray, alpha_d: float) -> np.ndarray:
+    """Angle between the axis and ``z_d`` (deg) from the recorded ``e = cos(alpha_d) - p_rp``."""
+    return np.rad2deg(np.arccos(np.clip(np.cos(alpha_d) - np.asarray(e, dtype=float), -1.0, 1.0)))
+
+
+def _error_norm(arrays: dict, task, name: str, rows, unit: str) -> np.ndarray | None:
+    e = arrays.get(f"error_{name}")
+    if e is None:
+        return None
+    e = np.asarray(e, dtype=float)
+    if unit == "deg":  # pointing: how far the axis is outside its cone (0 inside)
+        alpha = float(getattr(task, "alpha_d", 0.0))
+        return np.maximum(_pointing_angle_deg(e, alpha) - np.rad2deg(alpha), 0.0)
+    if e.ndim == 1:
+        return np.abs(e)
+    return np.linalg.norm(e[:, rows] if rows is not None else e, axis=1)
+
+
+# ------------------------------------------------------------------------------------------ figures
 def joint_velocities(path: Path, arrays: dict, limits=None, title: str = "") -> None:
-    """Joint velocities over time (Fig. 4 of papers/000; with limits, Fig. 3 of papers/002)."""
+    """Joint velocities over time (Fig. 4 of papers/000; with limits, Fig. 3 of papers/002).
+
+    Without ``limits``: one axis, every joint that moves. With ``limits`` (one per velocity column,
+    ``inf`` for none): one small axis per limited joint, its velocity in blue and ``±limit`` in red;
+    unlimited columns (a floating base) are left out and counted in the title.
+    """
     t, dq, names = arrays["t"], arrays["dq"], arrays["joint_names"]
-    cols = [i for i in range(dq.shape[1]) if np.ptp(dq[:, i]) > 0 or limits is not None]
     if limits is not None:
-        n = len(cols)
-        ncol = 4
-        fig, axes = plt.subplots(int(np.ceil(n / ncol)), ncol, figsize=(12, 1.8 * np.ceil(n / ncol)), sharex=True)
-        for ax, i in zip(np.ravel(axes), cols, strict=False):
-            ax.plot(t, dq[:, i], "b", lw=0.8)
-            ax.axhline(limits[i], color="r", lw=0.8)
-            ax.axhline(-limits[i], color="r", lw=0.8)
-            ax.set_title(str(names[i]), fontsize=8)
-        for ax in np.ravel(axes)[n:]:
+        limits = np.asarray(limits, dtype=float)
+        cols = [i for i in range(dq.shape[1]) if np.isfinite(limits[i])]
+        skipped = dq.shape[1] - len(cols)
+        n, ncol = len(cols), 4 if len(cols) > 9 else 3
+        nrow = int(np.ceil(n / ncol))
+        fig = _figure(12, 1.55 * nrow + 1.1)
+        axes = np.atleast_1d(fig.subplots(nrow, ncol, sharex=True, squeeze=False)).ravel()
+        for k, (ax, i) in enumerate(zip(axes, cols, strict=False)):
+            ax.plot(t, dq[:, i], color="tab:blue", lw=0.8)
+            ax.axhline(limits[i], color="tab:red", lw=0.8)
+            ax.axhline(-limits[i], color="tab:red", lw=0.8)
+            ax.set_title(str(names[i]), fontsize=8, pad=2)
+            ax.tick_params(labelsize=7)
+            if k % ncol == 0:
+                ax.set_ylabel(r"$\dot q$ [rad/s]", fontsize=8)
+            if k >= n - ncol:
+                ax.set_xlabel("t [s]", fontsize=8)
+                ax.tick_params(labelbottom=True)
+        for ax in axes[n:]:
             ax.axis("off")
+        handles = [Line2D([], [], color="tab:blue", lw=1.2, label=r"joint velocity $\dot q_i$"),
+                   Line2D([], [], color="tab:red", lw=1.2, label=r"velocity limit $\pm\dot q_{\max,i}$")]
+        fig.legend(handles=handles, loc="upper right", fontsize=8, ncol=2, frameon=False)
+        note = f" ({n} limited joints; {skipped} floating-base columns not shown)" if skipped else ""
+        fig.suptitle(title + note, x=0.02, ha="left", fontsize=10)
     else:
-        fig, ax = plt.subplots(figsize=(8, 3.5))
+        cols = [i for i in range(dq.shape[1]) if np.ptp(dq[:, i]) > 0]
+        fig = _figure(8, 3.6)
+        ax = fig.subplots()
         for i in cols:
             ax.plot(t, dq[:, i], lw=0.8, label=str(names[i]))
         ax.set_xlabel("t [s]")
-        ax.set_ylabel("joint velocity [rad/s]")
-        ax.legend(fontsize=7, ncol=4)
-    fig.suptitle(title)
+        ax.set_ylabel(r"joint velocity $\dot q$ [rad/s]")
+        if cols:
+            ax.legend(fontsize=7, ncol=min(4, len(cols)), loc="best")
+        fig.suptitle(title)
     _save(fig, path)
 
 
 def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> None:
-    """Norm of each task's error over time, with the scale factor when there is one (Fig. 2 of papers/002)."""
+    """Norm of each task's error over time, one log axis per unit (m, rad, N, deg, dimensionless), and the
+    SNS scale factor when there is one (Fig. 2 of papers/002)."""
     t = arrays["t"]
-    rows = 2 if "scale" in arrays else 1
-    fig, axes = plt.subplots(rows, 1, figsize=(8, 2.5 + 1.5 * rows), sharex=True, squeeze=False)
-    ax = axes[0, 0]
-    for name in tasks:
-        e = arrays.get(f"error_{name}")
-        if e is None:
+    series: dict[str, list] = {}
+    for name, quantity, rows, unit in error_groups(tasks):
+        y = _error_norm(arrays, tasks[name], name, rows, unit)
+        if y is None:
             continue
-        ax.plot(t, np.abs(e) if e.ndim == 1 else np.linalg.norm(e, axis=1), lw=0.9, label=name)
-    ax.set_yscale("log")
-    ax.set_ylabel("task error")
-    ax.legend(fontsize=8)
+        label = name if quantity in ("position", "orientation", "joint angles", "force", "pointing angle") \
+            and rows is None else f"{name} ({quantity})"
+        series.setdefault(unit, []).append((label, y))
+    panels = list(series) + (["scale"] if "scale" in arrays else [])
+    fig = _figure(8, 0.9 + 2.0 * max(1, len(panels)))
+    axes = np.atleast_1d(fig.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)).ravel()
+    for ax, unit in zip(axes, series, strict=False):
+        for k, (label, y) in enumerate(series[unit]):  # alternate styles: coinciding curves stay visible
+            ax.plot(t, np.where(y > 0, y, np.nan), lw=1.0, ls=("-", "--", "-.", ":")[k % 4], label=label)
+        if np.isfinite(np.concatenate([np.where(y > 0, y, np.nan) for _, y in series[unit]])).any():
+            ax.set_yscale("log")
+        ax.set_ylabel(_UNIT_TITLES.get(unit, unit), fontsize=8)
+        ax.legend(fontsize=7, loc="best")
+        ax.grid(True, which="major", lw=0.3, alpha=0.6)
     if "scale" in arrays:
-        axes[1, 0].plot(t, arrays["scale"], "k", lw=0.9)
-        axes[1, 0].set_ylabel("scale factor s")
-    axes[-1, 0].set_xlabel("t [s]")
+        ax = axes[len(series)]
+        ax.plot(t, arrays["scale"], "k", lw=0.9)
+        ax.set_ylabel("SNS scale factor s", fontsize=8)
+        ax.set_ylim(-0.05, 1.05)
+    axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     _save(fig, path)
 
 
-def pointing_error(path: Path, arrays: dict, title: str = "") -> None:
-    """Pointing error ``cos a_d - p_rp`` with the steps where the task is in the stack in red (Fig. 7)."""
-    t, e, stack = arrays["t"], arrays["pointing_error"], arrays["stack"]
+def pointing_error(path: Path, arrays: dict, alpha_d: float | None = None, title: str = "") -> None:
+    """Angle between the pointing axis and ``z_d`` in degrees, with the cone half-angle ``alpha_d`` and the steps
+    where the task is in the stack in red (Fig. 7 of papers/000, in degrees rather than cosines).
+
+    Without ``alpha_d`` the recorded ``cos(alpha_d) - p_rp`` is plotted as it is (dimensionless)."""
+    t, e, stack = arrays["t"], np.asarray(arrays["pointing_error"], dtype=float), arrays["stack"]
     active = np.array(["pointing" in s for s in stack])
-    fig, ax = plt.subplots(figsize=(8, 3))
-    ax.plot(t, e, "b", lw=0.8, label="cos a_d - p_rp")
-    ax.plot(t[active], e[active], "r.", ms=1.5, label="in the stack")
-    ax.axhline(0, color="k", lw=0.5)
+    fig = _figure(8, 3.2)
+    ax = fig.subplots()
+    if alpha_d is None:
+        y, label, ylabel, ref = e, "cos α_d − p_rp", "pointing error cos α_d − p_rp [-]", 0.0
+    else:
+        y, label, ref = _pointing_angle_deg(e, alpha_d), "angle between EE z axis and z_d", np.rad2deg(alpha_d)
+        ylabel = "angle to z_d [deg]"
+    ax.plot(t, y, color="tab:blue", lw=0.8, label=label)
+    ax.plot(t[active], y[active], ".", color="tab:red", ms=1.5, label="pointing task in the stack")
+    ax.axhline(ref, color="k", ls="--", lw=0.7, label=f"cone half-angle α_d = {ref:g}°" if alpha_d is not None
+               else "cone boundary")
     ax.set_xlabel("t [s]")
-    ax.legend(fontsize=8)
+    ax.set_ylabel(ylabel)
+    ax.legend(fontsize=8, loc="best", markerscale=6)
     fig.suptitle(title)
     _save(fig, path)
 
 
 def distances(path: Path, arrays: dict, thresholds: dict, title: str = "") -> None:
-    """Closest distances over time with their thresholds (Figs. 5-6 of papers/000)."""
+    """Closest distances over time with their thresholds (Figs. 5-6 of papers/000); each threshold of an axis
+    has its own colour and line style."""
     keys = [k for k in ("d_ee", "d_minimal", "d_obstacle", "d_self") if k in arrays]
     extra = "active_point" in arrays
-    fig, axes = plt.subplots(len(keys) + extra, 1, figsize=(8, 2.2 * (len(keys) + extra)), sharex=True,
-                             squeeze=False)
+    n = len(keys) + extra
+    fig = _figure(8, 0.9 + 2.0 * n)
+    axes = np.atleast_1d(fig.subplots(n, 1, sharex=True, squeeze=False)).ravel()
     t = arrays["t"]
-    for ax, k in zip(axes[:, 0], keys, strict=False):
-        ax.plot(t, arrays[k], lw=0.9)
-        for name, val in thresholds.get(k, {}).items():
-            ax.axhline(val, ls="--", lw=0.7, color="r" if "1" in name or "safe" in name else "g", label=name)
-        ax.set_ylabel(k + " [m]")
-        if thresholds.get(k):
-            ax.legend(fontsize=7)
+    for ax, k in zip(axes, keys, strict=False):
+        ax.plot(t, arrays[k], color="tab:blue", lw=0.9, label=k)
+        for (name, val), (color, ls) in zip(thresholds.get(k, {}).items(), THRESHOLD_STYLES, strict=False):
+            ax.axhline(val, ls=ls, lw=1.0, color=color, label=f"{name} = {val:g} m")
+        ax.set_ylabel(DISTANCE_LABELS.get(k, k + " [m]"), fontsize=8)
+        ax.legend(fontsize=7, loc="best")
     if extra:
-        ax = axes[-1, 0]
+        ax = axes[-1]
         ax.plot(t, arrays["active_point"] + 1, "k.", ms=1)
-        ax.set_ylabel("active point")
+        ax.set_ylabel("critical control point #\n(0: none)", fontsize=8)
         ax.set_ylim(-0.5, np.nanmax(arrays["active_point"]) + 1.5)
-    axes[-1, 0].set_xlabel("t [s]")
+    axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     _save(fig, path)
 
@@ -106,54 +218,66 @@ def distances(path: Path, arrays: dict, thresholds: dict, title: str = "") -> No
 def comanipulation(path: Path, runs: dict, sigma_m_bar: float = 1.5, sigma_l_bar: float = 2.0,
                    title: str = "") -> None:
     """Co-manipulation indices over time (Figs. 5-7 of papers/003): sigma_l (11), sigma_m (14) with its
-    threshold, max |q_i - q_i^*| with its threshold, and the active stack (1 force, 2 manipulability,
-    3 joint limit, 4 pose). ``runs``: label -> arrays (one run, or the hierarchy and the baseline)."""
+    threshold, max |q_i - q_i*| with its threshold, and the active stack. ``runs``: label -> arrays (one
+    run, or the hierarchy and the baseline)."""
     stacks = [a for a in runs.values() if "stack_id" in a]
-    fig, axes = plt.subplots(3 + bool(stacks), 1, figsize=(8, 2.0 * (3 + bool(stacks))), sharex=True)
-    colors = iter(["b", "r", "g", "k"])
+    n = 3 + bool(stacks)
+    fig = _figure(8, 0.9 + 1.9 * n)
+    axes = fig.subplots(n, 1, sharex=True)
+    colors = iter(["tab:blue", "tab:red", "tab:green", "k"])
     for label, a in runs.items():
         c = next(colors)
-        axes[0].plot(a["t"], a["sigma_l"], c, lw=0.9, label=label)
-        axes[1].plot(a["t"], a["sigma_m"], c, lw=0.9, label=label)
-        axes[2].plot(a["t"], a["joint_deviation_max"], c, lw=0.9, label=label)
-    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.7, label="threshold")
-    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.7, label="threshold")
-    for ax, name in zip(axes, ("sigma_l", "sigma_m", "max |q_i - q_i*| [rad]"), strict=False):
-        ax.set_ylabel(name)
-        ax.legend(fontsize=7)
+        axes[0].plot(a["t"], a["sigma_l"], color=c, lw=0.9, label=label)
+        axes[1].plot(a["t"], a["sigma_m"], color=c, lw=0.9, label=label)
+        axes[2].plot(a["t"], a["joint_deviation_max"], color=c, lw=0.9, label=label)
+    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.8, label=f"σ̄_m = {sigma_m_bar:g}")
+    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.8, label=f"σ̄_l = {sigma_l_bar:g} rad")
+    for ax, name in zip(axes, ("joint-limit index σ_l [-]", "manipulability σ_m [-]", "max |q_i − q_i*| [rad]"),
+                        strict=False):
+        ax.set_ylabel(name, fontsize=8)
+        ax.legend(fontsize=7, loc="best")
     if stacks:
         a = stacks[0]
         axes[3].plot(a["t"], a["stack_id"], "b.", ms=1)
         axes[3].set_yticks([1, 2, 3, 4], ["force", "manip.", "joint lim.", "pose"])
         axes[3].set_ylim(0.5, 4.5)
+        axes[3].set_ylabel("active stack", fontsize=8)
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     _save(fig, path)
 
 
+# ------------------------------------------------------------------------------------------ a run's figures
+def _first_pointing(tasks: dict):
+    return next((task for task in tasks.values() if type(task).__name__ == "Pointing"), None)
+
+
 def write_all(out: Path, arrays: dict, sc, tasks: dict, policy) -> list[Path]:
-    """The figures that apply to this run; returns their paths."""
+    """The figures that apply to this run, chosen from what it recorded; returns their paths."""
+    out = Path(out)
+    name = sc.name
     written = []
+    limits = getattr(policy, "velocity_limits", None)
+    if limits is not None and not np.isfinite(np.asarray(limits, dtype=float)).any():
+        limits = None
     p = out / "joint_velocities.png"
-    limits = None
-    if "saturated" in arrays or sc.solver in ("sns_tpm", "sns") or "romeo" in sc.name:
-        limits = getattr(policy, "velocity_limits", None)
-    joint_velocities(p, arrays, limits, f"{sc.name}: joint velocities")
+    joint_velocities(p, arrays, limits, f"{name}: joint velocities")
     written.append(p)
     p = out / "task_errors.png"
-    task_errors(p, arrays, tasks, f"{sc.name}: task errors")
+    task_errors(p, arrays, tasks, f"{name}: task errors")
     written.append(p)
     if "pointing_error" in arrays:
         p = out / "pointing_error.png"
-        pointing_error(p, arrays, f"{sc.name}: pointing error")
+        task = _first_pointing(tasks)
+        pointing_error(p, arrays, None if task is None else task.alpha_d, f"{name}: pointing")
         written.append(p)
     if any(k in arrays for k in ("d_ee", "d_minimal", "d_obstacle", "d_self")):
         p = out / "distances.png"
-        distances(p, arrays, getattr(policy, "thresholds", {}), f"{sc.name}: distances")
+        distances(p, arrays, getattr(policy, "thresholds", {}), f"{name}: distances")
         written.append(p)
     if "sigma_m" in arrays:
         p = out / "comanipulation.png"
-        comanipulation(p, {sc.name: arrays}, getattr(policy, "sigma_m_bar", 1.5), getattr(policy, "sigma_l_bar", 2.0),
-                       f"{sc.name}: co-manipulation indices")
+        comanipulation(p, {name: arrays}, getattr(policy, "sigma_m_bar", 1.5), getattr(policy, "sigma_l_bar", 2.0),
+                       f"{name}: co-manipulation indices")
         written.append(p)
     return written

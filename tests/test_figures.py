@@ -1,0 +1,79 @@
+"""Figures: written without pyplot (the user's backend is never switched), one axis per unit, labelled."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+
+def test_importing_and_writing_figures_leaves_the_backend_alone(tmp_path):
+    code = f"""
+import sys, matplotlib
+matplotlib.use("svg")  # a user's choice
+import numpy as np
+from hqp_tpm.app import figures
+arrays = {{"t": np.linspace(0, 1, 50), "dq": np.random.default_rng(0).normal(size=(50, 3)),
+          "joint_names": np.array(["a", "b", "c"])}}
+figures.joint_velocities(r"{tmp_path / 'jv.png'}", arrays, [1.0, np.inf, 2.0], "test")
+assert matplotlib.get_backend().lower() == "svg", matplotlib.get_backend()
+assert "matplotlib.pyplot" not in sys.modules
+"""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "jv.png").stat().st_size > 5000
+
+
+@pytest.fixture(scope="module")
+def romeo_short(tmp_path_factory):
+    from hqp_tpm.app.cli import run_scenario
+
+    out = tmp_path_factory.mktemp("romeo_sns_tpm")
+    summary = run_scenario("romeo_sns_tpm", out, steps=150, progress=False, replay=False)
+    return out, summary
+
+
+def test_task_errors_one_axis_per_unit(romeo_short):
+    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app.figures import error_groups
+
+    _, _, tasks, _ = build.build(scenario.load("romeo_sns_tpm"))
+    groups = error_groups(tasks)
+    units = {name: {u for n, _, _, u in groups if n == name} for name in tasks}
+    assert units["right_sole"] == {"m", "rad"}  # a pose: position and orientation on their own axes
+    assert units["com"] == {"m"} and units["left_hand"] == {"m"}
+    out, summary = romeo_short
+    assert {"joint_velocities.png", "task_errors.png"} <= {p.name for p in out.glob("*.png")}
+    assert [f.split("/")[-1] for f in summary["files"]] == ["trajectory.npz", "metrics.json", "joint_velocities.png",
+                                                             "task_errors.png"]
+
+
+def test_metrics_once_each_with_units(romeo_short):
+    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app.results import METRICS, schema_key
+
+    out, _ = romeo_short
+    m = json.loads((out / "metrics.json").read_text())
+    _, _, tasks, _ = build.build(scenario.load("romeo_sns_tpm"))
+    for key in m:
+        assert schema_key(key, tasks) is not None, f"{key} is not in the metrics schema"
+    assert "error_right_sole_position_max" in m and "error_right_sole_max" not in m
+    numeric = [k for k, v in m.items() if isinstance(v, (int, float)) and not isinstance(v, bool)]
+    assert set(numeric) <= set(m["units"]), set(numeric) - set(m["units"])
+    assert m["units"]["error_right_sole_orientation_max"] == "rad" and m["units"]["mean_step_us"] == "µs"
+    # no two metrics are the same number under two names (ee_error_* vs error_ee_* was)
+    assert len(METRICS) == len(set(METRICS))
+
+
+def test_lwr_metrics_have_no_duplicates(tmp_path):
+    from hqp_tpm.app.cli import run_scenario
+
+    m = run_scenario("lwr_relaxed", tmp_path, steps=300, progress=False, figures=True, replay=False)
+    assert "ee_error_max" in m and "error_ee_max" not in m and "pointing_violation_max" not in m
+    assert "error_pointing_max" not in m and "pointing_violation_max_deg" in m
+    values = [(k, v) for k, v in m.items() if isinstance(v, float) and not k.endswith("_settled")]
+    dup = [(a, b) for i, (a, x) in enumerate(values) for b, y in values[i + 1:] if x == y and x not in (0.0, 1.0)]
+    assert not dup, dup
+    assert (tmp_path / "pointing_error.png").is_file() and (tmp_path / "distances.png").is_file()
+    assert np.isfinite(m["d_minimal_min"])
