@@ -19,6 +19,10 @@ class Recording:
     joint_names: list[str]
     columns: dict[str, list] = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        n = len(self.columns.get("t", ()))
+        return f"Recording({n} steps, {len(self.joint_names)} joints, columns: {', '.join(self.columns)})"
+
     def add(self, **values) -> None:
         for k, v in values.items():
             self.columns.setdefault(k, []).append(v)

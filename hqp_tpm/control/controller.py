@@ -41,6 +41,12 @@ class StepResult:
     command: np.ndarray
     info: dict = field(default_factory=dict)
 
+    def __repr__(self) -> str:
+        cmd = np.asarray(self.command, dtype=float)
+        info = f", info: {', '.join(self.info)}" if self.info else ""
+        return (f"StepResult(t={self.t:.4f}, stack={self.stack.label()!r}, |command|={np.linalg.norm(cmd):.4g} "
+                f"({cmd.size} values){info})")
+
 
 class Controller:
     """Holds the robot state, a policy (or fixed stack), a solver name and the integration rule."""
@@ -70,6 +76,11 @@ class Controller:
         self.t = float(t0)
         self.steps = 0
         self._started = False
+
+    def __repr__(self) -> str:
+        level = "velocity" if self.order == 1 else "acceleration"
+        return (f"Controller({self.robot.name!r}, {level} level, dt={self.dt:g}, solver={self.solver!r}, "
+                f"t={self.t:.4f}, steps={self.steps})")
 
     # ------------------------------------------------------------------------------------------
     @property

@@ -34,6 +34,10 @@ class Stack:
     def tasks(self) -> list[Task]:
         return [t for lv in self.levels for t in lv]
 
+    def __repr__(self) -> str:
+        extras = f", extras for {', '.join(self.extras)}" if self.extras else ""
+        return f"Stack({self.label()!r}, {len(self.levels)} levels{extras})"
+
     def label(self) -> str:
         """``"a > b+c"``: the stack as text (recorded per step)."""
         return " > ".join("+".join(t.name for t in lv) for lv in self.levels)
@@ -70,3 +74,6 @@ class FixedStack:
 
     def __call__(self, state: State, t: float) -> Stack:
         return self.stack
+
+    def __repr__(self) -> str:
+        return f"FixedStack({self.stack.label()!r})"

@@ -125,6 +125,13 @@ class Robot:
         vis = next(it) if self.visual_model is not None else None
         return Robot(red, col, vis, name=name or f"{self.name}_reduced", source=f"{self.source} reduced")
 
+    def __repr__(self) -> str:
+        geoms = ", ".join(f"{len(g.geometryObjects)} {what} geometries" for what, g in
+                          (("collision", self.collision_model), ("visual", self.visual_model)) if g is not None)
+        base = ", free-flyer base" if self.has_free_flyer else ""
+        return (f"Robot({self.name!r}, nq={self.nq}, nv={self.nv}{base}, {len(self.model.frames)} frames"
+                f"{', ' + geoms if geoms else ''})")
+
     # -- names and sizes ---------------------------------------------------------------------
     @property
     def nq(self) -> int:

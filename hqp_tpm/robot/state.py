@@ -31,6 +31,10 @@ class State:
         self._cache: dict = {}
         self.updates = 0
 
+    def __repr__(self) -> str:
+        return (f"State({self.robot.name!r}, t={self.t:.4f}, q={_short(self.q)}, v={_short(self.v)}, "
+                f"updates={self.updates})")
+
     def check(self, q, v) -> tuple[np.ndarray, np.ndarray]:
         """Validated copies of ``q`` and ``v`` (shape and finiteness), without touching the state."""
         q = np.array(q, dtype=float).reshape(-1)
@@ -120,3 +124,11 @@ class State:
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
         return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
+
+
+def _short(x: np.ndarray, limit: int = 8) -> str:
+    """A vector as short text: its values (3 digits) when it is short, else its size and norm."""
+    x = np.asarray(x, dtype=float)
+    if x.size <= limit:
+        return np.array2string(x, precision=3, suppress_small=True, separator=", ")
+    return f"<{x.size} values, norm {np.linalg.norm(x):.3g}>"

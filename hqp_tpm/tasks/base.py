@@ -58,6 +58,10 @@ class Task(ABC):
         """``e = x_d - x`` (tasks on manifolds override it)."""
         return x_d - self.value(state)
 
+    def tracking_error(self, state: State, t: float) -> np.ndarray:
+        """``e = x_d(t) - x`` at ``state``: the error against the task's own reference at time ``t``."""
+        return self.error(state, self.reference(t)[0])
+
     def rate(self, state: State) -> np.ndarray:
         """Task velocity ``J qd``."""
         return self.jacobian(state).dot(state.v)

@@ -4,14 +4,25 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task, row_selector, select_axes
 
 
 class CenterOfMass(Task):
-    """``x = com[axes]``, ``J = J_com[axes]``, ``Jdot qd`` = CoM acceleration at zero q-ddot."""
+    """``x = com[axes]``, ``J = J_com[axes]``, ``Jdot qd`` = CoM acceleration at zero q-ddot.
 
-    def __init__(self, target=None, gains: Gains | None = None, *, axes: str = "xyz", name: str = "com"):
+    ``CenterOfMass(robot, target, gains, axes="xy")`` like every other task (the robot is not needed: the
+    CoM comes from the state). The older form without the robot, ``CenterOfMass(target, gains)``, is
+    still accepted.
+    """
+
+    def __init__(self, robot: Robot | None = None, target=None, gains: Gains | None = None, *, axes: str = "xyz",
+                 name: str = "com"):
+        if robot is not None and not isinstance(robot, Robot):  # CenterOfMass(target[, gains]): the older form
+            robot, target, gains = None, robot, target if gains is None else gains
+        elif robot is None and isinstance(target, Gains) and gains is None:  # CenterOfMass(None, gains)
+            target, gains = None, target
         self.rows = select_axes(axes)
         self._sel = row_selector(self.rows)  # a view of the cached CoM Jacobian for "xy", "xyz"
         self.dim = len(self.rows)
