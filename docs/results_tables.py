@@ -48,7 +48,7 @@ def romeo_table(root: Path) -> str:
         excess = np.abs(d["dq"]) - v
         bad = int((excess > 1e-9).any(axis=1).sum())
         errs = " / ".join(f"{1e3 * m[f'error_{k}_max']:.1f}" for k in ("com", "left_foot", "left_hand", "right_hand"))
-        rows.append(f"| `{name}` | {errs} | {1e3 * m['error_right_sole_max']:.2f} | "
+        rows.append(f"| `{name}` | {errs} | {1e3 * m['error_right_sole_position_max']:.2f} | "
                     f"{m.get('scale_min', 1.0):.3f} | {bad} of {int(m['steps'])} | {max(0.0, excess.max()):.3g} | "
                     f"{m['mean_step_us']:.0f} |")
     return "\n".join(rows)

@@ -13,7 +13,7 @@ from hqp_tpm.errors import HqpTpmError
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
                  progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
                  steps: int | None = None, explain: bool = False) -> dict:
-    """Load, build, run and write one scenario; returns its metrics."""
+    """Load, build, run and write one scenario; returns its metrics (``summary["files"]``: the files written)."""
     from threadpoolctl import threadpool_limits
 
     from hqp_tpm.app import build, results, runner, scenario
@@ -53,23 +53,47 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         from hqp_tpm.app.explain import summary as explain_summary
 
         summary["explain"] = explain_summary(arrays)
+    results.finish_units(summary, tasks)
     results.write(out, arrays, summary)
+    written = [out / "trajectory.npz", out / "metrics.json"]
     if figures and explainer is not None:
         from hqp_tpm.app.explain import figure as explain_figure
 
         explain_figure(out / "explain.png", arrays, title=f"{sc.name}: fraction of each task met")
+        written.append(out / "explain.png")
     if figures:
         from hqp_tpm.app import figures as figs
 
-        figs.write_all(out, arrays, sc, tasks, policy)
+        written += figs.write_all(out, arrays, sc, tasks, policy)
     if replay:
         try:
             from hqp_tpm.app.viewer import write_replay
         except ImportError:
             write_replay = None
         if write_replay is not None:
-            write_replay(out / "replay.html", robot, arrays, policy)
+            written.append(write_replay(out / "replay.html", robot, arrays, policy))
+    summary["files"] = [str(p) for p in written]
     return summary
+
+
+#: What ``--crosscheck`` does (``--help`` and the README say the same).
+CROSSCHECK_HELP = (
+    "at every step, also solve the step's levels (the active stack, inequality rows as the run's solver used "
+    "them) with a second solver: the cascaded QP for tpm/nullspace/sns_tpm/sns runs, tpm for qp runs, with the "
+    "same joint box, damping and null-space term. The run itself follows its own solver; the largest difference "
+    "of the two commands is recorded per step (crosscheck_diff in trajectory.npz, crosscheck_max_diff in "
+    "metrics.json; rad/s at velocity level, rad/s^2 at acceleration level)")
+
+
+def wrote_line(files) -> str:
+    """``wrote DIR/: a, b, c`` naming every file a run wrote."""
+    paths = [Path(f) for f in files]
+    if not paths:
+        return "wrote nothing"
+    folder = paths[0].parent
+    if all(p.parent == folder for p in paths):
+        return f"wrote {folder}/: {', '.join(p.name for p in paths)}"
+    return "wrote " + ", ".join(str(p) for p in paths)
 
 
 def main(argv=None) -> int:
@@ -83,7 +107,7 @@ def main(argv=None) -> int:
     p_run.add_argument("--out", type=Path, default=None, help="output folder (default runs/<scenario>)")
     p_run.add_argument("--solver", default=None, help="override the scenario's solver: tpm, nullspace, sns_tpm, "
                        "sns, qp, qp:<backend>")
-    p_run.add_argument("--crosscheck", action="store_true", help="also solve every step with the other solver")
+    p_run.add_argument("--crosscheck", action="store_true", help=CROSSCHECK_HELP)
     p_run.add_argument("--viz", action="store_true", help="show the run live in meshcat")
     p_run.add_argument("--no-figures", action="store_true")
     p_run.add_argument("--no-replay", action="store_true")
@@ -121,7 +145,7 @@ def main(argv=None) -> int:
     keys = [k for k in summary if k.endswith(("_max", "_rms", "_min")) or k in ("max_dq_jump", "wall_time_s",
                                                                              "crosscheck_max_diff")]
     print(json.dumps({k: summary[k] for k in keys}, indent=2))
-    print(f"wrote {out}/trajectory.npz, {out}/metrics.json")
+    print(wrote_line(summary["files"]))
     return 0
 
 

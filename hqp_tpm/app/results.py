@@ -41,32 +41,131 @@ def standard_aliases(arrays: dict, tasks: dict[str, Task]) -> None:
 #: Task errors are also summarized from this time on, after the start-up transient (s).
 SETTLE_S = 2.0
 
+#: The schema of ``metrics.json``: every key a run may write, once, with its unit and meaning. ``{task}`` stands
+#: for a task name, ``{part}`` for ``position``/``orientation`` (a pose task's two halves); the unit of
+#: ``error_{task}_*`` is the task's own (:func:`task_unit`). ``docs/metrics.md`` is generated from this table.
+METRICS: dict[str, tuple[str, str]] = {
+    "scenario": ("-", "scenario name"),
+    "solver": ("-", "solver of the run (``tpm``, ``sns_tpm``, ``qp:daqp``, ...)"),
+    "level": ("-", "``velocity`` or ``acceleration``"),
+    "crosscheck_solver": ("-", "the second solver of ``--crosscheck`` (null without it)"),
+    "steps": ("1", "control steps run"),
+    "wall_time_s": ("s", "wall-clock time of the whole loop (recording included)"),
+    "mean_step_us": ("µs", "mean time of one control step (state update, policy, solve, integration)"),
+    "max_dq_jump": ("rad/s", "largest change of any joint velocity between two consecutive steps"),
+    "max_dq_jump_step": ("1", "step at which ``max_dq_jump`` happens"),
+    "max_abs_dq": ("rad/s", "largest joint velocity (absolute value) of the run"),
+    "error_{task}_max": ("task unit", "largest norm of the task error ``x_d - x`` over the run"),
+    "error_{task}_rms": ("task unit", "RMS over the run of the task error norm"),
+    "error_{task}_{part}_max": ("m or rad", "a pose task: largest norm of its position (m) or orientation (rad) "
+                                "error"),
+    "error_{task}_{part}_rms": ("m or rad", "a pose task: RMS of its position (m) or orientation (rad) error norm"),
+    "ee_error_max": ("m", "the EE task (named ``ee``): largest position error"),
+    "ee_error_rms": ("m", "the EE task: RMS position error"),
+    "ee_error_max_settled": ("m", "the EE task: largest position error from t = 2 s on"),
+    "ee_error_rms_settled": ("m", "the EE task: RMS position error from t = 2 s on"),
+    "pointing_violation_max_deg": ("deg", "largest angle by which the pointing axis left its cone"),
+    "pointing_violation_max_deg_settled": ("deg", "the same from t = 2 s on"),
+    "d_minimal_min": ("m", "smallest control-point distance ``D_minimal`` (papers/000)"),
+    "d_ee_min": ("m", "smallest EE-obstacle distance ``D_ee`` (papers/000)"),
+    "d_obstacle_min": ("m", "smallest robot-obstacle distance"),
+    "d_self_min": ("m", "smallest distance between checked self-collision pairs"),
+    "crosscheck_max_diff": ("rad/s or rad/s²", "largest difference of the command between the run's solver and the "
+                            "crosscheck solver on the same levels (rad/s at velocity level, rad/s² at acceleration "
+                            "level)"),
+    "scale_min": ("1", "smallest SNS task scale factor s"),
+    "steps_scaled": ("1", "steps with s < 1"),
+    "time_in_stack_s": ("s", "time spent in each stack (stack label -> seconds)"),
+    "stack_changes": ("1", "number of steps at which the stack differs from the previous step's"),
+    "units": ("-", "the unit of every numeric metric of this file (metric -> unit)"),
+    "explain": ("s", "with ``--explain``: seconds each task was degraded, by cause, by blocking joint bound and by "
+                "blocking higher task; ``fraction_met_min``: smallest fraction of a task met (1)"),
+    # policy summaries: the co-manipulation hierarchy and admittance (papers/003)
+    "sigma_m_min": ("1", "smallest manipulability index sigma_m (14)"),
+    "sigma_m_mean": ("1", "mean manipulability index"),
+    "sigma_m_below_threshold_s": ("s", "time with sigma_m below its threshold"),
+    "sigma_l_max": ("1", "largest joint-limit index sigma_l (11)"),
+    "joint_deviation_max": ("rad", "largest |q_i - q_i*| (distance of a joint from the middle of its range)"),
+    "joint_limit_margin_min": ("rad", "smallest distance of a joint to its limit (negative: past it)"),
+    "operator_force_max": ("N", "largest operator force"),
+    "markers_reached": ("-", "indices of the markers the operator reached"),
+    "markers_reached_t": ("s", "times at which they were reached"),
+    "markers_skipped": ("-", "indices of the markers the operator gave up"),
+    "time_in_named_stack_s": ("s", "time in each stack of Fig. 3 of papers/003 (name -> seconds)"),
+    "admittance_lag_max": ("m", "largest distance between the admittance reference and the flange"),
+    # policy summaries: planar avoidance (papers/004)
+    "d_m": ("m", "the policy's minimal distance d_m"),
+    "d_i": ("m", "the policy's influence distance d_i"),
+    "scheme": ("-", "avoidance scheme (``exact``, ``approximate``, ...)"),
+    "secondary": ("-", "how the secondary task is handled"),
+    "time_below_d_m_s": ("s", "time with a link closer than d_m to an obstacle"),
+    "time_avoidance_primary_s": ("s", "time with the avoidance as the primary task"),
+    "time_avoidance_secondary_s": ("s", "time with the avoidance as a secondary task"),
+}
+
+#: Units of task errors by task type (a pose task is split into position and orientation).
+TASK_UNITS = {"FramePosition": "m", "CenterOfMass": "m", "FrameOrientation": "rad", "Posture": "rad", "Force": "N",
+              "Pointing": "1", "QuaternionOrientation": "1", "Manipulability": "1", "JointLimit": "1"}
+
+
+def task_unit(task: Task) -> str:
+    """The unit of a task's error (``"1"``: dimensionless; unknown task types: ``"task unit"``)."""
+    return TASK_UNITS.get(type(task).__name__, "task unit")
+
+
+def schema_key(key: str, tasks=()) -> str | None:
+    """The :data:`METRICS` entry ``key`` belongs to (None if none)."""
+    if key in METRICS:
+        return key
+    for name in sorted(tasks, key=len, reverse=True):
+        for part in ("position", "orientation"):
+            for stat in ("max", "rms"):
+                if key == f"error_{name}_{part}_{stat}":
+                    return f"error_{{task}}_{{part}}_{stat}"
+        for stat in ("max", "rms"):
+            if key == f"error_{name}_{stat}":
+                return f"error_{{task}}_{stat}"
+    return None
+
+
+def _norm(e: np.ndarray) -> np.ndarray:
+    return np.abs(e) if e.ndim == 1 else np.linalg.norm(e, axis=1)
+
 
 def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
-    """Summary numbers of a run (all plain floats, JSON-ready); ``*_settled`` ones from ``t >= SETTLE_S``."""
-    out: dict = {"steps": int(arrays["t"].size), **{k: float(v) for k, v in timing.items()}}
+    """Summary numbers of a run (plain floats, JSON-ready), each metric once (:data:`METRICS`); ``*_settled`` ones
+    from ``t >= SETTLE_S``; ``units`` gives the unit of every numeric entry."""
+    out: dict = {"steps": int(arrays["t"].size), **{k: float(v) for k, v in timing.items() if k != "steps"}}
+    units: dict = {}
     dq = arrays["dq"]
     if dq.shape[0] > 1:
         jumps = np.abs(np.diff(dq, axis=0)).max(axis=1)
         out["max_dq_jump"] = float(jumps.max())
         out["max_dq_jump_step"] = int(jumps.argmax() + 1)
     out["max_abs_dq"] = float(np.abs(dq).max()) if dq.size else 0.0
-    for name in tasks:
+    for name, task in tasks.items():
         e = arrays.get(f"error_{name}")
-        if e is None:
+        if e is None or (name == "ee" and "ee_error" in arrays) or isinstance(task, Pointing):
+            continue  # the EE task is summarized as ee_error_*, a pointing task in degrees below
+        if type(task).__name__ == "FramePose" and e.ndim == 2 and e.shape[1] == 6:
+            for part, cols, unit in (("position", slice(0, 3), "m"), ("orientation", slice(3, 6), "rad")):
+                norm = np.linalg.norm(e[:, cols], axis=1)
+                out[f"error_{name}_{part}_max"] = float(norm.max())
+                out[f"error_{name}_{part}_rms"] = float(np.sqrt(np.mean(norm**2)))
+                units[f"error_{name}_{part}_max"] = units[f"error_{name}_{part}_rms"] = unit
             continue
-        norm = np.abs(e) if e.ndim == 1 else np.linalg.norm(e, axis=1)
+        norm = _norm(e)
         out[f"error_{name}_max"] = float(norm.max())
         out[f"error_{name}_rms"] = float(np.sqrt(np.mean(norm**2)))
+        units[f"error_{name}_max"] = units[f"error_{name}_rms"] = task_unit(task)
     settled = arrays["t"] >= SETTLE_S
     if "ee_error" in arrays:
-        n = np.linalg.norm(arrays["ee_error"], axis=1)
+        n = _norm(np.asarray(arrays["ee_error"]))
         out["ee_error_max"], out["ee_error_rms"] = float(n.max()), float(np.sqrt(np.mean(n**2)))
         if settled.any():
             out["ee_error_max_settled"] = float(n[settled].max())
             out["ee_error_rms_settled"] = float(np.sqrt(np.mean(n[settled] ** 2)))
     if "pointing_error" in arrays:
-        out["pointing_violation_max"] = float(max(0.0, arrays["pointing_error"].max()))
         out["pointing_violation_max_deg"] = _violation_deg(arrays, tasks, np.ones_like(settled))
         if settled.any():
             out["pointing_violation_max_deg_settled"] = _violation_deg(arrays, tasks, settled)
@@ -81,7 +180,37 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
     dt = float(arrays["t"][1] - arrays["t"][0]) if arrays["t"].size > 1 else 0.0
     out["time_in_stack_s"] = {k: v * dt for k, v in Counter(arrays["stack"].tolist()).items()}
     out["stack_changes"] = int((arrays["stack"][1:] != arrays["stack"][:-1]).sum())
+    out["units"] = units
     return out
+
+
+def finish_units(summary: dict, tasks=()) -> dict:
+    """Fill ``summary["units"]`` for every numeric entry from :data:`METRICS` (after policy summaries were added)."""
+    units = summary.setdefault("units", {})
+    for key, value in summary.items():
+        if key == "units" or key in units or isinstance(value, str) or value is None:
+            continue
+        entry = schema_key(key, tasks)
+        if entry is not None and METRICS[entry][0] not in ("-", "task unit"):
+            units[key] = METRICS[entry][0]
+    summary["units"] = dict(sorted(units.items()))
+    return summary
+
+
+def metrics_doc() -> str:
+    """``docs/metrics.md``: the schema of ``metrics.json`` as a Markdown table (generated from :data:`METRICS`)."""
+    lines = ["# `metrics.json`", "",
+             "<!-- generated by `python -m hqp_tpm.app.results > docs/metrics.md` from `METRICS` in "
+             "`hqp_tpm/app/results.py`; a test checks that this file is current -->", "",
+             "`hqp-tpm run` writes one `metrics.json` per run: every metric below at most once (those that apply to "
+             "the run), plain JSON numbers, strings, lists or tables. `units` repeats the unit of every numeric entry "
+             f"of the file. `*_settled` metrics are taken from t = {SETTLE_S:g} s on. `{{task}}` is a task name of the "
+             "scenario; a task's error has the task's unit: " + ", ".join(f"{k} {v}" for k, v in TASK_UNITS.items())
+             + " (`1`: dimensionless).", "",
+             "| metric | unit | meaning |", "|---|---|---|"]
+    for key, (unit, meaning) in METRICS.items():
+        lines.append(f"| `{key}` | {unit} | {meaning} |")
+    return "\n".join(lines) + "\n"
 
 
 def _violation_deg(arrays, tasks, mask) -> float:
@@ -100,3 +229,7 @@ def write(out_dir: Path, arrays: dict, summary: dict) -> None:
     np.savez_compressed(tmp, **arrays)
     tmp.replace(out_dir / "trajectory.npz")  # never leave a half-written file behind
     (out_dir / "metrics.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+
+
+if __name__ == "__main__":
+    print(metrics_doc(), end="")
