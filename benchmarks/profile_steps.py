@@ -104,7 +104,7 @@ def _top(st: pstats.Stats, steps: int, k: int) -> list[dict]:
     total = sum(v[2] for v in st.stats.values())
     rows = []
     for (file, line, fn), (_cc, nc, tt, ct, _callers) in st.stats.items():
-        short = file.split("site-packages/")[-1].split("/work/main/")[-1]
+        short = file.split("site-packages/")[-1].split(f"{Path(__file__).resolve().parents[1]}/")[-1]
         where = fn if file == "~" else f"{fn} ({short}:{line})"
         rows.append({"function": where, "calls_per_step": nc / steps, "self_us_per_step": 1e6 * tt / steps,
                      "cum_us_per_step": 1e6 * ct / steps, "self_share": tt / total if total else 0.0})

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-#: Flags that render meshcat's WebGL scene headless with software GL and no network (shared/notes/environment.md).
+#: Flags that render meshcat's WebGL scene headless with software GL and no network.
 FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--use-gl=angle", "--use-angle=swiftshader",
          "--enable-unsafe-swiftshader", "--disable-quic", "--no-first-run", "--disable-background-networking",
          "--disable-component-update", "--disable-sync", "--hide-scrollbars", "--mute-audio"]

@@ -1,4 +1,4 @@
-"""Joint boxes (hqp_tpm.robot.joint_boxes): the reference page's velocity box, the derived acceleration box,
+"""Joint boxes (hqp_tpm.robot.joint_boxes): docs/setups.md's velocity box, the derived acceleration box,
 their invariance over long random rollouts, the recovery from states outside the limits, bad input."""
 
 import os

@@ -87,7 +87,7 @@ def test_vectors_eq_27_and_empty_rows():
 
 
 def test_with_distance_field_point_obstacles():
-    """Control point vs the reference page's three point obstacles: (25) as (p - o_j)/||p - o_j||."""
+    """Control point vs docs/setups.md's three point obstacles: (25) as (p - o_j)/||p - o_j||."""
     model = pin.Model()
     j = model.addJoint(0, pin.JointModelTranslation(), pin.SE3.Identity(), "xyz")
     model.addFrame(pin.Frame("cp", j, pin.SE3.Identity(), pin.FrameType.OP_FRAME))

@@ -23,7 +23,7 @@ dh_to_urdf = importlib.util.module_from_spec(_spec)
 sys.modules["dh_to_urdf"] = dh_to_urdf  # dataclasses look their module up there
 _spec.loader.exec_module(dh_to_urdf)
 
-# The tables, typed in again from the reference pages (not read from the generator).
+# The tables, typed in again from the set-ups in docs/setups.md (not read from the generator).
 ALPHA = np.deg2rad([90.0, -90.0, -90.0, 90.0, 90.0, -90.0, 0.0])
 TABLES = {
     "lwr": {

@@ -209,7 +209,7 @@ def metrics_doc() -> str:
              + " (`1`: dimensionless).", "",
              "| metric | unit | meaning |", "|---|---|---|"]
     for key, (unit, meaning) in METRICS.items():
-        lines.append(f"| `{key}` | {unit} | {meaning} |")
+        lines.append(f"| `{key}` | {unit} | {meaning.replace('``', '`')} |")
     return "\n".join(lines) + "\n"
 
 

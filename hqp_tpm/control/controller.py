@@ -3,7 +3,7 @@
 Velocity level (``order=1``): ``qd = solve(levels)``, ``q <- q + qd T``.
 Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` with the
 null-space damping ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then
-``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T`` (reference page).
+``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T`` (docs/setups.md).
 
 A policy with a ``blend(state, t, stack, x, resolve)`` method gets the solution ``x`` and returns the
 command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth

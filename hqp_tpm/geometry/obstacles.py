@@ -5,7 +5,8 @@ optionally moving: either along a callable ``t -> SE3`` or with a constant linea
 The paper's obstacles are points: ``Obstacle.sphere(name, center)`` with the default radius 0.
 
 Meshes are turned into their convex hull (scipy's Qhull) by default: raw triangle meshes
-are far too slow for a control loop (shared/notes/environment.md).
+are far too slow for a control loop (measured: ~24 ms for Romeo's 44 link-sphere pairs on meshes,
+~20 µs on convex hulls).
 """
 
 from __future__ import annotations

@@ -1,6 +1,6 @@
 """Algorithm 1 of papers/000: priority assignment with thresholds eps1, eps2, eps_ee.
 
-As coded by the authors (reference page, 'Priority assignment'):
+As coded by the authors (docs/setups.md, 'Priority assignment'):
 
 1. Stack = [EE position], its command plus the EE repulsion (30) while ``d_ee <= eps_ee``.
 2. If a critical body point exists (the nearest within ``eps2``) and ``d <= eps1``: its
@@ -46,7 +46,7 @@ class Thresholds:
             raise ValueError(f"eps_ee must be > 0, got {self.eps_ee}")
 
 
-#: Reference values of the authors' code (reference page): EE and body repulsion, eq. (23) with factor c.
+#: Reference values of the authors' code (docs/setups.md): EE and body repulsion, eq. (23) with factor c.
 EE_REPULSION = Repulsion(5.0, 0.1, 10.0, 1.5)
 BODY_REPULSION = Repulsion(0.15, 0.15, 2.0, 3.0)
 DEFAULT_THRESHOLDS = Thresholds()

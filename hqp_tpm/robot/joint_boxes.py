@@ -124,7 +124,7 @@ class BoxLimits:
 
 
 def velocity_box(q, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray, np.ndarray]:
-    """Box on ``qdot`` for one period ``dt`` (Flacco-De Luca-Khatib T-RO 2015, reference page).
+    """Box on ``qdot`` for one period ``dt`` (Flacco-De Luca-Khatib T-RO 2015, docs/setups.md).
 
     ``Qdot_min = max((q_min - q)/dt, -v_max, -sqrt(2 a_max (q - q_min)))`` and
     ``Qdot_max = min((q_max - q)/dt,  v_max,  sqrt(2 a_max (q_max - q)))``: the position limit

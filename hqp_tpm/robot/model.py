@@ -23,7 +23,7 @@ ROBOTS_DIR = robots_dir()
 PROJECT_ROBOTS = {"lwr4": "kuka_lwr4/lwr4.urdf", "iiwa7": "kuka_iiwa7/iiwa7.urdf",
                   "planar5": "planar/planar5.urdf", "planar4": "planar/planar4.urdf"}
 
-#: The 21 joints of the papers' simplified Romeo (reference page romeo_four_tasks.md).
+#: The 21 joints of the papers' simplified Romeo (docs/setups.md).
 ROMEO21_JOINTS = (
     "LHipYaw", "LHipRoll", "LHipPitch", "LKneePitch", "LAnklePitch", "LAnkleRoll",
     "RHipYaw", "RHipRoll", "RHipPitch", "RKneePitch", "RAnklePitch", "RAnkleRoll",

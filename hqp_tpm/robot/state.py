@@ -120,7 +120,7 @@ class State:
     # -- integration ---------------------------------------------------------------------------
     def integrate(self, q, v, a, dt: float, order: int) -> tuple[np.ndarray, np.ndarray]:
         """Next ``(q, v)``: velocity level ``q + v dt``; acceleration level
-        ``q + v dt + a dt^2 / 2`` and ``v + a dt`` (reference page, 'Initial state and run')."""
+        ``q + v dt + a dt^2 / 2`` and ``v + a dt`` (docs/setups.md, 'Initial state and run')."""
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
         return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
