@@ -12,7 +12,9 @@ What is compared, pair by pair (see :func:`relation`):
   in the box and TPM ignores the box. What the library guarantees then is the *level-by-level
   residual order*: ``tpm <=lex qp <=lex sns_tpm, sns`` (undamped; at the first level where two
   residual vectors differ by more than the tolerance, the one on the left is smaller), and every
-  boxed solution inside the box. With damping no order is guaranteed, only the boxes.
+  boxed solution inside the box. With damping no order is guaranteed, only the boxes (and two QP
+  backends are not compared either: a damped level is damped around the point its backend reached, so
+  the cascade is path dependent -- measured 9e-2 apart on a romeo_sns_tpm step).
 
 Inequality levels: by default (``inequalities="active"``) every solver gets the analytic solvers'
 view of the stack -- the active rows as equalities (:meth:`Level.as_equality`) -- so the commands
@@ -122,11 +124,10 @@ class Report:
             where = f" at {c.where}" if c.where else ""
             lines.append(f"  {'ok  ' if c.ok else 'FAIL'} {pair:<26} {c.what:<15} {c.value:>10.3e} "
                          f"(tol {c.tol:.1e}){where}" + (f"  {c.note}" if c.note else ""))
-        for s, msg in self.errors.items():
-            lines.append(f"  {s} raised {msg}")
         lines += [f"note: {n}" for n in self.notes]
         if self.path is not None:
-            lines.append(f"reproduce: hqp_tpm.testing.assert_solvers_agree(**hqp_tpm.testing.load_case({str(self.path)!r}))")
+            path = repr(str(self.path))
+            lines.append(f"reproduce: hqp_tpm.testing.assert_solvers_agree(**hqp_tpm.testing.load_case({path}))")
         return "\n".join(lines)
 
     __str__ = table
@@ -226,8 +227,10 @@ def relation(a: str, b: str, *, boxed: bool, free_inside: bool, partial_inside: 
     if rank[ka] > rank[kb]:
         a, b, ka, kb = b, a, kb, ka
     order = None if damped else "order"
-    if ka == kb == "analytic" or ka == kb == "qp":
+    if ka == kb == "analytic":
         return "same", a, b
+    if ka == kb == "qp":  # a damped cascade under a binding box depends on each backend's path: no guarantee
+        return (None if damped and boxed and not free_inside else "same"), a, b
     if ka == kb == "sns":
         return ("same" if not boxed or (free_inside and partial_inside) else None), a, b
     inside = not boxed or (free_inside and (b != "sns" or partial_inside))
@@ -260,12 +263,14 @@ def _lex_order(levels, x_lo, x_hi, r_lo, r_hi, rtol) -> tuple[bool, float, float
 # saving and loading a case
 # ------------------------------------------------------------------------------------------------
 def save_case(path, levels, *, box=None, x0=None, damping=None, solvers=DEFAULT_SOLVERS, seed=None,
-              commands: Mapping[str, np.ndarray] | None = None, inequalities: str = "active") -> Path:
+              commands: Mapping[str, np.ndarray] | None = None, inequalities: str = "active",
+              solver_options: Mapping[str, dict] | None = None) -> Path:
     """Write a stack (and what was asked of it) to ``path`` (``.npz``); :func:`load_case` reads it back."""
     lv = as_levels(levels)
     arrays: dict[str, np.ndarray] = {}
     meta = {"levels": [], "solvers": list(solvers), "seed": seed, "damping": _as_damping(damping),
-            "inequalities": inequalities, "n": lv[0].n if lv else None}
+            "inequalities": inequalities, "n": lv[0].n if lv else None,
+            "solver_options": {k: dict(v) for k, v in (solver_options or {}).items()}}
     for k, level in enumerate(lv):
         arrays[f"J{k}"] = level.J
         if level.is_equality:
@@ -303,7 +308,7 @@ def load_case(path) -> dict:
         x0 = f["x0"] if "x0" in f else None
     return {"levels": levels, "solvers": tuple(meta["solvers"]), "box": box, "x0": x0,
             "damping": meta["damping"] or None, "seed": meta["seed"], "inequalities": meta["inequalities"],
-            "n": meta["n"]}
+            "n": meta["n"], "solver_options": meta.get("solver_options") or None}
 
 
 def _case_path(save_to, lv, box, x0) -> Path:
@@ -387,6 +392,9 @@ def check_solvers(levels, solvers: Sequence[str] = DEFAULT_SOLVERS, *, box=None,
         if not free_inside:
             notes.append("the box binds: boxed and analytic solvers solve different problems; compared by the "
                          "level-by-level residual order" + (" (none guaranteed with damping)" if damping else ""))
+            if damping and sum(kind(s) == "qp" for s in solvers) > 1:
+                notes.append("damped cascades under a binding box are not compared across QP backends: each "
+                             "level's damping acts around the point its backend reached (no guarantee)")
     if has_ineq:
         notes.append("inequality levels: " + ("the QP keeps the true inequalities" if true_ineq else
                                               "every solver gets their active rows as equalities"))
@@ -464,12 +472,14 @@ def assert_solvers_agree(levels, solvers: Sequence[str] = DEFAULT_SOLVERS, *, bo
     path = _case_path(save_to, lv, box, x0)
     try:
         report.path = save_case(path, lv, box=box, x0=x0, damping=damping, solvers=solvers, seed=seed,
-                                commands=report.commands, inequalities=inequalities)
+                                commands=report.commands, inequalities=inequalities, solver_options=solver_options)
     except OSError as e:  # a read-only directory must not hide the disagreement
         report.notes.append(f"could not save the case to {path}: {e}")
     worst = report.worst()
     title = "solvers disagree"
-    if worst is not None:
+    if worst is not None and worst.what == "solved":
+        title += f": {worst.a} raised {report.errors.get(worst.a, '')}".rstrip()
+    elif worst is not None:
         pair = worst.a if worst.what in ("in box", "solved") else f"{worst.a} vs {worst.b}"
         title += f": {pair} ({worst.what}) {worst.value:.3e} > tol {worst.tol:.1e}"
     raise AssertionError(f"{title}\n{report.table()}")

@@ -108,7 +108,8 @@ def _states(robot, states, seed: int):
 
 def assert_task_derivatives(task, robot, states: int | Iterable = 5, *, seed: int = 0, h: float = 1e-6,
                             atol: float = 2e-6, rtol: float = 1e-6, jdot_atol: float = 2e-5,
-                            value: Callable | None = None, difference: Callable | None = None) -> list[DerivativeErrors]:
+                            value: Callable | None = None,
+                            difference: Callable | None = None) -> list[DerivativeErrors]:
     """Check ``task.jacobian`` and ``task.jdot_qdot`` of ``task`` on ``robot`` against finite differences.
 
     ``states``: a number of random states within the robot's limits (drawn from ``seed``, see
