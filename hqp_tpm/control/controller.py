@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.errors import NonFiniteError, SolverFailedError
 from hqp_tpm.robot.model import Robot
@@ -54,7 +55,7 @@ class Controller:
     def __init__(self, robot: Robot, policy, *, order: int = 2, dt: float = 1e-3, solver: str = "tpm",
                  lambda_max: float = 0.0, eps: float = 0.0, nullspace_damping: float = 0.0,
                  box: BoxFn | None = None, q0=None, v0=None, t0: float = 0.0,
-                 pre_policy: Sequence[Callable[[State, float], None]] = ()):
+                 pre_policy: Sequence[Callable[[State, float], None]] = (), crosscheck: str | None = None):
         if order not in (1, 2):
             raise ValueError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
         if not (np.isfinite(dt) and dt > 0):
@@ -68,6 +69,9 @@ class Controller:
         self.nullspace_damping = float(nullspace_damping)
         self.box = box
         self.pre_policy = list(pre_policy)
+        # a second solver run on every step, like for like (hqp_tpm.control.crosscheck)
+        self.crosscheck = None if crosscheck is None else check_solver_name(crosscheck)
+        self.crosscheck_log = CrosscheckLog()
         self.state = State(robot)
         q = robot.neutral() if q0 is None else q0
         v = np.zeros(robot.nv) if v0 is None else v0
@@ -125,6 +129,7 @@ class Controller:
         box = self.box(st, self.t) if self.box is not None else None
         x, info = solve(self.solver, levels, self.robot.nv, x0=x0, box=box,
                         lambda_max=self.lambda_max, eps=self.eps)
+        check = crosscheck_step(self, st, stack, levels, x0, box, x) if self.crosscheck else None
         blend = getattr(self.policy, "blend", None)
         if blend is not None:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
             def resolve(other: Stack) -> np.ndarray:
@@ -135,6 +140,8 @@ class Controller:
                 x = np.minimum(np.maximum(x, box[0]), box[1])
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
+        if check is not None:
+            info = {**info, "crosscheck": check.compare(x)}
         return StepResult(self.t, stack, levels, x, info)
 
     def step(self) -> StepResult:
@@ -145,6 +152,8 @@ class Controller:
             raise NonFiniteError(f"integration produced a non-finite state at t = {self.t:.6f}")
         self._q, self._v = q, v
         self.a = res.command.copy() if self.order == 2 else self.a
+        if "crosscheck" in res.info:
+            self.crosscheck_log.append(self.t, res.info["crosscheck"])
         self.t += self.dt
         self.steps += 1
         return res
