@@ -1,0 +1,38 @@
+"""The downstream example project under examples/ runs its own test suite with hqp-tpm's pytest plugin."""
+
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+EXAMPLE = ROOT / "examples" / "downstream_stack_check"
+
+
+def test_downstream_example_project_passes_with_the_plugin_fixtures():
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--fixtures-per-test"],
+                         cwd=EXAMPLE, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "hqp_tpm_stack_check" in out.stdout and "hqp_tpm_task_check" in out.stdout  # from the entry point
+    run = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"], cwd=EXAMPLE,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stdout + run.stderr
+    assert " passed" in run.stdout and "failed" not in run.stdout
+
+
+def test_the_library_imports_without_hypothesis():
+    code = """
+import sys
+sys.modules["hypothesis"] = None  # as if it were not installed
+import hqp_tpm, hqp_tpm.testing
+from hqp_tpm.testing import assert_solvers_agree, assert_task_derivatives
+import numpy as np
+assert assert_solvers_agree([(np.eye(2), np.ones(2))], ("tpm", "nullspace")).ok
+try:
+    import hqp_tpm.testing.strategies
+except ImportError as e:
+    assert "hqp-tpm[testing]" in str(e), e
+else:
+    raise SystemExit("strategies imported without hypothesis")
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
