@@ -143,7 +143,10 @@ def assert_task_derivatives(task, robot, states: int | Iterable = 5, *, seed: in
         at = f"({r}, {names[c] if c < len(names) else c})"
         lines.append(f"{i:>5}  {je:>14.3e} {jtol:>8.1e}  {at:<32} {de:>14.3e} {dtol:>8.1e}  {k}"
                      f"{'  J' if je > jtol else ''}{'  Jdot' if de > dtol else ''}")
-        lines.append(f"       J[{r}, {c}] = {e.J[r, c]:+.9g}, finite difference {e.J_fd[r, c]:+.9g}")
+        if je > jtol:
+            lines.append(f"       J[{r}, {c}] = {e.J[r, c]:+.9g}, finite difference {e.J_fd[r, c]:+.9g}")
+        if de > dtol:
+            lines.append(f"       Jdot_qdot[{k}] = {e.jdqd[k]:+.9g}, finite difference {e.jdqd_fd[k]:+.9g}")
     i, e = bad[0][0], bad[0][1]
     with np.printoptions(precision=17, linewidth=10_000):
         lines.append(f"reproduce state {i}: q = np.array({e.q.tolist()}), v = np.array({e.v.tolist()})")
