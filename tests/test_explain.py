@@ -272,3 +272,13 @@ def test_off_by_default(monkeypatch, tmp_path):
     monkeypatch.setattr(acc_mod, "account", boom)
     monkeypatch.setattr(acc_mod, "explain", boom)
     run_scenario("planar5_exact", tmp_path, progress=False, figures=False, replay=False, steps=20)
+
+
+def test_explain_with_hard_levels_raises_the_certificate():
+    box = (np.full(3, -1.0), np.full(3, 1.0))
+    top = Level([[1.0, 1.0, 0]], [5.0], name="top")
+    x, info = solve("qp", [top], 3, box=box)
+    with pytest.raises(InfeasibleError, match="box upper of joint 0"):
+        explain([top], x, box=box, info=info, solver="qp", hard=1)
+    acc = explain([top], x, box=box, info=info, solver="qp")   # not declared hard: explained, no error
+    assert acc.causes[0][0].kind == "joint_bounds"

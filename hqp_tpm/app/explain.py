@@ -30,6 +30,19 @@ BOUND_KINDS = {1: "velocity", 2: "position", 3: "braking", 4: "acceleration", 5:
 _KIND_CODE = {v: k for k, v in BOUND_KINDS.items()}
 
 
+def _code(side: int, kind: str) -> float:
+    """A joint bound as one number: ``side * kind`` (+ upper, - lower), ``10 + kind`` for both sides."""
+    return float(side * _KIND_CODE[kind] if side else 10 + _KIND_CODE[kind])
+
+
+def _decode(code: float) -> tuple[str, str]:
+    """``(side, kind)`` of :func:`_code`."""
+    c = int(code)
+    if c > 10:
+        return "both", BOUND_KINDS.get(c - 10, "box")
+    return ("upper" if c > 0 else "lower"), BOUND_KINDS.get(abs(c), "box")
+
+
 def bound_kinds(limits, state, x_bound: np.ndarray, joints, sides, *, columns=None) -> list[str]:
     """Which limit defines the box bound each of ``joints`` sits at (side +1 upper, -1 lower).
 
@@ -129,8 +142,7 @@ class Explainer:
                 for c in causes:
                     if c.joints:
                         kinds = self._kinds(ctrl, acc, c.joints, c.sides)
-                        block_joints[i, list(c.joints)] = [s * _KIND_CODE[kd] for s, kd in zip(c.sides, kinds,
-                                                                                               strict=True)]
+                        block_joints[i, list(c.joints)] = [_code(s, kd) for s, kd in zip(c.sides, kinds, strict=True)]
                         without[i] = c.fraction_without
                 d, a = la.desired[rows], la.achieved[rows]
                 if desired[name].size == d.size:
@@ -153,6 +165,7 @@ class Explainer:
         if acc.box is None:
             return ["box"] * len(joints)
         lo, up = acc.box
+        sides = [s or 1 for s in sides]  # both sides released: named by the upper one
         return bound_kinds(ctrl.box, ctrl.state, np.where(np.asarray(sides) > 0, up[list(joints)], lo[list(joints)]),
                            range(len(joints)), sides, columns=joints)
 
@@ -199,8 +212,7 @@ def summary(arrays: dict) -> dict:
             for code in np.unique(bj[:, i, j]):
                 if code == 0:
                     continue
-                label = f"{joints[j] if j < len(joints) else j} {'upper' if code > 0 else 'lower'} " \
-                        f"{BOUND_KINDS.get(int(abs(code)), 'box')}"
+                label = f"{joints[j] if j < len(joints) else j} {' '.join(_decode(code))}"
                 per_joint[label] = round(float((bj[:, i, j] == code).sum() * dt), 6)
         out["by_joint_bound_s"][name] = dict(sorted(per_joint.items(), key=lambda kv: -kv[1]))
         masks = np.nan_to_num(bl[:, i]).astype(np.int64)
@@ -243,6 +255,7 @@ def figure(path: Path, arrays: dict, title: str = "") -> Path | None:
         band.set_yticks([])
     band.set_xlabel("t (s)")
     band.set_ylabel("at a bound")
+    band.set_title("joints at a bound (red: upper, blue: lower)", fontsize=9)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
@@ -270,7 +283,7 @@ def format_step(arrays: dict, i: int, *, solver: str = "") -> str:
     if solver:
         head += f", solver {solver}"
     if "scale" in arrays:
-        head += f", scale {float(arrays['scale'][i]):.3g}"
+        head += f", {'smallest level ' if solver == 'sns' else ''}scale factor {float(arrays['scale'][i]):.3g}"
     if "stack" in arrays:
         head += f"\nstack: {arrays['stack'][i]}"
     lines = [head]
@@ -289,8 +302,7 @@ def format_step(arrays: dict, i: int, *, solver: str = "") -> str:
         reasons = []
         if c & CAUSE_BITS["joint_bounds"]:
             js = np.flatnonzero(bj[k])
-            text_j = ", ".join(f"{jname(j)} {'upper' if bj[k, j] > 0 else 'lower'} "
-                               f"{BOUND_KINDS.get(int(abs(bj[k, j])), 'box')}" for j in js)
+            text_j = ", ".join(f"{jname(j)} {' '.join(_decode(bj[k, j]))}" for j in js)
             wo = arrays.get("explain_fraction_without")
             after = f" (released: met {100 * wo[i][k]:.0f} %)" if wo is not None and np.isfinite(wo[i][k]) else ""
             reasons.append(f"joint bounds {text_j}{after}")

@@ -283,25 +283,36 @@ def _level_target(level: Level, la: LevelAccount) -> tuple[np.ndarray, np.ndarra
 class _Resolver:
     """Re-solves the step with some joint bounds released (cached by the released set)."""
 
-    def __init__(self, levels, acc: StepAccount, solve: Callable):
+    def __init__(self, levels, acc: StepAccount, solve: Callable, budget: int):
         self.levels, self.acc, self.solve = levels, acc, solve
         self.cache: dict = {}
+        self.budget = budget  # re-solves left for this step
         self.side = dict(zip(acc.at_bound, acc.sides, strict=True))  # grows with joints saturated after a release
 
-    def released(self, joints: frozenset) -> StepAccount:
-        key = joints
+    def released(self, joints: frozenset) -> _Outcome:
+        """The outcome of the solve with the bounds of ``joints`` released (-1: the whole box) on the side
+        in ``self.side`` (+1 upper, -1 lower, 0 both)."""
+        key = frozenset((j, self.side.get(j)) for j in joints)
         if key not in self.cache:
+            if self.budget <= 0:
+                raise _OverBudget
+            self.budget -= 1
             lo, up = (b.copy() for b in self.acc.box)
             for j in joints:
                 if j == -1:  # the whole box
                     lo[:], up[:] = -np.inf, np.inf
-                elif self.side[j] > 0:
+                    continue
+                if self.side[j] >= 0:
                     up[j] = np.inf
-                else:
+                if self.side[j] <= 0:
                     lo[j] = -np.inf
             x, _ = self.solve(self.levels, (lo, up))
             self.cache[key] = _outcome(self.levels, x, lo, up)
         return self.cache[key]
+
+
+class _OverBudget(Exception):
+    """The step's re-solves are used up: the joint cause of this level is left unverified."""
 
 
 @dataclass(frozen=True)
@@ -335,7 +346,7 @@ def _outcome(levels, x, lo, up) -> _Outcome:
 
 def explain(levels, x, *, box=None, info: dict | None = None, solver: str = "", lambda_max: float = 0.0,
             eps: float = 0.0, x0=None, solve: Callable | None = None, acc: StepAccount | None = None,
-            hints: dict | None = None) -> StepAccount:
+            hints: dict | None = None, hard: Sequence[int] | int = (), max_resolves: int = 60) -> StepAccount:
     """:func:`account` with the causes of every level not met (module doc).
 
     ``solve(levels, box) -> (x, info)`` re-solves the step with another box; by default
@@ -343,6 +354,10 @@ def explain(levels, x, *, box=None, info: dict | None = None, solver: str = "", 
     ``acc``: an account already computed for these arguments. ``hints``: by level name, the joint
     blocking set ``((joint, side), ...)`` of an earlier step, kept if one re-solve confirms it (a run
     explains every step for the cost of about two re-solves while the saturations stay the same).
+    ``max_resolves``: re-solves allowed for the step (a level whose joint cause needs more is
+    ``unexplained`` unless another cause holds). ``hard``: levels that must be met (indices, or an int
+    ``h``: the top ``h``); if one is not, and no command meets them with the box,
+    :class:`hqp_tpm.errors.InfeasibleError` names the conflict.
     """
     x = np.asarray(x, dtype=float)
     n = x.shape[0]
@@ -353,8 +368,13 @@ def explain(levels, x, *, box=None, info: dict | None = None, solver: str = "", 
 
         def solve(levels_, box_):
             return registry_solve(solver, levels_, n, x0=x0, box=box_, lambda_max=lambda_max, eps=eps)
+    hard = list(range(min(hard, len(lv)))) if isinstance(hard, int) else list(hard)
+    if any(not acc.levels[i].met for i in hard):
+        check_feasible(lv, acc.box, hard=hard)
     qp = solver.startswith("qp")
-    resolver = _Resolver(lv, acc, solve) if (solve is not None and acc.box is not None and acc.box_kept) else None
+    resolver = None
+    if solve is not None and acc.box is not None and acc.box_kept:
+        resolver = _Resolver(lv, acc, solve, max_resolves)
     kept = [_kept_rows(level, x, qp) for level in lv]
     rows = [level.J[k] for level, k in zip(lv, kept, strict=True)]
     causes = []
@@ -381,7 +401,10 @@ def explain(levels, x, *, box=None, info: dict | None = None, solver: str = "", 
                 return _projector_step(P, Jk)[1] < eps
             found.append(Cause("damping", tuple(deletion_filter(higher, damped))))
         if resolver is not None and acc.at_bound:
-            found.extend(_joint_cause(resolver, acc, k, (hints or {}).get(la.name)))
+            try:
+                found.extend(_joint_cause(resolver, acc, k, (hints or {}).get(la.name)))
+            except _OverBudget:
+                pass
         if not found:
             found.append(Cause("unexplained"))
         causes.append(tuple(found))
@@ -404,22 +427,30 @@ def _joint_cause(resolver: _Resolver, acc: StepAccount, k: int, hint=None) -> li
     def reached(subset) -> bool:
         return resolver.released(frozenset(subset)).residual[k] <= target
 
-    if hint and all(resolver.side.get(j) == s for j, s in hint) and reached([j for j, _ in hint]):
+    for j, s in hint or ():
+        resolver.side.setdefault(j, s)   # a joint a re-solve saturated at the earlier step: release that side
+    if hint and all(resolver.side[j] == s for j, s in hint) and reached([j for j, _ in hint]):
         joints = [j for j, _ in hint]
         frac = resolver.released(frozenset(joints)).fraction[k]
         return [Cause("joint_bounds", (), tuple(joints), tuple(resolver.side[j] for j in joints), frac)]
 
     start = list(acc.at_bound)
-    for _ in range(3):                      # releasing some bounds can saturate others: add them
+    n = acc.x.shape[0]
+    for _ in range(n):                      # releasing some bounds can saturate others: add them
         if reached(start):
             break
         again = resolver.released(frozenset(start))
-        more = [(j, s) for j, s in zip(again.at_bound, again.sides, strict=True) if j not in start]
+        more = False
+        for j, s in zip(again.at_bound, again.sides, strict=True):
+            if j not in start:
+                resolver.side[j] = s
+                start.append(j)
+                more = True
+            elif resolver.side[j] not in (0, s):   # now at its other bound: release both sides
+                resolver.side[j] = 0
+                more = True
         if not more:
             return []
-        for j, s in more:
-            resolver.side[j] = s
-            start.append(j)
     else:
         return []
     joints = deletion_filter(start, reached)
