@@ -36,3 +36,20 @@ else:
 """
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
+
+
+def test_the_fixture_reports_a_disagreement_with_the_table(tmp_path):
+    (tmp_path / "test_loose.py").write_text('''
+import numpy as np
+
+def test_loose_qp(hqp_tpm_stack_check):
+    rng = np.random.default_rng(0)
+    levels = [(rng.standard_normal((m, 7)), rng.standard_normal(m)) for m in (3, 2, 3)]
+    hqp_tpm_stack_check(levels, solver_options={"qp:proxqp": {"eps_abs": 1e-1}})
+''')
+    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hqp-tpm-solvers",
+                          "tpm,qp:proxqp", "test_loose.py"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 1, out.stdout + out.stderr
+    assert "solvers disagree: tpm vs qp:proxqp" in out.stdout and "FAIL tpm vs qp:proxqp" in out.stdout
+    assert "qp:daqp" not in out.stdout  # the solvers given on the command line
+    assert "hqp_tpm_cases" in out.stdout and "load_case(" in out.stdout

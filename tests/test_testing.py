@@ -278,3 +278,11 @@ q0 = np.array([0.3, 0.4, -0.2, 0.5, 0.1])  # not stretched out (see test_tpm_aft
     for _ in range(5):
         ctrl.step()
     assert len(ctrl.crosscheck_log) == 5 and ctrl.crosscheck_log.max_diff() < 1e-8
+
+
+@FEW
+@given(boxed_stacks(stacks(max_cond=1e3, conflict=0.3, inequality=0.3), box="binds"))
+def test_sns_tpm_fast_path_equals_algorithm_1_as_written(case):
+    report = assert_solvers_agree(**case.kwargs(), solvers=("sns_tpm", "sns_tpm_reference", "qp:daqp"))
+    same = [c for c in report.comparisons if c.what == "same problem"]
+    assert [(c.a, c.b) for c in same] == [("sns_tpm", "sns_tpm_reference")]

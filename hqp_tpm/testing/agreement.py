@@ -40,7 +40,7 @@ from hqp_tpm.testing import tolerances as T
 
 DEFAULT_SOLVERS = ("tpm", "nullspace", "qp:proxqp", "qp:daqp")
 ANALYTIC = ("tpm", "nullspace")
-SNS = ("sns_tpm", "sns")
+SNS = ("sns_tpm", "sns", "sns_tpm_reference")  # the last: Algorithm 1 of papers/002 as written (not in the registry)
 
 #: Environment variable naming the directory failing cases are saved to (default: the temp dir).
 SAVE_DIR_ENV = "HQP_TPM_TESTING_DIR"
@@ -199,6 +199,13 @@ def _as_damping(damping) -> dict:
 
 
 def _solve(solver: str, levels, n: int, x0, box, damping: dict, options: dict | None) -> np.ndarray:
+    if solver == "sns_tpm_reference":  # as the registry calls sns_tpm: x0 as one more (lowest) level
+        from hqp_tpm.solvers.sns import sns_tpm_reference
+
+        lo, up = box if box is not None else (np.full(n, -np.inf), np.full(n, np.inf))
+        if x0 is not None:
+            levels = [*levels, (np.eye(n), x0)]
+        return sns_tpm_reference(levels, lo, up, **damping)
     if kind(solver) == "qp" and options:
         from hqp_tpm.solvers.cascaded_qp import cascaded_qp
 
@@ -231,6 +238,8 @@ def relation(a: str, b: str, *, boxed: bool, free_inside: bool, partial_inside: 
         return "same", a, b
     if ka == kb == "qp":  # a damped cascade under a binding box depends on each backend's path: no guarantee
         return (None if damped and boxed and not free_inside else "same"), a, b
+    if {a, b} == {"sns_tpm", "sns_tpm_reference"}:  # the fast path and Algorithm 1 as written: one algorithm
+        return "same", a, b
     if ka == kb == "sns":
         return ("same" if not boxed or (free_inside and partial_inside) else None), a, b
     inside = not boxed or (free_inside and (b != "sns" or partial_inside))
@@ -247,14 +256,21 @@ def relation(a: str, b: str, *, boxed: bool, free_inside: bool, partial_inside: 
 
 
 def _lex_order(levels, x_lo, x_hi, r_lo, r_hi, rtol) -> tuple[bool, float, float, str]:
-    """``r_lo <=lex r_hi`` up to the scaled tolerance: ``(ok, r_lo - r_hi at the deciding level, tol, where)``."""
+    """``r_lo <=lex r_hi`` up to the scaled tolerances: ``(ok, r_lo - r_hi at the deciding level, tol, where)``.
+
+    At each level, ``d = r_lo - r_hi``: more than ``rtol * scale`` is a failure; below ``-EQUAL_RTOL * scale``
+    (``lo`` better beyond round-off) decides in favour of ``lo`` -- a better higher level may cost the
+    lower ones any amount, up to the conditioning; in between the levels count as equal and the next
+    one decides. ``scale = (1 + max|J_k|) (1 + max|x|)``.
+    """
     xmax = 1.0 + max(np.abs(x_lo).max(initial=0.0), np.abs(x_hi).max(initial=0.0))
     for k, lv in enumerate(levels):
-        tol = rtol * (1.0 + np.abs(lv.J).max(initial=0.0)) * xmax
+        scale = (1.0 + np.abs(lv.J).max(initial=0.0)) * xmax
+        tol = rtol * scale
         d = r_lo[k] - r_hi[k]
         if d > tol:
             return False, float(d), tol, f"level {k} ({lv.name})"
-        if d < -tol:
+        if d < -T.EQUAL_RTOL * scale:
             return True, float(d), tol, f"level {k} ({lv.name}) decides"
     return True, 0.0, rtol, "all levels within tol"
 
@@ -452,10 +468,12 @@ def assert_solvers_agree(levels, solvers: Sequence[str] = DEFAULT_SOLVERS, *, bo
 
     ``levels``: ``(J, b)`` pairs or :class:`~hqp_tpm.solvers.Level` (highest priority first).
     ``solvers``: registry names (``"tpm"``, ``"nullspace"``, ``"sns_tpm"``, ``"sns"``, ``"qp"``,
-    ``"qp:<backend>"``). ``box = (lower, upper)``: the hard box of the boxed solvers (the analytic
-    ones ignore it). ``x0``: the null-space term (eq. (14)). ``damping``: ``{"lambda_max": ..., "eps": ...}``
-    or a pair. ``rtol``/``atol``: override the defaults of :mod:`hqp_tpm.testing.tolerances`.
-    ``solver_options``: per solver name, options handed to the QP backend (e.g. ``{"qp:osqp": {"eps_abs": 1e-3}}``).
+    ``"qp:<backend>"``) and ``"sns_tpm_reference"`` (Algorithm 1 of papers/002 as written: compared
+    with ``"sns_tpm"`` as the same problem even when the box binds). ``box = (lower, upper)``: the hard
+    box of the boxed solvers (the analytic ones ignore it). ``x0``: the null-space term (eq. (14)).
+    ``damping``: ``{"lambda_max": ..., "eps": ...}`` or a pair. ``rtol``/``atol``: override the defaults
+    of :mod:`hqp_tpm.testing.tolerances`. ``solver_options``: per solver name, options handed to the QP
+    backend (e.g. ``{"qp:osqp": {"eps_abs": 1e-3}}``).
     ``seed``: recorded in the report and the saved case, to reproduce a random draw.
 
     Returns the :class:`Report` when every check passes. Otherwise raises ``AssertionError`` with the

@@ -11,8 +11,9 @@ accuracy of the less accurate of the two solvers on a well-conditioned stack (:d
 the forward error of any backward-stable double-precision solve grows as ``eps * cond``.
 
 Residual orderings (a boxed QP against SNS-TPM, TPM against a boxed QP) hold level by level up to
-``max(ORDER_RTOL, rtol) * (1 + max|J_k|) * (1 + max|x|)`` (the QP's KKT tolerance, scaled); box
-bounds up to ``BOX_RTOL * (1 + |bound|)``.
+``max(ORDER_RTOL, rtol) * (1 + max|J_k|) * (1 + max|x|)`` (the QP's KKT tolerance, scaled); the first
+level where the lexicographic optimum is better by more than ``EQUAL_RTOL`` (same scale) decides; box
+bounds hold up to ``BOX_RTOL * (1 + |bound|)``.
 
 :data:`GUARANTEES` lists, for each equivalence, the stacks on which the library's own tests prove
 it; outside these ranges a failure of the assertion may be a limitation, not a bug.
@@ -27,7 +28,7 @@ import numpy as np
 EPS = float(np.finfo(float).eps)
 
 #: Relative accuracy of each solver on well-conditioned stacks (the library's property tests).
-BASE_RTOL = {"tpm": 1e-9, "nullspace": 1e-9, "sns_tpm": 1e-9, "sns": 1e-9,
+BASE_RTOL = {"tpm": 1e-9, "nullspace": 1e-9, "sns_tpm": 1e-9, "sns": 1e-9, "sns_tpm_reference": 1e-9,
              "qp:proxqp": 1e-8, "qp:daqp": 1e-8, "qp:quadprog": 1e-8, "qp:osqp": 1e-5}
 
 #: Relative accuracy assumed for a QP backend not listed in :data:`BASE_RTOL`.
@@ -41,6 +42,10 @@ COND_FACTOR = 1e3
 
 #: Residual orderings: the QP's KKT tolerance, relative.
 ORDER_RTOL = 1e-7
+
+#: Residual orderings: two residuals closer than this (relative, same scale) are equal, and the next level
+#: decides; a difference beyond it in favour of the lexicographic optimum decides the order.
+EQUAL_RTOL = 1e-9
 
 #: Box bounds: relative slack.
 BOX_RTOL = 1e-9
