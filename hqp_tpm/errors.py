@@ -55,6 +55,19 @@ class ScenarioError(HqpTpmError, ValueError):
     """A scenario file is malformed: unknown task type, missing field, wrong dimension."""
 
 
+class ParameterError(HqpTpmError, ValueError):
+    """A parameter value is invalid: a negative gain, ``eps1 >= eps2``, a NaN damping, a bad order."""
+
+
+class StateError(HqpTpmError, RuntimeError):
+    """An object is used in a state that does not allow the call (e.g. a task before its pair is assigned)."""
+
+
+class OutputError(HqpTpmError, OSError):
+    """An output location cannot be used: a file where a folder is needed, a read-only folder, or a
+    non-empty folder that is not a previous result of hqp-tpm (``--force`` to use it anyway)."""
+
+
 def unknown_name(kind: str, name: object, valid, cls=UnknownNameError) -> UnknownNameError:
     """Build an error naming the bad ``name`` and listing the ``valid`` choices."""
     choices = ", ".join(repr(v) for v in sorted(map(str, valid)))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.app.policy_builders import POLICY_BUILDERS
-from hqp_tpm.app.scenario import Scenario, Section, vector
+from hqp_tpm.app.scenario import Scenario, Section, number, vector
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.errors import HqpTpmError, ScenarioError
@@ -174,11 +174,31 @@ def initial_configuration(robot: Robot, sec: Section) -> np.ndarray:
         joints = sec.raw("joints_deg", {})
         if not isinstance(joints, dict):
             raise ScenarioError(f"{sec.where}.joints_deg: expected a table of joint = degrees")
+        values = {k: np.deg2rad(number(v, f"{sec.where}.joints_deg.{k}")) for k, v in joints.items()}
         try:
-            q = robot.configuration({k: np.deg2rad(float(v)) for k, v in joints.items()}, base=None)
+            q = robot.configuration(values, base=None)
         except HqpTpmError as exc:
             raise ScenarioError(f"{sec.where}.joints_deg: {exc}") from exc
+    _check_within_limits(robot, q, sec.where)
     return q
+
+
+#: An initial joint value may lie outside its position limits by at most this fraction of the joint's range.
+LIMIT_SLACK = 0.1
+
+
+def _check_within_limits(robot: Robot, q: np.ndarray, where: str) -> None:
+    """Reject an initial configuration far outside the joint limits (a typo such as degrees given as radians)."""
+    lo, up = robot.position_limits()
+    for jid in range(1, robot.model.njoints):
+        j = robot.model.joints[jid]
+        if j.nq != 1 or j.nv != 1 or not (np.isfinite(lo[j.idx_v]) and np.isfinite(up[j.idx_v])):
+            continue
+        a, b, v = lo[j.idx_v], up[j.idx_v], q[j.idx_q]
+        slack = LIMIT_SLACK * (b - a)
+        if not (a - slack <= v <= b + slack):
+            raise ScenarioError(f"{where}: joint {robot.model.names[jid]!r} = {v:g} rad ({np.rad2deg(v):g} deg) is "
+                                f"outside its limits [{a:g}, {b:g}] rad by more than {LIMIT_SLACK:.0%} of the range")
 
 
 def obstacles_from(sc: Scenario) -> list:
@@ -241,7 +261,12 @@ def build(sc: Scenario, solver: str | None = None):
     q0 = initial_configuration(robot, sc.initial)
     v0 = np.zeros(robot.nv)
     obstacles = obstacles_from(sc)
-    policy = build_policy(sc, robot, tasks, obstacles)
+    try:
+        policy = build_policy(sc, robot, tasks, obstacles)
+    except ScenarioError:
+        raise
+    except (HqpTpmError, ValueError) as exc:  # a policy's own check (e.g. thresholds): name the section
+        raise ScenarioError(f"{sc.policy.where}: {exc}") from exc
     policy.obstacles = getattr(policy, "obstacles", obstacles)
     box = getattr(policy, "box", None)
     if sc.limits is not None:

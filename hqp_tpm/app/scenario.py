@@ -8,11 +8,14 @@ field and the valid choices.
 
 from __future__ import annotations
 
+import ast
 import math
-import re
+import operator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 try:
     import tomllib
@@ -27,24 +30,77 @@ from hqp_tpm.solvers.registry import SOLVER_NAMES, check_solver_name
 SCENARIO_DIR = scenarios_dir()
 
 LEVELS = {"velocity": 1, "acceleration": 2}
-_EXPR = re.compile(r"^[0-9eE+\-*/(). pi]+$")
+
+#: Largest magnitude of any number in a scenario file (gains, positions, times): beyond it a value is a typo.
+MAX_ABS = 1e9
+#: Longest arithmetic string (``"6*pi"``) and the largest exponent ``**`` accepts.
+MAX_EXPR_CHARS = 200
+MAX_EXPONENT = 64
+#: Most steps one run may take (10 million: 2.8 h at 1 kHz); a longer run is split into several.
+MAX_STEPS = 10_000_000
+
+_BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
+           ast.Pow: operator.pow}
+_UNARY = {ast.UAdd: operator.pos, ast.USub: operator.neg}
+_NAMES = {"pi": math.pi}
+
+
+def _evaluate(node: ast.AST, where: str, text: str) -> float:
+    """Float arithmetic on a parsed expression: numbers, ``pi``, ``+ - * / **`` and parentheses only."""
+    if isinstance(node, ast.Expression):
+        return _evaluate(node.body, where, text)
+    if isinstance(node, ast.Constant) and type(node.value) in (int, float):
+        try:
+            return float(node.value)
+        except OverflowError:
+            raise ScenarioError(f"{where}: {text!r}: the number is too large") from None
+    if isinstance(node, ast.Name) and node.id in _NAMES:
+        return _NAMES[node.id]
+    if isinstance(node, ast.UnaryOp) and type(node.op) in _UNARY:
+        return _UNARY[type(node.op)](_evaluate(node.operand, where, text))
+    if isinstance(node, ast.BinOp) and type(node.op) in _BINOPS:
+        a, b = _evaluate(node.left, where, text), _evaluate(node.right, where, text)
+        if isinstance(node.op, ast.Pow) and abs(b) > MAX_EXPONENT:
+            raise ScenarioError(f"{where}: {text!r}: exponent {b:g} is larger than {MAX_EXPONENT}")
+        try:
+            out = _BINOPS[type(node.op)](a, b)
+        except ZeroDivisionError:
+            raise ScenarioError(f"{where}: {text!r}: division by zero") from None
+        except OverflowError:
+            raise ScenarioError(f"{where}: {text!r}: the result is too large") from None
+        if isinstance(out, complex):
+            raise ScenarioError(f"{where}: {text!r}: the result is not a real number")
+        return out
+    raise ScenarioError(f"{where}: {text!r}: only numbers, pi, + - * / ** and parentheses are allowed")
+
+
+def expression(text: str, where: str) -> float:
+    """The value of a tiny arithmetic string such as ``"6*pi"`` or ``"1/3"`` (no names but ``pi``, no calls)."""
+    if len(text) > MAX_EXPR_CHARS:
+        raise ScenarioError(f"{where}: expression longer than {MAX_EXPR_CHARS} characters")
+    try:
+        tree = ast.parse(text.strip(), mode="eval")
+    except (SyntaxError, ValueError, RecursionError, MemoryError):
+        raise ScenarioError(f"{where}: cannot read {text!r} as a number or an expression like '6*pi'") from None
+    return _evaluate(tree, where, text)
 
 
 def number(value: Any, where: str) -> float:
-    """A float from a number or a tiny arithmetic string such as ``"6*pi"``."""
+    """A finite float of magnitude <= :data:`MAX_ABS` from a number or a tiny arithmetic string (``"6*pi"``)."""
     if isinstance(value, bool):
         raise ScenarioError(f"{where}: expected a number, got {value!r}")
-    if isinstance(value, (int, float)):
-        out = float(value)
-    elif isinstance(value, str) and _EXPR.match(value):
-        try:
-            out = float(eval(value, {"__builtins__": {}}, {"pi": math.pi}))  # noqa: S307 - charset checked
-        except Exception as exc:  # noqa: BLE001
-            raise ScenarioError(f"{where}: cannot evaluate {value!r} ({exc})") from None
+    if isinstance(value, int):
+        out = float(value) if abs(value) <= MAX_ABS else math.inf
+    elif isinstance(value, float):
+        out = value
+    elif isinstance(value, str):
+        out = expression(value, where)
     else:
         raise ScenarioError(f"{where}: expected a number or an expression like '6*pi', got {value!r}")
     if not math.isfinite(out):
         raise ScenarioError(f"{where}: {value!r} is not finite")
+    if abs(out) > MAX_ABS:
+        raise ScenarioError(f"{where}: {value!r} is too large (|value| must be <= {MAX_ABS:g})")
     return out
 
 
@@ -155,6 +211,15 @@ class Scenario:
         return int(math.floor(self.duration / self.period + 1e-9)) + 1
 
 
+def check_steps(steps, where: str = "steps") -> int:
+    """A step count asked for by a caller (``--steps``): an int in ``1 .. MAX_STEPS``."""
+    if isinstance(steps, bool) or not isinstance(steps, (int, np.integer)):
+        raise ScenarioError(f"{where}: expected a whole number of steps, got {steps!r}")
+    if not 1 <= steps <= MAX_STEPS:
+        raise ScenarioError(f"{where}: {steps} is not in 1 .. {MAX_STEPS:,} (the bound of one run)")
+    return int(steps)
+
+
 def resolve_path(spec: str | Path) -> Path:
     """``spec``: a path to a TOML file or the stem of a file in ``tasks/``."""
     p = Path(spec)
@@ -194,7 +259,16 @@ def merge(base: dict, over: dict) -> dict:
 def read(path: Path, seen: tuple = ()) -> dict:
     """The file's TOML, with ``[scenario] extends = "other"`` resolved (the other file's stem or path)."""
     try:
-        data = tomllib.loads(path.read_text())
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise ScenarioError(f"{path}: cannot read the scenario file ({exc.strerror or exc})") from None
+    try:
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        line = raw[: exc.start].count(b"\n") + 1
+        raise ScenarioError(f"{path}: not UTF-8 text (byte {exc.start}, line {line}); save the file as UTF-8") from None
+    try:
+        data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
     parent = data.get("scenario", {}).pop("extends", None) if isinstance(data.get("scenario"), dict) else None
@@ -229,11 +303,18 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
     duration = sc.number("duration")
     if duration < 0:
         raise ScenarioError(f"{sc.where}.duration: must be >= 0, got {duration}")
+    if duration / period + 1 > MAX_STEPS:
+        raise ScenarioError(f"{sc.where}.duration: duration / period = {duration:g} / {period:g} is more than "
+                            f"{MAX_STEPS:,} steps, the bound of one run; use a longer period or a shorter "
+                            "duration")
+    damping = {k: sc.number(k, 0.0) for k in ("lambda_max", "eps", "nullspace_damping")}
+    for k, v in damping.items():
+        if v < 0:
+            raise ScenarioError(f"{sc.where}.{k}: must be >= 0, got {v}")
     out = Scenario(
         name=sc.string("name", path.stem), path=path, robot=sc.string("robot"),
         level=sc.string("level", choices=tuple(LEVELS)), solver=solver, period=period, duration=duration,
-        lambda_max=sc.number("lambda_max", 0.0), eps=sc.number("eps", 0.0),
-        nullspace_damping=sc.number("nullspace_damping", 0.0), description=sc.string("description", ""),
+        **damping, description=sc.string("description", ""),
         initial=top.table("initial", None) or Section({}, f"{path.name}.initial"),
         obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),

@@ -28,6 +28,8 @@ import numpy as np
 import pinocchio as pin
 import umsgpack
 
+from hqp_tpm.errors import ParameterError, StateError
+
 with warnings.catch_warnings():  # meshcat's server module imports the deprecated zmq.eventloop.ioloop
     warnings.filterwarnings("ignore", category=DeprecationWarning, module="meshcat")
     import meshcat
@@ -275,7 +277,7 @@ class _OfflineWindow:
                             mainjs=mainjs.replace("</script", "<\\/script"), commands=text)
 
     def get_image(self):  # pragma: no cover - the offline window has no browser
-        raise RuntimeError("an offline meshcat window cannot capture images")
+        raise StateError("an offline meshcat window cannot capture images")
 
 
 # ------------------------------------------------------------------------------------------ the scene
@@ -588,7 +590,7 @@ def replay_html(robot, arrays: dict, policy=None, *, fps: float = 30.0, max_fram
     t_all = np.asarray(arrays["t"], dtype=float)
     q_all = np.asarray(arrays["q"], dtype=float)
     if q_all.ndim != 2 or len(q_all) != len(t_all) or not len(t_all):
-        raise ValueError(f"arrays['q'] must be (N, nq) with N = len(arrays['t']) > 0, got {q_all.shape}")
+        raise ParameterError(f"arrays['q'] must be (N, nq) with N = len(arrays['t']) > 0, got {q_all.shape}")
     idx = _frame_indices(t_all, fps, max_frames)
     t = t_all[idx]
     active = arrays.get("active_point")

@@ -23,9 +23,10 @@ import numpy as np
 
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.stack import FixedStack, Stack
-from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.errors import NonFiniteError, ParameterError, SolverFailedError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
+from hqp_tpm.solvers.damping import check_damping, nonnegative
 from hqp_tpm.solvers.registry import ANALYTIC, check_solver_name, solve
 from hqp_tpm.tasks.base import Task
 
@@ -57,16 +58,16 @@ class Controller:
                  box: BoxFn | None = None, q0=None, v0=None, t0: float = 0.0,
                  pre_policy: Sequence[Callable[[State, float], None]] = (), crosscheck: str | None = None):
         if order not in (1, 2):
-            raise ValueError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
+            raise ParameterError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
         if not (np.isfinite(dt) and dt > 0):
-            raise ValueError(f"period dt = {dt!r} must be finite and > 0")
+            raise ParameterError(f"period dt = {dt!r} must be finite and > 0")
         self.robot = robot
         self.policy = policy if callable(policy) and not isinstance(policy, (list, tuple)) else FixedStack(policy)
         self.order = order
         self.dt = float(dt)
         self.solver = check_solver_name(solver)
-        self.lambda_max, self.eps = float(lambda_max), float(eps)
-        self.nullspace_damping = float(nullspace_damping)
+        self.lambda_max, self.eps = check_damping(lambda_max, eps)
+        self.nullspace_damping = nonnegative("nullspace_damping", nullspace_damping)
         self.box = box
         self.pre_policy = list(pre_policy)
         # a second solver run on every step, like for like (hqp_tpm.control.crosscheck)

@@ -21,7 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.errors import ScenarioError
+from hqp_tpm.errors import ParameterError, ScenarioError
 from hqp_tpm.policies.switching import ComanipulationIndices
 from hqp_tpm.references.operator import Operator
 from hqp_tpm.robot.model import Robot
@@ -40,7 +40,7 @@ class AdmittancePosition(Task):
                  damping: float = 100.0, stiffness: float = 0.001, kp: float = 5.5, name: str = "admittance"):
         for what, v in (("mass", mass), ("damping", damping), ("stiffness", stiffness), ("kp", kp), ("dt", dt)):
             if not (np.isfinite(v) and v >= 0) or (what in ("mass", "dt") and v == 0):
-                raise ValueError(f"admittance {what} = {v!r} must be finite and > 0 (>= 0 for damping, "
+                raise ParameterError(f"admittance {what} = {v!r} must be finite and > 0 (>= 0 for damping, "
                                  "stiffness, kp)")
         self.frame, self.fid, self.operator = frame, robot.frame_id(frame), operator
         self.dt, self.mass, self.damping, self.stiffness = float(dt), float(mass), float(damping), float(stiffness)

@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.errors import unknown_name
+from hqp_tpm.errors import ParameterError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.geometry.repulsion import DIRECTIONS, Repulsion, nearest_element
@@ -41,9 +41,9 @@ class Thresholds:
 
     def __post_init__(self):
         if not (0 < self.eps1 < self.eps2):
-            raise ValueError(f"thresholds must satisfy 0 < eps1 < eps2, got eps1={self.eps1}, eps2={self.eps2}")
+            raise ParameterError(f"thresholds must satisfy 0 < eps1 < eps2, got eps1={self.eps1}, eps2={self.eps2}")
         if self.eps_ee <= 0:
-            raise ValueError(f"eps_ee must be > 0, got {self.eps_ee}")
+            raise ParameterError(f"eps_ee must be > 0, got {self.eps_ee}")
 
 
 #: Reference values of the authors' code (docs/setups.md): EE and body repulsion, eq. (23) with factor c.

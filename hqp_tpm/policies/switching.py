@@ -52,6 +52,7 @@ import math
 import numpy as np
 
 from hqp_tpm.control.stack import Stack
+from hqp_tpm.errors import ParameterError
 from hqp_tpm.references.operator import Operator
 from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot.state import State
@@ -102,7 +103,7 @@ class Switching:
         for name, v in (("sigma_m_bar", sigma_m_bar), ("sigma_l_bar", sigma_l_bar),
                         ("force_threshold", force_threshold), ("tau", tau)):
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"switching policy: {name} = {v!r} must be finite and >= 0")
+                raise ParameterError(f"switching policy: {name} = {v!r} must be finite and >= 0")
         self.position, self.orientation, self.force = position, orientation, force
         self.manipulability, self.joint_limit = manipulability, joint_limit
         self.sigma_m_bar, self.sigma_l_bar = float(sigma_m_bar), float(sigma_l_bar)

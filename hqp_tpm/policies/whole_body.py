@@ -55,7 +55,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.errors import ScenarioError
+from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry.distances import DistanceField, _convexified, point_jacobian
 from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.robot.state import State
@@ -78,7 +78,7 @@ def romeo_srdf() -> Path:
 
     path = Path(erd.getModelPath("romeo_description/srdf/romeo.srdf")) / "romeo_description/srdf/romeo.srdf"
     if not path.is_file():
-        raise FileNotFoundError(f"romeo.srdf not found at {path}")
+        raise RobotFileError(f"romeo.srdf not found at {path}")
     return path
 
 
@@ -201,9 +201,9 @@ class WholeBody:
         for what, da, ds in (("obstacle", d_obstacle_activation, d_obstacle_safe),
                              ("self", d_self_activation, d_self_safe)):
             if not 0.0 <= ds < da:
-                raise ValueError(f"{what}: need 0 <= d_safe < d_activation, got {ds}, {da}")
+                raise ParameterError(f"{what}: need 0 <= d_safe < d_activation, got {ds}, {da}")
         if obstacle_rows not in ("per_obstacle", "closest"):
-            raise ValueError(f"obstacle_rows must be 'per_obstacle' or 'closest', got {obstacle_rows!r}")
+            raise ParameterError(f"obstacle_rows must be 'per_obstacle' or 'closest', got {obstacle_rows!r}")
         self.robot = robot
         self.top, self.below = list(top), list(below)
         self.obstacles = list(obstacles)

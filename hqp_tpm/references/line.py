@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hqp_tpm.errors import ShapeError
+from hqp_tpm.errors import ParameterError, ShapeError
 from hqp_tpm.references.trajectories import Trajectory, _finite
 
 
@@ -36,7 +36,7 @@ class Line(Trajectory):
                              f"{self.end_point.shape}")
         _finite([self.v_max, self.a_max, self.t_start], "v_max/a_max/t_start")
         if self.v_max <= 0 or self.a_max <= 0:
-            raise ValueError(f"line: v_max = {self.v_max!r} and a_max = {self.a_max!r} must be > 0")
+            raise ParameterError(f"line: v_max = {self.v_max!r} and a_max = {self.a_max!r} must be > 0")
         delta = self.end_point - self.start_point
         self.length = float(np.linalg.norm(delta))
         self.direction = delta / self.length if self.length > 0 else np.zeros_like(delta)

@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.errors import ShapeError
+from hqp_tpm.errors import ParameterError, ShapeError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 
@@ -46,7 +46,7 @@ class Operator:
         for name, v in (("stiffness", stiffness), ("damping", damping), ("f_max", f_max), ("noise", noise),
                         ("reach", reach), ("give_up", give_up), ("t_start", t_start), ("lag", lag)):
             if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"operator {name} = {v!r} must be finite and >= 0")
+                raise ParameterError(f"operator {name} = {v!r} must be finite and >= 0")
         self.stiffness, self.damping, self.f_max, self.noise = stiffness, damping, f_max, noise
         self.reach, self.give_up, self.t_start, self.lag = reach, give_up, t_start, lag
         self._hand = np.zeros(3)  # the lagged spring-damper force (before noise)

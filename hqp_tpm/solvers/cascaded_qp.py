@@ -29,8 +29,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError, SolverNotAvailableError, unknown_name
-from hqp_tpm.solvers.damping import RANK_TOL
+from hqp_tpm.errors import BoxError, SolverFailedError, SolverNotAvailableError, unknown_name
+from hqp_tpm.solvers.damping import RANK_TOL, check_damping, check_x0
 from hqp_tpm.solvers.levels import as_levels
 
 if TYPE_CHECKING:  # qpsolvers is imported on first use (it takes ~1 s to import)
@@ -420,9 +420,8 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     lv = as_levels(levels, n)
     n = lv[0].n if lv else n
     box_lo, box_up = check_box(lower, upper, n)
-    x0 = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
-    if x0.shape != (n,):
-        raise ShapeError(f"x0 has shape {x0.shape}, expected ({n},)")
+    lambda_max, eps = check_damping(lambda_max, eps)
+    x0 = np.zeros(n) if x0 is None else check_x0(x0, n)
     c = _Cascade(np.clip(np.zeros(n), box_lo, box_up), np.eye(n), np.zeros((0, n)), np.zeros(0),
                  solver, _attempts(solver, solver_options))
     c.keep_bounds(np.eye(n), box_lo, box_up)

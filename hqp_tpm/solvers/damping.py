@@ -9,10 +9,45 @@ below ``tol`` treated as zero.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 
 #: Singular values at or below this are treated as zero (the reference code's 1e-10).
 RANK_TOL = 1e-10
+
+
+def nonnegative(name: str, v) -> float:
+    """``v`` as a float, finite and >= 0, else a :class:`~hqp_tpm.errors.ParameterError` naming ``name``."""
+    if isinstance(v, float) and math.isfinite(v) and v >= 0.0:  # the common case, cheaply
+        return v
+    try:
+        f = float(v) if np.ndim(v) == 0 and not isinstance(v, (bool, str)) else math.nan
+    except (TypeError, ValueError):
+        f = math.nan
+    if not (math.isfinite(f) and f >= 0.0):
+        raise ParameterError(f"{name} = {v!r} must be a finite number >= 0")
+    return f
+
+
+def check_damping(lambda_max, eps) -> tuple[float, float]:
+    """``lambda_max`` and ``eps`` as floats, finite and >= 0 (a NaN or negative value would silently switch
+    the damping off)."""
+    return nonnegative("lambda_max", lambda_max), nonnegative("eps", eps)
+
+
+def check_x0(x0, n: int) -> np.ndarray | None:
+    """The null-space term ``x0`` as a finite float vector of length ``n`` (None stays None)."""
+    if x0 is None:
+        return None
+    x = np.asarray(x0, dtype=float).reshape(-1)
+    if x.shape != (n,):
+        raise ShapeError(f"x0 has {x.size} entries, expected n = {n}")
+    if not np.isfinite(x).all():
+        raise NonFiniteError(f"x0 holds non-finite values: {x}")
+    return x
 
 
 def inverted_singular_values(s: np.ndarray, lambda_max: float = 0.0, eps: float = 0.0,

@@ -12,7 +12,7 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from hqp_tpm.solvers.damping import pinv
+from hqp_tpm.solvers.damping import check_damping, check_x0, pinv
 from hqp_tpm.solvers.levels import as_levels, equality_stack
 
 
@@ -21,6 +21,8 @@ def nullspace(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
     """Solve a prioritized stack by recursive null-space projection (eqs. (5)-(6))."""
     lv = as_levels(levels, n)
     n = lv[0].n if lv else n
+    lambda_max, eps = check_damping(lambda_max, eps)
+    x0 = check_x0(x0, n)
     x = np.zeros(n)
     P = np.eye(n)
     for J, b in equality_stack(lv):
@@ -28,5 +30,5 @@ def nullspace(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
         x = x + pinv(JP, lambda_max, eps) @ (b - J @ x)        # eq. (5)
         P = P - pinv(JP) @ JP                                  # eq. (6)
     if x0 is not None:
-        x = x + P @ np.asarray(x0, dtype=float)                # eq. (14)
+        x = x + P @ x0                # eq. (14)
     return x

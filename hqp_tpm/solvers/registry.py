@@ -29,6 +29,9 @@ def solve(name: str, levels, n: int, *, x0=None, box=None, lambda_max: float = 0
     analytic solvers ignore it. ``x0`` is the joint-space null-space term (eq. (14)).
     """
     check_solver_name(name)
+    from hqp_tpm.solvers.damping import check_damping
+
+    lambda_max, eps = check_damping(lambda_max, eps)
     if name == "tpm":
         from hqp_tpm.solvers import tpm
 

@@ -30,7 +30,13 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
-from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_value, inverted_singular_values, pinv
+from hqp_tpm.solvers.damping import (
+    RANK_TOL,
+    check_damping,
+    inverted_singular_value,
+    inverted_singular_values,
+    pinv,
+)
 from hqp_tpm.solvers.levels import stacked
 
 
@@ -276,6 +282,7 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
     ``n`` is required only when ``levels`` is empty.
     """
     J, b, sizes, n = _stack(levels, n)
+    lambda_max, eps = check_damping(lambda_max, eps)
     if x0 is not None:
         x0 = np.asarray(x0, dtype=float).reshape(-1)
         if x0.shape != (n,):

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.errors import ParameterError, StateError
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
@@ -23,7 +24,7 @@ class Avoidance(Task):
 
     def __init__(self, name: str = "avoid", dim: int = 1):
         if dim not in (1, 3):
-            raise ValueError(f"avoidance dimension must be 1 (eq. (29)) or 3 (eq. (28)), got {dim!r}")
+            raise ParameterError(f"avoidance dimension must be 1 (eq. (29)) or 3 (eq. (28)), got {dim!r}")
         self.dim = dim
         super().__init__(name, np.zeros(dim))
         self._J_c = None
@@ -43,7 +44,7 @@ class Avoidance(Task):
 
     def _require(self):
         if self._J_c is None:
-            raise RuntimeError(f"avoidance task {self.name!r} used before assign(): no pair for this step")
+            raise StateError(f"avoidance task {self.name!r} used before assign(): no pair for this step")
 
     def value(self, state: State) -> np.ndarray:
         return self.point if self.dim == 3 else np.array([self.normal.dot(self.point)])

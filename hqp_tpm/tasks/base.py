@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.references.trajectories import Trajectory, as_trajectory
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
@@ -30,7 +30,7 @@ class Gains:
         for k in ("kp", "kd"):
             v = getattr(self, k)
             if not np.isfinite(v) or v < 0:
-                raise ValueError(f"gain {k} = {v!r} must be finite and >= 0")
+                raise ParameterError(f"gain {k} = {v!r} must be finite and >= 0")
 
 
 class Task(ABC):
@@ -90,7 +90,7 @@ class Task(ABC):
             b = xd_d + self.gains.kp * e
             return b if extra is None else b + extra
         if order != 2:
-            raise ValueError(f"order must be 1 (velocity) or 2 (acceleration), got {order!r}")
+            raise ParameterError(f"order must be 1 (velocity) or 2 (acceleration), got {order!r}")
         xdd = xdd_d if extra is None else xdd_d + extra
         rate = (self.jacobian(state) if J is None else J).dot(state.v)
         return xdd + self.gains.kd * (xd_d - rate) + self.gains.kp * e - self.jdot_qdot(state)
@@ -107,7 +107,7 @@ class Task(ABC):
 def select_axes(axes: str) -> np.ndarray:
     """Row indices of ``axes`` (a subset of ``"xyz"``), validated."""
     if not axes or any(a not in "xyz" for a in axes) or len(set(axes)) != len(axes):
-        raise ValueError(f"axes {axes!r} must be distinct letters among 'x', 'y', 'z'")
+        raise ParameterError(f"axes {axes!r} must be distinct letters among 'x', 'y', 'z'")
     return np.array(["xyz".index(a) for a in axes])
 
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
@@ -51,7 +51,8 @@ class JointVelocity(Task):
 
     def command(self, state: State, t: float, order: int, extra=None, J=None) -> np.ndarray:
         if order != 1:
-            raise ValueError(f"task {self.name!r}: a joint velocity is a velocity-level task (order 1), got {order!r}")
+            raise ParameterError(f"task {self.name!r}: a joint velocity is a velocity-level task (order 1), "
+                                 f"got {order!r}")
         return self.qd0
 
     def level(self, state: State, t: float, order: int, extra=None) -> Level:

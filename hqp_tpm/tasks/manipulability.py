@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.errors import ParameterError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
@@ -37,7 +38,7 @@ class Manipulability(Task):
             joints = joint_columns(robot)[0][1:-1]
         self.joints, self.cols, self.q_idx = joint_columns(robot, joints)
         if self.cols.size == 0:
-            raise ValueError("manipulability task: no joints in the sum (the robot needs at least 3 joints)")
+            raise ParameterError("manipulability task: no joints in the sum (the robot needs at least 3 joints)")
         self.nv = robot.nv
         super().__init__(name, [float(target)] if np.isscalar(target) and not isinstance(target, str) else target,
                          gains)

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.errors import ParameterError
 from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.spatial import cross, cross3
@@ -37,9 +38,9 @@ class Pointing(Task):
         z_d = np.asarray(axis, dtype=float).reshape(3)
         norm = np.linalg.norm(z_d)
         if not np.isfinite(z_d).all() or norm < 1e-12:
-            raise ValueError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
+            raise ParameterError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
         if not (0.0 <= alpha_d < np.pi):
-            raise ValueError(f"cone half-angle alpha_d = {alpha_d!r} must be in [0, pi) radians")
+            raise ParameterError(f"cone half-angle alpha_d = {alpha_d!r} must be in [0, pi) radians")
         self.z_d = z_d / norm
         self.alpha_d = float(alpha_d)
         self.inequality = inequality

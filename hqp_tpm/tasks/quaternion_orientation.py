@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.errors import ShapeError
+from hqp_tpm.errors import ParameterError, ShapeError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task, select_axes
@@ -50,7 +50,7 @@ class QuaternionOrientation(Task):
                 raise ShapeError(f"orientation target must be a 3x3 rotation matrix, got shape {R.shape}")
             R = R.reshape(3, 3)
             if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-                raise ValueError(f"orientation target is not a rotation matrix: {R.tolist()}")
+                raise ParameterError(f"orientation target is not a rotation matrix: {R.tolist()}")
             self.R_target = R
         super().__init__(name or f"{frame}_orientation", np.zeros(self.dim), gains)
 

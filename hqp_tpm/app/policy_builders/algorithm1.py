@@ -27,8 +27,13 @@ def build_algorithm1(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> 
     p_name = sec.string("pointing_task", None)
     if p_name is not None and not isinstance(tasks.get(p_name), Pointing):
         raise ScenarioError(f"{sec.where}.pointing_task: {p_name!r} is not a pointing task; tasks: {', '.join(tasks)}")
-    th = Thresholds(sec.number("eps1", 0.05), sec.number("eps2", 0.15), sec.number("eps_ee", 0.1),
-                    sec.number("d_ee_default", 0.11))
+    eps1, eps2 = sec.number("eps1", 0.05), sec.number("eps2", 0.15)
+    if not 0 < eps1 < eps2:
+        raise ScenarioError(f"{sec.where}.eps1: need 0 < eps1 < eps2, got eps1 = {eps1:g}, eps2 = {eps2:g}")
+    eps_ee = sec.number("eps_ee", 0.1)
+    if eps_ee <= 0:
+        raise ScenarioError(f"{sec.where}.eps_ee: must be > 0, got {eps_ee:g}")
+    th = Thresholds(eps1, eps2, eps_ee, sec.number("d_ee_default", 0.11))
     dim = {"1d": 1, "3d": 3}
     av = sec.string("avoidance", "1d", choices=tuple(dim))
     frames = sec.raw("control_points")
