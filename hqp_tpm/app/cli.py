@@ -9,70 +9,144 @@ from pathlib import Path
 
 from hqp_tpm.errors import HqpTpmError
 
+#: Figures are drawn from at most this many samples per series (every k-th step beyond it): memory stays flat.
+FIGURE_SAMPLES = 50_000
+
+
+def _every(arrays: dict, n: int, limit: int = FIGURE_SAMPLES) -> dict:
+    """Every k-th row of the per-step arrays, so that at most ``limit`` rows remain (k = 1 up to ``limit``)."""
+    k = max(1, -(-n // limit))
+    if k == 1:
+        return arrays
+    return {key: (v[::k] if getattr(v, "ndim", 0) and v.shape[0] == n else v) for key, v in arrays.items()}
+
 
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
                  progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
-                 steps: int | None = None, explain: bool = False) -> dict:
-    """Load, build, run and write one scenario; returns its metrics (``summary["files"]``: the files written)."""
+                 steps: int | None = None, explain: bool = False, force: bool = False, stop=None) -> dict:
+    """Load, build, run and write one scenario; returns its metrics (``summary["files"]``: the files written).
+
+    The output folder is checked before any work (:func:`hqp_tpm.app.results.check_target`; ``force``
+    replaces a non-empty folder that is not a previous result) and written crash-safe: built in a
+    temporary folder next to ``out`` and swapped in at the end with ``manifest.json``. ``stop``: a
+    callable checked before every step; when it returns true the run ends and the steps done so far are
+    written as a partial result (``summary["status"] == "partial"``; into ``<out>.partial`` when ``out``
+    holds a complete result). A step that fails also leaves the steps before it as a partial result,
+    then the error is raised.
+    """
+    import numpy as np
     from threadpoolctl import threadpool_limits
 
     from hqp_tpm.app import build, results, runner, scenario
 
     sc = scenario.load(spec)
-    robot, ctrl, tasks, policy = build.build(sc, solver=solver)
-    probes = [results.task_error_probe(tasks)]
-    if hasattr(policy, "probe"):
-        probes.append(policy.probe)
-    explainer = None
-    if explain:  # the per-step account (hqp_tpm.app.explain); nothing is computed without it
-        from hqp_tpm.app.explain import Explainer
+    n_steps = sc.steps if steps is None else scenario.check_steps(steps, "--steps")
+    folder = results.ResultFolder(Path(out), force=force)
+    try:
+        robot, ctrl, tasks, policy = build.build(sc, solver=solver)
+        probes = [results.task_error_probe(tasks)]
+        if hasattr(policy, "probe"):
+            probes.append(policy.probe)
+        explainer = None
+        if explain:  # the per-step account (hqp_tpm.app.explain); nothing is computed without it
+            from hqp_tpm.app.explain import Explainer
 
-        explainer = Explainer(ctrl)
-        probes.append(explainer.probe)
-    other = None
-    if crosscheck:
-        other = "qp" if ctrl.solver in ("tpm", "nullspace", "sns_tpm", "sns") else "tpm"
-    live = None
-    if viz:
-        from hqp_tpm.app.viewer import LiveViewer
+            explainer = Explainer(ctrl)
+            probes.append(explainer.probe)
+        other = None
+        if crosscheck:
+            other = "qp" if ctrl.solver in ("tpm", "nullspace", "sns_tpm", "sns") else "tpm"
+        live = None
+        if viz:
+            from hqp_tpm.app.viewer import LiveViewer
 
-        live = LiveViewer(robot, policy)
-        probes.append(live.probe)
-    with threadpool_limits(limits=1):
-        rec, timing = runner.run(ctrl, steps or sc.steps, progress=progress, crosscheck=other, probes=probes,
-                                 label=sc.name)
-    arrays = rec.arrays()
-    if explainer is not None:
-        explainer.finish(arrays)
-    results.standard_aliases(arrays, tasks)
-    summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
-               **results.metrics(arrays, timing, tasks)}
-    if hasattr(policy, "summary"):  # policy-specific numbers (e.g. the co-manipulation indices)
-        summary.update(policy.summary(arrays))
-    if explainer is not None:
-        from hqp_tpm.app.explain import summary as explain_summary
+            live = LiveViewer(robot, policy)
+            probes.append(live.probe)
+        rec = runner.Recording(list(robot.joint_names), folder.path / ".columns")
+        failure = None
+        with threadpool_limits(limits=1):
+            try:
+                rec, timing = runner.run(ctrl, n_steps, progress=progress, crosscheck=other, probes=probes,
+                                         label=sc.name, recording=rec, stop=stop)
+            except HqpTpmError as exc:  # the steps before the failing one are kept, as a partial result
+                failure = exc
+                rec.close()
+                timing = {"wall_time_s": float("nan"), "steps": len(rec), "mean_step_us": float("nan")}
+        done = int(timing["steps"])
+        status = "complete" if done == n_steps and failure is None else "partial"
+        if done == 0:
+            folder.abort()
+            if failure is not None:
+                raise failure
+            return {"scenario": sc.name, "status": "partial", "steps": 0, "steps_requested": n_steps,
+                    "out": None}
+        arrays = rec.load()
+        if explainer is not None:
+            explainer.finish(arrays)
+        results.standard_aliases(arrays, tasks)
+        summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
+                   **results.metrics(arrays, timing, tasks)}
+        if hasattr(policy, "summary"):  # policy-specific numbers (e.g. the co-manipulation indices)
+            summary.update(policy.summary(arrays))
+        if explainer is not None:
+            from hqp_tpm.app.explain import summary as explain_summary
 
-        summary["explain"] = explain_summary(arrays)
-    results.finish_units(summary, tasks)
-    results.write(out, arrays, summary)
-    written = [out / "trajectory.npz", out / "metrics.json"]
-    if figures and explainer is not None:
-        from hqp_tpm.app.explain import figure as explain_figure
+            summary["explain"] = explain_summary(arrays)
+        summary.pop("stopped", None)
+        summary.update(steps=done, steps_requested=n_steps, status=status)
+        results.finish_units(summary, tasks)
+        files = rec.files()
+        for k, v in arrays.items():  # aliases (ee_error, pointing_error) and arrays added after the run
+            if k in files:
+                continue
+            src = next((f for f in files if arrays.get(f) is v), None)
+            if src is None:
+                files[k] = rec.folder / f"{k}.npy"
+                np.save(files[k], np.asarray(v))
+            else:
+                files[k] = files[src]
+        results.write_npz(folder.path / "trajectory.npz", files)
+        results.write_text(folder.path / "metrics.json", results.dumps(summary))
+        written = ["trajectory.npz", "metrics.json"]
+        if figures and explainer is not None:
+            from hqp_tpm.app.explain import figure as explain_figure
 
-        explain_figure(out / "explain.png", arrays, title=f"{sc.name}: fraction of each task met")
-        written.append(out / "explain.png")
-    if figures:
-        from hqp_tpm.app import figures as figs
+            explain_figure(folder.path / "explain.png", _every(arrays, done),
+                           title=f"{sc.name}: fraction of each task met")
+            written.append("explain.png")
+        if figures:
+            from hqp_tpm.app import figures as figs
 
-        written += figs.write_all(out, arrays, sc, tasks, policy)
-    if replay:
-        try:
-            from hqp_tpm.app.viewer import write_replay
-        except ImportError:
-            write_replay = None
-        if write_replay is not None:
-            written.append(write_replay(out / "replay.html", robot, arrays, policy))
-    summary["files"] = [str(p) for p in written]
+            written += [Path(p).name for p in figs.write_all(folder.path, _every(arrays, done), sc, tasks, policy)]
+        if replay:
+            try:
+                from hqp_tpm.app.viewer import write_replay
+            except ImportError:
+                write_replay = None
+            if write_replay is not None:
+                write_replay(folder.path / "replay.html", robot, arrays, policy,
+                             title=f"hqp-tpm replay: {Path(out).name} ({getattr(robot, 'name', '')})")
+                written.append("replay.html")
+        del arrays
+        rec.discard()
+        import shutil
+
+        shutil.rmtree(rec.folder, ignore_errors=True)
+        reason = None
+        if failure is not None:
+            reason = f"step {done + 1} failed: {failure}"
+        elif status == "partial":
+            reason = f"stopped after {done} of {n_steps} steps"
+        dest = folder.commit({"scenario": sc.name, "scenario_file": str(sc.path), "solver": ctrl.solver,
+                              "steps": done, "steps_requested": n_steps, "status": status, "reason": reason})
+    except BaseException:
+        folder.abort()
+        raise
+    summary["out"] = str(dest)
+    summary["files"] = [str(dest / name) for name in written]
+    if failure is not None:
+        failure.partial_result = dest
+        raise failure
     return summary
 
 
@@ -96,6 +170,63 @@ def wrote_line(files) -> str:
     return "wrote " + ", ".join(str(p) for p in paths)
 
 
+class _Signals:
+    """SIGINT/SIGTERM while a run is going: the first one asks the step loop to stop (the steps done are
+    written as a partial result), a second one aborts at once (the temporary folder is removed)."""
+
+    def __init__(self) -> None:
+        self.signum: int | None = None
+        self._old: dict = {}
+
+    def __enter__(self) -> _Signals:
+        import signal
+
+        for sig in (signal.SIGINT, signal.SIGTERM):
+            try:
+                self._old[sig] = signal.signal(sig, self._handle)
+            except ValueError:  # not the main thread: leave the handlers alone
+                pass
+        return self
+
+    def _handle(self, signum, frame) -> None:
+        if self.signum is not None:
+            raise KeyboardInterrupt
+        self.signum = signum
+
+    def stop(self) -> bool:
+        return self.signum is not None
+
+    def __exit__(self, *exc) -> None:
+        import signal
+
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+    @property
+    def exit_code(self) -> int:
+        return 128 + int(self.signum or 2)
+
+    @property
+    def name(self) -> str:
+        import signal
+
+        return signal.Signals(self.signum or 2).name
+
+
+def _print_lines(lines) -> int:
+    """Print to stdout; a reader that goes away (``hqp-tpm list | head``) ends the output quietly."""
+    try:
+        for line in lines:
+            print(line)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        import os
+
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())  # no second error when Python flushes stdout at exit
+    return 0
+
+
 def main(argv=None) -> int:
     from hqp_tpm import __version__
 
@@ -105,13 +236,15 @@ def main(argv=None) -> int:
     p_run = sub.add_parser("run", help="run a scenario (a TOML file, or the name of a shipped scenario)")
     p_run.add_argument("scenario")
     p_run.add_argument("--out", type=Path, default=None, help="output folder (default runs/<scenario>)")
+    p_run.add_argument("--force", action="store_true", help="replace the contents of a non-empty --out folder "
+                       "that is not a previous result of hqp-tpm")
     p_run.add_argument("--solver", default=None, help="override the scenario's solver: tpm, nullspace, sns_tpm, "
                        "sns, qp, qp:<backend>")
     p_run.add_argument("--crosscheck", action="store_true", help=CROSSCHECK_HELP)
     p_run.add_argument("--viz", action="store_true", help="show the run live in meshcat")
     p_run.add_argument("--no-figures", action="store_true")
     p_run.add_argument("--no-replay", action="store_true")
-    p_run.add_argument("--steps", type=int, default=None, help="run only this many steps")
+    p_run.add_argument("--steps", type=int, default=None, help="run only this many steps (1 .. 10,000,000)")
     p_run.add_argument("--quiet", action="store_true", help="no progress bar")
     p_run.add_argument("--explain", action="store_true", help="record every step's account: each task's fraction "
                        "met and what blocked it (hqp-tpm explain RUN_DIR --t T prints it)")
@@ -125,28 +258,39 @@ def main(argv=None) -> int:
         if args.command == "explain":
             from hqp_tpm.app.explain import explain_run
 
-            print(explain_run(args.run_dir, args.t))
-            return 0
+            return _print_lines([explain_run(args.run_dir, args.t)])
         if args.command == "list":
             from hqp_tpm.app.scenario import SCENARIO_DIR, load
 
             files = sorted(SCENARIO_DIR.glob("*.toml"))
             width = max((len(f.stem) for f in files), default=0)
-            for f in files:
-                print(f.stem if args.names else f"{f.stem:{width}s}  {load(f).description}")
-            return 0
+            return _print_lines(f.stem if args.names else f"{f.stem:{width}s}  {load(f).description}" for f in files)
         out = args.out or Path("runs") / Path(args.scenario).stem
-        summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,
-                               progress=not args.quiet, figures=not args.no_figures, replay=not args.no_replay,
-                               viz=args.viz, steps=args.steps, explain=args.explain)
+        with _Signals() as signals:
+            summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,
+                                   progress=not args.quiet, figures=not args.no_figures, replay=not args.no_replay,
+                                   viz=args.viz, steps=args.steps, explain=args.explain, force=args.force,
+                                   stop=signals.stop)
     except HqpTpmError as exc:
-        print(f"hqp-tpm: error: {exc}", file=sys.stderr)
+        where = getattr(exc, "partial_result", None)
+        extra = f" (the steps before it are in {where}, marked partial)" if where is not None else ""
+        print(f"hqp-tpm: error: {exc}{extra}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("hqp-tpm: interrupted; nothing written, the output folder is as it was", file=sys.stderr)
+        return 130
+    if signals.signum is not None:
+        if summary.get("out") is None:
+            print(f"hqp-tpm: interrupted ({signals.name}) before the first step; nothing written", file=sys.stderr)
+        else:
+            print(f"hqp-tpm: interrupted ({signals.name}) after {summary['steps']} of {summary['steps_requested']} "
+                  f"steps: {summary['status']} result in {summary['out']}", file=sys.stderr)
+        return signals.exit_code
+    from hqp_tpm.app.results import strict
+
     keys = [k for k in summary if k.endswith(("_max", "_rms", "_min")) or k in ("max_dq_jump", "wall_time_s",
                                                                              "crosscheck_max_diff")]
-    print(json.dumps({k: summary[k] for k in keys}, indent=2))
-    print(wrote_line(summary["files"]))
-    return 0
+    return _print_lines([json.dumps(strict({k: summary[k] for k in keys}), indent=2), wrote_line(summary["files"])])
 
 
 if __name__ == "__main__":

@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+import ctypes
+import errno
+import functools
 import json
+import math
+import os
+import shutil
+import stat as _stat
+import sys
+import tempfile
+import time
+import uuid
+import zipfile
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
+from hqp_tpm.errors import OutputError
 from hqp_tpm.tasks import Pointing
 from hqp_tpm.tasks.base import Task
 
@@ -50,6 +63,9 @@ METRICS: dict[str, tuple[str, str]] = {
     "level": ("-", "``velocity`` or ``acceleration``"),
     "crosscheck_solver": ("-", "the second solver of ``--crosscheck`` (null without it)"),
     "steps": ("1", "control steps run"),
+    "steps_requested": ("1", "control steps asked for (more than ``steps`` in a partial run)"),
+    "status": ("-", "``complete``, or ``partial`` when the run was stopped (signal) or a step failed"),
+    "{metric}_reason": ("-", "why ``{metric}`` is null: it was not finite (NaN or inf); metrics.json is strict JSON"),
     "wall_time_s": ("s", "wall-clock time of the whole loop (recording included)"),
     "mean_step_us": ("µs", "mean time of one control step (state update, policy, solve, integration)"),
     "max_dq_jump": ("rad/s", "largest change of any joint velocity between two consecutive steps"),
@@ -117,6 +133,8 @@ def schema_key(key: str, tasks=()) -> str | None:
     """The :data:`METRICS` entry ``key`` belongs to (None if none)."""
     if key in METRICS:
         return key
+    if key.endswith("_reason") and schema_key(key[: -len("_reason")], tasks) is not None:
+        return "{metric}_reason"
     for name in sorted(tasks, key=len, reverse=True):
         for part in ("position", "orientation"):
             for stat in ("max", "rms"):
@@ -178,8 +196,14 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
         out["scale_min"] = float(arrays["scale"].min())
         out["steps_scaled"] = int((arrays["scale"] < 1 - 1e-12).sum())
     dt = float(arrays["t"][1] - arrays["t"][0]) if arrays["t"].size > 1 else 0.0
-    out["time_in_stack_s"] = {k: v * dt for k, v in Counter(arrays["stack"].tolist()).items()}
-    out["stack_changes"] = int((arrays["stack"][1:] != arrays["stack"][:-1]).sum())
+    counts: Counter = Counter()
+    changes, stack, step = 0, arrays["stack"], 65536  # in blocks: memory does not grow with the run
+    for i in range(0, stack.shape[0], step):
+        block = np.asarray(stack[max(i - 1, 0):i + step])
+        counts.update(block[1:].tolist() if i else block.tolist())
+        changes += int((block[1:] != block[:-1]).sum())
+    out["time_in_stack_s"] = {k: v * dt for k, v in counts.items()}
+    out["stack_changes"] = changes
     out["units"] = units
     return out
 
@@ -222,13 +246,255 @@ def _violation_deg(arrays, tasks, mask) -> float:
     return 0.0
 
 
+def strict(value, reasons: dict | None = None, key: str = ""):
+    """``value`` made strict JSON: a non-finite float becomes ``None`` and ``<key>_reason`` says why."""
+    if isinstance(value, dict):
+        out = {}
+        for k, v in value.items():
+            extra: dict = {}
+            out[k] = strict(v, extra, str(k))
+            out.update({rk: rv for rk, rv in extra.items() if rk not in value})
+        return out
+    if isinstance(value, (list, tuple)):
+        return [strict(v) for v in value]
+    if isinstance(value, (float, np.floating)) and not math.isfinite(value):
+        if reasons is not None and key:
+            reasons[f"{key}_reason"] = f"not finite ({float(value)!r}): the run produced NaN or inf"
+        return None
+    if isinstance(value, np.integer):
+        return int(value)
+    if isinstance(value, np.floating):
+        return float(value)
+    return value
+
+
+def dumps(summary: dict) -> str:
+    """Strict JSON text of a summary (``allow_nan=False``: no ``NaN``/``Infinity`` tokens)."""
+    return json.dumps(strict(summary), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+
+def write_npz(path: Path, files: dict[str, Path]) -> None:
+    """``trajectory.npz`` from ``.npy`` files, streamed (compressed like ``np.savez_compressed``)."""
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_DEFLATED, allowZip64=True) as zf:
+        for key, f in files.items():
+            zf.write(f, arcname=f"{key}.npy")
+
+
 def write(out_dir: Path, arrays: dict, summary: dict) -> None:
-    """Write ``trajectory.npz`` and ``metrics.json`` into ``out_dir`` (created if needed)."""
+    """Write ``trajectory.npz`` and ``metrics.json`` into ``out_dir`` (a folder being built: see
+    :class:`ResultFolder` for the crash-safe way to produce a run's folder)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    tmp = out_dir / "trajectory.tmp.npz"
-    np.savez_compressed(tmp, **arrays)
-    tmp.replace(out_dir / "trajectory.npz")  # never leave a half-written file behind
-    (out_dir / "metrics.json").write_text(json.dumps(summary, indent=2, sort_keys=True) + "\n")
+    tmp = out_dir / f".trajectory.{os.getpid()}.{uuid.uuid4().hex[:8]}.npz"
+    try:
+        np.savez_compressed(tmp, **arrays)
+        tmp.replace(out_dir / "trajectory.npz")
+    finally:
+        tmp.unlink(missing_ok=True)
+    write_text(out_dir / "metrics.json", dumps(summary))
+
+
+def write_text(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a uniquely named temporary file in the same folder."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
+    try:
+        with open(tmp, "x", encoding="utf-8") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+# ------------------------------------------------------------------------------------ result folders
+MANIFEST = "manifest.json"
+#: Files a result folder of earlier versions (before manifests) may hold: such a folder is recognised too.
+RESULT_FILES = ("trajectory.npz", "metrics.json", "replay.html", "joint_velocities.png", "task_errors.png",
+                "pointing_error.png", "distances.png", "comanipulation.png")
+_TMP_TAG = ".hqp-tpm-"
+
+
+def read_manifest(folder: Path) -> dict | None:
+    """The manifest of a result folder, or None when there is none (or it is unreadable)."""
+    try:
+        data = json.loads((Path(folder) / MANIFEST).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) and data.get("tool") == "hqp-tpm" else None
+
+
+def is_complete(folder: Path) -> bool:
+    """True when ``folder`` holds a complete result of hqp-tpm (its manifest says so)."""
+    m = read_manifest(folder)
+    if m is None:  # a result of an earlier version (no manifest) counts as complete
+        folder = Path(folder)
+        return folder.is_dir() and not (folder / MANIFEST).exists() and (folder / "metrics.json").is_file() \
+            and (folder / "trajectory.npz").is_file()
+    return m.get("status") == "complete"
+
+
+def _is_previous_result(folder: Path) -> bool:
+    if read_manifest(folder) is not None:
+        return True
+    names = {p.name for p in folder.iterdir()}
+    return bool(names) and names <= set(RESULT_FILES) and "metrics.json" in names
+
+
+def _read_only(path: Path) -> bool:
+    st = path.stat()
+    return not os.access(path, os.W_OK) or not (st.st_mode & _stat.S_IWUSR)
+
+
+def check_target(target: Path, *, force: bool = False) -> Path:
+    """Check before any work that ``target`` can receive a run's results; returns it absolute.
+
+    Refused (:class:`~hqp_tpm.errors.OutputError`): a path that is a file, a read-only folder (or parent),
+    a non-empty folder that is not a previous result of hqp-tpm (unless ``force``).
+    """
+    target = Path(target).absolute()
+    if target.exists() or target.is_symlink():
+        if not target.is_dir():
+            raise OutputError(f"output {str(target)!r} is a file, not a folder; choose another --out")
+        if _read_only(target):
+            raise OutputError(f"output folder {str(target)!r} is read-only")
+        if not force and any(target.iterdir()) and not _is_previous_result(target):
+            raise OutputError(f"output folder {str(target)!r} is not empty and holds no hqp-tpm result "
+                              f"(no {MANIFEST}); choose another --out, or pass --force to replace its contents")
+    parent = target.parent
+    existing = parent
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise OutputError(f"cannot create output folder {str(target)!r}: {str(existing)!r} is a file")
+    if _read_only(existing):
+        raise OutputError(f"cannot write into {str(existing)!r} (read-only), needed for output {str(target)!r}")
+    return target
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two paths (Linux ``renameat2(RENAME_EXCHANGE)``); False where that is not available."""
+    fn = _renameat2()
+    if fn is None:
+        return False
+    if fn(-100, os.fsencode(a), -100, os.fsencode(b), 2) == 0:  # AT_FDCWD, RENAME_EXCHANGE
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.ENOSYS, errno.EINVAL, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
+
+
+@functools.lru_cache(maxsize=1)
+def _renameat2():
+    if sys.platform != "linux":
+        return None
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_char_p, ctypes.c_int, ctypes.c_char_p, ctypes.c_uint]
+    fn.restype = ctypes.c_int
+    return fn
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+class ResultFolder:
+    """A run's output folder, built in a fresh temporary folder next to ``target`` and swapped in at the end.
+
+    ``ResultFolder(target)`` checks the target (:func:`check_target`) and creates the temporary folder
+    (``.<name>.hqp-tpm-<pid>-<random>``: concurrent runs never share a name); write the files into
+    :attr:`path`, then :meth:`commit` writes ``manifest.json`` and replaces ``target`` by the new folder
+    in one atomic step (the previous folder, if any, is then removed); :meth:`abort` removes the
+    temporary folder and leaves ``target`` as it was. A partial result (``status = "partial"``) never
+    replaces a complete one: it goes to ``<target>.partial`` instead (see :meth:`destination`).
+    Temporary folders left by killed processes (their pid is gone) are removed on the way.
+    """
+
+    def __init__(self, target: Path, *, force: bool = False) -> None:
+        self.target = check_target(target, force=force)
+        self.force = force
+        parent = self.target.parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+            self._sweep_stale(parent)
+            self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{_TMP_TAG}{os.getpid()}-", dir=parent))
+            umask = os.umask(0)
+            os.umask(umask)
+            self.path.chmod(0o777 & ~umask)  # a normal folder (mkdtemp's is private)
+        except OSError as exc:
+            raise OutputError(f"cannot create a folder next to {str(self.target)!r}: {exc.strerror or exc}") from None
+        self.done = False
+
+    def _sweep_stale(self, parent: Path) -> None:
+        prefix = f".{self.target.name}{_TMP_TAG}"
+        for p in parent.glob(f"{prefix}*"):
+            try:
+                pid = int(p.name[len(prefix):].split("-", 1)[0])
+            except ValueError:
+                continue
+            if pid != os.getpid() and not _pid_alive(pid):
+                shutil.rmtree(p, ignore_errors=True)
+
+    def destination(self, status: str) -> Path:
+        """Where a result of this ``status`` goes: the target, or ``<target>.partial`` for a partial run
+        when the target holds a complete result."""
+        if status != "complete" and is_complete(self.target):
+            return self.target.with_name(self.target.name + ".partial")
+        return self.target
+
+    def commit(self, manifest: dict) -> Path:
+        """Write the manifest, then swap the folder in; returns where it went."""
+        from hqp_tpm import __version__
+
+        status = manifest.get("status", "complete")
+        files = sorted(p.name for p in self.path.iterdir() if p.name != MANIFEST)
+        full = {"tool": "hqp-tpm", "version": __version__, "status": status,
+                "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), **manifest, "files": files}
+        write_text(self.path / MANIFEST, json.dumps(strict(full), indent=2, sort_keys=True, allow_nan=False) + "\n")
+        dest = self.destination(status)
+        for _ in range(8):  # another run may create or replace the target meanwhile: try again
+            if dest.exists():
+                if _exchange(self.path, dest):
+                    shutil.rmtree(self.path, ignore_errors=True)  # now holds the previous folder
+                    break
+                old = dest.with_name(f".{dest.name}{_TMP_TAG}{os.getpid()}-old-{uuid.uuid4().hex[:8]}")
+                try:
+                    os.rename(dest, old)
+                except FileNotFoundError:
+                    continue
+                try:
+                    os.rename(self.path, dest)
+                except OSError:
+                    os.rename(old, dest)  # put the previous result back
+                    raise
+                shutil.rmtree(old, ignore_errors=True)
+                break
+            try:
+                os.rename(self.path, dest)
+                break
+            except OSError as exc:
+                if exc.errno not in (errno.EEXIST, errno.ENOTEMPTY):
+                    raise
+        else:
+            raise OutputError(f"could not replace {str(dest)!r}: it kept changing")
+        self.done = True
+        return dest
+
+    def abort(self) -> None:
+        """Remove the temporary folder; the target is left as it was."""
+        if not self.done:
+            shutil.rmtree(self.path, ignore_errors=True)
+            self.done = True
 
 
 if __name__ == "__main__":

@@ -2,44 +2,157 @@
 
 from __future__ import annotations
 
+import os
+import shutil
+import struct
+import tempfile
 import time
-from dataclasses import dataclass, field
+from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
 from hqp_tpm.control.controller import Controller
+from hqp_tpm.errors import ShapeError, StateError
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.solvers.registry import solve
 
+#: Rows a column keeps in memory before they are appended to its file (a chunk).
+CHUNK_ROWS = 4096
+#: Bytes reserved for the header of a column's ``.npy`` file (rewritten with the final shape on close).
+_HEADER_BYTES = 256
 
-@dataclass
+
+def _npy_header(dtype: np.dtype, shape: tuple) -> bytes:
+    """A version-1.0 ``.npy`` header padded to :data:`_HEADER_BYTES` (so the shape can grow in place)."""
+    text = repr({"descr": np.lib.format.dtype_to_descr(dtype), "fortran_order": False, "shape": tuple(shape)})
+    body = text.encode("latin1")
+    pad = _HEADER_BYTES - 10 - len(body) - 1
+    if pad < 0:
+        raise ValueError(f"npy header too long for shape {shape}")
+    return b"\x93NUMPY\x01\x00" + struct.pack("<H", _HEADER_BYTES - 10) + body + b" " * pad + b"\n"
+
+
+class _Column:
+    """One recorded quantity: rows buffered in memory, then appended to ``<folder>/<key>.npy``."""
+
+    def __init__(self, path: Path, first) -> None:
+        self.path = path
+        arr = np.asarray(first, dtype=float)
+        self.tail = arr.shape
+        self.dtype = np.dtype(float)
+        self.rows = 0
+        self.buf: list = []
+        self.fh = open(path, "wb")  # noqa: SIM115 - closed by close()
+        self.fh.write(_npy_header(self.dtype, (0, *self.tail)))
+
+    def add(self, value) -> None:
+        self.buf.append(value)
+        if len(self.buf) >= CHUNK_ROWS:
+            self.flush()
+
+    def flush(self) -> None:
+        if not self.buf:
+            return
+        block = np.asarray(self.buf, dtype=self.dtype)
+        if block.shape[1:] != self.tail:
+            raise ShapeError(f"recorded value {self.path.stem!r} changed shape from {self.tail} to {block.shape[1:]}")
+        self.fh.write(np.ascontiguousarray(block).tobytes())
+        self.rows += block.shape[0]
+        self.buf = []
+
+    def close(self) -> None:
+        self.flush()
+        self.fh.seek(0)
+        self.fh.write(_npy_header(self.dtype, (self.rows, *self.tail)))
+        self.fh.close()
+
+
 class Recording:
-    """Per-step arrays of a run (``t, q, dq, ddq, stack`` and any probe values)."""
+    """Per-step values of a run (``t, q, dq, ddq, stack`` and any probe values), streamed to disk.
 
-    joint_names: list[str]
-    columns: dict[str, list] = field(default_factory=dict)
+    Each quantity is buffered for :data:`CHUNK_ROWS` steps and then appended to its own ``.npy`` file in
+    ``folder`` (a fresh temporary folder when none is given), so memory does not grow with the number of
+    steps. :meth:`close` finishes the files; :meth:`load` opens them memory-mapped (``np.load(path,
+    mmap_mode="r")`` works as well); :meth:`arrays` returns them in memory, as before. The stack label
+    (``stack``) is stored as an integer code per step plus the list of labels, and becomes a string
+    column on close.
+    """
+
+    def __init__(self, joint_names, folder: str | os.PathLike | None = None) -> None:
+        self.joint_names = list(joint_names)
+        self._own = folder is None
+        self.folder = Path(tempfile.mkdtemp(prefix="hqp-tpm-rec-")) if folder is None else Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.columns: dict[str, _Column] = {}
+        self.labels: dict[str, int] = {}
+        self.closed = False
+
+    def __len__(self) -> int:
+        col = self.columns.get("t")
+        return 0 if col is None else col.rows + len(col.buf)
 
     def __repr__(self) -> str:
-        n = len(self.columns.get("t", ()))
-        return f"Recording({n} steps, {len(self.joint_names)} joints, columns: {', '.join(self.columns)})"
+        cols = ", ".join("stack" if k == "stack_code" else k for k in self.columns)
+        return f"Recording({len(self)} steps, {len(self.joint_names)} joints, columns: {cols})"
 
     def add(self, **values) -> None:
+        if self.closed:
+            raise StateError("the recording is closed")
         for k, v in values.items():
-            self.columns.setdefault(k, []).append(v)
+            if k == "stack":
+                v = self.labels.setdefault(v, len(self.labels))
+                k = "stack_code"
+            col = self.columns.get(k)
+            if col is None:
+                col = self.columns[k] = _Column(self.folder / f"{k}.npy", v)
+            col.add(v)
+
+    def close(self) -> None:
+        """Write the buffered rows and the final headers; add ``stack.npy`` (labels) and ``joint_names.npy``."""
+        if self.closed:
+            return
+        for col in self.columns.values():
+            col.close()
+        self.closed = True
+        names = list(self.labels)
+        codes = self.columns.get("stack_code")
+        if codes is not None:
+            width = max((len(s) for s in names), default=1) or 1
+            dtype = np.dtype(f"<U{width}")
+            lookup = np.array(names, dtype=dtype)
+            src = np.load(codes.path, mmap_mode="r")
+            with open(self.folder / "stack.npy", "wb") as fh:
+                fh.write(_npy_header(dtype, (src.shape[0],)))
+                for i in range(0, src.shape[0], 16 * CHUNK_ROWS):
+                    fh.write(lookup[np.asarray(src[i:i + 16 * CHUNK_ROWS], dtype=int)].tobytes())
+            del src
+            codes.path.unlink()
+        np.save(self.folder / "joint_names.npy", np.array(self.joint_names, dtype=str))
+
+    def files(self) -> dict[str, Path]:
+        """Key -> ``.npy`` file of the closed recording."""
+        self.close()
+        return {p.stem: p for p in sorted(self.folder.glob("*.npy"))}
+
+    def load(self) -> dict[str, np.ndarray]:
+        """The closed recording's arrays, memory-mapped (read only)."""
+        return {k: np.load(p, mmap_mode="r") for k, p in self.files().items()}
 
     def arrays(self) -> dict[str, np.ndarray]:
-        out = {}
-        for k, v in self.columns.items():
-            if k == "stack":
-                out[k] = np.array(v, dtype=str)
-            else:
-                out[k] = np.asarray(v, dtype=float)
-        out["joint_names"] = np.array(self.joint_names, dtype=str)
-        return out
+        """The recording's arrays in memory (for short runs and tests)."""
+        return {k: np.array(v) for k, v in self.load().items()}
+
+    def discard(self) -> None:
+        """Remove the files of a recording made in its own temporary folder."""
+        self.close()
+        if self._own:
+            shutil.rmtree(self.folder, ignore_errors=True)
 
 
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
-        probes=(), label: str = "run") -> tuple[Recording, dict]:
+        probes=(), label: str = "run", recording: Recording | None = None,
+        stop: Callable[[], bool] | None = None) -> tuple[Recording, dict]:
     """Step ``ctrl`` ``steps`` times, recording the state at each sample time and the command.
 
     ``dq`` is the joint velocity applied during the step (the command at velocity level, the
@@ -47,8 +160,11 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     level) or the finite difference of ``dq`` (velocity level). ``crosscheck`` names a second
     solver that solves every step's same levels; the largest command difference is recorded.
     ``probes``: callables ``probe(ctrl, result) -> dict`` adding per-step values.
+    ``recording``: where to stream the rows (default: a new :class:`Recording` in a temporary folder);
+    it is returned closed. ``stop``: checked before each step; when it returns true the run ends there
+    (``timing["steps"]`` says how many steps were done, ``timing["stopped"]`` is true).
     """
-    rec = Recording(list(ctrl.robot.joint_names))
+    rec = Recording(list(ctrl.robot.joint_names)) if recording is None else recording
     bar = None
     if progress:
         from tqdm import tqdm
@@ -57,7 +173,12 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     prev_dq = None
     solve_time = 0.0
     t_start = time.perf_counter()
+    done = 0
+    stopped = False
     for _ in range(steps):
+        if stop is not None and stop():
+            stopped = True
+            break
         q, v, t = ctrl.q.copy(), ctrl.v.copy(), ctrl.t
         t0 = time.perf_counter()
         res = ctrl.step()
@@ -89,10 +210,14 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         for probe in probes:
             row.update(probe(ctrl, res))
         rec.add(**row)
+        done += 1
         if bar is not None:
             bar.update(1)
     if bar is not None:
         bar.close()
     wall = time.perf_counter() - t_start
-    timing = {"wall_time_s": wall, "steps": steps, "mean_step_us": 1e6 * solve_time / max(steps, 1)}
+    rec.close()
+    timing = {"wall_time_s": wall, "steps": done, "mean_step_us": 1e6 * solve_time / max(done, 1)}
+    if stopped:
+        timing["stopped"] = True
     return rec, timing
