@@ -307,7 +307,8 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         raise ScenarioError(f"{sc.where}.duration: duration / period = {duration:g} / {period:g} is more than "
                             f"{MAX_STEPS:,} steps, the bound of one run; use a longer period or a shorter "
                             "duration")
-    damping = {k: sc.number(k, 0.0) for k in ("lambda_max", "eps", "nullspace_damping")}
+    damping = {"lambda_max": sc.number("lambda_max", 0.0), "eps": sc.number("eps", 0.0),
+               "nullspace_damping": sc.number("nullspace_damping", 0.0)}
     for k, v in damping.items():
         if v < 0:
             raise ScenarioError(f"{sc.where}.{k}: must be >= 0, got {v}")
