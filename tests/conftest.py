@@ -1,14 +1,11 @@
-"""Shared test helpers."""
+"""Shared test helpers. The random stacks come from the public module users import too."""
 
 import numpy as np
+
+from hqp_tpm.testing.stacks import random_stack  # noqa: F401  (re-exported for the test files)
 
 
 def rel_diff(a, b) -> float:
     """Relative difference ``|a - b| / max(1, |b|)`` (2-norm)."""
     a, b = np.asarray(a, float), np.asarray(b, float)
     return float(np.linalg.norm(a - b) / max(1.0, np.linalg.norm(b)))
-
-
-def random_stack(rng, n, sizes, scale=1.0):
-    """Independent Gaussian levels ``(J_i, b_i)`` with the given row counts."""
-    return [(rng.standard_normal((m, n)), scale * rng.standard_normal(m)) for m in sizes]

@@ -22,8 +22,12 @@ Where each equivalence is guaranteed (the library's own tests prove these on the
 * ``stacks(full_rank=True)`` with ``cond=None`` (Gaussian levels, ``n <= 40``, ``l <= 10``,
   ``m_i <= 6``, targets scaled 1e-2..1e2): TPM == recursive null space to 1e-9, the cascaded QP
   == TPM to 1e-8 (osqp 1e-5) for ``n <= 20``;
+* ``full_rank_stacks()`` (the library's TPM draws): TPM == recursive null space to 1e-9;
+  ``full_rank_stacks(max_n=20, max_levels=6, max_rows=4)``: the cascaded QP == TPM to 1e-8;
 * ``dependent_stacks()`` (exactly dependent, nearly dependent at 1e-3, conflicting and singular
-  levels): TPM == recursive null space to 1e-9, exact or damped;
+  levels, n = 12): TPM == recursive null space to 1e-9, exact or damped;
+* ``problems`` with :func:`~hqp_tpm.testing.stacks.random_problem` (the SNS draws): the box is never left,
+  SNS-TPM's fast path == Algorithm 1 as written (1e-9), the QP's first-level residual is never larger;
 * ``stacks(cond=(lo, hi))``: the stacked Jacobian has condition number exactly ``c`` (log-uniform in
   ``[lo, hi]``), its small singular directions spread over the levels (nearly dependent levels).
   Agreement is guaranteed to ``max(1e-6, 1e3 eps c)`` on the range the solvers' numerics cover
@@ -48,9 +52,39 @@ except ImportError as e:  # pragma: no cover - exercised only without the extra
     raise ImportError("hqp_tpm.testing.strategies needs hypothesis: pip install 'hqp-tpm[testing]'") from e
 
 from hqp_tpm.solvers.levels import Level
+from hqp_tpm.testing.stacks import (  # noqa: F401  (the builders, re-exported: one import for a test file)
+    DAMPING,
+    box_for,
+    box_without_zero,
+    dependent_singular_stack,
+    dependent_stack,
+    nearly_dependent_stack,
+    random_problem,
+    random_stack,
+)
 
 SEEDS = st.integers(0, 2**32 - 1)
 SCALES = (1e-2, 1.0, 100.0)
+
+#: ``(seed, kind)`` for :func:`~hqp_tpm.testing.stacks.random_problem`: the SNS draws of the library's tests.
+problems = st.tuples(SEEDS, st.sampled_from(["full_rank", "any", "damped"]))
+
+
+@st.composite
+def full_rank_stacks(draw, *, max_n: int = 40, max_levels: int = 10, max_rows: int = 6,
+                     scales: Sequence[float] = SCALES):
+    """``(levels, rng)``: l = 1..max_levels levels of m_i = 1..max_rows Gaussian rows, sum m_i <= n <= max_n
+    (full row rank; levels dropped until they fit), targets scaled by one of ``scales``; ``rng`` continues
+    the seed's stream (for an ``x0``). TPM == recursion to 1e-9 (defaults); with ``max_n=20, max_levels=6,
+    max_rows=4`` the cascaded QP == TPM to 1e-8 (osqp 1e-5)."""
+    seed = draw(SEEDS)
+    rng = np.random.default_rng(seed)
+    l = draw(st.integers(1, max_levels))
+    sizes = [draw(st.integers(1, max_rows)) for _ in range(l)]
+    while sum(sizes) > max_n:
+        sizes.pop()
+    n = draw(st.integers(max(sum(sizes), 1), max_n))
+    return random_stack(rng, n, sizes, scale=draw(st.sampled_from(list(scales)))), rng
 
 
 @dataclass
@@ -162,26 +196,18 @@ def stacks(draw, *, n=(2, 15), levels=(1, 4), rows=(1, 4), full_rank: bool = Fal
 
 
 @st.composite
-def dependent_stacks(draw, *, n=(8, 15), singular_within: bool | None = None, scale: float = 10.0):
-    """Stacks whose tasks are exactly dependent on higher ones, nearly so (1e-3), or in conflict (the same task
-    again); optionally a level singular by itself (two parallel rows). TPM == recursion to 1e-9 here."""
+def dependent_stacks(draw, *, n=12, singular_within: bool | None = None, scale: float = 10.0):
+    """:func:`~hqp_tpm.testing.stacks.dependent_stack`: tasks exactly dependent on higher ones, nearly so
+    (1e-3), or in conflict (the same task again); optionally a level singular by itself. TPM == recursion to
+    1e-9 at n = 12 (with fewer columns than rows, 13, they differ today: see README)."""
     seed = draw(SEEDS)
     rng = np.random.default_rng(seed)
     nn = draw(st.integers(*_range(n, "n")))
     within = draw(st.booleans()) if singular_within is None else singular_within
-    J1 = rng.standard_normal((3, nn))
-    J2 = rng.standard_normal((2, nn))
-    Jdep = np.vstack([J1[0] + J2[1], rng.standard_normal(nn)])  # exactly dependent row
-    Jnear = np.vstack([J1[1] + 1e-3 * rng.standard_normal(nn), rng.standard_normal(nn)])  # nearly dependent
-    Jsame = J2.copy()  # the same task again with another target: a pure conflict
-    # a damped pivot comes before the exactly singular ones (README, 'Where TPM and recursion differ')
-    Js = [J1, J2, Jnear, Jdep, Jsame]
-    if within:
-        Jw = rng.standard_normal((2, nn))
-        Jw[1] = 2.0 * Jw[0]
-        Js.insert(2, Jw)
-    lv = [(J, scale * rng.standard_normal(J.shape[0])) for J in Js]
-    return StackCase(lv, nn, seed, tuple(J.shape[0] for J in Js), None, None, rng)
+    lv = dependent_stack(rng, nn, within)
+    if scale != 10.0:
+        lv = [(J, b * (scale / 10.0)) for J, b in lv]
+    return StackCase(lv, nn, seed, tuple(J.shape[0] for J, _ in lv), None, None, rng)
 
 
 def _free_solution(levels, n, damping):
