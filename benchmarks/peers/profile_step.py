@@ -2,10 +2,14 @@
 
     python benchmarks/peers/profile_step.py [--problem iiwa_vel|romeo_vel|iiwa_acc] [--solver tpm] [--steps 2000]
 
-1. One ``Controller.compute()`` traced with ``sys.setprofile``: every Python and C call, in order,
-   with its depth (the call tree of one step) and the number of calls per function.
-2. cProfile over ``--steps`` steps (configurations of the problem in turn): calls per step and µs per
-   step by function (self time and cumulative).
+1. Phases of one step timed apart in tight loops (median µs of ``--reps`` calls at one configuration,
+   no profiler overhead): pinocchio's kinematics alone, ``State.update``, each task's ``level``,
+   ``Stack.to_levels``, and inside ``tpm``: stacking (``stacked``), ``J^T = QR`` + pivots
+   (``_Factorization``), ``F b``, ``J# y``; the rest of ``Controller.compute`` by difference.
+2. One ``Controller.compute()`` traced with ``sys.setprofile``: every Python call and builtin C call
+   (not Boost.Python ones such as pinocchio's), in order, with its depth, and calls per function.
+3. cProfile over ``--steps`` steps (configurations of the problem in turn): calls per step and µs per
+   step by function (self time and cumulative; inflated by the profiler's per-call overhead).
 Writes ``benchmarks/results/peers/profile_<problem>_<solver>.txt``.
 """
 
@@ -21,6 +25,8 @@ from pathlib import Path
 
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+
+import numpy as np  # noqa: E402
 
 from benchmarks import common  # noqa: E402
 from benchmarks.peers import problems as P  # noqa: E402
@@ -56,11 +62,86 @@ def trace_one(fn) -> tuple[list[str], Counter]:
     return lines[:-1], counts  # the last call is sys.setprofile itself
 
 
+def _median_us(fn, reps: int) -> float:
+    fn()
+    ts = []
+    for _ in range(reps):
+        t0 = time.perf_counter_ns()
+        fn()
+        ts.append(time.perf_counter_ns() - t0)
+    return sorted(ts)[len(ts) // 2] / 1e3
+
+
+def phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
+    """Median µs of the phases of one ``Controller.compute()`` (see the module docstring)."""
+    import importlib
+
+    import pinocchio as pin
+
+    lvmod = importlib.import_module("hqp_tpm.solvers.levels")
+    tpm_mod = importlib.import_module("hqp_tpm.solvers.tpm")
+
+    st, model = ctrl.state, ctrl.robot.model
+    data, q, v, z = st.data, ctrl.q, ctrl.v, np.zeros(ctrl.robot.nv)
+    stack = ctrl.policy(st, ctrl.t)
+    out = [("Controller.compute (whole step)", _median_us(ctrl.compute, reps))]
+
+    def kin():
+        pin.forwardKinematics(model, data, q, v, z)
+        pin.computeJointJacobians(model, data)
+        pin.updateFramePlacements(model, data)
+
+    out.append(("  pinocchio alone: forwardKinematics + computeJointJacobians + updateFramePlacements",
+                _median_us(kin, reps)))
+    out.append(("State.update (the above + cache reset)", _median_us(lambda: st.update(q, v, ctrl.t, validate=False),
+                                                                       reps)))
+
+    def levels_fresh():
+        st._cache.clear()  # a fresh step: Jacobians and CoM not cached yet
+        return stack.to_levels(st, ctrl.t, ctrl.order)
+
+    out.append(("Stack.to_levels (all tasks, fresh cache)", _median_us(levels_fresh, reps)))
+    for lv in stack.levels:
+        for task in lv:
+            def one(task=task):
+                st._cache.clear()
+                return task.level(st, ctrl.t, ctrl.order)
+            out.append((f"  {type(task).__name__}({task.name}).level, fresh cache", _median_us(one, reps)))
+    levels = levels_fresh()
+    out.append(("  cache reset alone (dict.clear)", _median_us(st._cache.clear, reps)))
+    nv = ctrl.robot.nv
+    out.append(("tpm(levels) (solve alone)", _median_us(lambda: tpm_mod.tpm(levels, n=nv), reps)))
+    out.append(("  stacked(levels): validation + vstack J, concatenate b", _median_us(lambda: lvmod.stacked(levels, nv),
+                                                                                    reps)))
+    _, J, b, sizes, n = lvmod.stacked(levels, nv)
+    out.append(("  _Factorization: dgeqrf of J^T (padded) + pivots", _median_us(
+        lambda: tpm_mod._Factorization(J, sizes, n, 0.0, 0.0), reps)))
+    fac = tpm_mod._Factorization(J, sizes, n, 0.0, 0.0)
+    out.append((f"    pivots alone ({len(sizes)} blocks; regular={fac.regular}, singular={fac.singular})",
+                _median_us(lambda: tpm_mod._pivots(fac.qr, fac.off, 0.0, 0.0), reps)))
+
+    def fb():
+        fac._Fbar = None
+        return fac.F_times(b)
+
+    out.append(("  F b (Steps 1-4 when a pivot is not regular)", _median_us(fb, reps)))
+    y = fac.F_times(b)
+
+    def pt():
+        fac._Q = None
+        return fac.pinv_times(y)
+
+    out.append(("  J# y = Q R^-T y (SVD pinv of R^T when singular) incl. dorgqr", _median_us(pt, reps)))
+    out.append((f"stacked J: {J.shape[0]} x {J.shape[1]}, levels {list(sizes)}", float("nan")))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problem", default="iiwa_vel", choices=("iiwa_vel", "romeo_vel", "iiwa_acc"))
     ap.add_argument("--solver", default="tpm")
     ap.add_argument("--steps", type=int, default=2000)
+    ap.add_argument("--reps", type=int, default=3000)
     ap.add_argument("--out", type=Path, default=common.RESULTS / "peers")
     args = ap.parse_args(argv)
     with common.one_blas_thread():
@@ -73,6 +154,7 @@ def main(argv=None) -> int:
         ctrls = [P.hqp_controller(robot, prob, cfg, args.solver) for cfg in prob.configs]
         for c in ctrls:
             c.compute()
+        phases = phase_times(ctrls[0], args.reps)
         lines, counts = trace_one(ctrls[0].compute)
         times = []
         for k in range(args.steps):
@@ -93,8 +175,10 @@ def main(argv=None) -> int:
     n = args.steps
     out = [f"# hqp-tpm full step (Controller.compute) on {prob.name}, solver {args.solver}",
            f"median step without profiler: {med:.1f} µs over {n} steps; {sum(counts.values())} calls in one step "
-           f"({sum(v for k, v in counts.items() if k.endswith('[C]'))} of them C functions)", "",
-           "## Calls per function in one step", ""]
+           f"({sum(v for k, v in counts.items() if k.endswith('[C]'))} of them builtin C functions)", "",
+           "## Phases (median µs, tight loops at one configuration)", ""]
+    out += [f"{t:8.1f}  {name}" if t == t else f"          {name}" for name, t in phases]
+    out += ["", "## Calls per function in one step", ""]
     out += [f"{v:4d}  {k}" for k, v in counts.most_common()]
     out += ["", f"## cProfile over {n} steps: per step (self µs, cumulative µs, calls), by self time", ""]
     for tt, ct, nc, name in sorted(rows, reverse=True)[:45]:
