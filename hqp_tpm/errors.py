@@ -63,6 +63,10 @@ class StateError(HqpTpmError, RuntimeError):
     """An object is used in a state that does not allow the call (e.g. a task before its pair is assigned)."""
 
 
+class SweepError(HqpTpmError, ValueError):
+    """A sweep or campaign is ill-defined: a field path that resolves nowhere, a bad range, an unknown executor."""
+
+
 class OutputError(HqpTpmError, OSError):
     """An output location cannot be used: a file where a folder is needed, a read-only folder, or a
     non-empty folder that is not a previous result of hqp-tpm (``--force`` to use it anyway)."""

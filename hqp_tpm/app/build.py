@@ -263,9 +263,9 @@ def build(sc: Scenario, solver: str | None = None):
     obstacles = obstacles_from(sc)
     try:
         policy = build_policy(sc, robot, tasks, obstacles)
-    except ScenarioError:
-        raise
-    except (HqpTpmError, ValueError) as exc:  # a policy's own check (e.g. thresholds): name the section
+    except (HqpTpmError, ValueError) as exc:  # a policy's own check (e.g. thresholds): name the file and section
+        if isinstance(exc, ScenarioError) and sc.path.name in str(exc):
+            raise
         raise ScenarioError(f"{sc.policy.where}: {exc}") from exc
     policy.obstacles = getattr(policy, "obstacles", obstacles)
     box = getattr(policy, "box", None)

@@ -23,7 +23,8 @@ def _every(arrays: dict, n: int, limit: int = FIGURE_SAMPLES) -> dict:
 
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
                  progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
-                 steps: int | None = None, explain: bool = False, force: bool = False, stop=None) -> dict:
+                 steps: int | None = None, explain: bool = False, force: bool = False, stop=None,
+                 manifest: dict | None = None) -> dict:
     """Load, build, run and write one scenario; returns its metrics (``summary["files"]``: the files written).
 
     The output folder is checked before any work (:func:`hqp_tpm.app.results.check_target`; ``force``
@@ -32,14 +33,15 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     callable checked before every step; when it returns true the run ends and the steps done so far are
     written as a partial result (``summary["status"] == "partial"``; into ``<out>.partial`` when ``out``
     holds a complete result). A step that fails also leaves the steps before it as a partial result,
-    then the error is raised.
+    then the error is raised. ``spec``: a scenario file or name, or a parsed
+    :class:`~hqp_tpm.app.scenario.Scenario`; ``manifest``: extra entries of ``manifest.json``.
     """
     import numpy as np
     from threadpoolctl import threadpool_limits
 
     from hqp_tpm.app import build, results, runner, scenario
 
-    sc = scenario.load(spec)
+    sc = spec if isinstance(spec, scenario.Scenario) else scenario.load(spec)
     n_steps = sc.steps if steps is None else scenario.check_steps(steps, "--steps")
     folder = results.ResultFolder(Path(out), force=force)
     try:
@@ -138,7 +140,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         elif status == "partial":
             reason = f"stopped after {done} of {n_steps} steps"
         dest = folder.commit({"scenario": sc.name, "scenario_file": str(sc.path), "solver": ctrl.solver,
-                              "steps": done, "steps_requested": n_steps, "status": status, "reason": reason})
+                              "steps": done, "steps_requested": n_steps, "status": status, "reason": reason,
+                              **(manifest or {})})
     except BaseException:
         folder.abort()
         raise
@@ -227,6 +230,49 @@ def _print_lines(lines) -> int:
     return 0
 
 
+def _executor_args(p) -> None:
+    p.add_argument("--workers", type=int, default=None, help="local worker processes (default: one per core; "
+                   "0: in this process)")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster")
+    p.add_argument("--cluster", default=None, metavar="local:N", help="start a Dask LocalCluster of N processes")
+    p.add_argument("--quiet", action="store_true", help="no progress lines")
+
+
+def _sweep(args) -> int:
+    from hqp_tpm.app import sweep
+
+    grid, ranges = {}, {}
+    for text in [*args.set, *args.ranges]:
+        name, values, rng = sweep.parse_assignment(text)
+        if rng is not None:
+            ranges[name] = rng
+        else:
+            grid[name] = values
+    solvers = tuple(s.strip() for s in args.solver.split(",")) if args.solver else (None,)
+    out = args.out or Path("runs") / f"sweep_{Path(args.scenario).stem}"
+    with _Signals() as signals:
+        table = sweep.run_sweep(args.scenario, out, grid=grid, ranges=ranges, n_random=args.random, seed=args.seed,
+                                solvers=solvers, steps=args.steps, workers=args.workers, scheduler=args.scheduler,
+                                cluster=args.cluster, metrics=args.metric, figures=args.figures, force=args.force,
+                                progress=not args.quiet)
+    failed = sum(1 for r in table if r.get("error"))
+    _print_lines([f"sweep: {len(table)} variants, {failed} failed; wrote {out}/summary.csv, summary.md, sweep.png"])
+    return signals.exit_code if signals.signum is not None else 0
+
+
+def _campaign(args) -> int:
+    from hqp_tpm.app import sweep
+
+    if args.replay is not None:
+        failed = sweep.sns_draw(args.seed, args.replay)
+        return _print_lines([f"draw {args.replay} of seed {args.seed}: " + (", ".join(failed) or "all properties "
+                                                                             "hold")]) or (1 if failed else 0)
+    res = sweep.run_campaign(args.kind, args.draws, seed=args.seed, chunk=args.chunk, workers=args.workers,
+                             scheduler=args.scheduler, cluster=args.cluster, progress=not args.quiet)
+    _print_lines([json.dumps(res, indent=2)])
+    return 1 if res["failed"] or res["errors"] else 0
+
+
 def main(argv=None) -> int:
     from hqp_tpm import __version__
 
@@ -253,8 +299,35 @@ def main(argv=None) -> int:
     p_explain = sub.add_parser("explain", help="why a task was not met at time T of a run: its account")
     p_explain.add_argument("run_dir", type=Path)
     p_explain.add_argument("--t", type=float, required=True, help="time (s); the nearest recorded step is shown")
+    p_sweep = sub.add_parser("sweep", help="run a scenario over a grid or random draws of fields, on local "
+                             "processes or a Dask cluster")
+    p_sweep.add_argument("scenario")
+    p_sweep.add_argument("ranges", nargs="*", metavar="FIELD=lo:hi", help="ranges drawn by --random")
+    p_sweep.add_argument("--set", action="append", default=[], metavar="FIELD=v1,v2",
+                         help="values of a field (repeat: grid); FIELD=lo:hi is a range for --random")
+    p_sweep.add_argument("--random", type=int, default=0, metavar="N", help="N uniform draws of the ranges")
+    p_sweep.add_argument("--seed", type=int, default=0)
+    p_sweep.add_argument("--solver", default=None, help="solver(s), comma-separated: each variant runs with each")
+    p_sweep.add_argument("--steps", type=int, default=None, help="steps per run (default: the scenario's)")
+    p_sweep.add_argument("--out", type=Path, default=None, help="sweep folder (default runs/sweep_<scenario>)")
+    p_sweep.add_argument("--metric", action="append", default=None, help="metric(s) of the table and figure")
+    p_sweep.add_argument("--figures", action="store_true", help="also each variant's own figures")
+    p_sweep.add_argument("--force", action="store_true")
+    _executor_args(p_sweep)
+    p_camp = sub.add_parser("campaign", help="long property campaigns (sns: box, fast = reference, QP residual) "
+                            "through the same executors")
+    p_camp.add_argument("kind", choices=("sns",))
+    p_camp.add_argument("--draws", type=int, default=10_000)
+    p_camp.add_argument("--seed", type=int, default=0)
+    p_camp.add_argument("--chunk", type=int, default=500, help="draws per task")
+    p_camp.add_argument("--replay", type=int, default=None, metavar="INDEX", help="re-run one draw here")
+    _executor_args(p_camp)
     args = parser.parse_args(argv)
     try:
+        if args.command == "sweep":
+            return _sweep(args)
+        if args.command == "campaign":
+            return _campaign(args)
         if args.command == "explain":
             from hqp_tpm.app.explain import explain_run
 

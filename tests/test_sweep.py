@@ -1,0 +1,117 @@
+"""hqp-tpm sweep and campaign (issue 16): local processes and Dask, one code path; short horizons."""
+
+import json
+import pickle
+
+import numpy as np
+import pytest
+
+from hqp_tpm.app import scenario, sweep
+from hqp_tpm.app.cli import main, run_scenario
+from hqp_tpm.errors import HqpTpmError, ScenarioError, SweepError
+
+STEPS = 60
+GRID = {"policy.d_m": [0.15, 0.25], "obstacles[0].center": [[0.9, 0.5, 0.0], [0.8, 0.6, 0.0]]}
+SKIP = {"wall_time_s", "mean_step_us", "variant_wall_s", "out", "resumed"}
+
+
+def run(tmp_path, **kw):
+    args = {"grid": GRID, "steps": STEPS, "progress": False, "workers": 2, **kw}
+    return sweep.run_sweep("planar5_exact", tmp_path / "sw", **args)
+
+
+def stable(table):
+    return [{k: v for k, v in r.items() if k not in SKIP} for r in table]
+
+
+def test_parse_assignments():
+    assert sweep.parse_assignment("policy.eps1=0.03,0.05") == ("policy.eps1", [0.03, 0.05], None)
+    assert sweep.parse_assignment("obstacles.o1.center=[0,0.5,0.1],[0,0.5,0.2]") == (
+        "obstacles.o1.center", [[0, 0.5, 0.1], [0, 0.5, 0.2]], None)
+    assert sweep.parse_assignment("policy.eps1=0.02:0.08") == ("policy.eps1", None, (0.02, 0.08))
+    assert sweep.parse_assignment("scenario.solver=qp:daqp,tpm")[1] == ["qp:daqp", "tpm"]
+    with pytest.raises(SweepError, match="FIELD="):
+        sweep.parse_assignment("policy.eps1")
+    v = sweep.make_variants({"a.b": [1, 2]}, {"c.d": (0.0, 1.0)}, n_random=3, seed=7)
+    assert len(v) == 6 and v == sweep.make_variants({"a.b": [1, 2]}, {"c.d": (0.0, 1.0)}, n_random=3, seed=7)
+
+
+def test_sweep_equals_each_variant_run_alone_and_resumes(tmp_path):
+    table = run(tmp_path)
+    assert [r["status"] for r in table] == ["complete"] * 4 and not any(r["error"] for r in table)
+    base = scenario.read(scenario.resolve_path("planar5_exact"))
+    for r, v in zip(table, sweep.make_variants(GRID, {}), strict=True):
+        assert r["variant"] == v.name
+        alone = tmp_path / f"alone_{v.name}"
+        run_scenario(sweep.variant_scenario(base, "planar5_exact", v), alone, steps=STEPS, progress=False,
+                     figures=False, replay=False)
+        with np.load(alone / "trajectory.npz") as a, np.load(tmp_path / "sw" / v.name / "trajectory.npz") as b:
+            assert sorted(a.files) == sorted(b.files)
+            for k in a.files:
+                assert np.array_equal(a[k], b[k]), k  # bit-identical
+        m = json.loads((tmp_path / "sw" / v.name / "manifest.json").read_text())
+        assert m["status"] == "complete" and m["variant"]["overrides"] == v.overrides
+    for f in ("summary.csv", "summary.md", "sweep.png", "sweep.json"):
+        assert (tmp_path / "sw" / f).is_file()
+    # resume: nothing re-runs; a removed variant runs again
+    again = run(tmp_path)
+    assert all(r.get("resumed") for r in again) and stable(again) == stable(table)
+    import shutil
+
+    shutil.rmtree(tmp_path / "sw" / "v002")
+    third = run(tmp_path)
+    assert [bool(r.get("resumed")) for r in third] == [True, True, False, True]
+    assert stable(third) == stable(table)
+
+
+def test_failing_variant_is_recorded_not_fatal(tmp_path):
+    table = sweep.run_sweep("planar5_exact", tmp_path / "sw", grid={"policy.d_m": [0.2, -1.0]},
+                            steps=20, progress=False, workers=0)
+    ok, bad = table
+    assert ok["status"] == "complete" and not ok["error"]
+    assert bad["error_type"] and "planar5_exact[v001]" in bad["error"] and "d_m" in bad["error"]
+    assert "planar5_exact[v001]" in (tmp_path / "sw" / "summary.md").read_text()
+
+
+def test_field_that_resolves_nowhere_is_refused_before_any_work(tmp_path):
+    with pytest.raises(SweepError, match=r"obstacles\.nope.*names: 'o1'"):
+        sweep.run_sweep("planar5_exact", tmp_path / "sw", grid={"obstacles.nope.center": [[0, 0, 0]]}, workers=0)
+    assert not (tmp_path / "sw").exists()
+
+
+def test_everything_that_crosses_processes_pickles(tmp_path):
+    v = sweep.make_variants(GRID, {})[0]
+    base = scenario.read(scenario.resolve_path("planar5_exact"))
+    job = sweep.Job(v, base, "planar5_exact", str(tmp_path / "x"), 5)
+    sc = sweep.variant_scenario(base, "planar5_exact", v)
+    for obj in (v, job, sc, ScenarioError("a.toml.policy.d_m: bad"), SweepError("x")):
+        back = pickle.loads(pickle.dumps(obj))
+        assert type(back) is type(obj)
+    row = sweep.run_job(job)
+    assert pickle.loads(pickle.dumps(row)) == row
+    assert isinstance(pickle.loads(pickle.dumps(ScenarioError("m"))), HqpTpmError)
+
+
+def test_dask_local_cluster_gives_the_same_table(tmp_path):
+    pytest.importorskip("distributed")
+    local = run(tmp_path / "a")
+    dask = sweep.run_sweep("planar5_exact", tmp_path / "b" / "sw", grid=GRID, steps=STEPS, progress=False,
+                           cluster="local:2")
+    assert stable(dask) == stable(local)
+    meta = json.loads((tmp_path / "b" / "sw" / "sweep_run.json").read_text())
+    assert "LocalCluster" in meta["executor"]
+
+
+def test_cli_sweep_and_campaign(tmp_path, capsys):
+    assert main(["sweep", "planar5_exact", "--set", "policy.d_m=0.15,0.25", "--steps", "10", "--workers", "0",
+                 "--out", str(tmp_path / "s"), "--quiet"]) == 0
+    assert "2 variants, 0 failed" in capsys.readouterr().out
+    assert main(["sweep", "planar5_exact", "policy.d_m=0.1:0.3", "--random", "3", "--seed", "1", "--steps", "10",
+                 "--workers", "0", "--out", str(tmp_path / "r"), "--quiet"]) == 0
+    rows = (tmp_path / "r" / "summary.csv").read_text().splitlines()
+    assert len(rows) == 4
+    capsys.readouterr()
+    assert main(["campaign", "sns", "--draws", "30", "--chunk", "10", "--workers", "2", "--quiet"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert res["draws"] == 30 and res["failed"] == {} and res["errors"] == []
+    assert main(["campaign", "sns", "--replay", "7", "--seed", "0"]) == 0
