@@ -26,6 +26,13 @@ def pytest_addoption(parser):
     parser.addini("hqp_tpm_solvers", "comma-separated solvers compared by hqp_tpm_stack_check", default="")
 
 
+def pytest_report_header(config):
+    from hqp_tpm import __version__
+
+    return f"hqp-tpm {__version__}: fixtures hqp_tpm_stack_check, hqp_tpm_task_check (solvers: " \
+           f"{', '.join(_default_solvers(config))})"
+
+
 def _default_solvers(config) -> tuple[str, ...]:
     text = config.getoption("hqp_tpm_solvers") or config.getini("hqp_tpm_solvers")
     if text:
