@@ -286,3 +286,15 @@ def test_sns_tpm_fast_path_equals_algorithm_1_as_written(case):
     report = assert_solvers_agree(**case.kwargs(), solvers=("sns_tpm", "sns_tpm_reference", "qp:daqp"))
     same = [c for c in report.comparisons if c.what == "same problem"]
     assert [(c.a, c.b) for c in same] == [("sns_tpm", "sns_tpm_reference")]
+
+
+def test_run_crosscheck_separates_steps_where_the_problems_differ(tmp_path):
+    """hqp-tpm run --crosscheck on SNS-TPM: where the box binds, SNS-TPM and the QP solve different problems
+    (reported apart); on the other steps the commands agree."""
+    from hqp_tpm.app.cli import run_scenario
+
+    summary = run_scenario("romeo_sns_tpm", tmp_path, crosscheck=True, steps=150, figures=False, replay=False,
+                           progress=False)
+    assert summary["crosscheck_steps_different_problems"] > 0
+    assert summary["crosscheck_max_diff"] > 1e-3  # the binding steps
+    assert summary["crosscheck_max_diff_same_problem"] < 1e-6

@@ -89,6 +89,12 @@ METRICS: dict[str, tuple[str, str]] = {
     "crosscheck_max_diff": ("rad/s or rad/s²", "largest difference of the command between the run's solver and the "
                             "crosscheck solver on the same levels (rad/s at velocity level, rad/s² at acceleration "
                             "level)"),
+    "crosscheck_max_diff_same_problem": ("rad/s or rad/s²", "``crosscheck_max_diff`` over the steps where the two "
+                                         "solvers solve the same problem (no box binds that one of them ignores "
+                                         "or scales differently)"),
+    "crosscheck_steps_different_problems": ("1", "steps where a binding box makes the two solvers solve different "
+                                            "problems (SNS-TPM's uniform scale vs the lexicographic QP, TPM vs a "
+                                            "boxed solver)"),
     "scale_min": ("1", "smallest SNS task scale factor s"),
     "steps_scaled": ("1", "steps with s < 1"),
     "time_in_stack_s": ("s", "time spent in each stack (stack label -> seconds)"),
@@ -192,6 +198,10 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
             out[f"{key}_min"] = float(np.nanmin(arrays[key]))
     if "crosscheck_diff" in arrays:
         out["crosscheck_max_diff"] = float(arrays["crosscheck_diff"].max())
+        if "crosscheck_same_problem" in arrays:
+            same = arrays["crosscheck_same_problem"] > 0.5
+            out["crosscheck_max_diff_same_problem"] = float(arrays["crosscheck_diff"][same].max(initial=0.0))
+            out["crosscheck_steps_different_problems"] = int((~same).sum())
     if "scale" in arrays:
         out["scale_min"] = float(arrays["scale"].min())
         out["steps_scaled"] = int((arrays["scale"] < 1 - 1e-12).sum())

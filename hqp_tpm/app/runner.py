@@ -14,8 +14,7 @@ import numpy as np
 
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.errors import ShapeError, StateError
-from hqp_tpm.solvers.levels import Level
-from hqp_tpm.solvers.registry import solve
+from hqp_tpm.solvers.registry import check_solver_name
 
 #: Rows a column keeps in memory before they are appended to its file (a chunk).
 CHUNK_ROWS = 4096
@@ -158,7 +157,9 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     ``dq`` is the joint velocity applied during the step (the command at velocity level, the
     state velocity at acceleration level); ``ddq`` the acceleration command (acceleration
     level) or the finite difference of ``dq`` (velocity level). ``crosscheck`` names a second
-    solver that solves every step's same levels; the largest command difference is recorded.
+    solver the controller runs at every step like for like (``Controller(crosscheck=...)``, also used
+    when the controller was built with one): ``crosscheck_diff`` (largest command difference) and
+    ``crosscheck_same_problem`` (0 where a binding box makes the two solve different problems).
     ``probes``: callables ``probe(ctrl, result) -> dict`` adding per-step values.
     ``recording``: where to stream the rows (default: a new :class:`Recording` in a temporary folder);
     it is returned closed. ``stop``: checked before each step; when it returns true the run ends there
@@ -172,6 +173,9 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         bar = tqdm(total=steps, desc=label, unit="step", mininterval=0.5)
     prev_dq = None
     solve_time = 0.0
+    own_check = ctrl.crosscheck
+    if crosscheck:  # solved by the controller at every step, through the same path as the command
+        ctrl.crosscheck = check_solver_name(crosscheck)
     t_start = time.perf_counter()
     done = 0
     stopped = False
@@ -197,16 +201,10 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
             sat = np.zeros(ctrl.robot.nv)
             sat[np.asarray(res.info["saturated"], dtype=int)] = 1.0
             row["saturated"] = sat
-        if crosscheck:
-            x0 = -ctrl.nullspace_damping * v if (ctrl.order == 2 and ctrl.nullspace_damping) else None
-            box = ctrl.box(ctrl.state, t) if ctrl.box is not None else None
-            # the same stack: inequality rows as the analytic solver used them (active ones, as equalities)
-            same = [Level(J, b, name=lv.name) for lv, (J, b) in zip(res.levels, (lv.as_equality() for lv in
-                                                                             res.levels), strict=True)
-                    if J.shape[0]]
-            other, _ = solve(crosscheck, same, ctrl.robot.nv, x0=x0, box=box,
-                             lambda_max=ctrl.lambda_max, eps=ctrl.eps)
-            row["crosscheck_diff"] = float(np.max(np.abs(other - res.command)))
+        if "crosscheck" in res.info:  # the controller's like-for-like check (hqp_tpm.control.crosscheck)
+            check = res.info["crosscheck"]
+            row["crosscheck_diff"] = check["diff"]
+            row["crosscheck_same_problem"] = float(check["same_problem"])
         for probe in probes:
             row.update(probe(ctrl, res))
         rec.add(**row)
@@ -215,6 +213,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
             bar.update(1)
     if bar is not None:
         bar.close()
+    ctrl.crosscheck = own_check
     wall = time.perf_counter() - t_start
     rec.close()
     timing = {"wall_time_s": wall, "steps": done, "mean_step_us": 1e6 * solve_time / max(done, 1)}
