@@ -287,6 +287,7 @@ class _Resolver:
         self.levels, self.acc, self.solve = levels, acc, solve
         self.cache: dict = {}
         self.budget = budget  # re-solves left for this step
+        self.found: list[tuple[int, ...]] = []  # blocking sets found for the levels explained so far
         self.side = dict(zip(acc.at_bound, acc.sides, strict=True))  # grows with joints saturated after a release
 
     def released(self, joints: frozenset) -> _Outcome:
@@ -433,6 +434,12 @@ def _joint_cause(resolver: _Resolver, acc: StepAccount, k: int, hint=None) -> li
         joints = [j for j, _ in hint]
         frac = resolver.released(frozenset(joints)).fraction[k]
         return [Cause("joint_bounds", (), tuple(joints), tuple(resolver.side[j] for j in joints), frac)]
+    for known in sorted(resolver.found, key=len):  # a set found for a higher level of this step often suffices:
+        if reached(known):                        # the filter then starts from it (fewer, mostly cached, solves)
+            joints = deletion_filter(list(known), reached)
+            resolver.found.append(tuple(joints))
+            frac = resolver.released(frozenset(joints)).fraction[k]
+            return [Cause("joint_bounds", (), tuple(joints), tuple(resolver.side[j] for j in joints), frac)]
 
     start = list(acc.at_bound)
     n = acc.x.shape[0]
@@ -454,6 +461,7 @@ def _joint_cause(resolver: _Resolver, acc: StepAccount, k: int, hint=None) -> li
     else:
         return []
     joints = deletion_filter(start, reached)
+    resolver.found.append(tuple(joints))
     frac = resolver.released(frozenset(joints)).fraction[k]
     return [Cause("joint_bounds", (), tuple(joints), tuple(resolver.side[j] for j in joints), frac)]
 
