@@ -282,3 +282,21 @@ def test_explain_with_hard_levels_raises_the_certificate():
         explain([top], x, box=box, info=info, solver="qp", hard=1)
     acc = explain([top], x, box=box, info=info, solver="qp")   # not declared hard: explained, no error
     assert acc.causes[0][0].kind == "joint_bounds"
+
+
+def test_replay_shows_the_current_frames_account(romeo_run, tmp_path):
+    from hqp_tpm.app.explain import annotate_replay
+
+    out, _ = romeo_run
+    arrays = dict(np.load(out / "trajectory.npz"))
+    page = tmp_path / "replay.html"
+    page.write_text('<html><body><span id="hqp-label">t = 0.000 s</span></body></html>')
+    assert annotate_replay(page, arrays, fps=1000.0)
+    text = page.read_text()
+    assert 'id="hqp-explain"' in text and "right_hand" in text and text.count("</body>") == 1
+    data = json.loads(text.split("const frames = ", 1)[1].split(";\n", 1)[0].replace("<\\/", "</"))
+    assert data["t"] == [round(float(t), 6) for t in arrays["t"]] and len(data["index"]) == 6
+    assert not annotate_replay(page, arrays)                     # once only
+    bare = tmp_path / "bare.html"
+    bare.write_text("<html><body></body></html>")
+    assert not annotate_replay(bare, arrays)                     # no time label: left as it is

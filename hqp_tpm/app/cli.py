@@ -129,6 +129,10 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
                 write_replay(folder.path / "replay.html", robot, arrays, policy,
                              title=f"hqp-tpm replay: {Path(out).name} ({getattr(robot, 'name', '')})")
                 written.append("replay.html")
+                if explainer is not None:  # the account of the current frame beside the robot
+                    from hqp_tpm.app.explain import annotate_replay
+
+                    annotate_replay(folder.path / "replay.html", arrays, solver=ctrl.solver)
         del arrays
         rec.discard()
         import shutil

@@ -263,6 +263,59 @@ def figure(path: Path, arrays: dict, title: str = "") -> Path | None:
     return path
 
 
+# -- the HTML replay -------------------------------------------------------------------------------
+_PANEL = """<pre id="hqp-explain" style="position: fixed; right: 8px; top: 8px; z-index: 10; max-width: 46vw;
+ max-height: 80vh; overflow: auto; margin: 0; padding: 6px 8px; border-radius: 4px; font: 11px monospace;
+ background: rgba(255, 255, 255, 0.88); white-space: pre-wrap;"></pre>
+<script>
+(function () {
+  const frames = %s;
+  const panel = document.getElementById("hqp-explain"), label = document.getElementById("hqp-label");
+  let last = -1;
+  function update() {
+    const m = label ? /t = ([-0-9.]+)/.exec(label.textContent) : null;
+    const t = m ? parseFloat(m[1]) : frames.t[0];
+    let lo = 0, hi = frames.t.length - 1;
+    while (lo < hi) { const mid = (lo + hi) >> 1; if (frames.t[mid] < t) lo = mid + 1; else hi = mid; }
+    if (lo > 0 && Math.abs(frames.t[lo - 1] - t) <= Math.abs(frames.t[lo] - t)) lo -= 1;
+    if (lo !== last) { panel.textContent = frames.text[frames.index[lo]]; last = lo; }
+    requestAnimationFrame(update);
+  }
+  update();
+})();
+</script>
+"""
+
+
+def annotate_replay(path, arrays: dict, *, fps: float = 30.0, solver: str = "") -> bool:
+    """Add the account of the current frame beside the robot in a replay page (``replay.html``).
+
+    The page's time label (``t = ... s``) is read every frame and the account of the nearest recorded
+    step (sampled at ``fps``; equal texts stored once) is shown in a panel. Returns False (page left as it
+    is) when the run has no account or the page has no time label.
+    """
+    path = Path(path)
+    if "explain_fraction" not in arrays or not path.exists():
+        return False
+    page = path.read_text(encoding="utf-8")
+    if 'id="hqp-label"' not in page or 'id="hqp-explain"' in page:
+        return False
+    t = np.asarray(arrays["t"], dtype=float)
+    step = max(1, int(round(1.0 / (fps * (t[1] - t[0]))))) if t.size > 1 else 1
+    idx = list(range(0, t.size, step))
+    texts, index, seen = [], [], {}
+    for i in idx:
+        text = format_step(arrays, i, solver=solver).split("\n", 1)[-1]  # the page shows t itself
+        if text not in seen:
+            seen[text] = len(texts)
+            texts.append(text)
+        index.append(seen[text])
+    data = json.dumps({"t": [round(float(t[i]), 6) for i in idx], "index": index, "text": texts})
+    panel = _PANEL % data.replace("</", "<\\/")
+    path.write_text(page.replace("</body>", panel + "</body>", 1), encoding="utf-8")
+    return True
+
+
 # -- text ----------------------------------------------------------------------------------------
 def _fmt_vec(v) -> str:
     return "[" + ", ".join(f"{x:+.3f}" for x in np.asarray(v)) + "]"
