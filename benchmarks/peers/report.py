@@ -107,7 +107,11 @@ def main(argv=None) -> int:
             if not math.isfinite(ratio):
                 cells.append(f"failed ({r.get('failed', '')[:60]})")
                 continue
-            cell = f"{ratio:.2f}" + (f" (p99 {num(r, 'ratio_p99'):.2f})" if math.isfinite(num(r, "ratio_p99")) else "")
+            cpu = num(r, "cpu_ratio_median")
+            extra = [f"CPU {cpu:.2f}"] if math.isfinite(cpu) else []
+            if math.isfinite(num(r, "ratio_p99")):
+                extra.append(f"p99 {num(r, 'ratio_p99'):.2f}")
+            cell = f"{ratio:.2f}" + (f" ({'; '.join(extra)})" if extra else "")
             cell += f" · {f(num(r, 'median_us'), 1)} µs [{r['env']}]"
             fc = int(num(r, "failed_configs")) if math.isfinite(num(r, "failed_configs")) else 0
             if fc:
@@ -140,10 +144,12 @@ def main(argv=None) -> int:
 
     # all rows -------------------------------------------------------------------------------
     dhead = ["env", "pin", "problem", "phase", "contender", "n", "median µs", "p99 µs (all calls)",
-             "p99 µs (config medians)", "ratio median", "ratio p99", "loop ms", "failed"]
+             "p99 µs (config medians)", "CPU µs median", "ratio median", "ratio p99", "CPU-time ratio median",
+             "loop ms", "failed"]
     dbody = [[r["env"], r["pin"], r["problem"], r["phase"], r["contender"], r.get("configs", ""),
               f(num(r, "median_us"), 1), f(num(r, "p99_us"), 1), f(num(r, "p99_cfg_us"), 1),
-              f(num(r, "ratio_median")), f(num(r, "ratio_p99")),
+              f(num(r, "cpu_median_us"), 1), f(num(r, "ratio_median")), f(num(r, "ratio_p99")),
+              f(num(r, "cpu_ratio_median")),
               f(num(r, "loop_ms"), 1), (r.get("failed", "") or "")[:80]] for r in rows
              if not r["problem"].startswith(("lwr", "romeo_obs"))]
     detail = common.md_table(dhead, dbody)
@@ -167,10 +173,12 @@ def main(argv=None) -> int:
         "virtual environment (each peer pins its own pinocchio); in each process the contenders are",
         "interleaved configuration by configuration, one BLAS thread. **Ratios** are the contender's time",
         "divided by hqp-tpm `tpm`'s at the same configuration in the same process (median over 200",
-        "configurations, 99th percentile in brackets); µs are medians over configurations of the median of",
-        "the repeats; the environment ([pin4] = pin 4.x, [pin38] = pin 3.8.0, [pin34] = pin 3.4.0) says",
-        "where a cell was measured. Closed loops: ratio of whole-loop times (median of the interleaved",
-        "rounds), µs per step. Absolute times depend on the machine's load (below); compare ratios.",
+        "configurations; in brackets the same ratio of thread CPU times, which leaves out the time other",
+        "processes took the core for, and the wall-time ratio's 99th percentile); µs are wall-time medians",
+        "over configurations of the median of the repeats; the environment ([pin4] = pin 4.x, [pin38] =",
+        "pin 3.8.0, [pin34] = pin 3.4.0) says where a cell was measured. Closed loops: ratio of whole-loop",
+        "times (median of the interleaved rounds), µs per step. Absolute times depend on the machine's",
+        "load (below); compare ratios.",
         "",
         "## Time relative to hqp-tpm `tpm` (lower is faster)",
         "",

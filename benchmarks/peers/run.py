@@ -67,15 +67,20 @@ def contenders_for(problem, robot, quick: bool):
     return out
 
 
-def time_calls(fn, repeats: int) -> list[int]:
+def time_calls(fn, repeats: int) -> tuple[list[int], list[int]]:
+    """Wall and thread-CPU ns of ``repeats`` calls after 2 warm-up calls (the CPU time leaves out the
+    slices other processes took the core for; on this shared machine it keeps long calls honest)."""
     fn()
     fn()
-    out = []
+    wall, cpu = [], []
     for _ in range(repeats):
+        c0 = time.thread_time_ns()
         t0 = time.perf_counter_ns()
         fn()
-        out.append(time.perf_counter_ns() - t0)
-    return out
+        t1 = time.perf_counter_ns()
+        cpu.append(time.thread_time_ns() - c0)
+        wall.append(t1 - t0)
+    return wall, cpu
 
 
 def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
@@ -83,7 +88,8 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
     names = [c.name for c in cons]
     v_max = robot.velocity_limits() if problem.order == 1 else None
     per = {n: {"step": [], "solve": [], "step_all": [], "solve_all": [], "res": [], "viol": [], "rel": [],
-               "step_ratio": [], "solve_ratio": [], "own": []} for n in names}
+               "step_ratio": [], "solve_ratio": [], "own": [], "step_cpu": [], "solve_cpu": [],
+               "step_cpu_ratio": [], "solve_cpu_ratio": []} for n in names}
     failures: dict[str, str] = {}   # first error message per contender
     failed = dict.fromkeys(names, 0)  # configurations where the contender raised
     ref = C.Hqp(robot, problem, "tpm")
@@ -96,8 +102,8 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
             try:
                 c.setup(cfg)
                 x = np.asarray(c.step(), dtype=float)
-                ts = time_calls(c.step, repeats)
-                tv = time_calls(c.solve, repeats)
+                ts, ts_cpu = time_calls(c.step, repeats)
+                tv, tv_cpu = time_calls(c.solve, repeats)
             except Exception as exc:  # a peer failing on a configuration is counted and reported, not fatal
                 failures.setdefault(c.name, f"{type(exc).__name__}: {exc}"[:160])
                 failed[c.name] += 1
@@ -105,6 +111,8 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
             d = per[c.name]
             d["step"].append(np.median(ts))
             d["solve"].append(np.median(tv))
+            d["step_cpu"].append(np.median(ts_cpu))
+            d["solve_cpu"].append(np.median(tv_cpu))
             d["step_all"] += ts
             d["solve_all"] += tv
             res, viol = P.quality(J0, b0, x, v_max)
@@ -113,12 +121,12 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
             d["res"].append(res)
             d["rel"].append(res / max(np.linalg.norm(b0), 1e-12))
             d["viol"].append(viol)
-            here[c.name] = (d["step"][-1], d["solve"][-1])
+            here[c.name] = {key: d[key][-1] for key in ("step", "solve", "step_cpu", "solve_cpu")}
         if "hqp-tpm tpm" in here:  # per-configuration ratios to hqp-tpm tpm at the same configuration
-            b_step, b_solve = here["hqp-tpm tpm"]
-            for n, (s_step, s_solve) in here.items():
-                per[n]["step_ratio"].append(s_step / b_step)
-                per[n]["solve_ratio"].append(s_solve / b_solve)
+            base = here["hqp-tpm tpm"]
+            for n, vals in here.items():
+                for key, val in vals.items():
+                    per[n][f"{key}_ratio"].append(val / base[key] if base[key] > 0 else float("nan"))
     rows = []
     for n in names:
         d = per[n]
@@ -129,12 +137,16 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
                 continue
             t = np.array(d[phase]) / 1e3
             ratio = np.array(d[f"{phase}_ratio"])
+            cpu_ratio = np.array(d[f"{phase}_cpu_ratio"])
             viol = np.array(d["viol"])
             rows.append({
                 "problem": problem.name, "phase": phase, "contender": n, "configs": len(t),
                 "median_us": float(np.median(t)), "p99_us": float(np.percentile(np.array(d[f"{phase}_all"]) / 1e3, 99)),
                 "p99_cfg_us": float(np.percentile(t, 99)),
                 "ratio_median": float(np.median(ratio)), "ratio_p99": float(np.percentile(ratio, 99)),
+                "cpu_median_us": float(np.median(d[f"{phase}_cpu"]) / 1e3),
+                "cpu_ratio_median": float(np.nanmedian(cpu_ratio)),
+                "cpu_ratio_p99": float(np.nanpercentile(cpu_ratio, 99)),
                 "top_residual_median": float(np.median(d["res"])), "top_residual_max": float(np.max(d["res"])),
                 "top_residual_rel_median": float(np.median(d["rel"])),
                 "own_top_residual_median": float(np.median(d["own"])), "own_top_residual_max": float(np.max(d["own"])),
@@ -162,7 +174,7 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
     pin.framesForwardKinematics(robot.model, data, q0)
     p0 = data.oMf[fid].translation.copy()
     v_max = robot.velocity_limits()
-    acc: dict[str, dict] = {k[0]: {"total": [], "steps": [], "track": None, "viol": None} for k in kinds}
+    acc: dict[str, dict] = {k[0]: {"total": [], "cpu": [], "steps": [], "track": None, "viol": None} for k in kinds}
     failures: dict[str, str] = {}
     for r in range(rounds):
         order_k = kinds[r % len(kinds):] + kinds[:r % len(kinds)]
@@ -170,14 +182,17 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
             if name in failures:
                 continue
             try:
+                c0 = time.thread_time_ns()
                 t0 = time.perf_counter_ns()
                 times, qs, cmds = C.circle_loop(kind, robot, order, steps, time.perf_counter_ns, **kw)
                 total = time.perf_counter_ns() - t0
+                total_cpu = time.thread_time_ns() - c0
             except Exception as exc:
                 failures[name] = f"{type(exc).__name__}: {exc}"[:200]
                 continue
             a = acc[name]
             a["total"].append(total)
+            a["cpu"].append(total_cpu)
             a["steps"] += times
             if a["track"] is None:  # quality from the first round (the loops are deterministic)
                 err = []
@@ -193,6 +208,7 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
     rows = []
     name = "iiwa_circle_vel" if order == 1 else "iiwa_circle_acc"
     base = np.median(acc["hqp-tpm tpm"]["total"]) if acc["hqp-tpm tpm"]["total"] else float("nan")
+    base_cpu = np.median(acc["hqp-tpm tpm"]["cpu"]) if acc["hqp-tpm tpm"]["cpu"] else float("nan")
     for n, a in acc.items():
         if not a["total"]:
             rows.append({"problem": name, "phase": "loop", "contender": n, "failed": failures.get(n, "")})
@@ -203,6 +219,7 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
             "median_us": float(np.median(st)), "p99_us": float(np.percentile(st, 99)),
             "loop_ms": float(np.median(a["total"]) / 1e6),
             "ratio_median": float(np.median(a["total"]) / base), "ratio_p99": float("nan"),
+            "cpu_ratio_median": float(np.median(a["cpu"]) / base_cpu),
             "tracking_rms_mm": 1e3 * a["track"][0], "tracking_max_mm": 1e3 * a["track"][1],
             "box_violation_max": a["viol"] if a["viol"] is not None else float("nan"),
             "box_violated_configs": a.get("viol_steps", -1), "failed": failures.get(n, ""),
