@@ -196,3 +196,127 @@ def test_browser_live_viewer_shows_the_robot(lwr_run, tmp_path):
     print(f"live: orange {orange.mean():.3f}, coloured {coloured.mean():.3f} of the pixels")
     assert img[5, 5].min() > 230
     assert orange.mean() > 0.02, f"live viewer: robot not drawn ({orange.sum()} orange pixels)"
+
+
+# ------------------------------------------------------------------------------------------ meshes, co-manipulation, live
+def test_meshes_are_decimated_once_and_cached(tmp_path, monkeypatch):
+    import hqp_tpm.app.viewer_scene as vs
+
+    monkeypatch.setenv("HQP_TPM_CACHE", str(tmp_path))
+    monkeypatch.setattr(vs, "_DECIMATED", {})
+    robot = Robot.load("romeo21")
+    full = sum(g.geometry.num_tris for g in robot.visual_model.geometryObjects)
+    g1 = vs.viewer_geometry(robot)
+    small = [g.geometry.num_tris for g in g1.geometryObjects]
+    assert max(small) <= vs.MAX_TRIANGLES and sum(small) < 0.6 * full
+    assert len(list((tmp_path / "meshes").glob("*.npz"))) > 10  # written once to the cache
+    calls = []
+    monkeypatch.setattr(vs, "_DECIMATED", {})
+    monkeypatch.setattr(vs, "decimate", lambda *a, **k: calls.append(1))
+    g2 = vs.viewer_geometry(robot)  # from the disk cache: no decimation
+    assert not calls and [g.geometry.num_tris for g in g2.geometryObjects] == small
+    assert robot.visual_model.geometryObjects[0].meshPath  # the robot's own model is untouched
+
+
+def test_decimate_keeps_the_shape():
+    from hqp_tpm.app.viewer_scene import decimate
+
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 80), np.linspace(0, np.pi, 60))
+    V = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1).reshape(-1, 3)
+    idx = np.arange(80 * 60).reshape(60, 80)
+    F = np.concatenate([np.stack([idx[:-1, :-1], idx[1:, :-1], idx[1:, 1:]], -1).reshape(-1, 3),
+                        np.stack([idx[:-1, :-1], idx[1:, 1:], idx[:-1, 1:]], -1).reshape(-1, 3)])
+    W, G = decimate(V, F, 500)
+    assert len(G) <= 500 and G.max() < len(W)
+    assert np.allclose(np.linalg.norm(W, axis=1), 1.0, atol=0.1)  # still a unit sphere
+
+
+def test_comanipulation_replay_draws_markers_force_and_stack(tmp_path):
+    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app.cli import run_scenario
+
+    run_scenario("iiwa_comanipulation", tmp_path, steps=2500, progress=False, figures=False, replay=True)
+    html = (tmp_path / "replay.html").read_text(encoding="utf-8")
+    cmds = commands(html)
+    objects = object_paths(cmds)
+    _, _, _, policy = build.build(scenario.load("iiwa_comanipulation"))
+    for i in range(len(policy.operator.markers)):
+        assert f"/meshcat/world/operator_markers/{i}" in objects
+    assert {"/meshcat/world/target_marker", "/meshcat/world/operator_force"} <= objects
+    anim = animation(cmds)
+    force = anim["/meshcat/world/operator_force"]
+    assert ".visible" in force and ".scale" in force  # shown while the operator pushes, length ~ |f|
+    assert ".position" in anim["/meshcat/world/target_marker"]  # the first marker is reached at 1.68 s
+    assert "force stack: force > orientation > manipulability > joint_limit" in html
+    assert '"stack: position > orientation"' not in html or "pose stack" in html
+
+
+def test_lwr_replay_has_no_co_manipulation_items(lwr_run):
+    out, *_ = lwr_run
+    objects = object_paths(commands((out / "replay.html").read_text(encoding="utf-8")))
+    assert not {p for p in objects if "operator" in p or "target_marker" in p}
+
+
+def test_rate_limiter_paces_and_counts_overruns():
+    from hqp_tpm.app.viewer_live import RateLimiter
+
+    now = [0.0]
+    slept = []
+
+    def sleep(dt):
+        slept.append(dt)
+        now[0] += dt
+
+    rate = RateLimiter(1.0, tolerance=0.02, clock=lambda: now[0], sleep=sleep)
+    rate.wait(0.0)
+    now[0] += 0.001
+    rate.wait(0.01)  # early: sleeps 9 ms
+    assert slept == [pytest.approx(0.009)]
+    now[0] += 0.2  # the loop stalls
+    rate.wait(0.02)
+    assert rate.overruns == 1 and rate.max_lag == pytest.approx(0.19)
+    assert "1 behind real time" in rate.report()
+    fast = RateLimiter(10.0, clock=lambda: now[0], sleep=sleep)
+    fast.wait(0.0)
+    fast.wait(1.0)
+    assert slept[-1] == pytest.approx(0.1)  # ten times faster than real time
+
+
+def test_live_viewer_prints_its_url_once(capfd):
+    from hqp_tpm.app.viewer_live import LiveViewer
+
+    robot = Robot.load("planar5")
+    with LiveViewer(robot) as live:
+        live.show(robot.neutral(), 0.0)
+    out = capfd.readouterr().out
+    assert out.count("http://") == 1, out
+
+
+def test_viz_keeps_the_server_until_ctrl_c(tmp_path):
+    import signal
+    import subprocess
+    import sys
+    import urllib.request
+
+    cmd = [sys.executable, "-m", "hqp_tpm.app.cli", "run", "planar5_exact", "--steps", "300", "--viz", "--realtime",
+           "--no-figures", "--no-replay", "--quiet", "--out", str(tmp_path)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines = []
+    try:
+        for line in proc.stdout:
+            lines.append(line)
+            if "press Ctrl-C" in line:
+                break
+        text = "".join(lines)
+        assert text.count("http://") == 1, text
+        assert "real-time pacing: 30 frames" in text, text
+        url = re.search(r"(http://\S+)", text).group(1)
+        time.sleep(1.0)
+        assert proc.poll() is None, "the viewer did not stay up after the run"
+        with urllib.request.urlopen(url, timeout=10) as resp:
+            assert resp.status == 200
+        proc.send_signal(signal.SIGINT)
+        assert proc.wait(timeout=30) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()

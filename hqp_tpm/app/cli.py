@@ -24,7 +24,7 @@ def _every(arrays: dict, n: int, limit: int = FIGURE_SAMPLES) -> dict:
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
                  progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
                  steps: int | None = None, explain: bool = False, force: bool = False, stop=None,
-                 manifest: dict | None = None) -> dict:
+                 manifest: dict | None = None, realtime: bool | float = False, serve: bool = False) -> dict:
     """Load, build, run and write one scenario; returns its metrics (``summary["files"]``: the files written).
 
     The output folder is checked before any work (:func:`hqp_tpm.app.results.check_target`; ``force``
@@ -35,6 +35,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     holds a complete result). A step that fails also leaves the steps before it as a partial result,
     then the error is raised. ``spec``: a scenario file or name, or a parsed
     :class:`~hqp_tpm.app.scenario.Scenario`; ``manifest``: extra entries of ``manifest.json``.
+    ``viz``: show the run live in meshcat (``realtime``: paced to simulated time, True or a speed factor;
+    ``serve``: keep the viewer up after the run until Ctrl-C).
     """
     import numpy as np
     from threadpoolctl import threadpool_limits
@@ -62,7 +64,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         if viz:
             from hqp_tpm.app.viewer import LiveViewer
 
-            live = LiveViewer(robot, policy)
+            live = LiveViewer(robot, policy, realtime=realtime)
             probes.append(live.probe)
         rec = runner.Recording(list(robot.joint_names), folder.path / ".columns")
         failure = None
@@ -121,18 +123,15 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
 
             written += [Path(p).name for p in figs.write_all(folder.path, _every(arrays, done), sc, tasks, policy)]
         if replay:
-            try:
-                from hqp_tpm.app.viewer import write_replay
-            except ImportError:
-                write_replay = None
-            if write_replay is not None:
-                write_replay(folder.path / "replay.html", robot, arrays, policy,
-                             title=f"hqp-tpm replay: {Path(out).name} ({getattr(robot, 'name', '')})")
-                written.append("replay.html")
-                if explainer is not None:  # the account of the current frame beside the robot
-                    from hqp_tpm.app.explain import annotate_replay
+            from hqp_tpm.app.viewer import write_replay
 
-                    annotate_replay(folder.path / "replay.html", arrays, solver=ctrl.solver)
+            write_replay(folder.path / "replay.html", robot, arrays, policy,
+                         title=f"hqp-tpm replay: {Path(out).name} ({getattr(robot, 'name', '')})")
+            written.append("replay.html")
+            if explainer is not None:  # the account of the current frame beside the robot
+                from hqp_tpm.app.explain import annotate_replay
+
+                annotate_replay(folder.path / "replay.html", arrays, solver=ctrl.solver)
         del arrays
         rec.discard()
         import shutil
@@ -151,6 +150,14 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         raise
     summary["out"] = str(dest)
     summary["files"] = [str(dest / name) for name in written]
+    if live is not None:
+        report = live.report()
+        if report:
+            print(f"hqp-tpm: {report}", flush=True)
+        if serve and failure is None:
+            live.serve()  # until Ctrl-C
+        else:
+            live.close()
     if failure is not None:
         failure.partial_result = dest
         raise failure
@@ -291,7 +298,11 @@ def main(argv=None) -> int:
     p_run.add_argument("--solver", default=None, help="override the scenario's solver: tpm, nullspace, sns_tpm, "
                        "sns, qp, qp:<backend>")
     p_run.add_argument("--crosscheck", action="store_true", help=CROSSCHECK_HELP)
-    p_run.add_argument("--viz", action="store_true", help="show the run live in meshcat")
+    p_run.add_argument("--viz", action="store_true", help="show the run live in meshcat; the viewer stays up after "
+                       "the run until Ctrl-C")
+    p_run.add_argument("--realtime", nargs="?", type=float, const=1.0, default=0.0, metavar="SPEED",
+                       help="with --viz: pace the run to simulated time (optionally SPEED times faster) and report "
+                       "the frames that fell behind")
     p_run.add_argument("--no-figures", action="store_true")
     p_run.add_argument("--no-replay", action="store_true")
     p_run.add_argument("--steps", type=int, default=None, help="run only this many steps (1 .. 10,000,000)")
@@ -347,7 +358,8 @@ def main(argv=None) -> int:
             summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,
                                    progress=not args.quiet, figures=not args.no_figures, replay=not args.no_replay,
                                    viz=args.viz, steps=args.steps, explain=args.explain, force=args.force,
-                                   stop=signals.stop)
+                                   stop=signals.stop, realtime=args.realtime if args.viz else 0.0,
+                                   serve=args.viz)
     except HqpTpmError as exc:
         where = getattr(exc, "partial_result", None)
         extra = f" (the steps before it are in {where}, marked partial)" if where is not None else ""
