@@ -198,7 +198,7 @@ def test_browser_live_viewer_shows_the_robot(lwr_run, tmp_path):
     assert orange.mean() > 0.02, f"live viewer: robot not drawn ({orange.sum()} orange pixels)"
 
 
-# ------------------------------------------------------------------------------------------ meshes, co-manipulation, live
+# -------------------------------------------------------------------------------- meshes, co-manipulation, live
 def test_meshes_are_decimated_once_and_cached(tmp_path, monkeypatch):
     import hqp_tpm.app.viewer_scene as vs
 
