@@ -111,3 +111,12 @@ def test_papers_are_cited_with_dois():
     for doi in ("10.1109/LRA.2020.3004771", "10.1007/978-3-319-14705-5_5"):
         assert doi in text
     assert "docs/papers.md" in (ROOT / "README.md").read_text(encoding="utf-8")
+
+
+def test_crosscheck_is_explained_in_help_and_readme():
+    from hqp_tpm.app.cli import CROSSCHECK_HELP
+    from hqp_tpm.app.results import METRICS
+
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    for key in ("crosscheck_max_diff", "crosscheck_max_diff_same_problem", "crosscheck_steps_different_problems"):
+        assert key in METRICS and key in CROSSCHECK_HELP and f"`{key}`" in readme

@@ -166,11 +166,14 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
 
 #: What ``--crosscheck`` does (``--help`` and the README say the same).
 CROSSCHECK_HELP = (
-    "at every step, also solve the step's levels (the active stack, inequality rows as the run's solver used "
-    "them) with a second solver: the cascaded QP for tpm/nullspace/sns_tpm/sns runs, tpm for qp runs, with the "
-    "same joint box, damping and null-space term. The run itself follows its own solver; the largest difference "
-    "of the two commands is recorded per step (crosscheck_diff in trajectory.npz, crosscheck_max_diff in "
-    "metrics.json; rad/s at velocity level, rad/s^2 at acceleration level)")
+    "at every step, also solve the step with a second solver (the cascaded QP for tpm/nullspace/sns_tpm/sns "
+    "runs, tpm for qp runs) like for like: the same levels (inequality rows as the analytic solvers used them), "
+    "null-space term, joint box, damping and, for policies that blend stacks, the same blend; the run follows "
+    "its own solver. Recorded per step: the largest command difference (crosscheck_diff in trajectory.npz) and "
+    "whether both solved the same problem (crosscheck_same_problem: not where a binding box is ignored by one or "
+    "scaled differently, e.g. SNS-TPM vs the QP); metrics.json: crosscheck_max_diff, "
+    "crosscheck_max_diff_same_problem, crosscheck_steps_different_problems (rad/s at velocity level, rad/s^2 at "
+    "acceleration level)")
 
 
 def wrote_line(files) -> str:
