@@ -300,3 +300,45 @@ def test_replay_shows_the_current_frames_account(romeo_run, tmp_path):
     bare = tmp_path / "bare.html"
     bare.write_text("<html><body></body></html>")
     assert not annotate_replay(bare, arrays)                     # no time label: left as it is
+
+
+def test_romeo_joint_blocking_set_verified_and_minimal():
+    """romeo_sns_tpm at t = 0 (the common scale factor is below 1): each level's joint blocking set, re-solved
+    independently, gives the level its residual without a box; without any one member it does not."""
+    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app.explain import Explainer
+
+    _, ctrl, _, _ = build.build(scenario.load("romeo_sns_tpm"))
+    res = ctrl.compute()
+    acc = Explainer(ctrl).account(ctrl, res)
+    box = ctrl.box(ctrl.state, res.t)
+    n = ctrl.robot.nv
+
+    def residual(lo, up, k):
+        x, _ = solve("sns_tpm", res.levels, n, box=(lo, up), lambda_max=ctrl.lambda_max, eps=ctrl.eps)
+        return account(res.levels, x).levels[k].residual_norm
+
+    def released(joints, sides):
+        lo, up = box[0].copy(), box[1].copy()
+        for j, s in zip(joints, sides, strict=True):
+            if s >= 0:
+                up[j] = np.inf
+            if s <= 0:
+                lo[j] = -np.inf
+        return lo, up
+
+    assert acc.scale < 1 and acc.at_bound
+    checked = 0
+    for k, causes in enumerate(acc.causes):
+        for c in causes:
+            if c.kind != "joint_bounds":
+                continue
+            free = residual(np.full(n, -np.inf), np.full(n, np.inf), k)
+            now = acc.levels[k].residual_norm
+            target = free + max(1e-6 * max(1.0, np.linalg.norm(acc.levels[k].desired)), 1e-3 * (now - free))
+            assert residual(*released(c.joints, c.sides), k) <= target
+            for drop in range(len(c.joints)):
+                keep = [i for i in range(len(c.joints)) if i != drop]
+                assert residual(*released([c.joints[i] for i in keep], [c.sides[i] for i in keep]), k) > target
+            checked += 1
+    assert checked >= 1

@@ -123,7 +123,7 @@ class Explainer:
         """The compact per-step values of ``acc`` (see :func:`summary` for their meaning)."""
         nt, nv = len(self.tasks), len(self.joint_names)
         frac, resid, damp, cause = (np.full(nt, np.nan) for _ in range(4))
-        block_levels, without = np.full(nt, np.nan), np.full(nt, np.nan)
+        block_levels, without, scale = np.full(nt, np.nan), np.full(nt, np.nan), np.full(nt, np.nan)
         block_joints = np.zeros((nt, nv))
         desired = {name: np.full(self.dims.get(name, 0), np.nan) for name in self.tasks}
         achieved = {name: np.full(self.dims.get(name, 0), np.nan) for name in self.tasks}
@@ -137,6 +137,7 @@ class Explainer:
                 if i is None:
                     continue
                 frac[i], resid[i], damp[i] = la.fraction, la.residual_norm, la.damping
+                scale[i] = np.nan if la.scale is None else la.scale
                 cause[i] = bits if (acc.causes is not None or la.met) else np.nan
                 block_levels[i] = float(sum(2.0**self.index[t] for t in blockers if t in self.index))
                 for c in causes:
@@ -154,7 +155,7 @@ class Explainer:
                 bound[j] = s * _KIND_CODE[kind]
         out = {"explain_fraction": frac, "explain_residual": resid, "explain_damping": damp, "explain_cause": cause,
                "explain_block_levels": block_levels, "explain_block_joints": block_joints, "explain_bound": bound,
-               "explain_fraction_without": without}
+               "explain_fraction_without": without, "explain_scale": scale}
         for name in self.tasks:
             out[f"explain_desired_{name}"] = desired[name]
             out[f"explain_achieved_{name}"] = achieved[name]
@@ -349,6 +350,9 @@ def format_step(arrays: dict, i: int, *, solver: str = "") -> str:
         text = f"  {name:{width}s}  met {100 * frac[k]:5.1f} %"
         if c:
             text += f"  (residual {resid[k]:.3g})"
+        sc = arrays.get("explain_scale")
+        if sc is not None and np.isfinite(sc[i][k]) and sc[i][k] < 1.0:
+            text += f"  scale factor {sc[i][k]:.3g}"
         des, ach = arrays.get(f"explain_desired_{name}"), arrays.get(f"explain_achieved_{name}")
         if c and des is not None and des.ndim == 2 and des.shape[1]:
             text += f"\n  {'':{width}s}    desired {_fmt_vec(des[i])}\n  {'':{width}s}    achieved {_fmt_vec(ach[i])}"
