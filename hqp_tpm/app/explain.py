@@ -12,6 +12,24 @@ position one period ahead, braking distance, acceleration; :mod:`hqp_tpm.robot.j
 * :func:`figure` -- each task's fraction met over the run, the saturated joints as a band below.
 * :func:`explain_run` -- the text ``hqp-tpm explain RUN_DIR --t T`` prints: from the recording when the
   run stored the account, else by re-running the run's scenario up to that step.
+* :func:`annotate_replay` -- the current frame's account in a panel of ``replay.html``.
+
+Arrays of ``trajectory.npz`` with ``--explain`` (``T`` steps, ``K`` tasks in ``explain_tasks`` order, ``n``
+velocity columns in ``joint_names`` order; NaN where a task is not in the step's stack):
+
+=============================  ===========  ====================================================================
+``explain_fraction``           (T, K)       fraction met (:mod:`hqp_tpm.solvers.account`)
+``explain_residual``           (T, K)       norm of the residual (achieved - desired)
+``explain_damping``            (T, K)       ``lambda`` of the damping law on the level's projected rows (0: none)
+``explain_scale``              (T, K)       SNS scale factor of the task's level (NaN for other solvers)
+``explain_cause``              (T, K)       cause bits (:data:`CAUSE_BITS`; 0: met)
+``explain_block_levels``       (T, K)       bit ``h`` set: task ``h`` is in the blocking set (higher levels/damping)
+``explain_block_joints``       (T, K, n)    blocking joint bounds: ``side * kind`` (``10 + kind``: both sides)
+``explain_fraction_without``   (T, K)       fraction met once the blocking joint bounds are released (re-solved)
+``explain_bound``              (T, n)       joints at a bound of the box: ``side * kind`` (:data:`BOUND_KINDS`)
+``explain_desired_{task}``     (T, m)       the task's desired command (``b``)
+``explain_achieved_{task}``    (T, m)       the task's achieved command (``J x``)
+=============================  ===========  ====================================================================
 """
 
 from __future__ import annotations
