@@ -12,6 +12,7 @@ from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import Force, JointLimit, Manipulability, QuaternionOrientation
 from hqp_tpm.tasks.quaternion_orientation import quaternion_error
+from hqp_tpm.testing import assert_task_derivatives
 
 H = 1e-6
 FLANGE = "iiwa_ee"
@@ -29,6 +30,7 @@ def states(robot, count=5, seed=0):
 
 
 def fd_jacobian(robot, fn, q):
+    """Finite differences of any function of the state (here: the full quaternion error, not a task's J)."""
     st = State(robot)
     cols = []
     for k in range(robot.nv):
@@ -40,12 +42,6 @@ def fd_jacobian(robot, fn, q):
     return np.column_stack(cols)
 
 
-def fd_jdot_qdot(robot, task, q, v):
-    s1 = State(robot).update(q + H * v, v)
-    s0 = State(robot).update(q - H * v, v)
-    return (task.jacobian(s1) - task.jacobian(s0)) @ v / (2 * H)
-
-
 def test_scalar_tasks_are_gradients_of_their_values(iiwa):
     """Manipulability (14) and joint limit (11): J equals the finite-difference gradient, Jdot qd too."""
     man, lim = Manipulability(iiwa), JointLimit(iiwa)
@@ -53,10 +49,7 @@ def test_scalar_tasks_are_gradients_of_their_values(iiwa):
     for q, v in states(iiwa):
         st = State(iiwa).update(q, v)
         for task in (man, lim):
-            np.testing.assert_allclose(task.jacobian(st), fd_jacobian(iiwa, task.value, q), atol=1e-8,
-                                       err_msg=task.name)
-            np.testing.assert_allclose(task.jdot_qdot(st), fd_jdot_qdot(iiwa, task, q, v), atol=1e-7,
-                                       err_msg=task.name)
+            assert_task_derivatives(task, iiwa, [(q, v)], h=H, atol=1e-8, rtol=0.0, jdot_atol=1e-7)
         J = man.jacobian(st)[0]
         assert J[0] == 0.0 and J[-1] == 0.0  # the printed (15) would have cos q_1 sin q_1 and cos q_7 sin q_7
         np.testing.assert_allclose(J[1:-1], np.sin(q[1:-1]) * np.cos(q[1:-1]))
@@ -84,7 +77,7 @@ def test_orientation_2d_is_eq_10(iiwa):
         eta = np.sign(qe.w) * qe.w
         de_dq = -0.5 * (eta * np.eye(3) + pin.skew(e)) @ J_o
         np.testing.assert_allclose(fd_jacobian(iiwa, task.full_error, q), de_dq, atol=1e-7)
-        np.testing.assert_allclose(task.jdot_qdot(st), fd_jdot_qdot(iiwa, task, q, v), atol=1e-6)
+        assert_task_derivatives(task, iiwa, [(q, v)], h=H, atol=1e-7, rtol=0.0, jdot_atol=1e-6)  # J = J_o rows
     with pytest.raises(ShapeError, match="3x3"):
         QuaternionOrientation(iiwa, FLANGE, np.eye(2))
 
@@ -96,9 +89,8 @@ def test_force_task(iiwa):
     for q, v in states(iiwa, seed=5):
         st = State(iiwa).update(q, v)
         np.testing.assert_allclose(task.value(st), st.rotation(task.fid) @ f_s)
-        np.testing.assert_allclose(task.jacobian(st), fd_jacobian(iiwa, lambda s: s.position(task.fid), q),
-                                   atol=1e-8)
-        np.testing.assert_allclose(task.jdot_qdot(st), fd_jdot_qdot(iiwa, task, q, v), atol=1e-6)
+        assert_task_derivatives(task, iiwa, [(q, v)], h=H, atol=1e-8, rtol=0.0, jdot_atol=1e-6,
+                                value=lambda s: s.position(task.fid).copy())
     task.gains = type(task.gains)(kp=0.02)
     task.start(st)
     np.testing.assert_allclose(task.command(st, 0.0, 1), 0.02 * st.rotation(task.fid) @ f_s)
