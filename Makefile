@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= runs
 
-.PHONY: demo test lint bench bench-peers bench-venvs scenarios clean
+.PHONY: demo test test-pin-lowest lint bench bench-peers bench-venvs scenarios clean
 
 $(VENV)/.base: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -32,11 +32,25 @@ lint: $(VENV)/.dev
 bench: $(VENV)/.dev
 	$(PY) benchmarks/run_all.py
 
+# The lowest pinocchio pyproject.toml claims (pin 3.4.0; its wheels need these cmeel pins), in its own venv.
+PIN_LOWEST ?= 3.4.0
+VENV_PIN_LOWEST ?= .venv-pin-lowest
+
+$(VENV_PIN_LOWEST)/.dev: pyproject.toml
+	$(PYTHON) -m venv $(VENV_PIN_LOWEST)
+	$(VENV_PIN_LOWEST)/bin/python -m pip install -q --upgrade pip
+	$(VENV_PIN_LOWEST)/bin/python -m pip install -q -e '.[dev]' 'pin==$(PIN_LOWEST)' 'cmeel-urdfdom==4.0.1' 'cmeel-tinyxml2<11'
+	touch $@
+
+test-pin-lowest: $(VENV_PIN_LOWEST)/.dev
+	$(VENV_PIN_LOWEST)/bin/python -c "import pinocchio; assert pinocchio.__version__ == '$(PIN_LOWEST)', pinocchio.__version__"
+	$(VENV_PIN_LOWEST)/bin/python -m pytest -q -n 2 --dist loadfile
+
 scenarios: $(VENV)/.base
 	for s in $$($(VENV)/bin/hqp-tpm list --names); do $(VENV)/bin/hqp-tpm run $$s --out $(OUT)/$$s || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(OUT) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(VENV_PIN_LOWEST) $(OUT) .pytest_cache .ruff_cache
 
 # Side-by-side benchmark against pink, PlaCo and TSID (benchmarks/peers/). The peers pin different
 # pinocchio versions, so each gets its own virtual environment (git-ignored), all from PyPI, each

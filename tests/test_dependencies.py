@@ -1,0 +1,92 @@
+"""Every third-party module the package imports is a declared dependency; the scenarios' QP backends are base ones."""
+
+from __future__ import annotations
+
+import ast
+import re
+import sys
+from importlib.metadata import packages_distributions
+from pathlib import Path
+
+import pytest
+
+import hqp_tpm
+from hqp_tpm.app.scenario import load
+from hqp_tpm.data import scenarios_dir
+from hqp_tpm.solvers.cascaded_qp import PIP_PACKAGE
+
+try:
+    import tomllib
+except ModuleNotFoundError:  # Python 3.10
+    import tomli as tomllib
+
+ROOT = Path(hqp_tpm.__file__).parent
+PYPROJECT = ROOT.parent / "pyproject.toml"
+
+#: Modules whose distribution ``packages_distributions`` cannot see (installed under cmeel.prefix) or that
+#: several distributions provide (example_robot_data: example-robot-data < 5, example-robot-data-loaders >= 5).
+KNOWN = {"pinocchio": {"pin"}, "coal": {"coal"}, "example_robot_data": {"example-robot-data",
+                                                                         "example-robot-data-loaders"},
+         "proxsuite": {"proxsuite"}, "tomli": {"tomli"}}
+
+
+def _norm(name: str) -> str:
+    return re.sub(r"[-_.]+", "-", name).lower()
+
+
+def _requirements(extra: str | None = None) -> dict[str, str]:
+    """Declared requirement name -> its environment marker ('' if none)."""
+    project = tomllib.loads(PYPROJECT.read_text())["project"]
+    reqs = project["dependencies"] if extra is None else project["optional-dependencies"][extra]
+    out = {}
+    for req in reqs:
+        spec, _, marker = req.partition(";")
+        out[_norm(re.split(r"[<>=!~\[ ]", spec.strip(), maxsplit=1)[0])] = marker.strip()
+    return out
+
+
+def _imported_modules() -> set[str]:
+    found = set()
+    for path in ROOT.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            if isinstance(node, ast.Import):
+                found.update(a.name.split(".")[0] for a in node.names)
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                found.add(node.module.split(".")[0])
+    return found - set(sys.stdlib_module_names) - {"hqp_tpm"}
+
+
+pytestmark = pytest.mark.skipif(not PYPROJECT.is_file(), reason="needs the source tree (pyproject.toml)")
+
+
+def test_every_imported_module_is_declared():
+    declared = _requirements()
+    dists = packages_distributions()
+    missing = {}
+    for module in sorted(_imported_modules()):
+        provided_by = {_norm(d) for d in dists.get(module, ())} | KNOWN.get(module, set())
+        assert provided_by, f"no installed distribution provides {module!r}: add it to KNOWN"
+        if not provided_by & set(declared):
+            missing[module] = sorted(provided_by)
+    assert not missing, f"imported but not declared in pyproject.toml: {missing}"
+
+
+def test_tomli_only_where_tomllib_is_missing():
+    assert _requirements()["tomli"].replace('"', "'") == "python_version < '3.11'"
+
+
+def test_scenario_backends_are_base_dependencies():
+    """``make demo`` / ``make scenarios`` install the base package only: every bundled scenario must run with it."""
+    declared = _requirements()
+    backends = set()
+    for path in sorted(scenarios_dir().glob("*.toml")):
+        solver = load(path).solver
+        if solver == "qp" or solver.startswith("qp:"):
+            backends.add("proxqp" if solver == "qp" else solver.split(":", 1)[1])
+    assert backends, "no scenario uses the QP (the check would be vacuous)"
+    assert {_norm(PIP_PACKAGE[b]) for b in backends} <= set(declared), backends
+
+
+def test_dev_installs_the_qp_extra():
+    """``make test`` installs ``.[dev]``: it must contain the extra backends the tests compare."""
+    assert set(_requirements("qp")) <= set(_requirements("dev"))
