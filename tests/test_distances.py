@@ -403,7 +403,7 @@ def test_point_jacobian_and_jdot_qdot_against_finite_differences(panda):
 
 
 def test_point_kinematics_equal_their_literal_formulas(panda):
-    """The row-permuted J_c and the float-level J-dot_c q-dot equal np.cross forms of (28)-(29) to the last bit."""
+    """J_c (pin.skew) equals the np.cross form of (28) to rounding, J-dot_c q-dot (floats) that of (29) exactly."""
     model, _ = panda
     rng = np.random.default_rng(3)
     LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -415,7 +415,8 @@ def test_point_kinematics_equal_their_literal_formulas(panda):
         p = rng.uniform(-1.0, 1.0, 3)
         J = pin.getJointJacobian(model, data, jid, LWA)
         r = p - data.oMi[jid].translation
-        np.testing.assert_array_equal(point_jacobian(model, data, jid, p), J[:3] - np.cross(r, J[3:], axis=0))
+        np.testing.assert_allclose(point_jacobian(model, data, jid, p), J[:3] - np.cross(r, J[3:], axis=0),
+                                   rtol=0, atol=1e-14)
         M, v, a = data.oMi[jid], data.v[jid], data.a[jid]
         w = M.rotation @ v.angular
         expected = (M.rotation @ (a.linear + np.cross(v.angular, v.linear)) + np.cross(M.rotation @ a.angular, r)

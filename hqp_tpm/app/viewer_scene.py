@@ -21,6 +21,8 @@ import coal
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.robot.spatial import rotation_z_to
+
 with warnings.catch_warnings():  # meshcat's server module imports the deprecated zmq.eventloop.ioloop
     warnings.filterwarnings("ignore", category=DeprecationWarning, module="meshcat")
     import meshcat
@@ -80,14 +82,6 @@ def _perpendicular(v: np.ndarray) -> np.ndarray:
     helper = np.array([1.0, 0.0, 0.0]) if abs(v[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
     n = np.cross(v, helper)
     return n / np.linalg.norm(n)
-
-
-def _rotation_z_to(axis) -> np.ndarray:
-    """A rotation whose z column is the unit vector ``axis``."""
-    z = np.asarray(axis, dtype=float)
-    z = z / np.linalg.norm(z)
-    x = _perpendicular(z)
-    return np.column_stack([x, np.cross(z, x), z])
 
 
 def tube(points, radius: float, sides: int = 8) -> mg.TriangularMeshGeometry | None:
@@ -541,7 +535,7 @@ class Scene:
         if cone_p is not None:
             z_d, _, fid = cone_p
             T = np.eye(4)
-            T[:3, :3] = _rotation_z_to(z_d)
+            T[:3, :3] = rotation_z_to(z_d)
             T[:3, 3] = self.data.oMf[fid].translation
             out["pointing_cone"] = (T, True)
         present = self._marker_pos = {}
@@ -573,7 +567,7 @@ class Scene:
             T[:3, :3] = np.diag([1e-3, 1e-3, 1e-3])
             return T, False
         length = FORCE_SCALE * norm
-        T[:3, :3] = _rotation_z_to(f) @ np.diag([length, length, length])
+        T[:3, :3] = rotation_z_to(f) @ np.diag([length, length, length])
         return T, True
 
     def _distance_segment(self, t: float, active_point, update_field: bool):
@@ -605,7 +599,7 @@ class Scene:
         if not np.isfinite(length) or length < 1e-6:
             return hidden
         T = np.eye(4)
-        T[:3, :3] = _rotation_z_to(v) @ np.diag([LINE_RADIUS, LINE_RADIUS, length])
+        T[:3, :3] = rotation_z_to(v) @ np.diag([LINE_RADIUS, LINE_RADIUS, length])
         T[:3, 3] = a
         return T, True
 

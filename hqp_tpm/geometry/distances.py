@@ -56,8 +56,6 @@ BATCH_MIN = 8
 _TINY = 1e-12
 _EZ = np.array([0.0, 0.0, 1.0])
 _LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
-#: Rows of a 6 x nv Jacobian for ``r x J_w`` (see :func:`point_jacobian`): angular rows 2, 0, 1, 1, 2, 0.
-_CROSS_ROWS = np.array([5, 3, 4, 4, 5, 3])
 
 
 class Nearest(NamedTuple):
@@ -78,10 +76,8 @@ def point_jacobian(model: pin.Model, data: pin.Data, joint_id: int, p_world) -> 
     ``J_c = J_v - [r]x J_w`` with ``r = p_world - o_joint`` and ``J`` the joint's LOCAL_WORLD_ALIGNED Jacobian.
     """
     J = pin.getJointJacobian(model, data, int(joint_id), _LWA)
-    r0, r1, r2 = (np.asarray(p_world, dtype=float) - data.oMi[int(joint_id)].translation).tolist()
-    # rows (r1, r2, r0) * (Jw_2, Jw_0, Jw_1) minus rows (r2, r0, r1) * (Jw_1, Jw_2, Jw_0): r x J_w
-    P = np.array([[r1], [r2], [r0], [r2], [r0], [r1]]) * J[_CROSS_ROWS]
-    return J[:3] - (P[:3] - P[3:])
+    r = np.asarray(p_world, dtype=float) - data.oMi[int(joint_id)].translation
+    return J[:3] - pin.skew(r).dot(J[3:])
 
 
 def point_jdot_qdot(model: pin.Model, data: pin.Data, joint_id: int, p_world) -> np.ndarray:

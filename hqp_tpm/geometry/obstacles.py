@@ -4,7 +4,7 @@ An :class:`Obstacle` is a named coal shape placed in the world by a :class:`pino
 optionally moving: either along a callable ``t -> SE3`` or with a constant linear velocity.
 The paper's obstacles are points: ``Obstacle.sphere(name, center)`` with the default radius 0.
 
-Meshes are turned into their convex hull (scipy's Qhull) by default: raw triangle meshes
+Meshes are turned into their convex hull (``coal.Convex.convexHull``, Qhull) by default: raw triangle meshes
 are far too slow for a control loop (measured: ~24 ms for Romeo's 44 link-sphere pairs on meshes,
 ~20 µs on convex hulls).
 """
@@ -18,6 +18,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import GeometryError, NonFiniteError, ShapeError
+from hqp_tpm.robot.spatial import rotation_z_to
 
 __all__ = ["GeometryError", "Obstacle", "bounding_sphere", "convex_from_points"]
 
@@ -71,31 +72,23 @@ def _se3(what: str, value) -> pin.SE3:
     return pin.SE3(value)
 
 
-def convex_from_points(points, what: str = "mesh") -> coal.Convex:
-    """A coal.Convex that is the convex hull of ``points`` (N x 3), faces oriented outwards."""
-    from scipy.spatial import ConvexHull, QhullError
+#: Smallest/largest singular value of the centred vertices below which they are flat (no 3-D hull).
+FLAT_TOL = 1e-9
 
+
+def convex_from_points(points, what: str = "mesh") -> coal.ConvexBase:
+    """A coal convex shape that is the convex hull of ``points`` (N x 3): ``coal.Convex.convexHull`` (Qhull)."""
     P = np.asarray(points, dtype=float)
     if P.ndim != 2 or P.shape[1] != 3 or P.shape[0] < 4:
         raise ShapeError(f"{what} vertices must be an (N >= 4, 3) array, got shape {P.shape}")
     if not np.all(np.isfinite(P)):
         raise NonFiniteError(f"{what} vertices must be finite")
-    try:
-        hull = ConvexHull(P)
-    except QhullError as exc:
-        raise GeometryError(f"{what}: vertices are degenerate (flat or collinear), no 3-D convex hull") from exc
-    index = {int(k): i for i, k in enumerate(hull.vertices)}
+    s = np.linalg.svd(P - P.mean(axis=0), compute_uv=False)
+    if not s[2] > FLAT_TOL * s[0]:  # coal's Qhull call does not survive flat input (it crashes the process)
+        raise GeometryError(f"{what}: vertices are degenerate (flat or collinear), no 3-D convex hull")
     verts = coal.StdVec_Vec3s()
-    for k in hull.vertices:
-        verts.append(P[k])
-    centroid = P[hull.vertices].mean(axis=0)
-    tris = coal.StdVec_Triangle()
-    for simplex in hull.simplices:
-        a, b, c = (int(k) for k in simplex)
-        if np.dot(np.cross(P[b] - P[a], P[c] - P[a]), P[a] - centroid) < 0:
-            b, c = c, b
-        tris.append(coal.Triangle(index[a], index[b], index[c]))
-    shape = coal.Convex(verts, tris)
+    verts.extend(P)
+    shape = coal.Convex.convexHull(verts, True, None)
     shape.computeLocalAABB()
     return shape
 
@@ -176,13 +169,7 @@ class Obstacle:
         r = checked_scalar(f"obstacle {name!r} radius", radius)
         axis = pb - pa
         length = float(np.linalg.norm(axis))
-        R = np.eye(3)
-        if length > 0.0:
-            z = axis / length
-            helper = np.array([1.0, 0.0, 0.0]) if abs(z[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-            x = np.cross(helper, z)
-            x /= np.linalg.norm(x)
-            R = np.column_stack([x, np.cross(z, x), z])
+        R = rotation_z_to(axis) if length > 0.0 else np.eye(3)
         return cls(name, coal.Capsule(r, length), pin.SE3(R, 0.5 * (pa + pb)), **motion)
 
     @classmethod

@@ -9,7 +9,7 @@ Stack of every step (highest first)::
 
 Collision model for control (:func:`control_geometries`): the romeo21 collision meshes of the arms
 (upper arm, forearm, wrist roll, hand), the torso, the pelvis and the legs (thigh, shin, ankle), each
-replaced once by its convex hull (cached per process and robot name). The head, the neck and the
+replaced by its convex hull (coal's Qhull). The head, the neck and the
 tiny finger/thumb meshes are left out: the fingertips stick out of the hand hull by at most 1.3 cm
 and the thumb by at most 2.2 cm, less than the safety distance ``d_obstacle_safe``.
 Self pairs (:func:`self_pairs`): every arm part against the torso, pelvis and legs, and the forearm
@@ -124,26 +124,17 @@ def self_pairs(model: pin.Model, geometry_model: pin.GeometryModel, srdf: Path |
             if frozenset((a, b)) in allowed and not adjacent(model, geometry_model, a, b)]
 
 
-_HULLS: dict[tuple[str, tuple[str, ...]], pin.GeometryModel] = {}
-
-
 def control_geometries(robot, names=CONTROL_GEOMETRIES) -> pin.GeometryModel:
-    """The selected collision geometries of ``robot``, BVH meshes as convex hulls (built once per process).
-
-    Cached by robot name and geometry names: building the hulls costs about a second.
-    """
-    key = (robot.name, tuple(names))
-    if key not in _HULLS:
-        src = robot.collision_model
-        gm = pin.GeometryModel()
-        for name in names:
-            if src is None or not src.existGeometryName(name):
-                raise ScenarioError(f"robot {robot.name!r} has no collision geometry {name!r}")
-            obj = pin.GeometryObject(src.geometryObjects[src.getGeometryId(name)])
-            obj.geometry = _convexified(obj.geometry, f"geometry {name!r}")
-            gm.addGeometryObject(obj)
-        _HULLS[key] = gm
-    return _HULLS[key]
+    """The selected collision geometries of ``robot``, BVH meshes as convex hulls (``coal.Convex.convexHull``)."""
+    src = robot.collision_model
+    gm = pin.GeometryModel()
+    for name in names:
+        if src is None or not src.existGeometryName(name):
+            raise ScenarioError(f"robot {robot.name!r} has no collision geometry {name!r}")
+        obj = pin.GeometryObject(src.geometryObjects[src.getGeometryId(name)])
+        obj.geometry = _convexified(obj.geometry, f"geometry {name!r}")
+        gm.addGeometryObject(obj)
+    return gm
 
 
 def repulsive_bound(d, d_activation: float, d_safe: float, xi: float) -> np.ndarray:

@@ -30,21 +30,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+import pinocchio as pin
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.references.trajectories import Trajectory
 
 _TINY = 1e-12
-
-
-def rotation(axis_angle: np.ndarray) -> np.ndarray:
-    """``exp([w]x)`` (Rodrigues) of a rotation vector ``w``."""
-    th = float(np.linalg.norm(axis_angle))
-    if th < _TINY:
-        return np.eye(3)
-    k = axis_angle / th
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(th) * K + (1 - math.cos(th)) * K @ K
 
 
 @dataclass(frozen=True)
@@ -70,7 +61,7 @@ class Coupling:
         nn = float(np.linalg.norm(n))
         if nn < _TINY * nr * nv:
             return np.zeros(3)
-        R = rotation((math.pi / 2 - phi) * n / nn)  # (52), unit axis
+        R = pin.exp3((math.pi / 2 - phi) * n / nn)  # (52), unit axis
         x = self.eta * (nr - self.d)
         sig = 0.0 if x > 700 else 1.0 / (1.0 + math.exp(x))  # (51)
         return self.gamma * sig * (R @ yd) * (math.pi - phi) * math.exp(-self.beta * phi)  # (49)

@@ -193,6 +193,8 @@ class _Cascade:
             self.qp_count += 1
             try:
                 sol = qpsolvers.solve_problem(problem, self.solver, **options)
+            except qpsolvers.SolverNotFound as exc:
+                raise _not_available(self.solver, sorted(qpsolvers.available_solvers)) from exc
             except Exception as exc:  # backends raise their own types on numerical trouble
                 error = exc
                 continue
@@ -295,24 +297,30 @@ def split(A: np.ndarray) -> _Split:
 
 
 def check_solver(solver: str) -> str:
-    """Return ``solver`` if qpsolvers can use it, else raise :class:`SolverNotAvailableError`."""
+    """Return ``solver`` if qpsolvers can use it, else raise :class:`SolverNotAvailableError`.
+
+    Backends qpsolvers knows are the keys of :data:`PIP_PACKAGE` (with the package to install); a backend
+    that goes missing later is reported the same way when qpsolvers raises ``SolverNotFound``.
+    """
     import qpsolvers
 
     installed = sorted(qpsolvers.available_solvers)
     if solver in installed:
         return solver
-    known = sorted(name[: -len("_solve_qp")] for name in dir(qpsolvers.solvers) if name.endswith("_solve_qp"))
-    if solver in known:
-        raise SolverNotAvailableError(
+    raise _not_available(solver, installed)
+
+
+def _not_available(solver: str, installed: list[str]) -> SolverNotAvailableError:
+    if solver in PIP_PACKAGE:
+        return SolverNotAvailableError(
             f"QP backend {solver!r} is known to qpsolvers but not installed: "
-            f"`pip install {PIP_PACKAGE.get(solver, f'qpsolvers[{solver}]')}`; installed backends are: "
-            f"{', '.join(map(repr, installed))}")
+            f"`pip install {PIP_PACKAGE[solver]}`; installed backends are: {', '.join(map(repr, installed))}")
     hints = ", ".join(f"`pip install {PIP_PACKAGE[k]}` for {k!r}" for k in ("proxqp", "osqp", "daqp", "quadprog",
                                                                              "clarabel", "highs", "piqp"))
     err = unknown_name("QP backend", solver, installed, SolverNotAvailableError)
-    others = ", ".join(k for k in known if k not in installed)
-    raise SolverNotAvailableError(f"{err} (the installed ones); qpsolvers also knows {others}, "
-                                  f"each after installing its package, e.g. {hints}")
+    others = ", ".join(k for k in sorted(PIP_PACKAGE) if k not in installed)
+    return SolverNotAvailableError(f"{err} (the installed ones); qpsolvers also knows {others}, "
+                                   f"each after installing its package, e.g. {hints}")
 
 
 def check_box(lower, upper, n: int) -> tuple[np.ndarray, np.ndarray]:
