@@ -32,14 +32,16 @@ lint: $(VENV)/.dev
 bench: $(VENV)/.dev
 	$(PY) benchmarks/run_all.py
 
-# The lowest pinocchio pyproject.toml claims (pin 3.4.0; its wheels need these cmeel pins), in its own venv.
+# The lowest pinocchio pyproject.toml claims, in its own venv: pin 3.4.0 (its wheels need these cmeel pins)
+# with example-robot-data 4.4 (the 5.0 loaders need pinocchio.WITH_COLLISION, which pin 3.4 lacks).
 PIN_LOWEST ?= 3.4.0
 VENV_PIN_LOWEST ?= .venv-pin-lowest
 
 $(VENV_PIN_LOWEST)/.dev: pyproject.toml
 	$(PYTHON) -m venv $(VENV_PIN_LOWEST)
 	$(VENV_PIN_LOWEST)/bin/python -m pip install -q --upgrade pip
-	$(VENV_PIN_LOWEST)/bin/python -m pip install -q -e '.[dev]' 'pin==$(PIN_LOWEST)' 'cmeel-urdfdom==4.0.1' 'cmeel-tinyxml2<11'
+	$(VENV_PIN_LOWEST)/bin/python -m pip install -q -e '.[dev]' 'pin==$(PIN_LOWEST)' 'cmeel-urdfdom==4.0.1' 'cmeel-tinyxml2<11' \
+		'example-robot-data==4.4.0' 'example-robot-data-loaders==4.4.0'
 	touch $@
 
 test-pin-lowest: $(VENV_PIN_LOWEST)/.dev
