@@ -95,7 +95,7 @@ def test_no_import_cycles():
 def test_the_import_parser_resolves_imports():
     """The parser resolves absolute and relative imports (so the rule above is not vacuous)."""
     assert "hqp_tpm.solvers.levels" in imports("hqp_tpm.tasks.base")
-    assert imports("hqp_tpm.geometry.distances") >= {"hqp_tpm.geometry.obstacles", "hqp_tpm.robot.spatial"}
+    assert imports("hqp_tpm.geometry.distances") >= {"hqp_tpm.geometry.obstacles", "hqp_tpm.geometry.witness"}
 
 
 HEAVY = ("qpsolvers", "osqp", "proxsuite", "matplotlib", "meshcat", "example_robot_data", "tqdm", "scipy.spatial")

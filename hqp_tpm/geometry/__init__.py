@@ -1,5 +1,8 @@
 """Geometry layer: obstacles, the coal distance field between robot links and obstacles, repulsion laws.
 
+Modules: obstacles (shapes, hulls), pairs (pair set, broad phase), records (update results), witness
+(witness-point Jacobians), distances (the field), repulsion.
+
 May import: :mod:`hqp_tpm.robot`, :mod:`hqp_tpm.errors`, coal, pinocchio, numpy.
 """
 

@@ -27,8 +27,9 @@ two concentric spheres): coal's own contact normal if it is a finite unit vector
 from the obstacle's bounding centre to the robot witness point; else the normal of the previous
 update for that pair; else world +z.
 
-Kinematics helpers :func:`point_jacobian` and :func:`point_jdot_qdot` give ``J_c`` and ``J̇_c q̇`` of
-(28)-(29) for a point rigidly attached to a joint (e.g. a witness point).
+The pieces live next door: :mod:`~hqp_tpm.geometry.pairs` (elements, obstacles, which pairs are computed
+how, the broad phase), :mod:`~hqp_tpm.geometry.records` (the result arrays an update writes) and
+:mod:`~hqp_tpm.geometry.witness` (``J_c`` and ``J̇_c q̇`` of (28)-(29) at a witness point, re-exported here).
 """
 
 from __future__ import annotations
@@ -41,9 +42,11 @@ import coal
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.errors import ShapeError, UnknownFrameError, unknown_name
-from hqp_tpm.geometry.obstacles import GeometryError, Obstacle, bounding_sphere, convex_from_points
-from hqp_tpm.robot.spatial import cross, cross3
+from hqp_tpm.errors import ShapeError, unknown_name
+from hqp_tpm.geometry.obstacles import GeometryError, Obstacle
+from hqp_tpm.geometry.pairs import Elements, Partition, checked_obstacles, near_pairs, self_pair_indices
+from hqp_tpm.geometry.records import PairRecord, SelfPairRecord
+from hqp_tpm.geometry.witness import point_jacobian, point_jdot_qdot
 
 __all__ = ["ELEMENT_KINDS", "DistanceField", "Nearest", "point_jacobian", "point_jdot_qdot"]
 
@@ -55,7 +58,6 @@ BATCH_MIN = 8
 
 _TINY = 1e-12
 _EZ = np.array([0.0, 0.0, 1.0])
-_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 
 
 class Nearest(NamedTuple):
@@ -67,52 +69,6 @@ class Nearest(NamedTuple):
     element: int  #: element of the overall minimum D_minimal (31), -1 if none
     obstacle_index: int  #: obstacle of the overall minimum, -1 if none
     value: float  #: D_minimal (31), +inf if no obstacle in range
-
-
-def point_jacobian(model: pin.Model, data: pin.Data, joint_id: int, p_world) -> np.ndarray:
-    """3 x nv world-aligned Jacobian ``J_c`` (28) of the point currently at ``p_world``, fixed to ``joint_id``.
-
-    Needs ``data.J`` and ``data.oMi``: run ``pin.computeJointJacobians(model, data, q)`` first.
-    ``J_c = J_v - [r]x J_w`` with ``r = p_world - o_joint`` and ``J`` the joint's LOCAL_WORLD_ALIGNED Jacobian.
-    """
-    J = pin.getJointJacobian(model, data, int(joint_id), _LWA)
-    r = np.asarray(p_world, dtype=float) - data.oMi[int(joint_id)].translation
-    return J[:3] - pin.skew(r).dot(J[3:])
-
-
-def point_jdot_qdot(model: pin.Model, data: pin.Data, joint_id: int, p_world) -> np.ndarray:
-    """``J̇_c q̇`` (world frame) of the point currently at ``p_world``, fixed to ``joint_id`` (used in (29)).
-
-    It is the classical acceleration of that point at zero joint acceleration. Needs ``data.oMi``,
-    ``data.v`` and ``data.a`` from ``pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))``
-    (``data.a`` must come from a zero ``q̈``; algorithms that overwrite ``data.a`` afterwards break this).
-    """
-    jid = int(joint_id)
-    M = data.oMi[jid]
-    R = M.rotation
-    v = data.v[jid].vector  # local (linear, angular)
-    a = data.a[jid].vector
-    w_l = v[3:]
-    a_o = R.dot(a[:3] + cross(w_l, v[:3])).tolist()  # classical acceleration of the joint origin
-    alpha = R.dot(a[3:]).tolist()
-    w = R.dot(w_l).tolist()
-    r = (np.asarray(p_world, dtype=float) - M.translation).tolist()
-    c1, c2 = cross3(alpha, r), cross3(w, cross3(w, r))
-    return np.array([a_o[0] + c1[0] + c2[0], a_o[1] + c1[1] + c2[1], a_o[2] + c1[2] + c2[2]])
-
-
-def _as_slice(index: np.ndarray):
-    """A slice equal to the sorted index array ``index`` if it is contiguous, else ``index`` itself."""
-    if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
-        return slice(int(index[0]), int(index[0]) + index.size)
-    return index
-
-
-def _convexified(shape: coal.CollisionGeometry, what: str) -> coal.CollisionGeometry:
-    """The convex hull of a BVH mesh (control must not query raw meshes); other shapes unchanged."""
-    if isinstance(shape, coal.BVHModelBase):
-        return convex_from_points(np.asarray(shape.vertices(), dtype=float), what=what)
-    return shape
 
 
 class DistanceField:
@@ -145,62 +101,19 @@ class DistanceField:
         self.broad_phase = bool(broad_phase)
         self.analytic_spheres = bool(analytic_spheres)
 
-        # ---- robot geometries (copied into an internal geometry model, BVH -> convex hull)
-        all_geoms = [] if geometry_model is None else list(geometry_model.geometryObjects)
-        by_name = {g.name: i for i, g in enumerate(all_geoms)}
-        if geometries is None:
-            names = [g.name for g in all_geoms]
-        else:
-            names = list(geometries)
-            for name in names:
-                if name not in by_name:
-                    raise unknown_name("geometry", name, by_name)
-        if len(set(names)) != len(names):
-            raise GeometryError(f"duplicate geometry names in {names}")
-        self._geom_source_index = np.array([by_name[n] for n in names], dtype=int)
-        self._gmodel = pin.GeometryModel()
-        for name in names:
-            obj = pin.GeometryObject(all_geoms[by_name[name]])
-            if convexify:
-                obj.geometry = _convexified(obj.geometry, f"geometry {name!r}")
-            self._gmodel.addGeometryObject(obj)
-        self._gdata = pin.GeometryData(self._gmodel)
-        self._shapes = [g.geometry for g in self._gmodel.geometryObjects]
-
-        # ---- control points
-        frame_names = [f.name for f in model.frames]
-        self._frame_ids = []
-        for name in control_points:
-            if not model.existFrame(name):
-                raise unknown_name("frame", name, frame_names, cls=UnknownFrameError)
-            self._frame_ids.append(model.getFrameId(name))
-        if len(set(control_points)) != len(control_points):
-            raise GeometryError(f"duplicate control points in {list(control_points)}")
-        clash = set(control_points) & set(names)
-        if clash:
-            raise GeometryError(f"control points and geometries share the names {sorted(clash)}")
-
-        # ---- element tables
-        ng, npts = len(names), len(self._frame_ids)
-        self.names: list[str] = names + list(control_points)
-        self.kinds: list[str] = ["geometry"] * ng + ["point"] * npts
-        self.joint_ids = np.array([g.parentJoint for g in self._gmodel.geometryObjects]
-                                  + [model.frames[f].parentJoint for f in self._frame_ids], dtype=int)
-        self.n_geometries, self.n_points = ng, npts
+        elements = Elements(model, geometry_model, control_points, geometries, convexify)
+        self._geom_source_index = elements.geom_source_index
+        self._gmodel, self._gdata, self._shapes = elements.gmodel, elements.gdata, elements.shapes
+        self._frame_ids = elements.frame_ids
+        self.names: list[str] = elements.names
+        self.kinds: list[str] = elements.kinds
+        self.joint_ids = elements.joint_ids
+        self.n_geometries, self.n_points = ng, npts = elements.n_geometries, elements.n_points
         M = ng + npts
-        bounds = [bounding_sphere(s) for s in self._shapes]
-        self._elem_local_center = [None if not c.any() else c for c, _ in bounds]  # None: the shape origin
-        self._elem_radius = np.array([r for _, r in bounds] + [0.0] * npts)
-        is_sphere_elem = np.array([isinstance(s, coal.Sphere) for s in self._shapes] + [True] * npts, dtype=bool)
+        self._elem_local_center = elements.local_center
+        self._elem_radius = elements.radius
 
-        # ---- obstacles
-        self.obstacles: list[Obstacle] = list(obstacles)
-        for o in self.obstacles:
-            if not isinstance(o, Obstacle):
-                raise GeometryError(f"obstacles must be Obstacle instances, got {type(o).__name__}")
-        onames = [o.name for o in self.obstacles]
-        if len(set(onames)) != len(onames):
-            raise GeometryError(f"duplicate obstacle names in {onames}")
+        self.obstacles: list[Obstacle] = checked_obstacles(obstacles)
         H = len(self.obstacles)
         self._obs_radius = np.array([o.bounding_radius for o in self.obstacles])
         self._obs_moving = [i for i, o in enumerate(self.obstacles) if o.is_moving]
@@ -208,73 +121,39 @@ class DistanceField:
         self._obs_center = np.array([Mo.act(o.local_center) for Mo, o in zip(self.obstacle_placements,
                                                                              self.obstacles, strict=True)])
         self._obs_center = self._obs_center.reshape(H, 3)
-        is_sphere_obs = np.array([isinstance(o.shape, coal.Sphere) for o in self.obstacles], dtype=bool)
 
-        # ---- result arrays (preallocated)
-        self.distance = np.full((M, H), np.inf)
-        self.p_robot = np.full((M, H, 3), np.nan)
-        self.p_obstacle = np.full((M, H, 3), np.nan)
-        self.normal = np.zeros((M, H, 3))
-        self.in_range = np.zeros((M, H), dtype=bool)
-        self.computed = np.zeros((M, H), dtype=bool)
-        self._last_normal = np.zeros((M, H, 3))
+        # ---- results of the last update (preallocated; the attributes below are views of the records)
+        self.record = PairRecord(M, H)
+        r = self.record
+        self.distance, self.p_robot, self.p_obstacle, self.normal = r.distance, r.p_robot, r.p_obstacle, r.normal
+        self.in_range, self.computed, self._last_normal = r.in_range, r.computed, r.last_normal
         self.t = 0.0
 
         # ---- pair partition: analytic sphere block and coal pairs
-        if self.analytic_spheres:
-            self._sph_e = np.flatnonzero(is_sphere_elem)
-            self._sph_o = np.flatnonzero(is_sphere_obs)
-        else:
-            self._sph_e = np.zeros(0, dtype=int)
-            self._sph_o = np.zeros(0, dtype=int)
-        self._sph_re = self._elem_radius[self._sph_e]
-        self._sph_ro = np.array([self.obstacles[j].shape.radius for j in self._sph_o])
-        self._sph_rsum = self._sph_re[:, None] + self._sph_ro[None, :]
-        self._sph_re_zero = not self._sph_re.any()
-        self._sph_ro_zero = not self._sph_ro.any()
-        # basic slices when the index sets are contiguous (the usual case: points last, all obstacles points)
-        self._sph_erows, self._sph_orows = _as_slice(self._sph_e), _as_slice(self._sph_o)
-        if isinstance(self._sph_erows, slice) and isinstance(self._sph_orows, slice):
-            self._sph_grid = (self._sph_erows, self._sph_orows)
-        else:
-            self._sph_grid = np.ix_(self._sph_e, self._sph_o)
-        in_block = np.zeros((M, H), dtype=bool)
-        in_block[np.ix_(self._sph_e, self._sph_o)] = True
-        self._sph_all = bool(in_block.all())  # every pair analytic: each update overwrites every entry
-        ce, co = np.nonzero(~in_block)
-        self._coal_e, self._coal_o = ce, co
-        point_shape = coal.Sphere(0.0)
-        self._point_shape = point_shape
-        self._coal_e_list, self._coal_o_list = ce.tolist(), co.tolist()
-        self._coal_buffers = (np.zeros(len(ce)), np.zeros((len(ce), 3)), np.zeros((len(ce), 3)))
-        self._coal_fun = [coal.ComputeDistance(self._shapes[e] if e < ng else point_shape, self.obstacles[j].shape)
-                          for e, j in zip(ce, co, strict=True)]
+        part = Partition(elements, self.obstacles, self.analytic_spheres)
+        self._sph_e, self._sph_o = part.sph_e, part.sph_o
+        self._sph_re, self._sph_ro, self._sph_rsum = part.sph_re, part.sph_ro, part.sph_rsum
+        self._sph_re_zero, self._sph_ro_zero = part.sph_re_zero, part.sph_ro_zero
+        self._sph_erows, self._sph_orows, self._sph_grid = part.sph_erows, part.sph_orows, part.sph_grid
+        self._sph_all = part.sph_all
+        self._coal_e, self._coal_o = part.coal_e, part.coal_o
+        self._point_shape = part.point_shape
+        self._coal_e_list, self._coal_o_list = part.coal_e_list, part.coal_o_list
+        self._coal_buffers = (np.zeros(len(part.coal_e)), np.zeros((len(part.coal_e), 3)),
+                              np.zeros((len(part.coal_e), 3)))
+        self._coal_fun = part.coal_fun
 
         # ---- self pairs
-        pairs = []
-        gindex = {n: i for i, n in enumerate(names)}
-        for pair in self_pairs:
-            if len(pair) != 2:
-                raise ShapeError(f"a self pair must name two geometries, got {pair!r}")
-            a, b = pair
-            for n in (a, b):
-                if n not in gindex:
-                    raise unknown_name("geometry", n, gindex)
-            if a == b:
-                raise GeometryError(f"self pair ({a!r}, {b!r}) names the same geometry twice")
-            pairs.append((gindex[a], gindex[b]))
+        pairs = self_pair_indices(elements.geometry_names, self_pairs)
         S = len(pairs)
         self.self_pairs = np.array(pairs, dtype=int).reshape(S, 2)
         self._self_fun = [coal.ComputeDistance(self._shapes[a], self._shapes[b]) for a, b in pairs]
         self._self_a_list, self._self_b_list = [a for a, _ in pairs], [b for _, b in pairs]
         self._self_buffers = (np.zeros(S), np.zeros((S, 3)), np.zeros((S, 3)))
-        self.self_distance = np.full(S, np.inf)
-        self.self_p1 = np.full((S, 3), np.nan)
-        self.self_p2 = np.full((S, 3), np.nan)
-        self.self_normal = np.zeros((S, 3))
-        self.self_in_range = np.zeros(S, dtype=bool)
-        self.self_computed = np.zeros(S, dtype=bool)
-        self._self_last_normal = np.zeros((S, 3))
+        self.self_record = SelfPairRecord(S)
+        r = self.self_record
+        self.self_distance, self.self_p1, self.self_p2, self.self_normal = r.distance, r.p1, r.p2, r.normal
+        self.self_in_range, self.self_computed, self._self_last_normal = r.in_range, r.computed, r.last_normal
 
         self._req = coal.DistanceRequest()
         self._req.enable_signed_distance = True
@@ -362,11 +241,7 @@ class DistanceField:
             self._obs_center[j] = Mo.act(o.local_center)
 
         if not self._sph_all:
-            self.distance.fill(np.inf)
-            self.p_robot.fill(np.nan)
-            self.p_obstacle.fill(np.nan)
-            self.normal.fill(0.0)
-            self.computed.fill(False)
+            self.record.clear()
         if self._sph_e.size and self._sph_o.size:
             self._update_spheres()
         if self._coal_fun:
@@ -445,9 +320,8 @@ class DistanceField:
     def _update_coal(self):
         ce, co = self._coal_e, self._coal_o
         if self.broad_phase:
-            diff = self._elem_center[ce] - self._obs_center[co]
-            lower = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._elem_radius[ce] - self._obs_radius[co]
-            todo = np.flatnonzero(lower <= self.surveillance)
+            todo = near_pairs(self._elem_center[ce], self._obs_center[co], self._elem_radius[ce],
+                               self._obs_radius[co], self.surveillance)
             if todo.size == 0:
                 return
         else:
@@ -505,16 +379,11 @@ class DistanceField:
             comp[e, j] = True
 
     def _update_self(self):
-        self.self_distance.fill(np.inf)
-        self.self_p1.fill(np.nan)
-        self.self_p2.fill(np.nan)
-        self.self_normal.fill(0.0)
-        self.self_computed.fill(False)
+        self.self_record.clear()
         a, b = self.self_pairs[:, 0], self.self_pairs[:, 1]
         if self.broad_phase:
-            diff = self._elem_center[a] - self._elem_center[b]
-            lower = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._elem_radius[a] - self._elem_radius[b]
-            todo = np.flatnonzero(lower <= self.surveillance)
+            todo = near_pairs(self._elem_center[a], self._elem_center[b], self._elem_radius[a],
+                               self._elem_radius[b], self.surveillance)
         else:
             todo = np.arange(len(a))
         if todo.size:

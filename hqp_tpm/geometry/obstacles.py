@@ -20,7 +20,7 @@ import pinocchio as pin
 from hqp_tpm.errors import GeometryError, NonFiniteError, ShapeError
 from hqp_tpm.robot.spatial import rotation_z_to
 
-__all__ = ["GeometryError", "Obstacle", "bounding_sphere", "convex_from_points"]
+__all__ = ["GeometryError", "Obstacle", "bounding_sphere", "convex_from_points", "convexified"]
 
 
 def _vector(what: str, value, n: int = 3) -> np.ndarray:
@@ -90,6 +90,13 @@ def convex_from_points(points, what: str = "mesh") -> coal.ConvexBase:
     verts.extend(P)
     shape = coal.Convex.convexHull(verts, True, None)
     shape.computeLocalAABB()
+    return shape
+
+
+def convexified(shape: coal.CollisionGeometry, what: str) -> coal.CollisionGeometry:
+    """The convex hull of a BVH mesh (control must not query raw meshes); other shapes unchanged."""
+    if isinstance(shape, coal.BVHModelBase):
+        return convex_from_points(np.asarray(shape.vertices(), dtype=float), what=what)
     return shape
 
 

@@ -56,8 +56,9 @@ import pinocchio as pin
 
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
-from hqp_tpm.geometry.distances import DistanceField, _convexified, point_jacobian
-from hqp_tpm.geometry.obstacles import Obstacle
+from hqp_tpm.geometry.distances import DistanceField
+from hqp_tpm.geometry.obstacles import Obstacle, convexified
+from hqp_tpm.geometry.witness import point_jacobian
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
@@ -132,7 +133,7 @@ def control_geometries(robot, names=CONTROL_GEOMETRIES) -> pin.GeometryModel:
         if src is None or not src.existGeometryName(name):
             raise ScenarioError(f"robot {robot.name!r} has no collision geometry {name!r}")
         obj = pin.GeometryObject(src.geometryObjects[src.getGeometryId(name)])
-        obj.geometry = _convexified(obj.geometry, f"geometry {name!r}")
+        obj.geometry = convexified(obj.geometry, f"geometry {name!r}")
         gm.addGeometryObject(obj)
     return gm
 
