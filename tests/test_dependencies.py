@@ -45,9 +45,10 @@ def _requirements(extra: str | None = None) -> dict[str, str]:
     return out
 
 
-def _imported_modules() -> set[str]:
+def _imported_modules(where: str = "") -> set[str]:
+    """Third-party top-level modules imported by the package (``where``: only under that subfolder)."""
     found = set()
-    for path in ROOT.rglob("*.py"):
+    for path in (ROOT / where).rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             if isinstance(node, ast.Import):
                 found.update(a.name.split(".")[0] for a in node.names)
@@ -60,10 +61,15 @@ pytestmark = pytest.mark.skipif(not PYPROJECT.is_file(), reason="needs the sourc
 
 
 def test_every_imported_module_is_declared():
+    """Base dependencies for the package; the testing extra for what only hqp_tpm.testing imports."""
     declared = _requirements()
+    testing_only = _imported_modules("testing") - {m for p in ROOT.iterdir() if p.name != "testing"
+                                                   for m in (_imported_modules(p.name) if p.is_dir() else ())}
     dists = packages_distributions()
     missing = {}
     for module in sorted(_imported_modules()):
+        if module in testing_only and KNOWN.get(module, {_norm(module)}) & set(_requirements("testing")):
+            continue
         provided_by = {_norm(d) for d in dists.get(module, ())} | KNOWN.get(module, set())
         assert provided_by, f"no installed distribution provides {module!r}: add it to KNOWN"
         if not provided_by & set(declared):
@@ -87,6 +93,6 @@ def test_scenario_backends_are_base_dependencies():
     assert {_norm(PIP_PACKAGE[b]) for b in backends} <= set(declared), backends
 
 
-def test_dev_installs_the_qp_extra():
-    """``make test`` installs ``.[dev]``: it must contain the extra backends the tests compare."""
-    assert set(_requirements("qp")) <= set(_requirements("dev"))
+def test_dev_installs_the_qp_and_testing_extras():
+    """``make test`` installs ``.[dev]``: it must contain the extra backends the tests compare and the test tools."""
+    assert set(_requirements("qp")) | set(_requirements("testing")) <= set(_requirements("dev"))
