@@ -27,7 +27,7 @@ PYPROJECT = ROOT.parent / "pyproject.toml"
 #: several distributions provide (example_robot_data: example-robot-data < 5, example-robot-data-loaders >= 5).
 KNOWN = {"pinocchio": {"pin"}, "coal": {"coal"}, "example_robot_data": {"example-robot-data",
                                                                          "example-robot-data-loaders"},
-         "proxsuite": {"proxsuite"}, "tomli": {"tomli"}}
+         "proxsuite": {"proxsuite"}, "tomli": {"tomli"}, "distributed": {"distributed", "dask"}}
 
 
 def _norm(name: str) -> str:
@@ -45,16 +45,31 @@ def _requirements(extra: str | None = None) -> dict[str, str]:
     return out
 
 
+def _names(nodes) -> set[str]:
+    found = set()
+    for node in nodes:
+        if isinstance(node, ast.Import):
+            found.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            found.add(node.module.split(".")[0])
+    return found - set(sys.stdlib_module_names) - {"hqp_tpm"}
+
+
 def _imported_modules(where: str = "") -> set[str]:
     """Third-party top-level modules imported by the package (``where``: only under that subfolder)."""
+    return set().union(*(_names(ast.walk(ast.parse(p.read_text(), str(p)))) for p in (ROOT / where).rglob("*.py")))
+
+
+def _optional_modules() -> set[str]:
+    """Modules imported inside ``try: ... except ImportError`` (optional features, declared in an extra)."""
     found = set()
-    for path in (ROOT / where).rglob("*.py"):
+    for path in ROOT.rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
-            if isinstance(node, ast.Import):
-                found.update(a.name.split(".")[0] for a in node.names)
-            elif isinstance(node, ast.ImportFrom) and not node.level:
-                found.add(node.module.split(".")[0])
-    return found - set(sys.stdlib_module_names) - {"hqp_tpm"}
+            if isinstance(node, ast.Try) and any(
+                    isinstance(h.type, ast.Name) and h.type.id in ("ImportError", "ModuleNotFoundError")
+                    for h in node.handlers):
+                found |= _names(n for stmt in node.body for n in ast.walk(stmt))
+    return found
 
 
 pytestmark = pytest.mark.skipif(not PYPROJECT.is_file(), reason="needs the source tree (pyproject.toml)")
@@ -65,13 +80,18 @@ def test_every_imported_module_is_declared():
     declared = _requirements()
     testing_only = _imported_modules("testing") - {m for p in ROOT.iterdir() if p.name != "testing"
                                                    for m in (_imported_modules(p.name) if p.is_dir() else ())}
+    project = tomllib.loads(PYPROJECT.read_text())["project"]
+    in_extras = set().union(*(_requirements(extra) for extra in project.get("optional-dependencies", {})))
+    optional = _optional_modules()
     dists = packages_distributions()
     missing = {}
     for module in sorted(_imported_modules()):
-        if module in testing_only and KNOWN.get(module, {_norm(module)}) & set(_requirements("testing")):
-            continue
         provided_by = {_norm(d) for d in dists.get(module, ())} | KNOWN.get(module, set())
         assert provided_by, f"no installed distribution provides {module!r}: add it to KNOWN"
+        if module in testing_only and provided_by & set(_requirements("testing")):
+            continue
+        if module in optional and provided_by & in_extras:
+            continue
         if not provided_by & set(declared):
             missing[module] = sorted(provided_by)
     assert not missing, f"imported but not declared in pyproject.toml: {missing}"
