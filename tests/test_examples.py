@@ -9,6 +9,10 @@ EXAMPLE = ROOT / "examples" / "downstream_stack_check"
 
 
 def test_downstream_example_project_passes_with_the_plugin_fixtures():
+    from importlib.metadata import entry_points
+
+    assert "hqp_tpm" in {e.name for e in entry_points(group="pytest11")}, (
+        "the pytest11 entry point is not installed: reinstall the package (pip install -e '.[dev]')")
     run = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider"], cwd=EXAMPLE,
                          capture_output=True, text=True, timeout=300)
     assert run.returncode == 0, run.stdout + run.stderr
