@@ -57,9 +57,13 @@ def error_groups(tasks: dict) -> list[tuple[str, str, slice | None, str]]:
         elif kind == "Pointing":
             out.append((name, "pointing angle", None, "deg"))
         else:  # quaternion vector part, manipulability and joint-limit indices, avoidance: no unit
-            out.append((name, kind, None, "1"))
+            out.append((name, _QUANTITIES.get(kind, kind), None, "1"))
     return out
 
+
+#: What the error of a dimensionless task is, for the legend.
+_QUANTITIES = {"QuaternionOrientation": "quaternion error (10)", "Manipulability": "σ_m* − σ_m",
+               "JointLimit": "−σ_l", "Avoidance": "avoidance"}
 
 _UNIT_TITLES = {"m": "position error [m]", "rad": "angle error [rad]", "N": "force error [N]",
                 "deg": "pointing: angle outside the cone [deg]", "1": "error (dimensionless)"}
