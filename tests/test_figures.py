@@ -77,3 +77,14 @@ def test_lwr_metrics_have_no_duplicates(tmp_path):
     assert not dup, dup
     assert (tmp_path / "pointing_error.png").is_file() and (tmp_path / "distances.png").is_file()
     assert np.isfinite(m["d_minimal_min"])
+
+
+def test_wrote_line_names_every_file_written(tmp_path, capsys):
+    from hqp_tpm.app.cli import main
+
+    out = tmp_path / "run"
+    assert main(["run", "planar5_exact", "--steps", "200", "--out", str(out), "--quiet"]) == 0
+    last = capsys.readouterr().out.strip().splitlines()[-1]
+    assert last.startswith(f"wrote {out}/: ")
+    named = set(last.split(": ", 1)[1].split(", "))
+    assert named == {p.name for p in out.iterdir()}, (named, sorted(p.name for p in out.iterdir()))

@@ -149,7 +149,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         folder.abort()
         raise
     summary["out"] = str(dest)
-    summary["files"] = [str(dest / name) for name in written]
+    summary["files"] = [str(dest / name) for name in [*written, "manifest.json"]]
     if live is not None:
         report = live.report()
         if report:
