@@ -46,7 +46,7 @@ def test_task_errors_one_axis_per_unit(romeo_short):
     out, summary = romeo_short
     assert {"joint_velocities.png", "task_errors.png"} <= {p.name for p in out.glob("*.png")}
     assert [f.split("/")[-1] for f in summary["files"]] == ["trajectory.npz", "metrics.json", "joint_velocities.png",
-                                                             "task_errors.png"]
+                                                             "task_errors.png", "manifest.json"]
 
 
 def test_metrics_once_each_with_units(romeo_short):
