@@ -342,3 +342,25 @@ def test_romeo_joint_blocking_set_verified_and_minimal():
                 assert residual(*released([c.joints[i] for i in keep], [c.sides[i] for i in keep]), k) > target
             checked += 1
     assert checked >= 1
+
+
+def test_bound_kinds_name_the_limit_that_defines_the_bound():
+    from hqp_tpm.app.explain import bound_kinds
+    from hqp_tpm.robot.limits import JointLimits
+    from hqp_tpm.robot.model import Robot
+    from hqp_tpm.robot.state import State
+
+    robot = Robot.load("planar5")
+    limits = JointLimits(robot, order=1, dt=0.01, acceleration_limit=50.0)
+    q_max = robot.position_limits()[1]
+    q = np.zeros(robot.nv)
+    q[1] = q_max[1] - 0.001        # position one period ahead: 0.1 rad/s (braking 0.32, v_max 3.14)
+    q[2] = q_max[2] - 0.05         # braking: sqrt(2 * 50 * 0.05) = 2.24 rad/s (position 5, v_max 3.14)
+    st = State(robot).update(q, np.zeros(robot.nv))
+    lo, up = limits(st, 0.0)
+    joints, sides = [0, 1, 2, 1], [1, 1, 1, -1]
+    values = np.array([up[0], up[1], up[2], lo[1]])
+    assert up[1] == pytest.approx(0.1) and up[2] == pytest.approx(np.sqrt(5.0))
+    assert bound_kinds(limits, st, values, range(4), sides, columns=joints) == \
+        ["velocity", "position", "braking", "velocity"]
+    assert bound_kinds(lambda s, t: (lo, up), st, values, range(4), sides, columns=joints) == ["box"] * 4
