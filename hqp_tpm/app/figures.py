@@ -256,14 +256,18 @@ def _first_pointing(tasks: dict):
     return next((task for task in tasks.values() if type(task).__name__ == "Pointing"), None)
 
 
-def write_all(out: Path, arrays: dict, sc, tasks: dict, policy) -> list[Path]:
-    """The figures that apply to this run, chosen from what it recorded; returns their paths."""
+def write_all(out: Path, arrays: dict, sc, tasks: dict, context) -> list[Path]:
+    """The figures that apply to this run, chosen from what it recorded; returns their paths.
+
+    ``context``: the run's :class:`~hqp_tpm.app.context.RunContext` (its ``velocity_limits`` and
+    ``thresholds``), or the policy of an older caller (the same attributes)."""
     out = Path(out)
     name = sc.name
     written = []
-    limits = getattr(policy, "velocity_limits", None)
+    limits = getattr(context, "velocity_limits", None)
     if limits is not None and not np.isfinite(np.asarray(limits, dtype=float)).any():
         limits = None
+    thresholds = getattr(context, "thresholds", None) or {}
     p = out / "joint_velocities.png"
     joint_velocities(p, arrays, limits, f"{name}: joint velocities")
     written.append(p)
@@ -277,11 +281,13 @@ def write_all(out: Path, arrays: dict, sc, tasks: dict, policy) -> list[Path]:
         written.append(p)
     if any(k in arrays for k in ("d_ee", "d_minimal", "d_obstacle", "d_self")):
         p = out / "distances.png"
-        distances(p, arrays, getattr(policy, "thresholds", {}), f"{name}: distances")
+        distances(p, arrays, thresholds, f"{name}: distances")
         written.append(p)
     if "sigma_m" in arrays:
         p = out / "comanipulation.png"
-        comanipulation(p, {name: arrays}, getattr(policy, "sigma_m_bar", 1.5), getattr(policy, "sigma_l_bar", 2.0),
-                       f"{name}: co-manipulation indices")
+        sigma_m_bar = thresholds.get("sigma_m", {}).get("sigma_bar_m", getattr(context, "sigma_m_bar", 1.5))
+        sigma_l_bar = thresholds.get("joint_deviation_max", {}).get("sigma_bar_l",
+                                                                    getattr(context, "sigma_l_bar", 2.0))
+        comanipulation(p, {name: arrays}, sigma_m_bar, sigma_l_bar, f"{name}: co-manipulation indices")
         written.append(p)
     return written

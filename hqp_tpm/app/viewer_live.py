@@ -61,7 +61,7 @@ class LiveViewer:
     message is silenced); :meth:`serve` keeps the server up until Ctrl-C.
     """
 
-    def __init__(self, robot, policy=None, every: int = 10, *, view=DEFAULT_VIEW, trace_every: int = 10,
+    def __init__(self, robot, context=None, every: int = 10, *, view=DEFAULT_VIEW, trace_every: int = 10,
                  zmq_url: str | None = None, realtime: bool | float = False, quiet: bool = False):
         with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints its URL itself: once is enough
             self.vis = meshcat.Visualizer(zmq_url=zmq_url)
@@ -72,7 +72,7 @@ class LiveViewer:
         self.rate = RateLimiter(speed) if speed > 0 else None
         self.every = max(1, int(every))
         self.trace_every = max(1, int(trace_every))
-        self.scene = Scene(self.vis, robot, policy)
+        self.scene = Scene(self.vis, robot, context)
         self.view = view
         self._count = 0
         self._updates = 0

@@ -180,7 +180,7 @@ def _frame_indices(t: np.ndarray, fps: float, max_frames: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, count)).astype(int))
 
 
-def replay_html(robot, arrays: dict, policy=None, *, fps: float = 30.0, max_frames: int = 600, title: str = "",
+def replay_html(robot, arrays: dict, context=None, *, fps: float = 30.0, max_frames: int = 600, title: str = "",
                 view=DEFAULT_VIEW) -> str:
     """The replay page of a run (see :func:`write_replay`) as a string."""
     t_all = np.asarray(arrays["t"], dtype=float)
@@ -195,7 +195,7 @@ def replay_html(robot, arrays: dict, policy=None, *, fps: float = 30.0, max_fram
 
     window = _OfflineWindow()
     vis = meshcat.Visualizer(window=window)
-    scene = Scene(vis, robot, policy)
+    scene = Scene(vis, robot, context)
 
     states, ee, view_pts = [], [], []
     for i, (ti, qi) in enumerate(zip(t, q_all[idx], strict=True)):
@@ -281,18 +281,20 @@ def stack_timeline(arrays: dict, t0: float) -> list[tuple[float, str]]:
     return out
 
 
-def write_replay(path, robot, arrays: dict, policy=None, fps: float = 30.0, max_frames: int = 600, *,
+def write_replay(path, robot, arrays: dict, context=None, fps: float = 30.0, max_frames: int = 600, *,
                  title: str = "", view=DEFAULT_VIEW) -> Path:
     """Write the run as a self-contained HTML replay (meshcat animation, at most ``max_frames`` frames).
 
     The animation plays in real time (``fps`` key frames per simulated second while that fits in
     ``max_frames``). Open ``<path>#t=2.5`` to show t = 2.5 s (paused); ``#ui=0`` hides the play bar
     and meshcat's controls.
-    Uses (and overwrites the state of) ``policy.field`` to redraw the nearest-distance segment.
+    ``context``: the run's context (:class:`~hqp_tpm.app.context.RunContext`), or its policy, or None
+    (:func:`~hqp_tpm.app.viewer_scene.view_items`). Uses (and overwrites the state of) the distance field to
+    redraw the nearest-distance segment.
     """
     path = Path(path)
     title = title or f"hqp-tpm replay: {path.resolve().parent.name} ({getattr(robot, 'name', '')})"
-    text = replay_html(robot, arrays, policy, fps=fps, max_frames=max_frames, title=title, view=view)
+    text = replay_html(robot, arrays, context, fps=fps, max_frames=max_frames, title=title, view=view)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:

@@ -15,6 +15,7 @@ import hashlib
 import inspect
 import os
 import warnings
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import coal
@@ -272,6 +273,62 @@ def _clean(name: str) -> str:
     return str(name).replace("/", "_") or "_"
 
 
+# ------------------------------------------------------------------------------------------ what to draw
+@dataclass
+class ViewItems:
+    """What the scene draws besides the robot (every item optional)."""
+
+    obstacles: list = field(default_factory=list)
+    control_points: list = field(default_factory=list)  # frame names (Algorithm 1's control points)
+    ee_frame: str | None = None
+    ee_task: object | None = None
+    pointing: object | None = None
+    field: object | None = None  # the distance field (for the critical point's distance segment)
+    markers: object | None = None  # ``markers(t) -> [(name, position, rgba), ...]`` (or ``markers(t, q)``)
+    targets: np.ndarray | None = None  # the co-manipulation operator's markers (K x 3); the run records ``marker``
+    force_frame: int | None = None  # frame id where the recorded ``operator_force`` is drawn
+
+
+def view_items(context) -> tuple[ViewItems, object | None]:
+    """(what to draw, the policy) from a run context, a policy or scene items.
+
+    A run context (an object with ``scene`` items and a ``policy``, :class:`hqp_tpm.app.context.RunContext`)
+    gives its scene items and obstacles; a policy with a ``scene()`` method its items; scene items are used as
+    they are. The co-manipulation operator (its markers and the flange where its force acts) comes from the
+    policy's ``operator``. Without any of these, the older policy attributes are read (``obstacles``,
+    ``control_points``, ``field``, ``ee_task``, ``ee_frame``, ``pointing``, ``viewer_markers``).
+    """
+    if context is None:
+        return ViewItems(), None
+    scene, policy, obstacles = getattr(context, "scene", None), context, None
+    if scene is not None and not callable(scene) and hasattr(context, "policy"):  # a run context
+        policy, obstacles = context.policy, getattr(context, "obstacles", None)
+    elif callable(scene):  # a policy with scene()
+        scene = scene()
+    elif hasattr(context, "control_points") and hasattr(context, "markers") and not callable(context):
+        scene, policy = context, None  # scene items
+    else:
+        scene = None
+    if scene is not None:
+        items = ViewItems(obstacles=list(obstacles or getattr(scene, "obstacles", None) or []),
+                          control_points=list(getattr(scene, "control_points", None) or []),
+                          ee_frame=getattr(scene, "ee_frame", None), ee_task=getattr(scene, "ee_task", None),
+                          pointing=getattr(scene, "pointing", None), field=getattr(scene, "field", None),
+                          markers=getattr(scene, "markers", None))
+    else:
+        p = policy
+        items = ViewItems(obstacles=list(getattr(p, "obstacles", None) or []),
+                          control_points=list(getattr(p, "control_points", None) or []),
+                          ee_frame=getattr(p, "ee_frame", None), ee_task=getattr(p, "ee_task", None),
+                          pointing=getattr(p, "pointing", None), field=getattr(p, "field", None),
+                          markers=getattr(p, "viewer_markers", None))
+    op = getattr(policy, "operator", None)  # the simulated operator of the co-manipulation runs
+    if op is not None and getattr(op, "markers", None) is not None:
+        items.targets = np.asarray(op.markers, dtype=float).reshape(-1, 3)
+        items.force_frame = int(op.fid) if getattr(op, "fid", None) is not None else None
+    return items, policy
+
+
 # ------------------------------------------------------------------------------------------ the scene
 class Scene:
     """The objects of a run on a meshcat visualizer, under ``vis["world"]`` (shifted so the scene is centred).
@@ -281,11 +338,12 @@ class Scene:
     a meshcat animation.
     """
 
-    def __init__(self, vis: meshcat.Visualizer, robot, policy=None):
+    def __init__(self, vis: meshcat.Visualizer, robot, context=None):
+        """``context``: a run context, a policy, scene items or None (:func:`view_items`)."""
         self.vis = vis
         self.root = vis["world"]
         self.robot = robot
-        self.policy = policy
+        items, self.policy = view_items(context)
         self.model = robot.model
         self.data = robot.model.createData()
         gmodel = viewer_geometry(robot)  # large meshes decimated (once, cached)
@@ -301,23 +359,19 @@ class Scene:
             self.gdata = self.viz.visual_data
             self._visual_paths = [self.viz.getViewerNodeName(g, pin.GeometryType.VISUAL)
                                   for g in gmodel.geometryObjects]
-        # policy items (all optional)
-        p = policy
-        self.obstacles = list(getattr(p, "obstacles", None) or [])
-        self.cp_names = [str(n) for n in (getattr(p, "control_points", None) or []) if robot.model.existFrame(str(n))]
+        self.obstacles = items.obstacles
+        self.cp_names = [str(n) for n in items.control_points if robot.model.existFrame(str(n))]
         self.cp_fids = [robot.model.getFrameId(n) for n in self.cp_names]
-        self.field = getattr(p, "field", None)
+        self.field = items.field
         self._cp_elements = self._control_point_elements()
-        self.ee_task = getattr(p, "ee_task", None)
+        self.ee_task = items.ee_task
+        self._ee_frame_name = items.ee_frame
         self.ee_fid = self._ee_frame()
-        self.pointing = getattr(p, "pointing", None)
-        op = getattr(p, "operator", None)  # the simulated operator of the co-manipulation runs
-        markers = getattr(op, "markers", None)
-        self.operator_markers = None if markers is None else np.asarray(markers, dtype=float).reshape(-1, 3)
-        fid = getattr(op, "fid", None)
-        self.force_fid = int(fid) if fid is not None else None
+        self.pointing = items.pointing
+        self.operator_markers = items.targets
+        self.force_fid = items.force_frame
         self._local_boxes = self._geometry_boxes()
-        self.markers_fn = getattr(p, "viewer_markers", None)
+        self.markers_fn = items.markers
         self._markers_with_q = False
         if callable(self.markers_fn):
             try:
@@ -341,7 +395,7 @@ class Scene:
             return [n_geom + k for k in range(len(self.cp_names))]
 
     def _ee_frame(self) -> int | None:
-        for cand in (getattr(self.policy, "ee_frame", None), getattr(self.ee_task, "frame", None)):
+        for cand in (self._ee_frame_name, getattr(self.ee_task, "frame", None)):
             if isinstance(cand, str) and self.model.existFrame(cand):
                 return self.model.getFrameId(cand)
         fid = getattr(self.ee_task, "fid", None)
