@@ -430,6 +430,8 @@ def _joint_cause(resolver: _Resolver, acc: StepAccount, k: int, hint=None) -> li
 
     for j, s in hint or ():
         resolver.side.setdefault(j, s)   # a joint a re-solve saturated at the earlier step: release that side
+        if s == 0:
+            resolver.side[j] = 0         # both sides released then: both again (a superset of one side)
     if hint and all(resolver.side[j] == s for j, s in hint) and reached([j for j, _ in hint]):
         joints = [j for j, _ in hint]
         frac = resolver.released(frozenset(joints)).fraction[k]
