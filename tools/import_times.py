@@ -6,13 +6,16 @@ Each ``SRC`` is a source root (a checkout or ``git archive`` of some commit); it
 ``PYTHONPATH``, so one interpreter (with the dependencies installed) measures every tree. The runs are
 interleaved and the median and the minimum over ``--repeat`` runs are printed per statement, in milliseconds: the
 cumulative import time of the ``hqp_tpm`` modules (what ``-X importtime`` attributes to them, third-party
-modules they pull in included), and which heavy optional modules ended up in ``sys.modules``.
+modules they pull in included), the CPU time (user + system) of the whole process minus that of
+``python -c pass`` (steadier than wall time on a busy machine), and which heavy optional modules ended up
+in ``sys.modules``.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
+import resource
 import statistics
 import subprocess
 import sys
@@ -21,6 +24,20 @@ import tempfile
 #: The last one preloads numpy and scipy.linalg (not counted): what the package itself adds on top of them.
 STATEMENTS = ("import hqp_tpm", "import hqp_tpm.solvers", "import numpy, scipy.linalg; import hqp_tpm.solvers")
 HEAVY = ("qpsolvers", "matplotlib", "meshcat", "example_robot_data", "tqdm", "scipy.spatial", "osqp", "proxsuite")
+
+
+def _cpu() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
+def cpu_time(src: str, code: str) -> float:
+    """CPU seconds (user + system) of ``python -c code`` with ``src`` first on the path."""
+    env = {**os.environ, "PYTHONPATH": src}
+    with tempfile.TemporaryDirectory() as cwd:
+        before = _cpu()
+        subprocess.run([sys.executable, "-c", code], env=env, cwd=cwd, check=True)
+        return _cpu() - before
 
 
 def measure(src: str, statement: str) -> tuple[float, list[str]]:
@@ -50,11 +67,13 @@ def main(argv=None) -> None:
     args = p.parse_args(argv)
     for statement in STATEMENTS:
         times = {src: [] for src in args.src}
+        cpu = {src: [] for src in args.src}
         heavy = {}
         for _ in range(args.repeat):
             for src in args.src:
                 us, heavy[src] = measure(src, statement)
                 times[src].append(us)
+                cpu[src].append(1000 * (cpu_time(src, statement) - cpu_time(src, "pass")))
         med = {src: statistics.median(t) / 1000 for src, t in times.items()}
         low = {src: min(t) / 1000 for src, t in times.items()}
         print(f"{statement}")
@@ -63,8 +82,10 @@ def main(argv=None) -> None:
             if src != args.src[0]:
                 first = args.src[0]
                 ratio = f"  first/this: {med[first] / med[src]:.1f}x (median), {low[first] / low[src]:.1f}x (min)"
-            print(f"  {src}: median {med[src]:7.1f} ms, min {low[src]:7.1f} ms{ratio}; "
-                  f"heavy modules loaded: {', '.join(heavy[src]) or 'none'}")
+            c, c0 = statistics.median(cpu[src]), statistics.median(cpu[args.src[0]])
+            c_ratio = f" (first/this {c0 / c:.1f}x)" if src != args.src[0] and c else ""
+            print(f"  {src}: -X importtime median {med[src]:7.1f} ms, min {low[src]:7.1f} ms{ratio}; "
+                  f"CPU time median {c:7.1f} ms{c_ratio}; heavy modules loaded: {', '.join(heavy[src]) or 'none'}")
 
 
 if __name__ == "__main__":
