@@ -185,8 +185,8 @@ def pointing_error(path: Path, arrays: dict, alpha_d: float | None = None, title
         ylabel = "angle to z_d [deg]"
     ax.plot(t, y, color="tab:blue", lw=0.8, label=label)
     ax.plot(t[active], y[active], ".", color="tab:red", ms=1.5, label="pointing task in the stack")
-    ax.axhline(ref, color="k", ls="--", lw=0.7, label=f"cone half-angle α_d = {ref:g}°" if alpha_d is not None
-               else "cone boundary")
+    ref_label = f"α_d = {ref:g}° (cone half-angle; the equality's target)" if alpha_d is not None else "cone boundary"
+    ax.axhline(ref, color="k", ls="--", lw=0.7, label=ref_label)
     ax.set_xlabel("t [s]")
     ax.set_ylabel(ylabel)
     ax.legend(fontsize=8, loc="best", markerscale=6)

@@ -126,7 +126,8 @@ class LiveViewer:
         t_show = float(ctrl.t if t is None else t)
         if self.rate is not None:
             self.rate.wait(t_show)
-        self.show(ctrl.q if q is None else q, t_show, active, update_field=q is None, record=_record(pol, ctrl, res))
+        self.show(ctrl.q if q is None else q, t_show, active, update_field=q is None,
+                  record=_record(self.scene.operator))
         return {}
 
     def report(self) -> str | None:
@@ -170,9 +171,8 @@ class LiveViewer:
         self.close()
 
 
-def _record(policy, ctrl, res) -> dict:
+def _record(op) -> dict:
     """The operator's force and marker of this step (co-manipulation runs), for the scene."""
-    op = getattr(policy, "operator", None)
     if op is None:
         return {}
     return {"operator_force": getattr(op, "force", None), "marker": float(getattr(op, "marker", -1))}

@@ -5,8 +5,8 @@ decimated once and cached, :func:`viewer_geometry`), the obstacles (a zero-radiu
 point obstacle, as a small sphere), the control points (red; the critical one, ``arrays["active_point"]``,
 blue) with a green segment from it to the nearest obstacle witness point, the desired EE path (green)
 and the EE trace (red), the pointing cone (cyan, apex at the EE, axis ``z_d``, half-angle ``alpha_d``),
-markers (purple; the co-manipulation operator's markers, the one it pulls towards in orange) and the
-operator's force (an orange arrow at the flange). Whatever the run lacks is left out.
+markers (purple; the co-manipulation operator's markers, the one it pulls towards in green) and the
+operator's force (a blue arrow at the flange). Whatever the run lacks is left out.
 """
 
 from __future__ import annotations
@@ -285,8 +285,9 @@ class ViewItems:
     pointing: object | None = None
     field: object | None = None  # the distance field (for the critical point's distance segment)
     markers: object | None = None  # ``markers(t) -> [(name, position, rgba), ...]`` (or ``markers(t, q)``)
-    targets: np.ndarray | None = None  # the co-manipulation operator's markers (K x 3); the run records ``marker``
+    targets: np.ndarray | None = None  # the operator's markers (K x 3); the run records the current one, ``marker``
     force_frame: int | None = None  # frame id where the recorded ``operator_force`` is drawn
+    operator: object | None = None  # the co-manipulation operator (markers, frame, current force)
 
 
 def view_items(context) -> tuple[ViewItems, object | None]:
@@ -295,7 +296,8 @@ def view_items(context) -> tuple[ViewItems, object | None]:
     A run context (an object with ``scene`` items and a ``policy``, :class:`hqp_tpm.app.context.RunContext`)
     gives its scene items and obstacles; a policy with a ``scene()`` method its items; scene items are used as
     they are. The co-manipulation operator (its markers and the flange where its force acts) comes from the
-    policy's ``operator``. Without any of these, the older policy attributes are read (``obstacles``,
+    scene items' ``operator`` (older policies: the policy's). Without any of these, the older policy
+    attributes are read (``obstacles``,
     ``control_points``, ``field``, ``ee_task``, ``ee_frame``, ``pointing``, ``viewer_markers``).
     """
     if context is None:
@@ -322,7 +324,10 @@ def view_items(context) -> tuple[ViewItems, object | None]:
                           ee_frame=getattr(p, "ee_frame", None), ee_task=getattr(p, "ee_task", None),
                           pointing=getattr(p, "pointing", None), field=getattr(p, "field", None),
                           markers=getattr(p, "viewer_markers", None))
-    op = getattr(policy, "operator", None)  # the simulated operator of the co-manipulation runs
+    op = getattr(scene, "operator", None) if scene is not None else None  # the co-manipulation operator
+    if op is None and scene is None:
+        op = getattr(policy, "operator", None)
+    items.operator = op
     if op is not None and getattr(op, "markers", None) is not None:
         items.targets = np.asarray(op.markers, dtype=float).reshape(-1, 3)
         items.force_frame = int(op.fid) if getattr(op, "fid", None) is not None else None
@@ -372,6 +377,7 @@ class Scene:
         self.force_fid = items.force_frame
         self._local_boxes = self._geometry_boxes()
         self.markers_fn = items.markers
+        self.operator = items.operator
         self._markers_with_q = False
         if callable(self.markers_fn):
             try:
