@@ -84,12 +84,13 @@ class PhaseTimer:
         from hqp_tpm.control.stack import Stack
         from hqp_tpm.robot.state import State
 
+        pol = type(ctrl.policy)  # the policy's class: special methods are looked up on the type
         out = [mock.patch.object(State, "update", self.wrap("state update", State.update)),
                mock.patch.object(State, "integrate", self.wrap("integration", State.integrate)),
                mock.patch.object(Stack, "to_levels", self.wrap("task levels", Stack.to_levels)),
                mock.patch.object(hc, "solve", self.wrap("solve", hc.solve)),
-               mock.patch.object(ctrl, "policy", self.wrap("policy", ctrl.policy)),
-               mock.patch.object(ctrl, "pre_policy", [self.wrap("pre-policy (distances)", h) for h in ctrl.pre_policy])]
+               mock.patch.object(pol, "__call__", self.wrap("policy", pol.__call__)),
+               mock.patch.object(pol, "update", self.wrap("pre-policy (distances)", pol.update))]
         if ctrl.box is not None:
             out.append(mock.patch.object(ctrl, "box", self.wrap("box", ctrl.box)))
         return out

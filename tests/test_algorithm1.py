@@ -27,8 +27,7 @@ def make(lwr, obstacles, alpha_deg=5.0, inequality=True, dim=1):
     pointing = Pointing(lwr, "lwr_ee", z, np.deg2rad(alpha_deg), Gains(5, 2), inequality=inequality,
                         name="pointing")
     pol = Algorithm1(lwr, ee, pointing, CPS, "lwr_ee", obstacles, avoidance_dim=dim)
-    for hook in pol.pre_policy:
-        hook(st, 0.0)
+    pol.update(st, 0.0)
     return pol, st
 
 

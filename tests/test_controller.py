@@ -5,6 +5,7 @@ import pinocchio as pin
 import pytest
 
 from hqp_tpm.control.controller import Controller
+from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import HqpTpmError, NonFiniteError, ShapeError, UnknownNameError
 from hqp_tpm.references.trajectories import Harmonic
@@ -145,8 +146,10 @@ def test_task_with_a_nan_jacobian_is_named_and_the_state_kept(lwr, solver):
     assert ctrl.steps == 0
 
 
-class _PushingBlend:
+class _PushingBlend(Policy):
     """A policy whose eq. (8)-style blend adds an offset far outside any joint box."""
+
+    blends = True
 
     def __init__(self, tasks):
         self.stack = Stack.of(*tasks)

@@ -6,13 +6,13 @@ import base64
 import re
 import time
 from pathlib import Path
-from types import SimpleNamespace
 
 import numpy as np
 import pinocchio as pin
 import pytest
 import umsgpack
 
+from hqp_tpm.control.policy import SceneItems
 from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.robot.model import Robot
 
@@ -136,7 +136,7 @@ def test_replay_draws_any_obstacle_and_policy_markers(tmp_path):
         return [("com", [0.0, 0.0, 0.1 + t], (0.6, 0.0, 0.8, 1.0))] + ([("late", [0.1, 0.1, 0.1], (1, 1, 0, 1))]
                                                                        if t > 0.5 else [])
 
-    policy = SimpleNamespace(obstacles=obstacles, viewer_markers=markers)
+    policy = SceneItems(obstacles=obstacles, markers=markers)
     n = 50
     q = np.tile(robot.neutral(), (n, 1))
     q[:, 1] = np.linspace(0.0, 1.0, n)

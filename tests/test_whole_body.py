@@ -109,8 +109,7 @@ def _policy(romeo, q, obstacles):
     for task in [sole, *below]:
         task.start(st)
     pol = WholeBody(romeo, [sole], below, obstacles, d_obstacle_activation=0.10, d_self_activation=0.05)
-    for hook in pol.pre_policy:
-        hook(st, 0.0)
+    pol.update(st, 0.0)
     return pol, st
 
 
@@ -171,7 +170,8 @@ def test_self_level_inserted_when_and_only_when_within_threshold(romeo):
 @pytest.mark.parametrize("name", ["romeo_obstacles_sns_tpm", "romeo_obstacles_qp"])
 def test_short_run_keeps_distances_positive_and_boxes(name):
     sc = scenario.load(name)
-    robot, ctrl, tasks, policy = build.build(sc)
+    ctx = build.build_run(sc)
+    ctrl, policy = ctx.controller, ctx.policy
 
     def box_probe(c, res):
         lo, up = c.box(c.state, res.t)
@@ -187,7 +187,7 @@ def test_short_run_keeps_distances_positive_and_boxes(name):
     assert np.nanmin(a["d_obstacle"]) > 0.0 and a["d_obs_all"].min() > 0.0
     assert a["d_self_all"].min() > 0.0
     assert a["box_violation"].max() <= 1e-9
-    vmax = policy.velocity_limits
+    vmax = ctx.velocity_limits
     assert (np.abs(a["dq"]) <= vmax + 1e-9).all()
     # the avoidance really worked: the ball is engaged in the first 0.9 s (romeo_tpm would penetrate it)
     assert (a["n_avoid_obstacle"] > 0).any()

@@ -1,12 +1,15 @@
-"""Turn a parsed :class:`~hqp_tpm.app.scenario.Scenario` into robot, tasks, policy and controller."""
+"""Turn a parsed :class:`~hqp_tpm.app.scenario.Scenario` into robot, tasks, policy and controller
+(:func:`build_run`: all of it in one :class:`~hqp_tpm.app.context.RunContext`)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.app.context import RunContext
 from hqp_tpm.app.policy_builders import POLICY_BUILDERS
 from hqp_tpm.app.scenario import Scenario, Section, number, vector
 from hqp_tpm.control.controller import Controller
+from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.errors import HqpTpmError, ScenarioError
 from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
@@ -223,7 +226,7 @@ def obstacles_from(sc: Scenario) -> list:
     return out
 
 
-def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list):
+def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list) -> Policy:
     sec = sc.policy
     kind = sec.string("type", "fixed")
     if kind == "fixed":
@@ -250,9 +253,8 @@ def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list):
     return POLICY_BUILDERS[kind](sc, robot, tasks, sec, obstacles)
 
 
-def build(sc: Scenario, solver: str | None = None):
-    """Robot, controller and the context a run needs (obstacles, distance field...)."""
-
+def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
+    """Robot, tasks, policy, controller and what the runner, results, figures and viewer need."""
     try:
         robot = Robot.load(sc.robot)
     except HqpTpmError as exc:
@@ -267,22 +269,27 @@ def build(sc: Scenario, solver: str | None = None):
         if isinstance(exc, ScenarioError) and sc.path.name in str(exc):
             raise
         raise ScenarioError(f"{sc.policy.where}: {exc}") from exc
-    policy.obstacles = getattr(policy, "obstacles", obstacles)
-    box = getattr(policy, "box", None)
+    limits = None
     if sc.limits is not None:
         from hqp_tpm.robot.limits import JointLimits
 
         lim = sc.limits
-        box = JointLimits(robot, order=sc.order, dt=sc.period, position=lim.boolean("position", True),
-                          velocity=lim.boolean("velocity", True),
-                          acceleration_limit=lim.number("acceleration_limit", 50.0),
-                          velocity_scale=lim.number("velocity_scale", 1.0))
+        limits = JointLimits(robot, order=sc.order, dt=sc.period, position=lim.boolean("position", True),
+                             velocity=lim.boolean("velocity", True),
+                             acceleration_limit=lim.number("acceleration_limit", 50.0),
+                             velocity_scale=lim.number("velocity_scale", 1.0))
         lim.check_unused()
-        policy.box = box
-        policy.velocity_limits = box.velocity_limits
-    hooks = getattr(policy, "pre_policy", ())
     ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,
                       lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,
-                      box=box, q0=q0, v0=v0, pre_policy=hooks)
+                      box=limits, q0=q0, v0=v0)
     sc.initial.check_unused()
-    return robot, ctrl, tasks, policy
+    scene = policy.scene()
+    if not scene.obstacles:
+        scene.obstacles = list(obstacles)
+    return RunContext(sc, robot, ctrl, tasks, policy, obstacles, limits, scene)
+
+
+def build(sc: Scenario, solver: str | None = None):
+    """``(robot, controller, tasks, policy)`` of a scenario (:func:`build_run` gives the whole context)."""
+    ctx = build_run(sc, solver)
+    return ctx.robot, ctx.controller, ctx.tasks, ctx.policy

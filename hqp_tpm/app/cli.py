@@ -47,10 +47,9 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     n_steps = sc.steps if steps is None else scenario.check_steps(steps, "--steps")
     folder = results.ResultFolder(Path(out), force=force)
     try:
-        robot, ctrl, tasks, policy = build.build(sc, solver=solver)
-        probes = [results.task_error_probe(tasks)]
-        if hasattr(policy, "probe"):
-            probes.append(policy.probe)
+        ctx = build.build_run(sc, solver=solver)
+        robot, ctrl, tasks = ctx.robot, ctx.controller, ctx.tasks
+        probes = ctx.probes()
         explainer = None
         if explain:  # the per-step account (hqp_tpm.app.explain); nothing is computed without it
             from hqp_tpm.app.explain import Explainer
@@ -64,7 +63,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         if viz:
             from hqp_tpm.app.viewer import LiveViewer
 
-            live = LiveViewer(robot, policy, realtime=realtime)
+            live = LiveViewer(robot, ctx, realtime=realtime)
             probes.append(live.probe)
         rec = runner.Recording(list(robot.joint_names), folder.path / ".columns")
         failure = None
@@ -90,8 +89,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         results.standard_aliases(arrays, tasks)
         summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
                    **results.metrics(arrays, timing, tasks)}
-        if hasattr(policy, "summary"):  # policy-specific numbers (e.g. the co-manipulation indices)
-            summary.update(policy.summary(arrays))
+        summary.update(ctx.summary(arrays))  # policy-specific numbers (e.g. the co-manipulation indices)
         if explainer is not None:
             from hqp_tpm.app.explain import summary as explain_summary
 
@@ -121,11 +119,11 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         if figures:
             from hqp_tpm.app import figures as figs
 
-            written += [Path(p).name for p in figs.write_all(folder.path, _every(arrays, done), sc, tasks, policy)]
+            written += [Path(p).name for p in figs.write_all(folder.path, _every(arrays, done), sc, tasks, ctx)]
         if replay:
             from hqp_tpm.app.viewer import write_replay
 
-            write_replay(folder.path / "replay.html", robot, arrays, policy,
+            write_replay(folder.path / "replay.html", robot, arrays, ctx,
                          title=f"hqp-tpm replay: {Path(out).name} ({getattr(robot, 'name', '')})")
             written.append("replay.html")
             if explainer is not None:  # the account of the current frame beside the robot

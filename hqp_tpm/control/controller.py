@@ -5,23 +5,25 @@ Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` wit
 null-space damping ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then
 ``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T`` (docs/setups.md).
 
-A policy with a ``blend(state, t, stack, x, resolve)`` method gets the solution ``x`` and returns the
-command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth
-stack transitions of papers/003, eq. (8) (:mod:`hqp_tpm.policies.switching`). With a solver that
-keeps a hard box (SNS, QP) the blended command is clipped into the box.
+The policy follows :class:`~hqp_tpm.control.policy.Policy`. One that ``blends`` gets the solution
+``x`` and returns the command (``resolve(stack)`` solves another stack with the same solver and
+settings): the smooth stack transitions of papers/003, eq. (8). With a solver that keeps a hard box
+(SNS, QP) the blended command is clipped into the box.
 
-A step that fails on bad input (non-finite command, wrong shapes, solver error) raises a
-typed error and leaves the controller exactly as it was before the step.
+A step is transactional: if it fails (non-finite command or state, wrong shapes, solver error, any
+exception) the controller *and the policy* (its stack, eq. (8) offset, operator, references,
+distance-field history: :meth:`Policy.snapshot`) are left exactly as they were before the step.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
+from hqp_tpm.control.policy import FunctionPolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.errors import NonFiniteError, ParameterError, SolverFailedError
 from hqp_tpm.robot.model import Robot
@@ -35,13 +37,15 @@ BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
 
 @dataclass
 class StepResult:
-    """What one step computed (before integration): the stack, the command and solver info."""
+    """What one step computed (before integration): the stack, the command, solver info and inputs."""
 
     t: float
     stack: Stack
     levels: list
     command: np.ndarray
     info: dict = field(default_factory=dict)
+    x0: np.ndarray | None = None  # the null-space term the solve used (:meth:`Controller.solve_inputs`)
+    box: tuple[np.ndarray, np.ndarray] | None = None  # the hard box the solve used
 
     def __repr__(self) -> str:
         cmd = np.asarray(self.command, dtype=float)
@@ -51,25 +55,27 @@ class StepResult:
 
 
 class Controller:
-    """Holds the robot state, a policy (or fixed stack), a solver name and the integration rule."""
+    """Holds the robot state, a policy (or fixed stack), a solver name and the integration rule.
+
+    ``policy``: a :class:`~hqp_tpm.control.policy.Policy`, a :class:`Stack` or list of levels (a
+    :class:`FixedStack`), or a plain callable ``f(state, t) -> Stack``.
+    """
 
     def __init__(self, robot: Robot, policy, *, order: int = 2, dt: float = 1e-3, solver: str = "tpm",
                  lambda_max: float = 0.0, eps: float = 0.0, nullspace_damping: float = 0.0,
-                 box: BoxFn | None = None, q0=None, v0=None, t0: float = 0.0,
-                 pre_policy: Sequence[Callable[[State, float], None]] = (), crosscheck: str | None = None):
+                 box: BoxFn | None = None, q0=None, v0=None, t0: float = 0.0, crosscheck: str | None = None):
         if order not in (1, 2):
             raise ParameterError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
         if not (np.isfinite(dt) and dt > 0):
             raise ParameterError(f"period dt = {dt!r} must be finite and > 0")
         self.robot = robot
-        self.policy = policy if callable(policy) and not isinstance(policy, (list, tuple)) else FixedStack(policy)
+        self._policy = as_policy(policy)
         self.order = order
         self.dt = float(dt)
         self.solver = check_solver_name(solver)
         self.lambda_max, self.eps = check_damping(lambda_max, eps)
         self.nullspace_damping = nonnegative("nullspace_damping", nullspace_damping)
         self.box = box
-        self.pre_policy = list(pre_policy)
         # a second solver run on every step, like for like (hqp_tpm.control.crosscheck)
         self.crosscheck = None if crosscheck is None else check_solver_name(crosscheck)
         self.crosscheck_log = CrosscheckLog()
@@ -98,6 +104,15 @@ class Controller:
         self._q, _ = self.state.check(value, self._v)
 
     @property
+    def policy(self) -> Policy:
+        """The policy (assigning a Stack, list of levels or callable wraps it, like the constructor)."""
+        return self._policy
+
+    @policy.setter
+    def policy(self, value) -> None:
+        self._policy = as_policy(value)
+
+    @property
     def v(self) -> np.ndarray:
         """Joint velocity (assigning it validates it)."""
         return self._v
@@ -108,7 +123,7 @@ class Controller:
 
     def tasks(self) -> list[Task]:
         """All tasks the policy may use (for start-up and logging)."""
-        return list(self.policy.tasks()) if hasattr(self.policy, "tasks") else []
+        return list(self.policy.tasks())
 
     def start(self) -> None:
         """Initialise relative targets from the initial state (called by the first step)."""
@@ -117,40 +132,63 @@ class Controller:
             task.start(self.state)
         self._started = True
 
-    def compute(self) -> StepResult:
-        """State update, policy, solve: the command at the current state (no integration)."""
+    def solve_inputs(self, state: State, t: float, v: np.ndarray):
+        """``(x0, box)`` of the solve at ``state``: the null-space damping term ``-D qd`` (acceleration
+        level, eq. (15) of papers/000) and the hard box of the command (None when unused)."""
+        x0 = -self.nullspace_damping * v if (self.order == 2 and self.nullspace_damping) else None
+        box = self.box(state, t) if self.box is not None else None
+        return x0, box
+
+    def _compute(self) -> StepResult:
         if not self._started:
             self.start()
         st = self.state.update(self._q, self._v, self.t, validate=False)  # checked whenever they are set
-        for hook in self.pre_policy:
-            hook(st, self.t)
-        stack = self.policy(st, self.t)
+        policy = self.policy
+        policy.update(st, self.t)
+        stack = policy(st, self.t)
         levels = stack.to_levels(st, self.t, self.order)
-        x0 = -self.nullspace_damping * self.v if (self.order == 2 and self.nullspace_damping) else None
-        box = self.box(st, self.t) if self.box is not None else None
+        x0, box = self.solve_inputs(st, self.t, self.v)
         x, info = solve(self.solver, levels, self.robot.nv, x0=x0, box=box,
                         lambda_max=self.lambda_max, eps=self.eps)
         check = crosscheck_step(self, st, stack, levels, x0, box, x) if self.crosscheck else None
-        blend = getattr(self.policy, "blend", None)
-        if blend is not None:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
+        if policy.blends:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
             def resolve(other: Stack) -> np.ndarray:
                 return solve(self.solver, other.to_levels(st, self.t, self.order), self.robot.nv, x0=x0, box=box,
                              lambda_max=self.lambda_max, eps=self.eps)[0]
-            x = blend(st, self.t, stack, x, resolve)
+            x = policy.blend(st, self.t, stack, x, resolve)
             if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
                 x = np.minimum(np.maximum(x, box[0]), box[1])
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
         if check is not None:
             info = {**info, "crosscheck": check.compare(x)}
-        return StepResult(self.t, stack, levels, x, info)
+        return StepResult(self.t, stack, levels, x, info, x0, box)
+
+    def compute(self) -> StepResult:
+        """State update, policy, solve: the command at the current state (no integration).
+
+        The policy's state advances as in a step; on an error it is restored.
+        """
+        started, saved = self._started, self.policy.snapshot()
+        try:
+            return self._compute()
+        except BaseException:
+            self.policy.restore(saved)
+            self._started = started
+            raise
 
     def step(self) -> StepResult:
-        """One control step. On any error the controller keeps its previous state."""
-        res = self.compute()
-        q, v = self.state.integrate(self._q, self._v, res.command, self.dt, self.order)
-        if not (np.isfinite(q).all() and np.isfinite(v).all()):
-            raise NonFiniteError(f"integration produced a non-finite state at t = {self.t:.6f}")
+        """One control step, transactional: on any error the controller and its policy keep their state."""
+        started, saved = self._started, self.policy.snapshot()
+        try:
+            res = self._compute()
+            q, v = self.state.integrate(self._q, self._v, res.command, self.dt, self.order)
+            if not (np.isfinite(q).all() and np.isfinite(v).all()):
+                raise NonFiniteError(f"integration produced a non-finite state at t = {self.t:.6f}")
+        except BaseException:
+            self.policy.restore(saved)
+            self._started = started
+            raise
         self._q, self._v = q, v
         self.a = res.command.copy() if self.order == 2 else self.a
         if "crosscheck" in res.info:
@@ -162,3 +200,14 @@ class Controller:
     def set_state(self, q, v=None) -> None:
         """Replace the state after validation (nothing changes if it is rejected)."""
         self._q, self._v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)
+
+
+def as_policy(policy) -> Policy:
+    """A :class:`Policy` from a policy, a :class:`Stack`/list of levels, or a callable ``f(state, t) -> Stack``."""
+    if isinstance(policy, Policy):
+        return policy
+    if isinstance(policy, (Stack, list, tuple)):
+        return FixedStack(policy)
+    if callable(policy):
+        return FunctionPolicy(policy)
+    raise TypeError(f"a policy must be a Policy, a Stack, a list of levels or a callable, got {type(policy).__name__}")

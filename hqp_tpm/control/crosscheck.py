@@ -4,8 +4,8 @@
 through the same path as the command: the same levels (inequality rows as the analytic solvers used
 them: the active ones, as equalities), the same null-space term ``x0``, box and damping, and -- for a
 policy that blends solutions (eq. (8) of papers/003) -- the same blend, run from the same policy state
-(the policy's ``snapshot``/``restore``; without them the unblended solutions are compared and the
-record says so). The hard box clips the other command as it clips the controller's.
+(the policy's ``snapshot``/``restore``, :class:`~hqp_tpm.control.policy.Policy`). The hard box clips
+the other command as it clips the controller's.
 
 Each step records (``Controller.crosscheck_log``, :class:`CrosscheckLog`): the largest absolute
 difference of the two commands, the joint where it occurs, the difference relative to
@@ -66,23 +66,18 @@ def crosscheck_step(ctrl, state, stack, levels, x0, box, x_main) -> PendingCheck
     kw = {"x0": x0, "box": box, "lambda_max": ctrl.lambda_max, "eps": ctrl.eps}
     x = solve(other, same, n, **kw)[0]
     policy = ctrl.policy
-    blend = getattr(policy, "blend", None) if getattr(policy, "blends", True) else None
-    like = True
-    if blend is not None:
-        snapshot, restore = getattr(policy, "snapshot", None), getattr(policy, "restore", None)
-        if snapshot is None or restore is None:
-            like = False  # cannot replay the blend without disturbing the policy: compare unblended
-        else:
-            def resolve(s):
-                return solve(other, s.to_levels(state, ctrl.t, ctrl.order), n, **kw)[0]
+    like = True  # every Policy can snapshot and restore its state, so the blend is always replayed
+    if policy.blends:
+        def resolve(s):
+            return solve(other, s.to_levels(state, ctrl.t, ctrl.order), n, **kw)[0]
 
-            saved = snapshot()
-            try:
-                x = blend(state, ctrl.t, stack, x, resolve)
-            finally:
-                restore(saved)
-            if box is not None and other not in ANALYTIC:
-                x = np.minimum(np.maximum(x, box[0]), box[1])
+        saved = policy.snapshot()
+        try:
+            x = policy.blend(state, ctrl.t, stack, x, resolve)
+        finally:
+            policy.restore(saved)
+        if box is not None and other not in ANALYTIC:
+            x = np.minimum(np.maximum(x, box[0]), box[1])
     same_problem = True
     ka, kb = _kind(ctrl.solver), _kind(other)
     if box is not None and not (ka == kb and ka in ("analytic", "qp")):

@@ -2,9 +2,9 @@
 
 A :class:`Stack` is a list of levels (highest first), each one or more tasks of equal
 priority, plus optional extra commands added to a task's command (eq. (30) of papers/000).
-A *policy* is any callable ``policy(state, t) -> Stack``; :class:`FixedStack` returns the
-same stack every step, dynamic policies (Algorithm 1 of papers/000, the switching of
-papers/003) rebuild it from the state.
+A *policy* (:class:`~hqp_tpm.control.policy.Policy`) gives the stack of every step;
+:class:`FixedStack` returns the same stack every step, dynamic policies (Algorithm 1 of
+papers/000, the switching of papers/003) rebuild it from the state.
 """
 
 from __future__ import annotations
@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hqp_tpm.control.policy import Policy
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
@@ -63,7 +64,7 @@ def merge_levels(parts: Sequence[Level]) -> Level:
     return Level(J, lower=lo, upper=up, active=act, name=name)
 
 
-class FixedStack:
+class FixedStack(Policy):
     """The policy that returns the same stack at every step."""
 
     def __init__(self, stack: Stack | Sequence):

@@ -441,6 +441,19 @@ class DistanceField:
         """``J̇_c q̇`` of the robot witness point of pair (element, obstacle); see :func:`point_jdot_qdot`."""
         return point_jdot_qdot(self.model, data, self.joint_ids[element], self.p_robot[element, obstacle])
 
+    def snapshot(self) -> tuple:
+        """The history an update carries over (the last normals, used where witness points coincide).
+
+        Everything else is recomputed from the kinematics and ``t`` by every :meth:`update`.
+        """
+        return self.t, self._last_normal.copy(), self._self_last_normal.copy()
+
+    def restore(self, snapshot: tuple) -> None:
+        """Put back a :meth:`snapshot` (a rejected control step)."""
+        self.t, last, self_last = snapshot
+        self._last_normal[...] = last
+        self._self_last_normal[...] = self_last
+
     def __repr__(self) -> str:
         return (f"DistanceField({self.n_geometries} geometries, {self.n_points} control points, "
                 f"{self.n_obstacles} obstacles, {len(self.self_pairs)} self pairs, "

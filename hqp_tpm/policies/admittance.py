@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.control.policy import Policy, SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, ScenarioError
 from hqp_tpm.policies.switching import ComanipulationIndices
@@ -80,8 +81,10 @@ class AdmittancePosition(Task):
         return super().level(state, t, order, extra)
 
 
-class Admittance:
+class Admittance(Policy):
     """One level ``[admittance position; orientation]``, solved by the pseudo-inverse (no null space)."""
+
+    channels = (*ComanipulationIndices.channels, "admittance_lag")
 
     def __init__(self, robot: Robot, admittance: AdmittancePosition, orientation: Task | None,
                  manipulability: Manipulability, joint_limit: JointLimit, operator: Operator | None,
@@ -96,9 +99,24 @@ class Admittance:
     def tasks(self) -> list[Task]:
         return [t for t in (self.admittance, self.orientation, self.manipulability, self.joint_limit) if t]
 
-    @property
-    def pre_policy(self):
-        return ((self.operator.update,) if self.operator is not None else ()) + (self.admittance.advance,)
+    def scene(self) -> SceneItems:
+        return SceneItems(operator=self.operator)
+
+    def update(self, state: State, t: float) -> None:
+        """The operator's force, then one period of the admittance reference."""
+        if self.operator is not None:
+            self.operator.update(state, t)
+        self.admittance.advance(state, t)
+
+    def snapshot(self):
+        """The admittance reference ``x_r``, ``xd_r`` and the operator."""
+        a = self.admittance
+        return a.x_r, a.xd_r, self.operator.snapshot() if self.operator is not None else None
+
+    def restore(self, snapshot) -> None:
+        self.admittance.x_r, self.admittance.xd_r, op = snapshot
+        if self.operator is not None:
+            self.operator.restore(op)
 
     def __call__(self, state: State, t: float) -> Stack:
         return self.stack

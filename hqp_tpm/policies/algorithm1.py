@@ -9,8 +9,8 @@ As coded by the authors (docs/setups.md, 'Priority assignment'):
 3. If the pointing task is active (equality: always; inequality (21): ``e > 0``): append it.
 4. If the critical point exists and was not placed in step 2: append its task last.
 
-The policy owns the distance field: its ``pre_policy`` hook updates the distances once per
-step after the state update; ``probe`` records ``d_minimal``, ``d_ee`` and ``active_point``.
+The policy owns the distance field (:class:`~hqp_tpm.control.policy.DistancePolicy`: updated once per
+step after the state update); ``probe`` records ``d_minimal``, ``d_ee`` and ``active_point``.
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hqp_tpm.control.policy import DistancePolicy, SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField
@@ -52,8 +53,10 @@ BODY_REPULSION = Repulsion(0.15, 0.15, 2.0, 3.0)
 DEFAULT_THRESHOLDS = Thresholds()
 
 
-class Algorithm1:
+class Algorithm1(DistancePolicy):
     """Dynamic stack of papers/000 for an EE position task, a pointing task and body avoidance."""
+
+    channels = ("d_minimal", "d_ee", "active_point")
 
     def __init__(self, robot, ee_task: Task, pointing: Pointing | None, control_points: list[str], ee_frame: str,
                  obstacles: list[Obstacle], *, thresholds: Thresholds = DEFAULT_THRESHOLDS,
@@ -85,12 +88,8 @@ class Algorithm1:
     def tasks(self) -> list[Task]:
         return [t for t in (self.ee_task, self.pointing) if t is not None]
 
-    @property
-    def pre_policy(self):
-        return (self._update_distances,)
-
-    def _update_distances(self, state: State, t: float) -> None:
-        self.field.update(state.data, None, t)
+    def scene(self) -> SceneItems:
+        return SceneItems(self.obstacles, self.control_points, self.ee_frame, self.ee_task, self.pointing, self.field)
 
     # the algorithm -------------------------------------------------------------------------
     def __call__(self, state: State, t: float) -> Stack:

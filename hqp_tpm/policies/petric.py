@@ -56,6 +56,7 @@ import math
 
 import numpy as np
 
+from hqp_tpm.control.policy import DistancePolicy, SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ScenarioError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField
@@ -105,8 +106,10 @@ class LabeledStack(Stack):
         return self.text
 
 
-class Petric:
+class Petric(DistancePolicy):
     """The avoidance schemes of papers/004 for an EE task and the link geometries of the robot."""
+
+    blends = True
 
     def __init__(self, robot, ee_task: Task, obstacles: list[Obstacle], *, scheme: str = "exact",
                  d_m: float = 0.2, d_i: float = 0.3, v_o: float = 0.5, d_b: float = 0.02,
@@ -138,6 +141,8 @@ class Petric:
         self.avoid = [Avoidance(f"avoid_{o.name}", 1) for o in self.obstacles]
         self.joint = JointVelocity(robot.nv, "nullspace_velocity")
         self.thresholds = {"d_obstacle": {"d_m": self.d_m, "d_i": self.d_i}}
+        self.channels = ("d_obstacle", *(f"d_obstacle_{o.name}" for o in self.obstacles), "alpha_h", "alpha_v",
+                         "avoid_rate", "transition_weight", "avoid_priority", "active_obstacles")
         self._crit: list[tuple[int, float]] = []  # (obstacle, distance) within d_i, nearest first
         self._last: dict = {}
 
@@ -145,12 +150,8 @@ class Petric:
     def tasks(self) -> list[Task]:
         return [self.ee_task]
 
-    @property
-    def pre_policy(self):
-        return (self._update_distances,)
-
-    def _update_distances(self, state: State, t: float) -> None:
-        self.field.update(state.data, None, t)
+    def scene(self) -> SceneItems:
+        return SceneItems(self.obstacles, ee_task=self.ee_task, field=self.field)
 
     # the critical points -----------------------------------------------------------------------
     def distances(self) -> np.ndarray:

@@ -51,6 +51,7 @@ import math
 
 import numpy as np
 
+from hqp_tpm.control.policy import Policy, SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError
 from hqp_tpm.references.operator import Operator
@@ -65,6 +66,9 @@ STACKS = ("force", "manipulability", "joint_limit", "pose")
 
 class ComanipulationIndices:
     """The quantities recorded by both co-manipulation policies (switching and admittance)."""
+
+    channels = ("sigma_m", "sigma_l", "joint_deviation_max", "joint_limit_margin", "operator_force",
+                "operator_force_norm", "marker")
 
     def __init__(self, manipulability: Manipulability, joint_limit: JointLimit, operator: Operator | None):
         self.manipulability, self.joint_limit, self.operator = manipulability, joint_limit, operator
@@ -94,8 +98,11 @@ class ComanipulationIndices:
         return out
 
 
-class Switching:
+class Switching(Policy):
     """Fig. 3 of papers/003: pose / force / manipulability / joint-limit stacks, eq. (8) transitions."""
+
+    blends = True
+    channels = (*ComanipulationIndices.channels, "stack_id", "blend_weight", "blend_offset")
 
     def __init__(self, position: FramePosition, orientation: Task, force: Force, manipulability: Manipulability,
                  joint_limit: JointLimit, *, sigma_m_bar: float = 1.5, sigma_l_bar: float = 2.0,
@@ -118,7 +125,8 @@ class Switching:
             "pose": Stack.of(position, orientation),
         }
         self.indices = ComanipulationIndices(manipulability, joint_limit, operator)
-        self.thresholds = {"sigma_m": {"sigma_bar_m": sigma_m_bar}}
+        self.thresholds = {"sigma_m": {"sigma_bar_m": sigma_m_bar},
+                           "joint_deviation_max": {"sigma_bar_l": sigma_l_bar}}
         self.active: str | None = None
         self.switches: list[tuple[float, str, str]] = []  # (t, from, to)
         self._switched = False
@@ -130,9 +138,24 @@ class Switching:
     def tasks(self) -> list[Task]:
         return [self.position, self.orientation, self.force, self.manipulability, self.joint_limit]
 
-    @property
-    def pre_policy(self):
-        return (self.operator.update,) if self.operator is not None else ()
+    def scene(self) -> SceneItems:
+        return SceneItems(operator=self.operator)
+
+    def update(self, state: State, t: float) -> None:
+        if self.operator is not None:
+            self.operator.update(state, t)
+
+    def snapshot(self):
+        """Active stack, switches, eq. (8) offset and switch time, the held position target, the operator."""
+        return (self.active, len(self.switches), self._switched, self._old, self._offset, self._t_switch,
+                self.position.trajectory, self.operator.snapshot() if self.operator is not None else None)
+
+    def restore(self, snapshot) -> None:
+        (self.active, n, self._switched, self._old, self._offset, self._t_switch, self.position.trajectory,
+         op) = snapshot
+        del self.switches[n:]
+        if self.operator is not None:
+            self.operator.restore(op)
 
     # the policy --------------------------------------------------------------------------------
     def select(self, state: State) -> str:

@@ -54,6 +54,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.control.policy import DistancePolicy, SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry.distances import DistanceField
@@ -182,8 +183,10 @@ class PairAvoidance(Task):
         return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name)
 
 
-class WholeBody:
+class WholeBody(DistancePolicy):
     """Dynamic stack: sole hold > obstacle avoidance > self avoidance > CoM > left foot > hands."""
+
+    channels = ("d_obstacle", "d_self", "n_avoid_obstacle", "n_avoid_self")
 
     def __init__(self, robot, top: list[Task], below: list[Task], obstacles: list[Obstacle], *,
                  d_obstacle_activation: float = 0.10, d_obstacle_safe: float = 0.03, xi_obstacle: float = 0.3,
@@ -216,12 +219,8 @@ class WholeBody:
     def tasks(self) -> list[Task]:
         return [*self.top, *self.below]
 
-    @property
-    def pre_policy(self):
-        return (self._update_distances,)
-
-    def _update_distances(self, state: State, t: float) -> None:
-        self.field.update(state.data, None, t)
+    def scene(self) -> SceneItems:
+        return SceneItems(self.obstacles, field=self.field)
 
     # ------------------------------------------------------------------ rows
     def obstacle_pairs(self) -> list[tuple[int, int, float]]:

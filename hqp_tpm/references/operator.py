@@ -18,8 +18,8 @@ of markers (the paper's square: four markers), one after the other:
 
 The sensor reads ``f^s = R_s^T f`` (the force applied on it, in the sensor = flange frame), which
 is what :class:`~hqp_tpm.tasks.force.Force` takes from :meth:`Operator.sensor_force`. The force is
-computed once per control step by :meth:`Operator.update` (a controller ``pre_policy`` hook), so every
-reader in one step sees the same noisy sample.
+computed once per control step by :meth:`Operator.update` (called by the policy's ``update``), so every
+reader in one step sees the same noisy sample; :meth:`snapshot`/:meth:`restore` undo a rejected step.
 """
 
 from __future__ import annotations
@@ -94,6 +94,17 @@ class Operator:
         self._hand = self._hand + a * (f - self._hand)
         self.force = self._hand + self.noise * self.rng.standard_normal(3)
         self._sensor = state.rotation(self.fid).T @ self.force
+
+    def snapshot(self) -> tuple:
+        """Everything :meth:`update` changes: lag filter, noise generator, marker, force (a rejected step)."""
+        return (self._hand, self._t_last, self.rng.bit_generator.state, self.marker, len(self.reached),
+                len(self.skipped), self._since, self.force, self._sensor)
+
+    def restore(self, snapshot: tuple) -> None:
+        (self._hand, self._t_last, rng, self.marker, n_reached, n_skipped, self._since, self.force,
+         self._sensor) = snapshot
+        self.rng.bit_generator.state = rng
+        del self.reached[n_reached:], self.skipped[n_skipped:]
 
     def sensor_force(self, state: State, t: float) -> np.ndarray:
         """``f^s`` of this step (the :class:`~hqp_tpm.tasks.force.Force` source)."""

@@ -1,0 +1,143 @@
+"""The policy contract: what the controller, the runner and the app may ask of a policy.
+
+A policy decides the stack of every control step. :class:`Policy` is the written contract, an
+abstract base class so that every optional member has a default and nobody needs to probe a policy
+with ``getattr``/``hasattr``:
+
+Required (abstract):
+    ``__call__(state, t) -> Stack``   the stack of this step (papers/000 Algorithm 1, papers/003 Fig. 3...)
+    ``tasks() -> list[Task]``         every task the policy may put in a stack (started at the first step)
+
+Optional (defaults do nothing):
+    ``update(state, t)``              before the stack, after the state update: operator, distance field...
+    ``blends`` / ``blend(...)``       combine the solution with re-solved stacks (eq. (8) of papers/003,
+                                      eqs. (19), (30)-(31) of papers/004); ``blends = True`` turns it on
+    ``probe(ctrl, res) -> dict``      per-step values to record; their keys are listed in ``channels``
+    ``summary(arrays) -> dict``       run summary numbers from the recorded arrays
+    ``thresholds``                    recorded channel -> {threshold name: value} (for the figures)
+    ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...)
+    ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
+                                      step changes nothing (:meth:`Controller.step` is transactional)
+
+:class:`DistancePolicy` is the shared base of the policies driven by a
+:class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body): it updates the
+field once per step in :meth:`update` and snapshots its history.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+
+from hqp_tpm.robot.state import State
+from hqp_tpm.tasks.base import Task
+
+if TYPE_CHECKING:
+    from hqp_tpm.control.controller import StepResult
+    from hqp_tpm.control.stack import Stack
+    from hqp_tpm.geometry.distances import DistanceField
+    from hqp_tpm.geometry.obstacles import Obstacle
+    from hqp_tpm.references.operator import Operator
+
+#: ``resolve(stack) -> x``: another stack solved with the controller's solver, at the same state and settings.
+Resolve = Callable[["Stack"], np.ndarray]
+
+
+@dataclass
+class SceneItems:
+    """What a viewer may draw for a policy (every item optional)."""
+
+    obstacles: list[Obstacle] = field(default_factory=list)
+    control_points: list[str] = field(default_factory=list)  # frame names of Algorithm 1's control points
+    ee_frame: str | None = None
+    ee_task: Task | None = None
+    pointing: Task | None = None
+    field: DistanceField | None = None
+    #: ``markers(t) -> [(name, position, rgba), ...]`` (or ``markers(t, q)``): extra points to draw
+    markers: Callable[..., list] | None = None
+    #: the simulated co-manipulation operator (its markers, the flange its force acts on)
+    operator: Operator | None = None
+
+
+class Policy(ABC):
+    """Base of every policy: two required members, the optional ones with do-nothing defaults."""
+
+    #: True if :meth:`blend` changes the solution (the controller then also clips it into a hard box).
+    blends: ClassVar[bool] = False
+    #: Keys of the dict :meth:`probe` returns (the per-step channels the policy records).
+    channels: tuple[str, ...] = ()
+    #: Recorded channel -> {threshold name: value}, drawn with the channel in the figures.
+    thresholds: dict[str, dict[str, float]] = {}
+
+    # required ----------------------------------------------------------------------------------
+    @abstractmethod
+    def __call__(self, state: State, t: float) -> Stack:
+        """The stack of this step (called once per step, after :meth:`update`)."""
+
+    @abstractmethod
+    def tasks(self) -> list[Task]:
+        """Every task the policy may use (the controller starts them at the first step)."""
+
+    # optional ----------------------------------------------------------------------------------
+    def update(self, state: State, t: float) -> None:  # noqa: B027 - optional, does nothing by default
+        """Once per step after the state update, before :meth:`__call__` (operator, distances...)."""
+
+    def blend(self, state: State, t: float, stack: Stack, x: np.ndarray, resolve: Resolve) -> np.ndarray:
+        """The command from the solution ``x`` of ``stack`` (used only when :attr:`blends` is True)."""
+        return x
+
+    def probe(self, ctrl: Any, res: StepResult) -> dict:
+        """Per-step values to record after a successful step (keys: :attr:`channels`)."""
+        return {}
+
+    def summary(self, arrays: dict) -> dict:
+        """Policy-specific run summary from the recorded arrays."""
+        return {}
+
+    def scene(self) -> SceneItems:
+        """What a viewer may draw (default: nothing)."""
+        return SceneItems()
+
+    def snapshot(self) -> Any:
+        """The state that carries over from step to step (default: none)."""
+        return None
+
+    def restore(self, snapshot: Any) -> None:  # noqa: B027 - optional, nothing to restore by default
+        """Put back a :meth:`snapshot` (a rejected step changes nothing)."""
+
+
+class DistancePolicy(Policy):
+    """A policy that owns a distance field, updated once per step before the stack is chosen.
+
+    Subclasses set ``self.field`` and ``self.obstacles`` in their constructor.
+    """
+
+    field: DistanceField
+    obstacles: list[Obstacle]
+
+    def update(self, state: State, t: float) -> None:
+        self.field.update(state.data, None, t)
+
+    def snapshot(self) -> Any:
+        return self.field.snapshot()
+
+    def restore(self, snapshot: Any) -> None:
+        self.field.restore(snapshot)
+
+
+class FunctionPolicy(Policy):
+    """A plain callable ``f(state, t) -> Stack`` as a policy (no tasks to start, nothing optional)."""
+
+    def __init__(self, fn: Callable[[State, float], Stack], tasks: list[Task] | None = None):
+        self.fn = fn
+        self._tasks = list(tasks or [])
+
+    def __call__(self, state: State, t: float) -> Stack:
+        return self.fn(state, t)
+
+    def tasks(self) -> list[Task]:
+        return list(self._tasks)
