@@ -128,7 +128,8 @@ def test_a_rejected_step_changes_nothing(name, monkeypatch):
                     try:
                         res = ctrl.step()
                     except HqpTpmError:
-                        assert fired["fired"], f"{name}: step {k} failed with {fault} not hit"
+                        assert fired["fired"], (f"{name}: step {k} failed before the injected {fault} was hit "
+                                                f"(state left behind by an earlier rejected attempt)")
                         continue
                 assert fault in OPTIONAL and not fired["fired"], f"{name}: step {k}: {fault} was not rejected"
                 done = res
