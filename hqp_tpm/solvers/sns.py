@@ -60,6 +60,7 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from hqp_tpm.errors import BoxError, ShapeError
+from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
 from hqp_tpm.solvers.levels import as_levels, stacked
 from hqp_tpm.solvers.tpm import _Factorization, _smin_lower_bound, _triu, tpm_factors
@@ -419,6 +420,10 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     lo, up = _box(lower, upper, None)
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
+    if sizes and J.shape[0] > n:                 # rank n before the last level: hqp_tpm.solvers._fullrank
+        x = solve_past_rank(J, xd, sizes, n, lambda_max, eps)
+        if x is not None and ((x >= lo) & (x <= up)).all():
+            return (x, SNSInfo(1.0, (), 1)) if return_info else x
     if sizes:                                    # W = I: eq. (4) is the TPM solution (1)
         fac = _Factorization(J, sizes, n, lambda_max, eps)
         F_times = fac.F_times

@@ -17,7 +17,9 @@ At acceleration level the same call gives ``qdd = J# F (pdd - Jdot qd)`` (12); p
 ``x0 = qdd_0`` to add the null-space term ``(I - J# J) qdd_0`` of (14).
 
 If the stack has more rows than columns (``m > n``) the Jacobian is padded with zero
-columns up to ``m``: the minimum-norm solution has zeros there and they are dropped.
+columns up to ``m``: the minimum-norm solution has zeros there and they are dropped. When such a
+stack reaches rank ``n`` before its last level (a final posture level), :func:`tpm` takes the
+shortcut of :mod:`hqp_tpm.solvers._fullrank` instead (same numbers, no padding, no SVD of ``R^T``).
 """
 
 from __future__ import annotations
@@ -30,6 +32,7 @@ import scipy.linalg as sla
 from scipy.linalg import lapack
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers.damping import (
     RANK_TOL,
     check_damping,
@@ -291,4 +294,8 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
             raise NonFiniteError(f"x0 holds non-finite values: {x0}")
     if not sizes:
         return np.zeros(n) if x0 is None else x0.copy()
+    if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
+        x = solve_past_rank(J, b, sizes, n, lambda_max, eps)
+        if x is not None:
+            return x
     return _Factorization(J, sizes, n, lambda_max, eps).solve(b, x0)
