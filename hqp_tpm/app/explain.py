@@ -430,7 +430,12 @@ def _rerun(run_dir: Path, step: int):
     from hqp_tpm.app import build, runner, scenario
 
     meta = json.loads((run_dir / "metrics.json").read_text())
-    sc = scenario.load(meta["scenario"])
+    manifest = run_dir / "manifest.json"
+    spec = meta["scenario"]
+    if manifest.exists():  # the scenario file the run read (a file given by path has no shipped name)
+        path = json.loads(manifest.read_text()).get("scenario_file")
+        spec = path if path and Path(path).exists() else spec
+    sc = scenario.load(spec)
     robot, ctrl, tasks, policy = build.build(sc, solver=meta.get("solver"))
     for _ in range(step):
         ctrl.step()
