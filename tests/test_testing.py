@@ -298,3 +298,19 @@ def test_run_crosscheck_separates_steps_where_the_problems_differ(tmp_path):
     assert summary["crosscheck_steps_different_problems"] > 0
     assert summary["crosscheck_max_diff"] > 1e-3  # the binding steps
     assert summary["crosscheck_max_diff_same_problem"] < 1e-6
+
+
+def test_crosscheck_replays_the_blend_of_a_blending_policy():
+    """planar5_exact blends stack solutions (papers/004): the other solver goes through the same blend, from the
+    same policy state (snapshot/restore), so the recorded difference is the solvers' only."""
+    from hqp_tpm.app import build, scenario
+
+    sc = scenario.load("planar5_exact")
+    ctrl = build.build(sc)[1]
+    assert ctrl.policy.blends
+    ctrl.crosscheck = "qp:daqp"
+    for _ in range(1500):
+        ctrl.step()
+    log = ctrl.crosscheck_log
+    assert len(log) == 1500 and all(log.like_for_like) and all(log.same_problem)
+    assert log.max_diff() < 1e-6
