@@ -39,11 +39,11 @@ def _hqp_cols(robot, names_q_v):
 class Hqp:
     """hqp-tpm through its public API: Controller(robot, Stack, solver) with ``compute()`` as the step."""
 
-    def __init__(self, robot, problem, solver: str):
+    def __init__(self, robot, problem, solver: str, lean: bool = False):
         from hqp_tpm.solvers import cascaded_qp, sns_tpm, tpm
 
-        self.robot, self.problem, self.solver = robot, problem, solver
-        self.name = f"hqp-tpm {solver}"
+        self.robot, self.problem, self.solver, self.lean = robot, problem, solver, lean
+        self.name = f"hqp-tpm {solver}" + (" (lean)" if lean else "")
         self._tpm, self._sns, self._qp = tpm, sns_tpm, cascaded_qp
 
     def setup(self, cfg):
@@ -52,12 +52,21 @@ class Hqp:
         self.levels = res.levels
         st = self.ctrl.state
         self.box = self.ctrl.box(st, self.ctrl.t) if self.ctrl.box is not None else None
+        if self.lean:  # the lean step (hqp_tpm.control.lean): one preallocated J, b; no Level objects
+            from hqp_tpm.solvers.tpm import tpm_stacked
+
+            self.fast = self.ctrl.lean()
+            self.fast.compute()
+            f = self.fast
+            self._lean_solve = lambda: tpm_stacked(f.J, f.b, f.sizes, f.n, f.lambda_max, f.eps)
 
     def step(self):
-        return self.ctrl.compute().command
+        return self.fast.compute() if self.lean else self.ctrl.compute().command
 
     def solve(self):
         nv = self.robot.nv
+        if self.lean:
+            return self._lean_solve()
         if self.solver == "tpm":
             return self._tpm(self.levels, n=nv)
         lo, up = self.box
@@ -343,6 +352,15 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
     times, qs, cmds = [], [], []
     if kind.startswith("hqp"):
         ctrl, _ = P.hqp_circle_controller(robot, order, kw.get("solver", "tpm"))
+        if kw.get("lean"):
+            lean = ctrl.lean()
+            for _ in range(steps):
+                t0 = timer()
+                x = lean.step()
+                times.append(timer() - t0)
+                qs.append(ctrl.q)
+                cmds.append(x)
+            return times, qs, cmds
         for _ in range(steps):
             t0 = timer()
             res = ctrl.step()

@@ -23,6 +23,7 @@ from benchmarks import common  # noqa: E402
 ENV_ORDER = ("pin4", "pin38", "pin34")
 SUMMARY_COLUMNS = (  # (column title, contender, environments to take it from, in order of preference)
     ("hqp-tpm `tpm`", "hqp-tpm tpm", ("pin4", "pin34", "pin38")),
+    ("hqp-tpm `tpm`, lean step", "hqp-tpm tpm (lean)", ("pin4", "pin34", "pin38")),
     ("hqp-tpm `sns_tpm`", "hqp-tpm sns_tpm", ("pin4", "pin34", "pin38")),
     ("hqp-tpm cascaded QP (daqp)", "hqp-tpm qp:daqp", ("pin4", "pin34", "pin38")),
     ("pink 4.4 (weighted QP, daqp)", "pink", ("pin4", "pin38")),

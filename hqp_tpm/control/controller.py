@@ -197,6 +197,13 @@ class Controller:
         self.steps += 1
         return res
 
+    def lean(self):
+        """The lean step of this controller (:class:`hqp_tpm.control.lean.LeanStep`: the same numbers in far
+        fewer calls), or None when its set-up is not supported (``LeanStep.why_not(ctrl)`` says why)."""
+        from hqp_tpm.control.lean import LeanStep
+
+        return LeanStep.of(self)
+
     def set_state(self, q, v=None) -> None:
         """Replace the state after validation (nothing changes if it is rejected)."""
         self._q, self._v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)

@@ -294,6 +294,14 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
             raise NonFiniteError(f"x0 holds non-finite values: {x0}")
     if not sizes:
         return np.zeros(n) if x0 is None else x0.copy()
+    return tpm_stacked(J, b, sizes, n, lambda_max, eps, x0)
+
+
+def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float = 0.0, eps: float = 0.0,
+                x0: np.ndarray | None = None) -> np.ndarray:
+    """:func:`tpm` of a stack already stacked and checked: ``J`` (m x n, m >= 1) and ``b`` finite floats,
+    ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
+    :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step)."""
     if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
         x = solve_past_rank(J, b, sizes, n, lambda_max, eps)
         if x is not None:
