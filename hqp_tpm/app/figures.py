@@ -17,6 +17,9 @@ from matplotlib.lines import Line2D
 #: Colours and line styles of threshold lines, in the order the thresholds are given (distinct pairs).
 THRESHOLD_STYLES = [("tab:red", "--"), ("tab:green", ":"), ("tab:orange", "-."), ("tab:purple", (0, (5, 1, 1, 1)))]
 
+#: Above this many joints, a run without a joint box still gets one axis per joint (with the robot's limits).
+GRID_JOINTS = 12
+
 #: Labels and units of the recorded distances.
 DISTANCE_LABELS = {"d_ee": "EE distance D_ee [m]", "d_minimal": "control-point distance D_minimal [m]",
                    "d_obstacle": "robot-obstacle distance [m]", "d_self": "self distance [m]"}
@@ -66,7 +69,7 @@ _QUANTITIES = {"QuaternionOrientation": "quaternion error (10)", "Manipulability
                "JointLimit": "−σ_l", "Avoidance": "avoidance"}
 
 _UNIT_TITLES = {"m": "position error [m]", "rad": "angle error [rad]", "N": "force error [N]",
-                "deg": "pointing: angle outside the cone [deg]", "1": "error (dimensionless)"}
+                "deg": "pointing angle error [deg]\n(cone: outside it only)", "1": "error (dimensionless)"}
 
 
 def _pointing_angle_deg(e: np.ndarray, alpha_d: float) -> np.ndarray:
@@ -79,21 +82,23 @@ def _error_norm(arrays: dict, task, name: str, rows, unit: str) -> np.ndarray | 
     if e is None:
         return None
     e = np.asarray(e, dtype=float)
-    if unit == "deg":  # pointing: how far the axis is outside its cone (0 inside)
+    if unit == "deg":  # pointing: the cone (21): how far the axis is outside it; the equality (16): |α − α_d|
         alpha = float(getattr(task, "alpha_d", 0.0))
-        return np.maximum(_pointing_angle_deg(e, alpha) - np.rad2deg(alpha), 0.0)
+        dev = _pointing_angle_deg(e, alpha) - np.rad2deg(alpha)
+        return np.maximum(dev, 0.0) if getattr(task, "inequality", True) else np.abs(dev)
     if e.ndim == 1:
         return np.abs(e)
     return np.linalg.norm(e[:, rows] if rows is not None else e, axis=1)
 
 
 # ------------------------------------------------------------------------------------------ figures
-def joint_velocities(path: Path, arrays: dict, limits=None, title: str = "") -> None:
+def joint_velocities(path: Path, arrays: dict, limits=None, title: str = "", enforced: bool = True) -> None:
     """Joint velocities over time (Fig. 4 of papers/000; with limits, Fig. 3 of papers/002).
 
     Without ``limits``: one axis, every joint that moves. With ``limits`` (one per velocity column,
     ``inf`` for none): one small axis per limited joint, its velocity in blue and ``±limit`` in red;
-    unlimited columns (a floating base) are left out and counted in the title.
+    unlimited columns (a floating base) are left out and counted in the title. ``enforced=False``: the limits
+    are the robot's, drawn for comparison (the run had no joint box).
     """
     t, dq, names = arrays["t"], arrays["dq"], arrays["joint_names"]
     if limits is not None:
@@ -118,7 +123,8 @@ def joint_velocities(path: Path, arrays: dict, limits=None, title: str = "") -> 
         for ax in axes[n:]:
             ax.axis("off")
         handles = [Line2D([], [], color="tab:blue", lw=1.2, label=r"joint velocity $\dot q_i$"),
-                   Line2D([], [], color="tab:red", lw=1.2, label=r"velocity limit $\pm\dot q_{\max,i}$")]
+                   Line2D([], [], color="tab:red", lw=1.2, label=r"velocity limit $\pm\dot q_{\max,i}$"
+                          + ("" if enforced else " (not enforced in this run)"))]
         fig.legend(handles=handles, loc="upper right", fontsize=8, ncol=2, frameon=False)
         note = f" ({n} limited joints; {skipped} floating-base columns not shown)" if skipped else ""
         fig.suptitle(title + note, x=0.02, ha="left", fontsize=10)
@@ -264,12 +270,18 @@ def write_all(out: Path, arrays: dict, sc, tasks: dict, context) -> list[Path]:
     out = Path(out)
     name = sc.name
     written = []
-    limits = getattr(context, "velocity_limits", None)
+    limits = getattr(context, "velocity_limits", None)  # the run's joint box
     if limits is not None and not np.isfinite(np.asarray(limits, dtype=float)).any():
         limits = None
+    enforced = limits is not None
+    robot = getattr(context, "robot", None)
+    if limits is None and robot is not None and arrays["dq"].shape[1] > GRID_JOINTS:
+        robot_limits = np.asarray(robot.velocity_limits(), dtype=float)  # many joints: one axis each, with the
+        if np.isfinite(robot_limits).any():  # robot's limits for comparison
+            limits = robot_limits
     thresholds = getattr(context, "thresholds", None) or {}
     p = out / "joint_velocities.png"
-    joint_velocities(p, arrays, limits, f"{name}: joint velocities")
+    joint_velocities(p, arrays, limits, f"{name}: joint velocities", enforced=enforced)
     written.append(p)
     p = out / "task_errors.png"
     task_errors(p, arrays, tasks, f"{name}: task errors")
