@@ -30,6 +30,8 @@ SECTIONS: dict[tuple[str, str, str | None], str] = {
     ("hqp_tpm.app.scenario", "read", None): "[scenario]",
     ("hqp_tpm.app.scenario", "parse", "t"): "[[tasks]] (every task)",
     ("hqp_tpm.app.build", "build", "t"): "[[tasks]] (every task)",
+    ("hqp_tpm.app.build", "build_run", "t"): "[[tasks]] (every task)",
+    ("hqp_tpm.app.build", "build_run", "lim"): "[limits]",
     ("hqp_tpm.app.build", "initial_configuration", "sec"): "[initial]",
     ("hqp_tpm.app.build", "obstacles_from", "sec"): "[[obstacles]]",
     ("hqp_tpm.app.build", "build", "lim"): "[limits]",
