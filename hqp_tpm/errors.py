@@ -43,6 +43,10 @@ class SolverFailedError(HqpTpmError):
     """A numerical solver did not return a solution."""
 
 
+class SolverBudgetError(SolverFailedError):
+    """A solver spent more than its time budget on one level (the message names the level)."""
+
+
 class BoxError(HqpTpmError, ValueError):
     """A box (lower, upper) is malformed: lower > upper, wrong length, NaN bounds."""
 

@@ -51,7 +51,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hqp_tpm.errors import EmptyBoxError, InfeasibleError
-from hqp_tpm.solvers.damping import RANK_TOL
+from hqp_tpm.solvers.damping import matrix_tol
 from hqp_tpm.solvers.levels import Level, as_levels
 
 #: A level is met when ``||residual|| <= MET_TOL * max(1, ||reference||)``.
@@ -170,7 +170,7 @@ def _projector_step(P: np.ndarray, A: np.ndarray) -> tuple[np.ndarray, float, np
         return P, np.inf, np.zeros(0)
     AP = A @ P
     U, s, Vt = np.linalg.svd(AP, full_matrices=False)
-    r = int((s > RANK_TOL).sum())
+    r = int((s > matrix_tol(A)).sum())
     V = Vt[:r]
     smin = float(s.min()) if s.size and A.shape[0] <= P.shape[0] else 0.0
     return P - V.T @ V, smin, s
@@ -247,7 +247,7 @@ def _constrained_residual(Jk: np.ndarray, bk: np.ndarray, A: np.ndarray, a: np.n
     else:
         y0 = np.linalg.lstsq(A, a, rcond=None)[0]
         _, s, Vt = np.linalg.svd(A, full_matrices=True)
-        N = Vt[int((s > RANK_TOL).sum()):].T
+        N = Vt[int((s > matrix_tol(A)).sum()):].T
     target = bk - Jk @ y0
     if N.shape[1] == 0:
         return float(np.linalg.norm(target))

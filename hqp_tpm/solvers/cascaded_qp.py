@@ -23,14 +23,21 @@ Numerical care, because the stacked "keep the optimum" constraints are often dep
 
 from __future__ import annotations
 
+import time
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hqp_tpm.errors import BoxError, SolverFailedError, SolverNotAvailableError, unknown_name
-from hqp_tpm.solvers.damping import RANK_TOL, check_damping, check_x0
+from hqp_tpm.errors import (
+    BoxError,
+    SolverBudgetError,
+    SolverFailedError,
+    SolverNotAvailableError,
+    unknown_name,
+)
+from hqp_tpm.solvers.damping import check_damping, check_x0, matrix_tol, rank_tol
 from hqp_tpm.solvers.levels import as_levels
 
 if TYPE_CHECKING:  # qpsolvers is imported on first use (it takes ~1 s to import)
@@ -85,6 +92,13 @@ RETRY_OPTIONS = {
 #: :data:`PIN_TOL` (1e-10 already pins wrong bounds). ProxQP, DAQP and OSQP take the semidefinite one.
 FREE_WEIGHT = {"quadprog": 1e-12, "pyqpmad": 1e-12}
 
+#: Seconds one level of the cascade may take (all its attempts): a control step cannot wait longer, and a
+#: backend that needs more is stuck on that level (ProxQP was seen spending 10-40 s on a diverging one).
+TIME_BUDGET = 1.0
+
+#: Two bounds of a row closer than this (relative to the bound) make the row an equality.
+EQUAL_BOUNDS_RTOL = 1e-10
+
 #: A kept bound whose multiplier exceeds this (relative to the largest one) is active at every
 #: optimum of its level, and is kept as an equality by the levels below.
 PIN_TOL = 1e-7
@@ -115,6 +129,20 @@ class _Cascade:
     solver: str
     attempts: list[dict]
     qp_count: int = field(default=0)
+    time_budget: float | None = None
+    level_start: float = field(default=0.0)
+
+    def start_level(self) -> None:
+        self.level_start = time.perf_counter()
+
+    def check_budget(self, where: str, error: Exception | None = None) -> None:
+        """Raise :class:`SolverBudgetError` if the level has used more than its time budget."""
+        if self.time_budget is None:
+            return
+        spent = time.perf_counter() - self.level_start
+        if spent > self.time_budget:
+            raise SolverBudgetError(f"{where}: backend {self.solver!r} spent {spent:.2f} s, more than the level's "
+                                    f"time budget of {self.time_budget:g} s; try another backend") from error
 
     def move(self, z: np.ndarray) -> None:
         """Go to ``x + N z`` and relax the kept bounds by what the backend's tolerance left violated."""
@@ -124,7 +152,7 @@ class _Cascade:
     def restrict(self, A: np.ndarray) -> None:
         """Keep ``A x`` at its current value: ``N <- N null(A N)``."""
         if A.shape[0] and self.N.shape[1]:
-            self.N = self.N @ null_space_basis(A @ self.N)
+            self.N = self.N @ null_space_basis(A @ self.N, matrix_tol(A, max(A.shape)))
 
     def keep_bounds(self, J: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> None:
         """Keep ``lower <= J x <= upper``, relaxed to the current point (rows whose bounds meet: equalities)."""
@@ -142,7 +170,7 @@ class _Cascade:
         free direction to 1e16 to exploit them); rows left all zero are met at ``y = 0`` and dropped.
         """
         Gy = self.G @ self.N @ B
-        Gy[np.abs(Gy) <= RANK_TOL * np.maximum(1.0, np.linalg.norm(self.G, axis=1))[:, None]] = 0.0
+        Gy[np.abs(Gy) <= rank_tol(1.0, self.G.shape[1]) * np.linalg.norm(self.G, axis=1)[:, None]] = 0.0
         rows = np.flatnonzero(np.abs(Gy).max(axis=1, initial=0.0) > 0.0)
         return rows, Gy[rows], (self.h - self.G @ self.x)[rows]
 
@@ -197,13 +225,16 @@ class _Cascade:
                 raise _not_available(self.solver, sorted(qpsolvers.available_solvers)) from exc
             except Exception as exc:  # backends raise their own types on numerical trouble
                 error = exc
+                self.check_budget(where, exc)
                 continue
+            self.check_budget(where)
             if sol.found and sol.x is not None and np.isfinite(sol.x).all():
                 mult = np.zeros(m) if sol.z is None or m == 0 else np.asarray(sol.z, dtype=float).reshape(m)
                 return sol.x, mult
         if self.solver in LAST_RESORT:
             self.qp_count += 1
             found = LAST_RESORT[self.solver](problem, self.attempts[0])
+            self.check_budget(where)
             if found is not None:
                 return found[0], np.zeros(m) if m == 0 else found[1]
         raise SolverFailedError(f"{where}: backend {self.solver!r} returned no solution with any of its "
@@ -251,7 +282,7 @@ LAST_RESORT = {"proxqp": _proxqp_direct}
 def bound_kinds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Masks of the rows of ``lower <= y <= upper`` that are equalities, finite upper and finite lower bounds."""
     size = np.maximum(1.0, np.abs(np.where(np.isfinite(upper), upper, 0.0)))
-    eq = upper - lower <= RANK_TOL * size
+    eq = upper - lower <= EQUAL_BOUNDS_RTOL * size
     return eq, np.isfinite(upper) & ~eq, np.isfinite(lower) & ~eq
 
 
@@ -261,10 +292,10 @@ def positive(mult: np.ndarray, among: np.ndarray | None = None) -> np.ndarray:
     return mult > PIN_TOL * max(1.0, among.max(initial=0.0))
 
 
-def null_space_basis(A: np.ndarray) -> np.ndarray:
-    """Orthonormal basis of the null space of ``A`` (singular values above the TPM rank tolerance count)."""
+def null_space_basis(A: np.ndarray, tol: float) -> np.ndarray:
+    """Orthonormal basis of the null space of ``A`` (singular values above ``tol`` count)."""
     _, s, Vt = np.linalg.svd(A, full_matrices=True)
-    return Vt[int((s > RANK_TOL).sum()):].T
+    return Vt[int((s > tol).sum()):].T
 
 
 @dataclass(frozen=True)
@@ -289,10 +320,10 @@ class _Split:
         return np.concatenate([1.0 / self.s1, np.ones(self.B.shape[1] - self.rank)])
 
 
-def split(A: np.ndarray) -> _Split:
-    """:class:`_Split` of ``A`` (m x r) with the TPM rank tolerance."""
+def split(A: np.ndarray, tol: float) -> _Split:
+    """:class:`_Split` of ``A`` (m x r), singular values above ``tol`` counting (the solvers' rank law)."""
     U, s, Vt = np.linalg.svd(A, full_matrices=True)
-    rank = int((s > RANK_TOL).sum())
+    rank = int((s > tol).sum())
     return _Split(U[:, :rank], s[:rank], Vt.T, s)
 
 
@@ -348,8 +379,15 @@ def _attempts(solver: str, solver_options: dict) -> list[dict]:
     return [{**options, **solver_options} for options in tries]
 
 
-def damping_lambda2(s: np.ndarray, lambda_max: float, eps: float) -> float:
-    """``lambda^2`` of the damping law (:mod:`hqp_tpm.solvers.damping`) for singular values ``s``."""
+def damping_lambda2(s: np.ndarray, lambda_max: float, eps: float, rows: int | None = None) -> float:
+    """``lambda^2`` of the damping law (:mod:`hqp_tpm.solvers.damping`) for singular values ``s``.
+
+    ``s`` are those of ``J N`` (``m x r``); the law reads the ``min(m, n)`` singular values of ``J P``
+    (``P = N N^T``), i.e. these and zeros when ``rows = min(m, n)`` exceeds ``s.size`` (a level with more
+    rows than the directions left to it is damped by ``lambda_max``, as in TPM and the recursion).
+    """
+    if rows is not None and rows > s.size:
+        s = np.concatenate([s, np.zeros(rows - s.size)])
     if lambda_max > 0.0 and s.size and s.min() < eps:
         return (1.0 - (s.min() / eps) ** 2) * lambda_max**2
     return 0.0
@@ -363,10 +401,10 @@ def _equality_level(c: _Cascade, J: np.ndarray, b: np.ndarray, k: int, lambda_ma
     the singular values of ``J N`` (``N``: what the higher levels leave free, i.e. ``J_k P_{k-1}``),
     the minimizer is ``x_prev + (J_k P_{k-1})#_damped (b - J x_prev)``, exactly the recursion's step.
     """
-    sp = split(J @ c.N)
+    sp = split(J @ c.N, matrix_tol(J, max(J.shape)))
     if sp.rank == 0:  # the level is decided by the higher ones (or nothing is left free)
         return
-    lam2 = damping_lambda2(sp.s_all, lambda_max, eps)
+    lam2 = damping_lambda2(sp.s_all, lambda_max, eps, min(J.shape))
     # ||J (x + N z) - b||^2 + lam2 ||z||^2 = ||u - target||^2 + lam2 (||u / s1||^2 + ||t||^2) + const
     target = sp.U1.T @ (b - J @ c.x)
     free = c.N.shape[1] - sp.rank
@@ -375,19 +413,35 @@ def _equality_level(c: _Cascade, J: np.ndarray, b: np.ndarray, k: int, lambda_ma
     c.restrict(J)
 
 
-def _inequality_level(c: _Cascade, J: np.ndarray, lower: np.ndarray, upper: np.ndarray, k: int) -> None:
-    """Minimize the squared violation of ``lower <= J x <= upper``, then keep the bounds relaxed by it."""
+def _inequality_level(c: _Cascade, J: np.ndarray, lower: np.ndarray, upper: np.ndarray, k: int,
+                      lambda_max: float = 0.0, eps: float = 0.0) -> None:
+    """Minimize the squared violation of ``lower <= J x <= upper``, then keep the bounds relaxed by it.
+
+    Damped (``lambda_max > 0``) as the analytic solvers damp the level's active rows: ``lambda`` from the
+    damping law on the singular values of ``J_v N`` (``J_v``: the rows violated at the current point, the
+    ones TPM makes active) and ``lambda^2 ||z||^2`` added to the violation, so that where TPM's step is
+    bounded near a singular configuration the cascade's is too.
+    """
     rows = np.isfinite(lower) | np.isfinite(upper)
     J, lower, upper = J[rows], lower[rows], upper[rows]
     Jx = J @ c.x
-    if c.N.shape[1] == 0 or not ((Jx < lower) | (Jx > upper)).any():  # met already: nothing to minimize
+    violated = (Jx < lower) | (Jx > upper)
+    if c.N.shape[1] == 0 or not violated.any():  # met already: nothing to minimize
         c.keep_bounds(J, lower, upper)
         return
-    # variables (u, t, w): lower <= J (x + N z) - w = Jx + U1 u - w <= upper, minimize ||w||^2
-    sp = split(J @ c.N)
+    # variables (u, t, w): lower <= J (x + N z) - w = Jx + U1 u - w <= upper, minimize ||w||^2 (+ lam2 ||z||^2)
+    tol = matrix_tol(J, max(J.shape))
+    sp = split(J @ c.N, tol)
     r, m = c.N.shape[1], J.shape[0]
+    lam2 = 0.0
+    if lambda_max > 0.0:
+        Jv = J[violated]
+        lam2 = damping_lambda2(np.linalg.svd(Jv @ c.N, compute_uv=False), lambda_max, eps, min(Jv.shape))
     C = np.hstack([sp.U1, np.zeros((m, r - sp.rank)), -np.eye(m)])
-    P = np.diag(np.concatenate([np.full(r, FREE_WEIGHT.get(c.solver, 0.0)), np.ones(m)]))
+    free = max(lam2, FREE_WEIGHT.get(c.solver, 0.0))
+    P = np.diag(np.concatenate([lam2 / sp.s1**2, np.full(r - sp.rank, free), np.ones(m)]))
+    if lam2 == 0.0:
+        P[: sp.rank, : sp.rank] = np.eye(sp.rank) * FREE_WEIGHT.get(c.solver, 0.0)
     active = c.qp(P, np.zeros(r + m), sp.B, sp.scale, f"level {k}", C, lower - Jx, upper - Jx)
     c.keep_bounds(J, lower, upper)
     c.restrict(J[active])
@@ -412,7 +466,8 @@ def residuals(levels: Iterable, x: np.ndarray) -> np.ndarray:
 
 def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | None = None,
                 lower=None, upper=None, n: int | None = None, return_info: bool = False,
-                lambda_max: float = 0.0, eps: float = 0.0, **solver_options):
+                lambda_max: float = 0.0, eps: float = 0.0, time_budget: float | None = TIME_BUDGET,
+                **solver_options):
     """Solve a prioritized stack lexicographically, one QP per level (see module doc).
 
     ``levels``: highest priority first, ``(J, b)`` pairs or :class:`Level` (inequality
@@ -420,8 +475,11 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     ``qpsolvers.available_solvers``. ``lower``/``upper``: hard box on ``x``, kept in every
     QP. ``x0``: the last level minimizes ``||x - x0||^2``. ``n`` is needed only for an
     empty stack. ``lambda_max``/``eps``: the damping law of the analytic solvers applied to
-    each equality level's free part (see :func:`_equality_level`); with it the cascade equals
-    the damped recursive null-space solution. ``solver_options`` override :data:`DEFAULT_OPTIONS`.
+    every level's free part, equality (see :func:`_equality_level`; with it the cascade equals
+    the damped recursive null-space solution) or inequality (:func:`_inequality_level`).
+    ``time_budget``: seconds one level may take, retries included; beyond it the cascade stops with
+    :class:`~hqp_tpm.errors.SolverBudgetError` naming the level (None: no budget).
+    ``solver_options`` override :data:`DEFAULT_OPTIONS`.
     Returns ``x``, or ``(x, CascadeInfo)`` with ``return_info=True``.
     """
     solver = check_solver(solver)
@@ -431,13 +489,15 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     lambda_max, eps = check_damping(lambda_max, eps)
     x0 = np.zeros(n) if x0 is None else check_x0(x0, n)
     c = _Cascade(np.clip(np.zeros(n), box_lo, box_up), np.eye(n), np.zeros((0, n)), np.zeros(0),
-                 solver, _attempts(solver, solver_options))
+                 solver, _attempts(solver, solver_options), time_budget=time_budget)
     c.keep_bounds(np.eye(n), box_lo, box_up)
     for k, level in enumerate(lv):
+        c.start_level()
         if level.is_equality:
             _equality_level(c, level.J, level.b, k, lambda_max, eps)
         else:
-            _inequality_level(c, level.J, level.lower, level.upper, k)
+            _inequality_level(c, level.J, level.lower, level.upper, k, lambda_max, eps)
+    c.start_level()
     _nearest_point(c, x0, len(lv))
     x = np.clip(c.x, box_lo, box_up)
     if not return_info:

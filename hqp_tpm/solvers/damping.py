@@ -1,4 +1,20 @@
-"""Pseudo-inverses: exact (rank-revealing) and the damped law used by the TPM code.
+"""Pseudo-inverses and the rank tolerance shared by every solver of this package.
+
+Rank tolerance (the one place it is defined; every solver decides ranks through :func:`rank_tol`).
+A singular value counts as zero when it is at most
+
+    ``rank_tol(||A||_F, size) = RANK_FACTOR * size * eps * ||A||_F``
+
+with ``eps`` the machine epsilon (2.2e-16), ``size = max(m, n)`` of the stacked active rows of the
+stack being solved and ``A`` the data the matrix comes from: a level's own rows ``J_i`` for that
+level's pivot (TPM, SNS-TPM), its projected Jacobian ``J_i P_{i-1}`` (recursive null space,
+multi-task SNS) or the cascaded QP's level, and the stacked ``J`` for a decision on the whole stack
+(``rank(J W) < m`` of SNS-TPM, ``J# = Q pinv(R^T)``). So the decisions are invariant to the units
+of a level (scaling ``J_i`` and ``b_i`` by any factor scales the singular values and the tolerance
+alike), and a nearly dependent level with ``sigma_min / ||J_i|| >= 1e-10`` (cond(J) up to about
+1e10 at n <= 40) is inverted, not dropped: the rounding noise of an exactly dependent row is a few
+``eps ||J_i||``, far below the tolerance, and ``1e-10`` is far above it (``RANK_FACTOR = 100``:
+``8.9e-13 ||J_i||`` at ``size = 40``).
 
 Damped law (reference page, 'Solver details'): SVD ``A = U S V^T``; if ``sigma_min >= eps``
 the exact inverse is used, else ``lambda^2 = (1 - (sigma_min/eps)^2) lambda_max^2`` and
@@ -15,8 +31,23 @@ import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 
-#: Singular values at or below this are treated as zero (the reference code's 1e-10).
-RANK_TOL = 1e-10
+#: Machine epsilon of float64.
+EPS = float(np.finfo(float).eps)
+
+#: Safety factor of :func:`rank_tol` over the ``size * eps`` rounding level.
+RANK_FACTOR = 100.0
+
+
+def rank_tol(norm: float, size: int) -> float:
+    """Singular values at or below this count as zero: ``RANK_FACTOR * size * eps * norm`` (module doc)."""
+    return RANK_FACTOR * max(int(size), 1) * EPS * float(norm)
+
+
+def matrix_tol(A: np.ndarray, size: int | None = None) -> float:
+    """:func:`rank_tol` of ``A`` itself (``size`` defaults to ``max(A.shape)``)."""
+    A = np.asarray(A, dtype=float)
+    flat = A.ravel()
+    return rank_tol(np.sqrt(flat @ flat), max(A.shape, default=1) if size is None else size)
 
 
 def nonnegative(name: str, v) -> float:
@@ -51,8 +82,8 @@ def check_x0(x0, n: int) -> np.ndarray | None:
 
 
 def inverted_singular_values(s: np.ndarray, lambda_max: float = 0.0, eps: float = 0.0,
-                             tol: float = RANK_TOL) -> np.ndarray:
-    """The diagonal that replaces ``1/sigma_i`` in the (damped) pseudo-inverse."""
+                             tol: float = 0.0) -> np.ndarray:
+    """The diagonal that replaces ``1/sigma_i`` in the (damped) pseudo-inverse (``sigma_i <= tol``: 0)."""
     keep = s > tol
     out = np.zeros_like(s)
     if lambda_max > 0.0 and s.size and s.min() < eps:
@@ -63,7 +94,7 @@ def inverted_singular_values(s: np.ndarray, lambda_max: float = 0.0, eps: float 
     return out
 
 
-def inverted_singular_value(s: float, lambda_max: float = 0.0, eps: float = 0.0, tol: float = RANK_TOL) -> float:
+def inverted_singular_value(s: float, lambda_max: float = 0.0, eps: float = 0.0, tol: float = 0.0) -> float:
     """:func:`inverted_singular_values` of a single singular value (a 1 x 1 block), same arithmetic."""
     if s <= tol:
         return 0.0
@@ -72,12 +103,29 @@ def inverted_singular_value(s: float, lambda_max: float = 0.0, eps: float = 0.0,
     return 1.0 / s
 
 
-def pinv(A: np.ndarray, lambda_max: float = 0.0, eps: float = 0.0, tol: float = RANK_TOL) -> np.ndarray:
-    """Pseudo-inverse of ``A`` (k x p), exact or damped by the law above; shape p x k."""
+def pinv(A: np.ndarray, lambda_max: float = 0.0, eps: float = 0.0, tol: float | None = None) -> np.ndarray:
+    """Pseudo-inverse of ``A`` (k x p), exact or damped by the law above; shape p x k.
+
+    ``tol``: the rank tolerance; by default :func:`matrix_tol` of ``A`` (relative to ``A`` itself).
+    """
     A = np.asarray(A, dtype=float)
     k, p = A.shape
     if k == 0 or p == 0:
         return np.zeros((p, k))
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
-    inv = inverted_singular_values(s, lambda_max, eps, tol)
+    inv = inverted_singular_values(s, lambda_max, eps, matrix_tol(A) if tol is None else tol)
     return (Vt.T * inv) @ U.T
+
+
+def pinv_times(A: np.ndarray, y: np.ndarray, lambda_max: float = 0.0, eps: float = 0.0,
+               tol: float | None = None) -> np.ndarray:
+    """``pinv(A, ...) @ y`` without forming the pseudo-inverse (``V (S^+ (U^T y))``)."""
+    A = np.asarray(A, dtype=float)
+    k, p = A.shape
+    if k == 0 or p == 0:
+        return np.zeros((p,) + np.shape(y)[1:])
+    U, s, Vt = np.linalg.svd(A, full_matrices=False)
+    inv = inverted_singular_values(s, lambda_max, eps, matrix_tol(A) if tol is None else tol)
+    z = U.T @ y
+    z = (inv * z.T).T
+    return Vt.T @ z

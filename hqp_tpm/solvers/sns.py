@@ -11,7 +11,8 @@
   ``tests/test_sns.py`` proves them equal.
 * :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
   first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
-  least amount); a lower level moves only in the null space of the higher ones, so their
+  least amount); a lower level moves only in the null space of the higher ones (an orthonormal
+  basis ``Z``, ``P = Z Z^T``, as in :func:`hqp_tpm.solvers.nullspace.nullspace`), so their
   saturations and task values are kept. Without an active bound it equals
   :func:`hqp_tpm.solvers.nullspace.nullspace`.
 
@@ -27,8 +28,20 @@ enter through their active rows, exactly as in :func:`tpm` (:mod:`hqp_tpm.solver
 
 Details the papers leave open, decided here (both paths alike):
 
-* ``rank(J W) < m`` is literal, ``m`` the number of active rows: a rank-deficient stack (conflicting
-  or repeated tasks, ``m > n``) stops at its first saturation and returns the best scaled solution.
+* ``rank(J W) < m`` is literal, ``m`` the number of active rows, when ``m <= n``: a rank-deficient
+  stack (conflicting or repeated tasks) stops at its first saturation and returns the best scaled
+  solution.
+* **Extension for stacks with more rows than joints (``m > n``)**, e.g. every whole-body stack that ends
+  in a posture level. There ``rank(J W) < m`` holds from the start, so the literal algorithm would stop
+  at the first saturation and return its best uniformly scaled solution (often ``s = 0``), letting the
+  top-priority levels drift. Instead: the core step is the TPM solution of the stack restricted to the
+  free joints, ``x = x_N + (J W)# F_W (xd - J x_N)`` with ``F_W`` the TPM matrix of ``J W`` (for a
+  full-row-rank ``J W``, ``F_W = I = F``: the paper's step), and the rank test watches the first level
+  only (if it has full row rank; no rank test otherwise): saturation continues while ``J_1 W`` keeps
+  full row rank, the lower levels that no longer fit being solved by TPM as far as the free joints
+  allow (by priority: a lower level loses exactness before a higher one), and only when the first
+  level itself cannot be met is the best uniformly scaled solution returned. With ``m <= n`` nothing
+  changes (the paper's algorithm); ``tests/test_sns.py`` and ``tests/test_numerics.py`` check both.
 * ``s* = 0`` initially and a factor replaces it only if larger; a feasible factor of exactly 0 is
   kept the first time (with the zero command in the box that is the paper's ``W = I, x_N = 0``).
 * The most critical joint is the argmin of ``smax_j``; if that joint is not beyond a bound (possible
@@ -56,16 +69,17 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
-import scipy.linalg as sla
-from scipy.linalg import lapack
 
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers._fullrank import solve_past_rank
-from hqp_tpm.solvers.damping import RANK_TOL, inverted_singular_values, pinv
-from hqp_tpm.solvers.levels import as_levels, stacked
-from hqp_tpm.solvers.tpm import _Factorization, _smin_lower_bound, _triu, tpm_factors
+from hqp_tpm.solvers._kernels import Factorization, FreeColumns
+from hqp_tpm.solvers.damping import matrix_tol, pinv, rank_tol
+from hqp_tpm.solvers.levels import as_levels, equality_stack, stacked
+from hqp_tpm.solvers.nullspace import projected_step
+from hqp_tpm.solvers.tpm import tpm_factors
 
-#: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (1 + |bound|)``;
+#: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (|bound| + B)``, ``B``
+#: the box's largest finite bound (so the test does not depend on units);
 #: the scale factor uses the box widened by the same amount, and the returned command is clipped
 #: into the exact box (a change of at most this size, the round-off of the null-space products).
 VIOLATION_TOL = 1e-10
@@ -147,6 +161,13 @@ def _stacked(levels, n):
     return lv, J, b, sizes
 
 
+def _box_scale(lo, up) -> float:
+    """The box's unit: its largest finite bound in magnitude (1 if it has none but 0 and infinities)."""
+    finite = np.concatenate([lo[np.isfinite(lo)], up[np.isfinite(up)]])
+    scale = float(np.abs(finite).max()) if finite.size else 0.0
+    return scale if scale > 0.0 else 1.0
+
+
 class _Box:
     """The exact box and the box widened by round-off (``VIOLATION_TOL``), computed once per solve."""
 
@@ -154,8 +175,9 @@ class _Box:
 
     def __init__(self, lo, up):
         self.lo, self.up = lo, up
-        self.tlo = VIOLATION_TOL * (1.0 + np.abs(lo))   # +inf for an infinite bound: never crossed
-        self.tup = VIOLATION_TOL * (1.0 + np.abs(up))
+        scale = _box_scale(lo, up)
+        self.tlo = VIOLATION_TOL * (scale + np.abs(lo))   # +inf for an infinite bound: never crossed
+        self.tup = VIOLATION_TOL * (scale + np.abs(up))
         self.wlo = lo - self.tlo
         self.wup = up + self.tup
 
@@ -240,10 +262,11 @@ def _critical_joint(smax, free, violated) -> int:
     return j
 
 
-def _rank(A) -> int:
+def _rank(A, tol: float) -> int:
+    """Numerical rank: singular values above ``tol`` (:func:`hqp_tpm.solvers.damping.rank_tol`)."""
     if A.size == 0:
         return 0
-    return int(np.sum(np.linalg.svd(A, compute_uv=False) > RANK_TOL))
+    return int(np.sum(np.linalg.svd(A, compute_uv=False) > tol))
 
 
 def _result(x, box: _Box, info, return_info, checked: bool = False):
@@ -260,27 +283,49 @@ def _result(x, box: _Box, info, return_info, checked: bool = False):
 # ----------------------------------------------------------------------------------------
 # SNS-TPM, papers/002 Algorithm 1: reference path.
 # ----------------------------------------------------------------------------------------
+def _kept_rows(J, sizes, tol) -> int:
+    """``m > n`` extension: the rows whose rank the test watches, the first level's if it has full row rank."""
+    return sizes[0] if sizes and _rank(J[: sizes[0]], tol) == sizes[0] else 0
+
+
 def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
                       return_info: bool = False):
-    """SNS-TPM exactly as written in papers/002 Algorithm 1 (readable, slow): ``n x n`` ``W``."""
+    """SNS-TPM exactly as written in papers/002 Algorithm 1 (readable, slow): ``n x n`` ``W``.
+
+    With more rows than joints (``m > n``) the extension of the module doc: the core step is TPM of
+    ``(J W, xd - J xN)`` (its own ``F``) and the rank test looks at the first level only.
+    """
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
     n = lo.shape[0]
-    lv, J, xd, _ = _stacked(levels, n)
+    lv, J, xd, sizes = _stacked(levels, n)
     m = J.shape[0]
+    tol = matrix_tol(J, max(m, n))                               # rank(JW) relative to the stack (damping doc)
     F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
+    extended = m > n                                             # this library's extension (module doc)
+    m_fit = _kept_rows(J, sizes, tol) if extended else m
+    off = np.cumsum((0, *sizes))
+
+    def core(W):                                                 # the matrix of the core step: x = xN + M (.)
+        if not extended:
+            return W @ pinv(J @ W, tol=tol) @ F                  # (JW)# F, whose saturated rows are 0
+        JW = J @ W
+        f = tpm_factors([(JW[a:e], np.zeros(e - a)) for a, e in zip(off, off[1:], strict=False)],
+                        lambda_max=lambda_max, eps=eps, n=n)
+        return W @ f.Jpinv @ f.F                                 # TPM of the stack J W
+
     W, xN, s, s_star = np.eye(n), np.zeros(n), 1.0, 0.0          # W = I, qdot_N = 0, s = 1, s* = 0
     W_star, xN_star, found = W.copy(), xN.copy(), False
     order, order_star = [], []
     iterations = 0
     while True:                                                  # repeat
         iterations += 1
-        JWp = W @ pinv(J @ W)                                    # = (JW)#, whose saturated rows are 0
-        x = xN + JWp @ F @ (xd - J @ xN)                         # eq. (4)
+        M = core(W)
+        x = xN + M @ (xd - J @ xN)                               # eq. (4)
         viol = box.violated(x)
         if not viol.any():                                       # until no limit is exceeded
             return _result(x, box, SNSInfo(s, tuple(order), iterations), return_info)
-        a = JWp @ F @ xd
+        a = M @ xd
         b = x - a
         free = np.diag(W) > 0.5
         factor, smax = _scaling(a, b, box, free)                 # getTaskScalingFactor(a, b)
@@ -291,11 +336,11 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
             W[j, j] = 0.0
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-        if j < 0 or _rank(J @ W) < m:                            # rank(JW) < m: output the best solution
+        if j < 0 or not W.any() or _rank((J @ W)[:m_fit], tol) < m_fit:  # rank(JW) < m: the best solution
             if not found:                                        # no factor kept the box (0 is outside it)
                 return _around_box_point(sns_tpm_reference, lv, box, lambda_max, eps, iterations, return_info)
             s, W, xN, order = s_star, W_star, xN_star, order_star
-            x = xN + W @ pinv(J @ W) @ F @ (s * xd - J @ xN)
+            x = xN + core(W) @ (s * xd - J @ xN)
             return _result(x, box, SNSInfo(float(s), tuple(order), iterations), return_info)
 
 
@@ -378,32 +423,6 @@ def _scale_and_pick(a, b, sb: _ScalarBox, free, viol) -> tuple[float, int]:
     return factor, j
 
 
-def _free_pinv(J, free, n):
-    """``(J W)#`` and whether ``rank(J W) = m`` (``W`` keeps the ``free`` columns).
-
-    With ``p`` free columns, ``p < m`` means a rank loss. Otherwise ``(J W)^T = Q R`` gives
-    ``(J W)# = Q R^{-T}`` on the free rows; the SVD (the reference's rank test) is taken only when
-    the bounds ``1/||R^-1||_F <= sigma_min <= min |r_jj|`` do not decide ``sigma_min > RANK_TOL``.
-    """
-    m = J.shape[0]
-    G = np.zeros((n, m))
-    if m == 0:
-        return G, True
-    A = J[:, free]
-    if A.shape[1] < m:
-        return None, False
-    qr, tau, _, _ = lapack.dgeqrf(A.T)
-    if np.abs(np.diagonal(qr)).min() <= RANK_TOL:  # sigma_min <= min |r_jj|: a rank loss, G not needed
-        return None, False
-    Rinv, info = lapack.dtrtri(_triu(qr[:m, :m]), lower=0)
-    if info == 0 and _smin_lower_bound(Rinv) > RANK_TOL:
-        G[free] = lapack.dorgqr(qr, tau)[0][:, :m] @ Rinv.T
-        return G, True
-    U, sv, Vt = sla.svd(A, full_matrices=False, check_finite=False)
-    G[free] = (Vt.T * inverted_singular_values(sv)) @ U.T
-    return G, sv.size == m and sv[-1] > RANK_TOL
-
-
 def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
             return_info: bool = False):
     """SNS-TPM (papers/002 Algorithm 1, eq. (4)): prioritized stack under the box ``lower <= x <= upper``.
@@ -425,7 +444,7 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
         if x is not None and ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
     if sizes:                                    # W = I: eq. (4) is the TPM solution (1)
-        fac = _Factorization(J, sizes, n, lambda_max, eps)
+        fac = Factorization(J, sizes, n, lambda_max, eps)
         F_times = fac.F_times
         Fxd = F_times(xd)
         x = fac.pinv_times(Fxd)[:n]
@@ -441,11 +460,19 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     best = None                                  # (s*, a, b, saturated) of the best scaled solution
     iterations = 0
     G = sb = None
+    tol = fac.tol if sizes else 0.0              # rank(JW) relative to the stack (damping doc)
+    extended = bool(sizes) and J.shape[0] > n    # more rows than joints: this library's extension (module doc)
+    k_fit = int(extended and not fac.pivots[0].singular)  # m > n: the rank test watches the first level only
     while True:
         iterations += 1
-        if order:
-            a = G @ Fxd
-            b = xN - G @ F_times(J[:, order] @ xN[order])
+        if order:                                # (JW)# applied by triangular solves, never formed
+            if extended:                         # TPM of the stack J W
+                ab = np.zeros((n, 2))
+                ab[free] = G.solve(np.column_stack([xd, J[:, order] @ xN[order]]))
+            else:
+                ab = G.times(np.column_stack([Fxd, F_times(J[:, order] @ xN[order])]))
+            a = ab[:, 0]
+            b = xN - ab[:, 1]
             x = a + b
         viol = box.violated(x)
         if not viol.any():
@@ -462,8 +489,14 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
             free[j] = False
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-            G, full_rank = _free_pinv(J, free, n)
-        if j < 0 or not full_rank:
+            if not extended:
+                G = FreeColumns.of(J, free, tol)
+            elif free.any():
+                G = Factorization(J[:, free], sizes, int(free.sum()), lambda_max, eps)
+                G = None if any(p.singular for p in G.pivots[:k_fit]) else G
+            else:
+                G = None
+        if j < 0 or G is None:
             if best is None:                     # no factor kept the box (0 is outside it)
                 return _around_box_point(sns_tpm, lv, box, lambda_max, eps, iterations, return_info)
             s, a, b, sat = best
@@ -473,18 +506,20 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
 # ----------------------------------------------------------------------------------------
 # Multi-task SNS (Flacco, De Luca, Khatib, T-RO 2015).
 # ----------------------------------------------------------------------------------------
-def _sns_level(J, xd, x_prev, P, box: _Box, lambda_max, eps):
+def _sns_level(J, xd, x_prev, Z, G, box: _Box, lambda_max, eps, tol):
     """One level of the multi-task SNS: returns ``(x_k, SNSInfo)``.
 
     ``x_k = xt + (J_k Pbar_k)# (s xd_k - J_k xt)`` with ``xt = x_{k-1} + ((I - W_k) P_{k-1})# x_N``
     and ``Pbar_k = (I - ((I - W_k) P_{k-1})#) P_{k-1}``; saturated joint ``j`` gets
-    ``x_N,j = bound_j - x_{k-1,j}``, so that ``x_k,j`` is the bound.
+    ``x_N,j = bound_j - x_{k-1,j}``, so that ``x_k,j`` is the bound. ``P_{k-1} = Z Z^T``; ``G`` is
+    ``(J_k P_{k-1})#`` (:func:`projected_step`); ``tol``: the level's rank tolerance.
     """
+    P = Z @ Z.T
     n, m = P.shape[0], J.shape[0]
     free = np.ones(n, dtype=bool)
     xN, xsat = np.zeros(n), np.zeros(n)
     order: list[int] = []
-    xt, G = x_prev, pinv(J @ P, lambda_max, eps)
+    xt = x_prev
     best = None
     iterations = 0
     while True:
@@ -514,12 +549,12 @@ def _sns_level(J, xd, x_prev, P, box: _Box, lambda_max, eps):
                 xt[sat] = xsat[sat]                       # exact identity: x_N puts them on their bounds
                 JPbar = J @ (P - Vt.T @ Vt)               # Pbar_k = P_{k-1} - A# A, A = (I - W_k) P_{k-1}
                 JPbar[:, sat] = 0.0                       # exact identity: Pbar_k is zero at saturated joints
-        if j < 0 or not realizable or _rank(JPbar) < m:
+        if j < 0 or not realizable or _rank(JPbar, tol) < m:
             if best is None:                              # the task is not executed
                 return x_prev, SNSInfo(0.0, (), iterations, False)
             s, xt, G, saturated = best
             return xt + G @ (s * xd - J @ xt), SNSInfo(float(s), saturated, iterations)
-        G = pinv(JPbar, lambda_max, eps)
+        G = pinv(JPbar, lambda_max, eps, tol)
         G[~free] = 0.0                                    # exact identity, removes round-off
 
 
@@ -529,7 +564,7 @@ def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float =
 
     Returns ``(x, scales)`` -- ``scales[i]`` is the factor of ``levels[i]`` (1 for a level with no
     active row) -- or ``(x, scales, SNSStackInfo)`` with ``return_info``. Level ``k`` works in the
-    null space ``P_{k-1}`` of the levels above (``P_k = P_{k-1} - (J_k P_{k-1})# J_k P_{k-1}``),
+    null space ``P_{k-1} = Z Z^T`` of the levels above (``Z`` orthonormal, as in :func:`nullspace`),
     so their task values and saturations are kept; it saturates its own critical joints in that
     null space and, when ``rank(J_k Pbar_k) < m_k``, takes the largest scale that keeps the box. A
     level for which no scale in ``[0, 1]`` keeps the box is not executed (scale 0). ``lambda_max``,
@@ -541,8 +576,9 @@ def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float =
     box = _Box(lo, up)
     n = lo.shape[0]
     lv = _levels(levels, n)
+    size = max(sum(J.shape[0] for J, _ in equality_stack(lv)), n)
     x = np.zeros(n)
-    P = np.eye(n)
+    Z = np.eye(n)                                 # orthonormal basis of the null space of the levels above
     scales, infos = [], []
     for level in lv:
         J, xd = level.as_equality()
@@ -550,11 +586,12 @@ def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float =
             scales.append(1.0)
             infos.append(SNSInfo(1.0, (), 0))
             continue
-        x, info = _sns_level(J, xd, x, P, box, lambda_max, eps)
+        tol = rank_tol(np.linalg.norm(J), size)
+        G, Z_next = projected_step(J, Z, lambda_max, eps, tol)
+        x, info = _sns_level(J, xd, x, Z, G, box, lambda_max, eps, tol)
         scales.append(info.scale)
         infos.append(info)
-        JP = J @ P
-        P = P - pinv(JP) @ JP
+        Z = Z_next
     shifted = False
     x0 = np.clip(0.0, lo, up)
     if box.violated(x, 2.0).any() and x0.any():   # only if 0 is outside the box: solve around x0
