@@ -22,7 +22,9 @@ from hqp_tpm.app.results import task_error_probe
 from hqp_tpm.data import scenarios_dir
 from hqp_tpm.errors import HqpTpmError, SolverFailedError
 
-SCENARIOS = sorted(p.stem for p in scenarios_dir().glob("*.toml"))
+#: every shipped scenario; the Romeo ones (27-37 DOF, 1-6 ms per step) are marked slow
+SCENARIOS = [pytest.param(p.stem, marks=pytest.mark.slow) if p.stem.startswith("romeo") else p.stem
+             for p in sorted(scenarios_dir().glob("*.toml"))]
 AFTER = 300  #: steps compared after the last fault
 SCAN = 400  #: stack switches looked for in the first SCAN steps
 #: iiwa_comanipulation, t = 0.513 s: one rejected step at a switch left a NaN eq. (8) offset (issue 13);
