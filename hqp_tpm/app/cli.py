@@ -242,6 +242,22 @@ def _print_lines(lines) -> int:
     return 0
 
 
+_VALUE_OPTIONS = {"--set", "--out", "--metric", "--solver", "--scheduler", "--cluster", "--seed", "--random",
+                  "--steps", "--workers"}
+
+
+def _bare_assignments(argv: list) -> list:
+    """``hqp-tpm sweep S FIELD=lo:hi`` means ``--set FIELD=lo:hi`` (argparse cannot mix them with options)."""
+    if not argv or argv[0] != "sweep":
+        return argv
+    out = argv[:2]
+    for prev, tok in zip(argv[1:], argv[2:], strict=False):
+        if "=" in tok and not tok.startswith("-") and prev not in _VALUE_OPTIONS:
+            out.append("--set")
+        out.append(tok)
+    return out
+
+
 def _executor_args(p) -> None:
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: one per core; "
                    "0: in this process)")
@@ -254,7 +270,7 @@ def _sweep(args) -> int:
     from hqp_tpm.app import sweep
 
     grid, ranges = {}, {}
-    for text in [*args.set, *args.ranges]:
+    for text in args.set:
         name, values, rng = sweep.parse_assignment(text)
         if rng is not None:
             ranges[name] = rng
@@ -318,9 +334,9 @@ def main(argv=None) -> int:
     p_sweep = sub.add_parser("sweep", help="run a scenario over a grid or random draws of fields, on local "
                              "processes or a Dask cluster")
     p_sweep.add_argument("scenario")
-    p_sweep.add_argument("ranges", nargs="*", metavar="FIELD=lo:hi", help="ranges drawn by --random")
     p_sweep.add_argument("--set", action="append", default=[], metavar="FIELD=v1,v2",
-                         help="values of a field (repeat: grid); FIELD=lo:hi is a range for --random")
+                         help="values of a field (repeat: grid); FIELD=lo:hi is a range for --random (a bare "
+                         "FIELD=... argument is the same as --set FIELD=...)")
     p_sweep.add_argument("--random", type=int, default=0, metavar="N", help="N uniform draws of the ranges")
     p_sweep.add_argument("--seed", type=int, default=0)
     p_sweep.add_argument("--solver", default=None, help="solver(s), comma-separated: each variant runs with each")
@@ -338,7 +354,7 @@ def main(argv=None) -> int:
     p_camp.add_argument("--chunk", type=int, default=500, help="draws per task")
     p_camp.add_argument("--replay", type=int, default=None, metavar="INDEX", help="re-run one draw here")
     _executor_args(p_camp)
-    args = parser.parse_args(argv)
+    args = parser.parse_args(_bare_assignments(sys.argv[1:] if argv is None else list(argv)))
     try:
         if args.command == "sweep":
             return _sweep(args)
