@@ -278,14 +278,29 @@ def _sweep(args) -> int:
             grid[name] = values
     solvers = tuple(s.strip() for s in args.solver.split(",")) if args.solver else (None,)
     out = args.out or Path("runs") / f"sweep_{Path(args.scenario).stem}"
-    with _Signals() as signals:
+    import signal
+
+    code = [130]
+
+    def _term(signum, frame):
+        code[0] = 143
+        raise KeyboardInterrupt
+
+    old = signal.signal(signal.SIGTERM, _term)
+    try:
         table = sweep.run_sweep(args.scenario, out, grid=grid, ranges=ranges, n_random=args.random, seed=args.seed,
                                 solvers=solvers, steps=args.steps, workers=args.workers, scheduler=args.scheduler,
                                 cluster=args.cluster, metrics=args.metric, figures=args.figures, force=args.force,
                                 progress=not args.quiet)
+    except KeyboardInterrupt:
+        print(f"hqp-tpm: sweep interrupted; the variants completed so far are kept in {out} (re-run the same "
+              "command to resume)", file=sys.stderr)
+        return code[0]
+    finally:
+        signal.signal(signal.SIGTERM, old)
     failed = sum(1 for r in table if r.get("error"))
-    _print_lines([f"sweep: {len(table)} variants, {failed} failed; wrote {out}/summary.csv, summary.md, sweep.png"])
-    return signals.exit_code if signals.signum is not None else 0
+    return _print_lines([f"sweep: {len(table)} variants, {failed} failed; wrote {out}/summary.csv, summary.md, "
+                         "sweep.png"])
 
 
 def _campaign(args) -> int:

@@ -304,11 +304,16 @@ def map_unordered(ex: cf.Executor, fn, items, on_result=None) -> list:
     """``fn(item)`` for every item through ``ex``; results in the order of ``items``."""
     futures = {ex.submit(fn, item): i for i, item in enumerate(items)}
     out: list = [None] * len(futures)
-    for fut in cf.as_completed(futures):
-        i = futures[fut]
-        out[i] = fut.result()
-        if on_result is not None:
-            on_result(out[i])
+    try:
+        for fut in cf.as_completed(futures):
+            i = futures[fut]
+            out[i] = fut.result()
+            if on_result is not None:
+                on_result(out[i])
+    except BaseException:  # interrupted: what has not started does not start
+        for fut in futures:
+            fut.cancel()
+        raise
     return out
 
 
