@@ -26,6 +26,12 @@ import numpy as np
 CMD = [sys.executable, "-m", "hqp_tpm.app.cli", "run", "planar5_exact", "--quiet", "--no-replay", "--no-figures"]
 
 
+def _default_sigint() -> None:
+    """A shell that starts this script in the background ignores SIGINT for it (and so for its children):
+    give the runs the default disposition, as a terminal would."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def consistent(folder: Path) -> bool:
     man = json.loads((folder / "manifest.json").read_text())
     names = {p.name for p in folder.iterdir()} - {"manifest.json"}
@@ -39,7 +45,7 @@ def main(rounds: int = 20, seed: int = 0) -> dict:
     rng = random.Random(seed)
     root = Path(tempfile.mkdtemp(prefix="hqp-tpm-faults-"))
     out = root / "out"
-    subprocess.run([*CMD, "--out", str(out), "--steps", "200"], check=True)
+    subprocess.run([*CMD, "--out", str(out), "--steps", "200"], check=True, stdout=subprocess.DEVNULL)
     counts = {"rounds": 0, "SIGINT": 0, "SIGTERM": 0, "SIGKILL": 0, "concurrent": 0, "partial_results": 0,
               "complete_result_lost": 0, "inconsistent": 0, "leftovers": 0}
     for _ in range(rounds):
@@ -48,12 +54,13 @@ def main(rounds: int = 20, seed: int = 0) -> dict:
         counts[kind] += 1
         if kind == "concurrent":
             procs = [subprocess.Popen([*CMD, "--out", str(out), "--steps", str(rng.randint(50, 3000))],
-                                      stderr=subprocess.DEVNULL) for _ in range(3)]
+                                      stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                      preexec_fn=_default_sigint) for _ in range(3)]
             for p in procs:
                 p.wait()
         else:
             p = subprocess.Popen([*CMD, "--out", str(out), "--steps", str(rng.randint(2000, 400_000))],
-                                 stderr=subprocess.DEVNULL)
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=_default_sigint)
             time.sleep(rng.uniform(0.5, 6.0))
             p.send_signal(getattr(signal, kind))
             p.wait()
@@ -78,7 +85,7 @@ def main(rounds: int = 20, seed: int = 0) -> dict:
         alive = [q for q in stale if kind != "SIGKILL"]
         counts["leftovers"] += len(alive)
         if kind == "SIGKILL" and stale:  # the next run must sweep the killed run's folder
-            subprocess.run([*CMD, "--out", str(out), "--steps", "50"], check=True)
+            subprocess.run([*CMD, "--out", str(out), "--steps", "50"], check=True, stdout=subprocess.DEVNULL)
             counts["leftovers"] += sum(1 for q in root.iterdir() if q.name.startswith("."))
     return counts
 

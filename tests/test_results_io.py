@@ -117,10 +117,15 @@ def test_signal_while_stepping_saves_a_partial_run(tmp_path, sig, code):
     assert cli("run", "planar5_exact", "--out", out, "--steps", 25, "--no-figures", *QUIET) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     proc = _spawn("run", "planar5_exact", "--out", out, "--steps", 2_000_000, "--no-figures", *QUIET)
-    _wait_for_stepping(tmp_path, "out", proc)
-    time.sleep(0.5)
-    proc.send_signal(sig)
-    stdout, stderr = proc.communicate(timeout=120)
+    try:
+        _wait_for_stepping(tmp_path, "out", proc)
+        time.sleep(0.5)
+        proc.send_signal(sig)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
     assert proc.returncode == code, stderr
     assert "Traceback" not in stderr
     assert len(stderr.strip().splitlines()) == 1 and "partial" in stderr

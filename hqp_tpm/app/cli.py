@@ -10,7 +10,7 @@ from pathlib import Path
 from hqp_tpm.errors import HqpTpmError
 
 #: Figures are drawn from at most this many samples per series (every k-th step beyond it): memory stays flat.
-FIGURE_SAMPLES = 50_000
+FIGURE_SAMPLES = 20_000
 
 
 def _every(arrays: dict, n: int, limit: int = FIGURE_SAMPLES) -> dict:
