@@ -59,9 +59,15 @@ def main(rounds: int = 20, seed: int = 0) -> dict:
             for p in procs:
                 p.wait()
         else:
-            p = subprocess.Popen([*CMD, "--out", str(out), "--steps", str(rng.randint(2000, 400_000))],
+            p = subprocess.Popen([*CMD, "--out", str(out), "--steps", str(rng.randint(500, 400_000))],
                                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, preexec_fn=_default_sigint)
-            time.sleep(rng.uniform(0.5, 6.0))
+            if rng.random() < 0.25:  # now and then while starting up
+                time.sleep(rng.uniform(0.2, 3.0))
+            else:  # mostly while stepping (or writing, for a short run)
+                t0 = time.time()
+                while time.time() - t0 < 60 and p.poll() is None and not list(root.glob(".out.hqp-tpm-*/.columns")):
+                    time.sleep(0.05)
+                time.sleep(rng.uniform(0.0, 4.0))
             p.send_signal(getattr(signal, kind))
             p.wait()
         try:
