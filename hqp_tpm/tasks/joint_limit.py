@@ -24,7 +24,7 @@ class JointLimit(Task):
 
     def __init__(self, robot: Robot, target=(0.0,), gains: Gains | None = None, *, joints=None,
                  name: str = "joint_limit"):
-        self.joints, self.cols, self.q_idx = joint_columns(robot, joints)
+        self.joints, self.cols, self.angles = joint_columns(robot, joints)
         lo, up = robot.position_limits()
         self.q_low, self.q_high = lo[self.cols], up[self.cols]
         bad = [j for j, a, b in zip(self.joints, self.q_low, self.q_high, strict=True)
@@ -39,20 +39,20 @@ class JointLimit(Task):
 
     def deviation(self, state: State) -> np.ndarray:
         """``|q_i - q_i^*|`` per joint (rad)."""
-        return np.abs(state.q[self.q_idx] - self.q_mid)
+        return np.abs(self.angles.of(state.q) - self.q_mid)
 
     def margin(self, state: State) -> np.ndarray:
         """Distance of each joint to its nearer limit (rad; negative beyond it)."""
-        q = state.q[self.q_idx]
+        q = self.angles.of(state.q)
         return np.minimum(q - self.q_low, self.q_high - q)
 
     def value(self, state: State) -> np.ndarray:
-        d = state.q[self.q_idx] - self.q_mid
+        d = self.angles.of(state.q) - self.q_mid
         return np.array([float(d * d @ self.w) / (2 * self.n)])  # eq. (11)
 
     def jacobian(self, state: State) -> np.ndarray:
         J = np.zeros((1, self.nv))
-        J[0, self.cols] = (state.q[self.q_idx] - self.q_mid) * self.w / self.n  # eq. (12)
+        J[0, self.cols] = (self.angles.of(state.q) - self.q_mid) * self.w / self.n  # eq. (12)
         return J
 
     def jdot_qdot(self, state: State) -> np.ndarray:

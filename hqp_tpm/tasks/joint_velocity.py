@@ -35,7 +35,14 @@ class JointVelocity(Task):
         self.qd0 = qd0
 
     def value(self, state: State) -> np.ndarray:
-        return state.q[: self.dim]
+        """The configuration as a velocity-space vector: ``pinocchio.difference(neutral, q)`` (``q`` itself
+        for a robot of revolute and prismatic joints; right for continuous and free-flyer joints too)."""
+        model = getattr(state, "model", None)
+        if model is None or model.nq == model.nv:
+            return state.q[: self.dim].copy()
+        import pinocchio as pin
+
+        return pin.difference(model, pin.neutral(model), state.q)
 
     def jacobian(self, state: State) -> np.ndarray:
         return self._I

@@ -10,14 +10,50 @@ from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
 
 
-def joint_columns(robot: Robot, joints=None) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """Names, velocity columns and configuration indices of ``joints`` (default: every 1-DOF joint)."""
+def joint_columns(robot: Robot, joints=None) -> tuple[list[str], np.ndarray, JointAngles]:
+    """Names, velocity columns and the :class:`JointAngles` of ``joints`` (default: every 1-DOF joint)."""
     names = list(joints) if joints is not None else [
         n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
     cols = np.array([robot.joint_index(j) for j in names], dtype=int)
-    model = robot.model
-    q_idx = np.array([model.joints[model.getJointId(j)].idx_q for j in names], dtype=int)
-    return names, cols, q_idx
+    return names, cols, JointAngles(robot, names)
+
+
+class JointAngles:
+    """The angles of 1-DOF joints read from a configuration ``q``, continuous joints included.
+
+    A revolute or prismatic joint stores its coordinate in one entry of ``q``; a continuous (unbounded)
+    joint stores ``(cos theta, sin theta)`` in two (``nq = 2``, ``nv = 1``), so ``q[idx_q]`` would be
+    ``cos theta``. Here ``theta = atan2(sin, cos)``, and :meth:`difference` wraps the difference of two
+    angles of such a joint into ``(-pi, pi]``: exactly ``pinocchio.difference`` for that joint (the
+    velocity that integrates one configuration into the other in unit time).
+    """
+
+    __slots__ = ("idx", "continuous", "_cos", "_sin", "_plain")
+
+    def __init__(self, robot: Robot, names):
+        model = robot.model
+        joints = [model.joints[model.getJointId(j)] for j in names]
+        self.idx = np.array([j.idx_q for j in joints], dtype=int)
+        self.continuous = np.array([j.nq == 2 and j.nv == 1 for j in joints], dtype=bool)
+        self._plain = not self.continuous.any()
+        self._cos = self.idx[self.continuous]
+        self._sin = self._cos + 1
+
+    def of(self, q: np.ndarray) -> np.ndarray:
+        """The joint angles (rad; a prismatic joint's coordinate)."""
+        out = q[self.idx]
+        if not self._plain:
+            out[self.continuous] = np.arctan2(q[self._sin], q[self._cos])
+        return out
+
+    def difference(self, target: np.ndarray, angles: np.ndarray) -> np.ndarray:
+        """``target - angles``, wrapped into ``(-pi, pi]`` for continuous joints (``pinocchio.difference``)."""
+        d = np.asarray(target, dtype=float) - angles
+        if not self._plain:
+            c = self.continuous
+            d = d.copy()
+            d[c] = -np.remainder(-d[c] + np.pi, 2.0 * np.pi) + np.pi
+        return d
 
 
 class Manipulability(Task):
@@ -27,7 +63,8 @@ class Manipulability(Task):
     eq. (15), ``[cos q_1 sin q_1 ... cos q_n sin q_n]``, is *not* the gradient of (14): it keeps the
     first and last joints, which (14) leaves out. ``Jdot qd = sum cos(2 q_i) qd_i^2``. The target is
     the paper's ``sigma_m^*`` (tuned; default 2.0). ``joints``: the joints of the sum (default: the
-    1-DOF joints without the first and the last one).
+    1-DOF joints without the first and the last one). Continuous joints enter through their angle
+    (:class:`JointAngles`).
     """
 
     dim = 1
@@ -36,7 +73,7 @@ class Manipulability(Task):
                  name: str = "manipulability"):
         if joints is None:
             joints = joint_columns(robot)[0][1:-1]
-        self.joints, self.cols, self.q_idx = joint_columns(robot, joints)
+        self.joints, self.cols, self.angles = joint_columns(robot, joints)
         if self.cols.size == 0:
             raise ParameterError("manipulability task: no joints in the sum (the robot needs at least 3 joints)")
         self.nv = robot.nv
@@ -44,15 +81,15 @@ class Manipulability(Task):
                          gains)
 
     def value(self, state: State) -> np.ndarray:
-        s = np.sin(state.q[self.q_idx])
+        s = np.sin(self.angles.of(state.q))
         return np.array([0.5 * float(s @ s)])  # eq. (14)
 
     def jacobian(self, state: State) -> np.ndarray:
-        q = state.q[self.q_idx]
+        q = self.angles.of(state.q)
         J = np.zeros((1, self.nv))
         J[0, self.cols] = np.sin(q) * np.cos(q)  # the gradient of (14), not the printed (15)
         return J
 
     def jdot_qdot(self, state: State) -> np.ndarray:
-        q, qd = state.q[self.q_idx], state.v[self.cols]
+        q, qd = self.angles.of(state.q), state.v[self.cols]
         return np.array([float(np.cos(2.0 * q) @ (qd * qd))])

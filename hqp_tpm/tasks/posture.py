@@ -1,4 +1,8 @@
-"""Joint posture: selected 1-DOF joints towards target angles (``J`` is a selection matrix)."""
+"""Joint posture: selected 1-DOF joints towards target angles (``J`` is a selection matrix).
+
+Continuous joints (``nq = 2``: ``cos, sin``) enter through their angle and the error is
+``pinocchio.difference`` of the joint, wrapped into ``(-pi, pi]`` (:class:`~hqp_tpm.tasks.manipulability.JointAngles`).
+"""
 
 from __future__ import annotations
 
@@ -7,6 +11,7 @@ import numpy as np
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.tasks.manipulability import JointAngles
 
 
 class Posture(Task):
@@ -16,15 +21,17 @@ class Posture(Task):
         names = [n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
         self.joints = list(joints) if joints is not None else names
         self.cols = np.array([robot.joint_index(j) for j in self.joints], dtype=int)
-        model = robot.model
-        self.q_idx = np.array([model.joints[model.getJointId(j)].idx_q for j in self.joints], dtype=int)
+        self.angles = JointAngles(robot, self.joints)
         self.dim = len(self.cols)
         self._J = np.zeros((self.dim, robot.nv))
         self._J[np.arange(self.dim), self.cols] = 1.0
         super().__init__(name, target, gains)
 
     def value(self, state: State) -> np.ndarray:
-        return state.q[self.q_idx]
+        return self.angles.of(state.q)
+
+    def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
+        return self.angles.difference(x_d, self.value(state))
 
     def jacobian(self, state: State) -> np.ndarray:
         return self._J
