@@ -92,8 +92,9 @@ RETRY_OPTIONS = {
 #: :data:`PIN_TOL` (1e-10 already pins wrong bounds). ProxQP, DAQP and OSQP take the semidefinite one.
 FREE_WEIGHT = {"quadprog": 1e-12, "pyqpmad": 1e-12}
 
-#: Seconds one level of the cascade may take (all its attempts): a control step cannot wait longer, and a
-#: backend that needs more is stuck on that level (ProxQP was seen spending 10-40 s on a diverging one).
+#: CPU seconds (this process's, so that other processes' load does not count) one level of the cascade may
+#: take, all its attempts: a control step cannot wait longer, and a backend that needs more is stuck on
+#: that level (ProxQP was seen spending 10-40 s on a diverging one).
 TIME_BUDGET = 1.0
 
 #: Two bounds of a row closer than this (relative to the bound) make the row an equality.
@@ -133,15 +134,15 @@ class _Cascade:
     level_start: float = field(default=0.0)
 
     def start_level(self) -> None:
-        self.level_start = time.perf_counter()
+        self.level_start = time.process_time()
 
     def check_budget(self, where: str, error: Exception | None = None) -> None:
         """Raise :class:`SolverBudgetError` if the level has used more than its time budget."""
         if self.time_budget is None:
             return
-        spent = time.perf_counter() - self.level_start
+        spent = time.process_time() - self.level_start
         if spent > self.time_budget:
-            raise SolverBudgetError(f"{where}: backend {self.solver!r} spent {spent:.2f} s, more than the level's "
+            raise SolverBudgetError(f"{where}: backend {self.solver!r} spent {spent:.2f} s CPU, more than the level's "
                                     f"time budget of {self.time_budget:g} s; try another backend") from error
 
     def move(self, z: np.ndarray) -> None:
@@ -477,7 +478,7 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     empty stack. ``lambda_max``/``eps``: the damping law of the analytic solvers applied to
     every level's free part, equality (see :func:`_equality_level`; with it the cascade equals
     the damped recursive null-space solution) or inequality (:func:`_inequality_level`).
-    ``time_budget``: seconds one level may take, retries included; beyond it the cascade stops with
+    ``time_budget``: CPU seconds one level may take, retries included; beyond it the cascade stops with
     :class:`~hqp_tpm.errors.SolverBudgetError` naming the level (None: no budget).
     ``solver_options`` override :data:`DEFAULT_OPTIONS`.
     Returns ``x``, or ``(x, CascadeInfo)`` with ``return_info=True``.

@@ -283,9 +283,14 @@ def _result(x, box: _Box, info, return_info, checked: bool = False):
 # ----------------------------------------------------------------------------------------
 # SNS-TPM, papers/002 Algorithm 1: reference path.
 # ----------------------------------------------------------------------------------------
-def _kept_rows(J, sizes, tol) -> int:
+def _level_rank_lost(A, size: int) -> bool:
+    """``rank(A) < rows(A)`` with the tolerance of a level's pivot, relative to ``A`` itself (damping doc)."""
+    return A.shape[0] > 0 and _rank(A, matrix_tol(A, size)) < A.shape[0]
+
+
+def _kept_rows(J, sizes, size: int) -> int:
     """``m > n`` extension: the rows whose rank the test watches, the first level's if it has full row rank."""
-    return sizes[0] if sizes and _rank(J[: sizes[0]], tol) == sizes[0] else 0
+    return sizes[0] if sizes and not _level_rank_lost(J[: sizes[0]], size) else 0
 
 
 def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
@@ -303,7 +308,7 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
     tol = matrix_tol(J, max(m, n))                               # rank(JW) relative to the stack (damping doc)
     F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
     extended = m > n                                             # this library's extension (module doc)
-    m_fit = _kept_rows(J, sizes, tol) if extended else m
+    m_fit = _kept_rows(J, sizes, max(m, n)) if extended else m
     off = np.cumsum((0, *sizes))
 
     def core(W):                                                 # the matrix of the core step: x = xN + M (.)
@@ -336,7 +341,8 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
             W[j, j] = 0.0
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-        if j < 0 or not W.any() or _rank((J @ W)[:m_fit], tol) < m_fit:  # rank(JW) < m: the best solution
+        lost = _level_rank_lost((J @ W)[:m_fit], max(m, n)) if extended else _rank(J @ W, tol) < m
+        if j < 0 or not W.any() or lost:                         # rank(JW) < m: output the best solution
             if not found:                                        # no factor kept the box (0 is outside it)
                 return _around_box_point(sns_tpm_reference, lv, box, lambda_max, eps, iterations, return_info)
             s, W, xN, order = s_star, W_star, xN_star, order_star
