@@ -28,7 +28,7 @@ def _npy_header(dtype: np.dtype, shape: tuple) -> bytes:
     body = text.encode("latin1")
     pad = _HEADER_BYTES - 10 - len(body) - 1
     if pad < 0:
-        raise ValueError(f"npy header too long for shape {shape}")
+        raise ShapeError(f"npy header too long for shape {shape}")
     return b"\x93NUMPY\x01\x00" + struct.pack("<H", _HEADER_BYTES - 10) + body + b" " * pad + b"\n"
 
 
