@@ -115,3 +115,16 @@ def test_cli_sweep_and_campaign(tmp_path, capsys):
     res = json.loads(capsys.readouterr().out)
     assert res["draws"] == 30 and res["failed"] == {} and res["errors"] == []
     assert main(["campaign", "sns", "--replay", "7", "--seed", "0"]) == 0
+
+
+def test_existing_dask_scheduler_by_address(tmp_path, monkeypatch):
+    """--scheduler tcp://HOST:PORT: the sweep connects to a running cluster (here a LocalCluster's scheduler)."""
+    distributed = pytest.importorskip("distributed")
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=True, dashboard_address=None) as lc:
+        table = sweep.run_sweep("planar5_exact", tmp_path / "sw", grid={"policy.d_m": [0.15, 0.25]}, steps=20,
+                                progress=False, scheduler=lc.scheduler_address)
+    assert [r["status"] for r in table] == ["complete", "complete"]
+    monkeypatch.setattr(sweep, "CONNECT_TIMEOUT", 2)
+    with pytest.raises(SweepError, match="cannot connect"):
+        sweep.run_sweep("planar5_exact", tmp_path / "sw2", grid={"policy.d_m": [0.15]}, steps=5, progress=False,
+                        scheduler="tcp://127.0.0.1:1")

@@ -43,6 +43,8 @@ except ModuleNotFoundError:  # Python 3.10
 from hqp_tpm.errors import HqpTpmError, OutputError, SweepError
 
 SWEEP_FILE = "sweep.json"
+#: Seconds to wait for a Dask scheduler given by --scheduler.
+CONNECT_TIMEOUT = 30
 #: Metrics shown in summary.md and the figure when none are asked for (those the runs have).
 DEFAULT_METRICS = ("d_minimal_min", "d_ee_min", "ee_error_rms", "ee_error_max_settled", "pointing_violation_max_deg",
                    "d_obstacle_min", "scale_min", "sigma_m_min", "wall_time_s")
@@ -280,7 +282,7 @@ def executor(workers: int | None = None, scheduler: str | None = None, cluster: 
             client = Client(lc)
         else:
             try:
-                client = Client(scheduler, timeout=30)
+                client = Client(scheduler, timeout=CONNECT_TIMEOUT)
             except OSError as exc:
                 raise SweepError(f"--scheduler {scheduler!r}: cannot connect ({exc})") from None
         try:
