@@ -314,10 +314,14 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
     def core(W):                                                 # the matrix of the core step: x = xN + M (.)
         if not extended:
             return W @ pinv(J @ W, tol=tol) @ F                  # (JW)# F, whose saturated rows are 0
-        JW = J @ W
-        f = tpm_factors([(JW[a:e], np.zeros(e - a)) for a, e in zip(off, off[1:], strict=False)],
-                        lambda_max=lambda_max, eps=eps, n=n)
-        return W @ f.Jpinv @ f.F                                 # TPM of the stack J W
+        free = np.diag(W) > 0.5                                  # TPM of the stack J W on its free columns
+        M = np.zeros((n, m))                                     # (after a singular pivot the TPM of a padded
+        if free.any():                                           # stack depends on where its zero rows are)
+            Jf = J[:, free]
+            f = tpm_factors([(Jf[a:e], np.zeros(e - a)) for a, e in zip(off, off[1:], strict=False)],
+                            lambda_max=lambda_max, eps=eps, n=int(free.sum()))
+            M[free] = f.Jpinv @ f.F
+        return M
 
     W, xN, s, s_star = np.eye(n), np.zeros(n), 1.0, 0.0          # W = I, qdot_N = 0, s = 1, s* = 0
     W_star, xN_star, found = W.copy(), xN.copy(), False
