@@ -3,7 +3,7 @@
     python benchmarks/run_vs_commit.py OTHER_CHECKOUT [--scenario lwr_relaxed] [--rounds 2]
 
 ``OTHER_CHECKOUT`` is a directory with the package of an earlier commit (e.g. ``git worktree add
-/tmp/old 37dff08``); each run is a fresh process of this interpreter with that checkout (or this one)
+../old 37dff08``); each run is a fresh process of this interpreter with that checkout (or this one)
 first on ``sys.path``, one BLAS thread, the two alternating. Prints wall and CPU seconds per run and the
 ratio of the medians (other / this).
 """
