@@ -315,3 +315,17 @@ def test_crosscheck_replays_the_blend_of_a_blending_policy():
     log = ctrl.crosscheck_log
     assert len(log) == 1500 and all(log.like_for_like) and all(log.same_problem)
     assert log.max_diff() < 1e-6
+
+
+@FEW
+@given(stacks(full_rank=True, cond=(1.0, 1e10)))
+def test_ill_conditioned_stacks_agree_up_to_cond_1e10(case):
+    """Prescribed condition numbers up to 1e10 (nearly dependent levels): the default tolerance max(base,
+    1e3 eps cond) holds for TPM, the recursion and the QP without a box."""
+    assert_solvers_agree(**case.kwargs(), solvers=("tpm", "nullspace", "qp:daqp"))
+
+
+@FEW
+@given(boxed_stacks(stacks(full_rank=True, cond=(1.0, 1e10)), box="binds"))
+def test_ill_conditioned_boxed_stacks_keep_sns_tpm_equal_to_algorithm_1(case):
+    assert_solvers_agree(**case.kwargs(), solvers=("tpm", "sns_tpm", "sns_tpm_reference", "sns"))

@@ -84,13 +84,22 @@ class Guarantee:
 GUARANTEES: tuple[Guarantee, ...] = (
     Guarantee("tpm == nullspace (exact and damped)", 1e-9,
               "1-10 levels of 1-6 rows, n <= 40, full row rank; exactly dependent, nearly dependent (1e-3) "
-              "and conflicting levels; m > n", 1e3, (1e-2, 1e2), "tests/test_tpm.py"),
+              "and conflicting levels at n = 12; m > n", 1e3, (1e-2, 1e2), "tests/test_tpm.py"),
+    Guarantee("tpm == nullspace == the exact minimum-norm solution (50 digits), ill-conditioned",
+              COND_FACTOR * EPS * 1e10,
+              "nearly dependent levels (rows of a lower level within 1e-11..1e-3 of the span above), n = 3-12, "
+              "full row rank; agreement max(1e-6, 1e3 eps cond)", 1e10, (1e-11, 1e6), "tests/test_numerics.py"),
+    Guarantee("sns_tpm == sns_tpm_reference == Algorithm 1 in 50 digits, ill-conditioned", COND_FACTOR * EPS * 1e10,
+              "the same nearly dependent stacks with a box cutting the TPM solution (ties within 1e-9 left out); "
+              "agreement max(1e-6, 1e3 eps cond)", 1e10, (1e-11, 1e6), "tests/test_numerics.py"),
     Guarantee("cascaded QP == tpm (equality stacks, no box)", 1e-8,
               "1-6 levels of 1-4 rows, n <= 20, full row rank; dependent and conflicting levels "
-              "(proxqp, daqp, quadprog; osqp to 1e-5)", 1e3, (1e-2, 1e2), "tests/test_cascaded_qp.py"),
+              "(proxqp, daqp, quadprog; osqp to 1e-5); scaled stacks 1e-6..1e6", 1e3, (1e-6, 1e6),
+              "tests/test_cascaded_qp.py, tests/test_numerics.py"),
     Guarantee("qp backends agree with a binding box", BOXED_QP_RTOL,
-              "1-4 mixed equality/inequality levels of 1-3 rows, n = 3-14, box in [-1, -0.1] x [0.1, 1]",
-              1e3, (1.0, 1.0), "tests/test_cascaded_qp.py"),
+              "1-4 mixed equality/inequality levels of 1-3 rows, n = 3-14, box in [-1, -0.1] x [0.1, 1] "
+              "(not on ill-conditioned stacks: there backends fail or differ)", 1e3, (1.0, 1.0),
+              "tests/test_cascaded_qp.py"),
     Guarantee("sns_tpm == tpm when the box contains the tpm solution", 1e-12,
               "random_problem kinds full_rank / any / damped: 1-4 levels of 1-4 rows, n = 2-15, inequality "
               "levels, conflicts", 1e3, (1e-2, 1e2), "tests/test_sns.py"),
