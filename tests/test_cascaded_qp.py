@@ -7,12 +7,13 @@ import pytest
 import qpsolvers
 from conftest import random_stack, rel_diff
 from hypothesis import given, settings
-from hypothesis import strategies as st
 from scipy.optimize import lsq_linear
 
 from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError, SolverNotAvailableError
 from hqp_tpm.solvers import Level, tpm
 from hqp_tpm.solvers.cascaded_qp import CascadeInfo, cascaded_qp
+from hqp_tpm.testing.strategies import dependent_singular_stack as dependent_stack
+from hqp_tpm.testing.strategies import full_rank_stacks
 
 #: Agreement with TPM on feasible equality stacks: interior-point / active-set backends to 1e-8,
 #: OSQP (first order) at its own tolerance.
@@ -21,24 +22,9 @@ BACKENDS = [s for s in TOL if s in qpsolvers.available_solvers]
 EXACT = [s for s in ("proxqp", "daqp", "quadprog") if s in BACKENDS]
 
 
-@st.composite
-def feasible_stacks(draw):
+def feasible_stacks():
     """l = 1..6 levels of m_i = 1..4 rows, n up to 20, sum m_i <= n (full row rank), and an rng."""
-    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
-    sizes = [draw(st.integers(1, 4)) for _ in range(draw(st.integers(1, 6)))]
-    while sum(sizes) > 20:
-        sizes.pop()
-    n = draw(st.integers(sum(sizes), 20))
-    return random_stack(rng, n, sizes, scale=draw(st.sampled_from([1e-2, 1.0, 100.0]))), rng
-
-
-def dependent_stack(rng, n=12):
-    """A lower task dependent on a higher one, the same task with another target, a singular task."""
-    J1, J2 = rng.standard_normal((3, n)), rng.standard_normal((2, n))
-    Jdep = np.vstack([J1[0] + J2[1], rng.standard_normal(n)])
-    Js = rng.standard_normal((2, n))
-    Js[1] = 2.0 * Js[0]
-    return [(J, 10 * rng.standard_normal(J.shape[0])) for J in (J1, J2, Js, Jdep, J2.copy())]
+    return full_rank_stacks(max_n=20, max_levels=6, max_rows=4)
 
 
 def first_residual(levels, x):

@@ -15,13 +15,13 @@ import mpmath
 import numpy as np
 import pytest
 from conftest import rel_diff
-from illcond import box_for, nearly_dependent_stack
 from mp_algorithm1 import rank_tol as mp_rank_tol
 from mp_algorithm1 import sns_tpm_mp
 from threadpoolctl import threadpool_limits
 
 from hqp_tpm.solvers import Level, cascaded_qp, nullspace, tpm, tpm_reference
 from hqp_tpm.solvers.sns import sns, sns_tpm, sns_tpm_reference
+from hqp_tpm.testing.stacks import box_for, nearly_dependent_stack
 
 MP_DRAWS = int(os.environ.get("HQP_TPM_MP_DRAWS", "100"))
 EPS = np.finfo(float).eps

@@ -18,6 +18,7 @@ from hqp_tpm.errors import BoxError, ShapeError, SolverFailedError
 from hqp_tpm.robot.joint_boxes import acceleration_box, velocity_box
 from hqp_tpm.solvers import Level, cascaded_qp, nullspace, tpm
 from hqp_tpm.solvers.sns import sns, sns_tpm, sns_tpm_reference, task_scaling_factor
+from hqp_tpm.testing.strategies import box_without_zero, problems, random_problem
 
 sns_module = importlib.import_module("hqp_tpm.solvers.sns")  # the package re-exports the function sns
 DRAWS = int(os.environ.get("HQP_TPM_SNS_DRAWS", "2000"))
@@ -25,7 +26,6 @@ SETTINGS = settings(max_examples=DRAWS, deadline=None, suppress_health_check=[He
                     derandomize=True)
 FEW = settings(max_examples=max(10, DRAWS // 100), deadline=None, suppress_health_check=[HealthCheck.too_slow],
                derandomize=True)
-DAMPING = {"lambda_max": 0.05, "eps": 0.1}
 BOX_TOL = 1e-9
 
 
@@ -34,53 +34,11 @@ def in_box(x, lo, up, tol=BOX_TOL):
     return bool(((x >= lo - tol * scale) & (x <= up + tol * scale)).all())
 
 
-def random_problem(rng, kind):
-    """A random stack and a box containing 0 (a velocity box of a state inside its limits).
-
-    kinds: ``full_rank`` (sum m_i <= n), ``any`` (may have m > n, repeated/conflicting tasks,
-    inequality levels), ``damped`` (any, with the damped TPM pivots).
-    """
-    n = int(rng.integers(2, 16))
-    l = int(rng.integers(1, 5))
-    sizes = [int(rng.integers(1, 5)) for _ in range(l)]
-    if kind == "full_rank":
-        while sum(sizes) > n:
-            sizes.pop()
-        sizes = sizes or [min(n, 2)]
-    scale = float(rng.choice([1e-2, 1.0, 100.0]))
-    levels = random_stack(rng, n, sizes, scale=scale)
-    for _ in range(20):  # full rank and not nearly singular: cond(J) <= 1e3 (round-off stays ~1e-13 relative)
-        if kind != "full_rank" or np.linalg.cond(np.vstack([J for J, _ in levels])) <= 1e3:
-            break
-        levels = random_stack(rng, n, sizes, scale=scale)
-    if kind != "full_rank":
-        if rng.random() < 0.3:  # the same task again, another target: a conflict
-            J, b = levels[0]
-            levels.append((J.copy(), b + rng.standard_normal(b.size)))
-        if rng.random() < 0.3:  # an inequality level, some rows active
-            m = int(rng.integers(1, 4))
-            lo = rng.standard_normal(m)
-            levels.insert(int(rng.integers(0, len(levels) + 1)),
-                          Level(rng.standard_normal((m, n)), lower=lo, upper=lo + np.abs(rng.standard_normal(m))))
-    damping = DAMPING if kind == "damped" else {}
-    c = np.abs(tpm(levels, **damping)).max() + 1e-300
-    lo = -rng.uniform(0.0, 1.2, n) * c
-    up = rng.uniform(0.0, 1.2, n) * c
-    lo[rng.random(n) < 0.05] = -np.inf
-    up[rng.random(n) < 0.05] = np.inf
-    locked = rng.random(n) < 0.03
-    lo[locked] = up[locked] = 0.0
-    return levels, lo, up, damping
-
-
 @pytest.fixture(autouse=True, scope="module")
 def _one_blas_thread():
     """Small matrices: BLAS threads only stall (by 10-40 ms on a busy 2-core machine), so use one."""
     with threadpool_limits(1):
         yield
-
-
-problems = st.tuples(st.integers(0, 2**32 - 1), st.sampled_from(["full_rank", "any", "damped"]))
 
 
 # ----------------------------------------------------------------------------------------
@@ -360,14 +318,6 @@ def test_acceleration_level_rollout_stays_inside(seed):
         assert in_box(xs, lo, up)
         q, dq = q + dq * dt + 0.5 * qdd * dt * dt, dq + qdd * dt
         assert (np.abs(q) <= LWR_QMAX + 1e-9).all() and (np.abs(dq) <= LWR_VMAX + 1e-9).all()
-
-
-def box_without_zero(rng, lo, up):
-    """Shift the box of 30 % of the joints so that some no longer contain 0 (braking, recovery)."""
-    n = lo.size
-    width = np.nan_to_num(up - lo, posinf=1.0)
-    shift = np.where(rng.random(n) < 0.3, rng.uniform(-0.5, 0.5, n) * width, 0.0)
-    return lo + shift, up + shift
 
 
 @SETTINGS

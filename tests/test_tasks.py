@@ -9,6 +9,7 @@ from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import CenterOfMass, FrameOrientation, FramePosition, Gains, Pointing, Posture
+from hqp_tpm.testing import assert_task_derivatives
 
 H = 1e-6
 
@@ -31,24 +32,6 @@ def random_state(robot, rng):
     return q, rng.standard_normal(robot.nv)
 
 
-def numeric_jacobian(robot, task, q, v):
-    st = State(robot)
-    cols = []
-    for k in range(robot.nv):
-        dq = np.zeros(robot.nv)
-        dq[k] = H
-        plus = task_value(task, st.update(pin.integrate(robot.model, q, dq), v))
-        minus = task_value(task, st.update(pin.integrate(robot.model, q, -dq), v))
-        cols.append((plus - minus) / (2 * H))
-    return np.column_stack(cols)
-
-
-def task_value(task, st):
-    if isinstance(task, FrameOrientation):
-        return pin.log3(st.rotation(task.fid)).copy()
-    return task.value(st).copy()
-
-
 def tasks_for(robot):
     if robot.name == "panda":
         return [FramePosition(robot, "panda_hand", [0.3, 0, 0.5]), FramePosition(robot, "panda_link4", axes="xz"),
@@ -61,17 +44,9 @@ def tasks_for(robot):
 def test_jacobians_and_jdot_qdot_match_finite_differences(robot_name, panda, romeo):
     robot = panda if robot_name == "panda" else romeo
     rng = np.random.default_rng(0)
-    for _ in range(5):
-        q, v = random_state(robot, rng)
-        st = State(robot).update(q, v)
-        for task in tasks_for(robot):
-            J = task.jacobian(st).copy()
-            np.testing.assert_allclose(J, numeric_jacobian(robot, task, q, v), atol=2e-6, err_msg=task.name)
-            # Jdot qd = d/dt (J(q(t))) qd along q(t) = q + t v
-            s1 = State(robot).update(pin.integrate(robot.model, q, H * v), v)
-            s0 = State(robot).update(pin.integrate(robot.model, q, -H * v), v)
-            jdqd_fd = (task.jacobian(s1) - task.jacobian(s0)) @ v / (2 * H)
-            np.testing.assert_allclose(task.jdot_qdot(st), jdqd_fd, atol=2e-5, err_msg=task.name)
+    states = [random_state(robot, rng) for _ in range(5)]
+    for task in tasks_for(robot):  # J vs central differences, Jdot qd vs a difference of J along qd (pin.integrate)
+        assert_task_derivatives(task, robot, states, h=H, atol=2e-6, rtol=0.0, jdot_atol=2e-5)
 
 
 def test_orientation_jacobian_and_error(panda):

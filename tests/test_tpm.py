@@ -8,41 +8,11 @@ from hypothesis import strategies as st
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.solvers import Level, nullspace, tpm, tpm_factors, tpm_reference
+from hqp_tpm.testing.strategies import dependent_stack, full_rank_stacks
 
 DAMPING = {"lambda_max": 0.05, "eps": 0.1}
 
 
-@st.composite
-def full_rank_stacks(draw):
-    """l = 1..10 levels of m_i = 1..6 rows, n up to 40, sum m_i <= n (full row rank)."""
-    seed = draw(st.integers(0, 2**32 - 1))
-    rng = np.random.default_rng(seed)
-    l = draw(st.integers(1, 10))
-    sizes = [draw(st.integers(1, 6)) for _ in range(l)]
-    n = draw(st.integers(max(sum(sizes), 1), 40).filter(lambda k: k >= sum(sizes))) if sum(sizes) <= 40 else None
-    if n is None:  # keep the stack full rank: drop levels until it fits in 40 columns
-        while sum(sizes) > 40:
-            sizes.pop()
-        n = 40
-    return random_stack(rng, n, sizes, scale=draw(st.sampled_from([1e-2, 1.0, 100.0]))), rng
-
-
-def dependent_stack(rng, n=12, singular_within=False):
-    """Stacks whose tasks are linearly dependent on higher ones, nearly so, or in conflict."""
-    J1 = rng.standard_normal((3, n))
-    J2 = rng.standard_normal((2, n))
-    Jdep = np.vstack([J1[0] + J2[1], rng.standard_normal(n)])  # exactly dependent row
-    Jnear = np.vstack([J1[1] + 1e-3 * rng.standard_normal(n), rng.standard_normal(n)])  # nearly dependent
-    Jsame = J2.copy()  # the same task again with another target: a pure conflict
-    # a damped pivot is put before the exactly singular ones: after an exactly singular pivot the
-    # recursion's projected Jacobian has other singular values than the TPM pivot, so a damping law
-    # on sigma_min acts differently (README, 'Where TPM and recursion differ')
-    levels = [J1, J2, Jnear, Jdep, Jsame]
-    if singular_within:
-        Js = rng.standard_normal((2, n))
-        Js[1] = 2.0 * Js[0]
-        levels.insert(2, Js)
-    return [(J, 10 * rng.standard_normal(J.shape[0])) for J in levels]
 
 
 @settings(max_examples=300, deadline=None)
