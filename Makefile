@@ -30,6 +30,7 @@ lint: $(VENV)/.dev
 	$(VENV)/bin/ruff format --check . || true
 
 bench: $(VENV)/.dev
+	$(PY) -m pip install -q "pyinstrument>=4.6"  # the profiling part of the benchmark only
 	$(PY) benchmarks/run_all.py
 
 # The lowest pinocchio pyproject.toml claims, in its own venv: pin 3.4.0 (its wheels need these cmeel pins)
