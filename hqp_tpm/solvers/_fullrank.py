@@ -29,6 +29,8 @@ import math
 import numpy as np
 from scipy.linalg import lapack
 
+from hqp_tpm.solvers._kernels import triu
+
 try:  # relative rank tolerances (damping.rank_tol), when present; else the absolute RANK_TOL
     from hqp_tpm.solvers.damping import rank_tol as _rank_tol
 except ImportError:  # pragma: no cover - depends on the solvers' version
@@ -43,18 +45,6 @@ MARGIN = 16.0
 #: for the upper levels' pivots, ``A`` and the stack. Nearer to a rank loss two exact formulas differ by
 #: ``cond * eps`` in rounding; the general path (the reference's own steps) decides there.
 COND = 1e-5
-
-
-_UPPER: dict[int, np.ndarray] = {}
-
-
-def _triu(A: np.ndarray) -> np.ndarray:
-    """Upper triangle of a square block (a cached mask: several times cheaper than ``np.triu``)."""
-    k = A.shape[0]
-    mask = _UPPER.get(k)
-    if mask is None:
-        mask = _UPPER[k] = np.triu(np.ones((k, k), dtype=bool))
-    return A * mask
 
 
 def _fro(A: np.ndarray) -> float:
@@ -79,7 +69,7 @@ def solve_past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: flo
         qr, tau, _, info = lapack.dgeqrf(J[:m1].T)
         if info:
             return None
-        R1 = _triu(qr[:m1, :m1])
+        R1 = triu(qr[:m1, :m1])
         R1inv, info = lapack.dtrtri(R1, lower=0)
         if info:
             return None
