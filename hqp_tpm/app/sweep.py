@@ -484,49 +484,6 @@ def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str])
 CAMPAIGNS = ("sns",)
 
 
-def _sns_problem(rng, kind):
-    """A random stack and a box containing 0 (the generator of tests/test_sns.py's property tests)."""
-    import numpy as np
-
-    from hqp_tpm.solvers import tpm
-    from hqp_tpm.solvers.levels import Level
-
-    n = int(rng.integers(2, 16))
-    sizes = [int(rng.integers(1, 5)) for _ in range(int(rng.integers(1, 5)))]
-    if kind == "full_rank":
-        while sum(sizes) > n:
-            sizes.pop()
-        sizes = sizes or [min(n, 2)]
-    scale = float(rng.choice([1e-2, 1.0, 100.0]))
-
-    def stack():
-        return [(rng.standard_normal((m, n)), scale * rng.standard_normal(m)) for m in sizes]
-
-    levels = stack()
-    for _ in range(20):
-        if kind != "full_rank" or np.linalg.cond(np.vstack([J for J, _ in levels])) <= 1e3:
-            break
-        levels = stack()
-    if kind != "full_rank":
-        if rng.random() < 0.3:
-            J, b = levels[0]
-            levels.append((J.copy(), b + rng.standard_normal(b.size)))
-        if rng.random() < 0.3:
-            m = int(rng.integers(1, 4))
-            lo = rng.standard_normal(m)
-            levels.insert(int(rng.integers(0, len(levels) + 1)),
-                          Level(rng.standard_normal((m, n)), lower=lo, upper=lo + np.abs(rng.standard_normal(m))))
-    damping = {"lambda_max": 0.05, "eps": 0.1} if kind == "damped" else {}
-    c = np.abs(tpm(levels, **damping)).max() + 1e-300
-    lo = -rng.uniform(0.0, 1.2, n) * c
-    up = rng.uniform(0.0, 1.2, n) * c
-    lo[rng.random(n) < 0.05] = -np.inf
-    up[rng.random(n) < 0.05] = np.inf
-    locked = rng.random(n) < 0.03
-    lo[locked] = up[locked] = 0.0
-    return levels, lo, up, damping
-
-
 def sns_draw(seed: int, index: int) -> list[str]:
     """The SNS properties on draw ``index`` of campaign ``seed``; returns the names of those that fail."""
     import numpy as np
@@ -534,11 +491,12 @@ def sns_draw(seed: int, index: int) -> list[str]:
     from hqp_tpm.errors import SolverFailedError
     from hqp_tpm.solvers.cascaded_qp import cascaded_qp
     from hqp_tpm.solvers.levels import Level
+    from hqp_tpm.solvers.random_stacks import random_problem  # the SNS draws of the library's tests
     from hqp_tpm.solvers.sns import sns, sns_tpm, sns_tpm_reference
 
     kind = ("full_rank", "any", "damped")[index % 3]
     rng = np.random.default_rng([seed, index])
-    levels, lo, up, damping = _sns_problem(rng, kind)
+    levels, lo, up, damping = random_problem(rng, kind)
 
     def in_box(x, tol=1e-9):
         s = 1.0 + np.maximum(np.abs(np.nan_to_num(lo, neginf=0.0)), np.abs(np.nan_to_num(up, posinf=0.0)))
