@@ -11,6 +11,9 @@ from __future__ import annotations
 class HqpTpmError(Exception):
     """Root of every error raised by hqp-tpm on bad input or impossible requests."""
 
+    #: where a run that failed with this error left the steps before it (set by ``hqp-tpm run``; None: nowhere)
+    partial_result: object | None = None
+
 
 class ShapeError(HqpTpmError, ValueError):
     """An array has the wrong shape (e.g. J rows vs b, J columns vs n)."""

@@ -1,8 +1,10 @@
 """The policy contract: what the controller, the runner and the app may ask of a policy.
 
 A policy decides the stack of every control step. :class:`Policy` is the written contract, an
-abstract base class so that every optional member has a default and nobody needs to probe a policy
-with ``getattr``/``hasattr``:
+abstract base class so that every optional member has a default: the controller, the runner and the
+app call these members on any policy and never probe for attributes (``tests/test_no_probing.py``).
+A third-party policy that defines only the two required members runs everywhere (figures, replay,
+live viewer, explain) with the defaults below.
 
 Required (abstract):
     ``__call__(state, t) -> Stack``   the stack of this step (papers/000 Algorithm 1, papers/003 Fig. 3...)
@@ -15,7 +17,8 @@ Optional (defaults do nothing):
     ``probe(ctrl, res) -> dict``      per-step values to record; their keys are listed in ``channels``
     ``summary(arrays) -> dict``       run summary numbers from the recorded arrays
     ``thresholds``                    recorded channel -> {threshold name: value} (for the figures)
-    ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...)
+    ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...);
+                                      default: nothing (the app adds the scenario's obstacles)
     ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
                                       step changes nothing (:meth:`Controller.step` is transactional)
 
@@ -42,6 +45,7 @@ if TYPE_CHECKING:
     from hqp_tpm.geometry.distances import DistanceField
     from hqp_tpm.geometry.obstacles import Obstacle
     from hqp_tpm.references.operator import Operator
+    from hqp_tpm.tasks.pointing import Pointing
 
 #: ``resolve(stack) -> x``: another stack solved with the controller's solver, at the same state and settings.
 Resolve = Callable[["Stack"], np.ndarray]
@@ -49,16 +53,20 @@ Resolve = Callable[["Stack"], np.ndarray]
 
 @dataclass
 class SceneItems:
-    """What a viewer may draw for a policy (every item optional)."""
+    """What a viewer may draw for a policy (every item optional; the viewer takes exactly this type)."""
 
     obstacles: list[Obstacle] = field(default_factory=list)
     control_points: list[str] = field(default_factory=list)  # frame names of Algorithm 1's control points
+    #: the EE frame's name (None: the frame of ``ee_task``, :attr:`Task.frame`)
     ee_frame: str | None = None
+    #: the EE task: its trajectory is drawn as the desired path (when it is a 3-D position)
     ee_task: Task | None = None
-    pointing: Task | None = None
+    #: the pointing task: its cone is drawn at its frame
+    pointing: Pointing | None = None
+    #: the distance field: the segment from the critical control point to its nearest obstacle
     field: DistanceField | None = None
-    #: ``markers(t) -> [(name, position, rgba), ...]`` (or ``markers(t, q)``): extra points to draw
-    markers: Callable[..., list] | None = None
+    #: ``markers(t, q) -> [(name, position, rgba), ...]``: extra points to draw at time ``t``, configuration ``q``
+    markers: Callable[[float, np.ndarray], list] | None = None
     #: the simulated co-manipulation operator (its markers, the flange its force acts on)
     operator: Operator | None = None
 

@@ -38,6 +38,8 @@ class Task(ABC):
 
     name: str = "task"
     dim: int = 0
+    #: the robot frame the task acts on (frame tasks set it; None: not a frame task)
+    frame: str | None = None
 
     def __init__(self, name: str, target, gains: Gains | None = None):
         self.name = name
