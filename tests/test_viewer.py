@@ -59,15 +59,15 @@ def coloured_mask(img: np.ndarray) -> np.ndarray:
 # ------------------------------------------------------------------------------------------ fixtures
 @pytest.fixture(scope="module")
 def lwr_run(tmp_path_factory):
-    """A real 3 s run of lwr_relaxed with its replay; returns (out dir, robot, arrays, policy)."""
+    """A real 3 s run of lwr_relaxed with its replay; returns (out dir, robot, arrays, run context)."""
     from hqp_tpm.app import build, scenario
     from hqp_tpm.app.cli import run_scenario
 
     out = tmp_path_factory.mktemp("lwr_relaxed")
     run_scenario("lwr_relaxed", out, steps=STEPS, progress=False, figures=False, replay=True)
-    robot, _ctrl, _tasks, policy = build.build(scenario.load("lwr_relaxed"))
+    ctx = build.build_run(scenario.load("lwr_relaxed"))
     arrays = dict(np.load(out / "trajectory.npz"))
-    return out, robot, arrays, policy
+    return out, ctx.robot, arrays, ctx
 
 
 # ------------------------------------------------------------------------------------------ replay file
@@ -109,11 +109,11 @@ def test_replay_is_self_contained_and_animates_the_robot(lwr_run):
 def test_replay_subsamples_and_is_quick(lwr_run, tmp_path):
     from hqp_tpm.app.viewer import write_replay
 
-    _, robot, arrays, policy = lwr_run
+    _, robot, arrays, ctx = lwr_run
     long = {k: (np.concatenate([v] * 6) if k in ("q", "active_point") else v) for k, v in arrays.items()}
     long["t"] = np.arange(len(long["q"])) * 1e-3  # 18,000 steps, as long as the paper's 6 pi s run
     t0 = time.perf_counter()
-    page = write_replay(tmp_path / "long.html", robot, long, policy, max_frames=200)
+    page = write_replay(tmp_path / "long.html", robot, long, ctx.scene, max_frames=200)
     elapsed = time.perf_counter() - t0
     assert elapsed < 10.0
     anim = animation(commands(page.read_text(encoding="utf-8")))
@@ -132,15 +132,15 @@ def test_replay_draws_any_obstacle_and_policy_markers(tmp_path):
                  Obstacle.capsule("capsule", [-0.3, 0.2, 0.0], [-0.3, 0.2, 0.3], 0.03),
                  Obstacle.mesh("convex", cube)]
 
-    def markers(t):
+    def markers(t, q):
         return [("com", [0.0, 0.0, 0.1 + t], (0.6, 0.0, 0.8, 1.0))] + ([("late", [0.1, 0.1, 0.1], (1, 1, 0, 1))]
                                                                        if t > 0.5 else [])
 
-    policy = SceneItems(obstacles=obstacles, markers=markers)
+    items = SceneItems(obstacles=obstacles, markers=markers)
     n = 50
     q = np.tile(robot.neutral(), (n, 1))
     q[:, 1] = np.linspace(0.0, 1.0, n)
-    page = write_replay(tmp_path / "r.html", robot, {"t": np.linspace(0.0, 1.0, n), "q": q}, policy)
+    page = write_replay(tmp_path / "r.html", robot, {"t": np.linspace(0.0, 1.0, n), "q": q}, items)
     cmds = commands(page.read_text(encoding="utf-8"))
     objects = object_paths(cmds)
     for o in obstacles:
@@ -187,8 +187,8 @@ def test_browser_live_viewer_shows_the_robot(lwr_run, tmp_path):
     from hqp_tpm.app.viewer import LiveViewer
 
     chromium()  # skip (with the reason) before starting a server when there is no browser
-    _, robot, arrays, policy = lwr_run
-    with LiveViewer(robot, policy) as live:
+    _, robot, arrays, ctx = lwr_run
+    with LiveViewer(robot, ctx.scene, policy=ctx.policy) as live:
         assert live.url.startswith("http://127.0.0.1:")
         live.show(arrays["q"][1000], float(arrays["t"][1000]), int(arrays["active_point"][1000]))
         img = rgb(screenshot(live.url, tmp_path / "live.png"))

@@ -14,7 +14,11 @@ with warnings.catch_warnings():  # meshcat's server module imports the deprecate
     import meshcat
 
 from hqp_tpm.app.viewer_scene import COLORS, DEFAULT_VIEW, LINE_RADIUS, Scene
+from hqp_tpm.control.controller import Controller, StepResult
+from hqp_tpm.control.policy import Policy, SceneItems
 from hqp_tpm.errors import ParameterError
+from hqp_tpm.references.operator import Operator
+from hqp_tpm.robot.model import Robot
 
 
 class RateLimiter:
@@ -56,12 +60,16 @@ class RateLimiter:
 class LiveViewer:
     """A meshcat server showing the run as it goes; ``probe`` is a runner probe (returns ``{}``).
 
+    ``items``: what to draw besides the robot (a run's ``RunContext.scene``; None: the robot alone).
+    ``policy``: the run's policy; its :meth:`~hqp_tpm.control.policy.Policy.probe` gives the critical
+    control point (``active_point``) drawn in blue (None: no critical point).
     ``realtime``: pace the run to simulated time (True, or a speed factor) with a :class:`RateLimiter`;
     :meth:`report` says how often the run could not keep up. The URL is printed once (meshcat's own
     message is silenced); :meth:`serve` keeps the server up until Ctrl-C.
     """
 
-    def __init__(self, robot, context=None, every: int = 10, *, view=DEFAULT_VIEW, trace_every: int = 10,
+    def __init__(self, robot: Robot, items: SceneItems | None = None, every: int = 10, *,
+                 policy: Policy | None = None, view=DEFAULT_VIEW, trace_every: int = 10,
                  zmq_url: str | None = None, realtime: bool | float = False, quiet: bool = False):
         with contextlib.redirect_stdout(io.StringIO()):  # meshcat prints its URL itself: once is enough
             self.vis = meshcat.Visualizer(zmq_url=zmq_url)
@@ -72,7 +80,8 @@ class LiveViewer:
         self.rate = RateLimiter(speed) if speed > 0 else None
         self.every = max(1, int(every))
         self.trace_every = max(1, int(trace_every))
-        self.scene = Scene(self.vis, robot, context)
+        self.scene = Scene(self.vis, robot, items)
+        self.policy = policy
         self.view = view
         self._count = 0
         self._updates = 0
@@ -89,10 +98,9 @@ class LiveViewer:
         if not self._framed:
             pts = self.scene.key_points()
             pts += [o.placement_at(t).translation for o in self.scene.obstacles]
-            traj = getattr(self.scene.ee_task, "trajectory", None)
-            omega = getattr(traj, "omega", None)
-            if omega:  # a periodic target: its whole path is known
-                ts = t + np.linspace(0.0, 2.0 * np.pi / abs(float(omega)), 400)
+            period = self.scene.periodic_target()
+            if period is not None:  # a periodic target: its whole path is known
+                ts = t + np.linspace(0.0, period, 400)
                 path = [x for x in (self.scene.desired_position(s) for s in ts) if x is not None]
                 if len(path) > 1:
                     self.scene.draw_path("desired_path", path, COLORS["desired_path"], radius=0.7 * LINE_RADIUS)
@@ -108,26 +116,17 @@ class LiveViewer:
                 self._chunk += 1
                 self._trace = self._trace[-1:]
 
-    def probe(self, ctrl, res) -> dict:
-        """Runner probe: every ``every`` steps, show the state the step was computed from."""
+    def probe(self, ctrl: Controller, res: StepResult) -> dict:
+        """Runner probe: every ``every`` steps, show the state the step was computed from (``ctrl.state``;
+        the distance field already holds it)."""
         self._count += 1
         if (self._count - 1) % self.every:
             return {}
-        st = getattr(ctrl, "state", None)
-        q = getattr(st, "q", None) if st is not None else None
-        t = getattr(st, "t", None) if st is not None else None
-        active = None
-        pol = self.scene.policy
-        if callable(getattr(pol, "probe", None)):
-            try:
-                active = pol.probe(ctrl, res).get("active_point")
-            except Exception:  # noqa: BLE001 - the policy's record is only a nicety here
-                active = None
-        t_show = float(ctrl.t if t is None else t)
+        st = ctrl.state
+        active = None if self.policy is None else self.policy.probe(ctrl, res).get("active_point")
         if self.rate is not None:
-            self.rate.wait(t_show)
-        self.show(ctrl.q if q is None else q, t_show, active, update_field=q is None,
-                  record=_record(self.scene.operator))
+            self.rate.wait(st.t)
+        self.show(st.q, st.t, active, update_field=False, record=_record(self.scene.operator))
         return {}
 
     def report(self) -> str | None:
@@ -156,7 +155,7 @@ class LiveViewer:
 
     def close(self) -> None:
         """Stop the meshcat server this viewer started."""
-        proc = getattr(self.vis.window, "server_proc", None)
+        proc = self.vis.window.server_proc  # None when the viewer joined a server it did not start
         if proc is not None and proc.poll() is None:
             proc.terminate()
             try:
@@ -171,8 +170,8 @@ class LiveViewer:
         self.close()
 
 
-def _record(op) -> dict:
+def _record(op: Operator | None) -> dict:
     """The operator's force and marker of this step (co-manipulation runs), for the scene."""
     if op is None:
         return {}
-    return {"operator_force": getattr(op, "force", None), "marker": float(getattr(op, "marker", -1))}
+    return {"operator_force": op.force, "marker": float(op.marker)}

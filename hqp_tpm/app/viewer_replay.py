@@ -31,7 +31,9 @@ from hqp_tpm.app.viewer_scene import (
     _decompose,
     _track_changes,
 )
+from hqp_tpm.control.policy import SceneItems
 from hqp_tpm.errors import ParameterError, StateError
+from hqp_tpm.robot.model import Robot
 
 # ------------------------------------------------------------------------------------------ offline window
 _HTML = """<!DOCTYPE html>
@@ -180,8 +182,8 @@ def _frame_indices(t: np.ndarray, fps: float, max_frames: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, count)).astype(int))
 
 
-def replay_html(robot, arrays: dict, context=None, *, fps: float = 30.0, max_frames: int = 600, title: str = "",
-                view=DEFAULT_VIEW) -> str:
+def replay_html(robot: Robot, arrays: dict, items: SceneItems | None = None, *, fps: float = 30.0,
+                max_frames: int = 600, title: str = "", view=DEFAULT_VIEW) -> str:
     """The replay page of a run (see :func:`write_replay`) as a string."""
     t_all = np.asarray(arrays["t"], dtype=float)
     q_all = np.asarray(arrays["q"], dtype=float)
@@ -195,7 +197,7 @@ def replay_html(robot, arrays: dict, context=None, *, fps: float = 30.0, max_fra
 
     window = _OfflineWindow()
     vis = meshcat.Visualizer(window=window)
-    scene = Scene(vis, robot, context)
+    scene = Scene(vis, robot, items)
 
     states, ee, view_pts = [], [], []
     for i, (ti, qi) in enumerate(zip(t, q_all[idx], strict=True)):
@@ -252,7 +254,7 @@ def replay_html(robot, arrays: dict, context=None, *, fps: float = 30.0, max_fra
             tracks={"visible": AnimationTrack("visible", "boolean", list(keys), flags)}, fps=fps)
     if len(t) > 1 and anim.clips:
         vis.set_animation(anim, play=False)
-    window.title = title or f"hqp-tpm replay: {getattr(robot, 'name', '')}"
+    window.title = title or f"hqp-tpm replay: {robot.name}"
     window.duration = float(t[-1] - t[0])
     window.t0 = float(t[0])
     window.stacks = stack_timeline(arrays, float(t_all[0]))
@@ -281,20 +283,20 @@ def stack_timeline(arrays: dict, t0: float) -> list[tuple[float, str]]:
     return out
 
 
-def write_replay(path, robot, arrays: dict, context=None, fps: float = 30.0, max_frames: int = 600, *,
-                 title: str = "", view=DEFAULT_VIEW) -> Path:
+def write_replay(path, robot: Robot, arrays: dict, items: SceneItems | None = None, fps: float = 30.0,
+                 max_frames: int = 600, *, title: str = "", view=DEFAULT_VIEW) -> Path:
     """Write the run as a self-contained HTML replay (meshcat animation, at most ``max_frames`` frames).
 
     The animation plays in real time (``fps`` key frames per simulated second while that fits in
     ``max_frames``). Open ``<path>#t=2.5`` to show t = 2.5 s (paused); ``#ui=0`` hides the play bar
     and meshcat's controls.
-    ``context``: the run's context (:class:`~hqp_tpm.app.context.RunContext`), or its policy, or None
-    (:func:`~hqp_tpm.app.viewer_scene.view_items`). Uses (and overwrites the state of) the distance field to
-    redraw the nearest-distance segment.
+    ``items``: what to draw besides the robot (the run's ``RunContext.scene``, a policy's ``scene()``, or
+    None: the robot alone). Uses (and overwrites the state of) the distance field of ``items`` to redraw the
+    nearest-distance segment.
     """
     path = Path(path)
-    title = title or f"hqp-tpm replay: {path.resolve().parent.name} ({getattr(robot, 'name', '')})"
-    text = replay_html(robot, arrays, context, fps=fps, max_frames=max_frames, title=title, view=view)
+    title = title or f"hqp-tpm replay: {path.resolve().parent.name} ({robot.name})"
+    text = replay_html(robot, arrays, items, fps=fps, max_frames=max_frames, title=title, view=view)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:

@@ -12,16 +12,18 @@ operator's force (a blue arrow at the flange). Whatever the run lacks is left ou
 from __future__ import annotations
 
 import hashlib
-import inspect
 import os
 import warnings
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import coal
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.control.policy import SceneItems
+from hqp_tpm.errors import HqpTpmError
+from hqp_tpm.references.trajectories import Harmonic
+from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.spatial import rotation_z_to
 
 with warnings.catch_warnings():  # meshcat's server module imports the deprecated zmq.eventloop.ioloop
@@ -273,67 +275,6 @@ def _clean(name: str) -> str:
     return str(name).replace("/", "_") or "_"
 
 
-# ------------------------------------------------------------------------------------------ what to draw
-@dataclass
-class ViewItems:
-    """What the scene draws besides the robot (every item optional)."""
-
-    obstacles: list = field(default_factory=list)
-    control_points: list = field(default_factory=list)  # frame names (Algorithm 1's control points)
-    ee_frame: str | None = None
-    ee_task: object | None = None
-    pointing: object | None = None
-    field: object | None = None  # the distance field (for the critical point's distance segment)
-    markers: object | None = None  # ``markers(t) -> [(name, position, rgba), ...]`` (or ``markers(t, q)``)
-    targets: np.ndarray | None = None  # the operator's markers (K x 3); the run records the current one, ``marker``
-    force_frame: int | None = None  # frame id where the recorded ``operator_force`` is drawn
-    operator: object | None = None  # the co-manipulation operator (markers, frame, current force)
-
-
-def view_items(context) -> tuple[ViewItems, object | None]:
-    """(what to draw, the policy) from a run context, a policy or scene items.
-
-    A run context (an object with ``scene`` items and a ``policy``, :class:`hqp_tpm.app.context.RunContext`)
-    gives its scene items and obstacles; a policy with a ``scene()`` method its items; scene items are used as
-    they are. The co-manipulation operator (its markers and the flange where its force acts) comes from the
-    scene items' ``operator`` (older policies: the policy's). Without any of these, the older policy
-    attributes are read (``obstacles``,
-    ``control_points``, ``field``, ``ee_task``, ``ee_frame``, ``pointing``, ``viewer_markers``).
-    """
-    if context is None:
-        return ViewItems(), None
-    scene, policy, obstacles = getattr(context, "scene", None), context, None
-    if scene is not None and not callable(scene) and hasattr(context, "policy"):  # a run context
-        policy, obstacles = context.policy, getattr(context, "obstacles", None)
-    elif callable(scene):  # a policy with scene()
-        scene = scene()
-    elif hasattr(context, "control_points") and hasattr(context, "markers") and not callable(context):
-        scene, policy = context, None  # scene items
-    else:
-        scene = None
-    if scene is not None:
-        items = ViewItems(obstacles=list(obstacles or getattr(scene, "obstacles", None) or []),
-                          control_points=list(getattr(scene, "control_points", None) or []),
-                          ee_frame=getattr(scene, "ee_frame", None), ee_task=getattr(scene, "ee_task", None),
-                          pointing=getattr(scene, "pointing", None), field=getattr(scene, "field", None),
-                          markers=getattr(scene, "markers", None))
-    else:
-        p = policy
-        items = ViewItems(obstacles=list(getattr(p, "obstacles", None) or []),
-                          control_points=list(getattr(p, "control_points", None) or []),
-                          ee_frame=getattr(p, "ee_frame", None), ee_task=getattr(p, "ee_task", None),
-                          pointing=getattr(p, "pointing", None), field=getattr(p, "field", None),
-                          markers=getattr(p, "viewer_markers", None))
-    op = getattr(scene, "operator", None) if scene is not None else None  # the co-manipulation operator
-    if op is None and scene is None:
-        op = getattr(policy, "operator", None)
-    items.operator = op
-    if op is not None and getattr(op, "markers", None) is not None:
-        items.targets = np.asarray(op.markers, dtype=float).reshape(-1, 3)
-        items.force_frame = int(op.fid) if getattr(op, "fid", None) is not None else None
-    return items, policy
-
-
 # ------------------------------------------------------------------------------------------ the scene
 class Scene:
     """The objects of a run on a meshcat visualizer, under ``vis["world"]`` (shifted so the scene is centred).
@@ -343,12 +284,13 @@ class Scene:
     a meshcat animation.
     """
 
-    def __init__(self, vis: meshcat.Visualizer, robot, context=None):
-        """``context``: a run context, a policy, scene items or None (:func:`view_items`)."""
+    def __init__(self, vis: meshcat.Visualizer, robot: Robot, items: SceneItems | None = None):
+        """``items``: what to draw besides the robot (a run's ``RunContext.scene``, a policy's
+        :meth:`~hqp_tpm.control.policy.Policy.scene`, or None: the robot alone)."""
+        items = SceneItems() if items is None else items
         self.vis = vis
         self.root = vis["world"]
         self.robot = robot
-        items, self.policy = view_items(context)
         self.model = robot.model
         self.data = robot.model.createData()
         gmodel = viewer_geometry(robot)  # large meshes decimated (once, cached)
@@ -373,63 +315,60 @@ class Scene:
         self._ee_frame_name = items.ee_frame
         self.ee_fid = self._ee_frame()
         self.pointing = items.pointing
-        self.operator_markers = items.targets
-        self.force_fid = items.force_frame
+        self.operator = items.operator  # co-manipulation: its markers, the flange its force acts on
+        self.operator_markers = None if self.operator is None else self.operator.markers.reshape(-1, 3)
+        self.force_fid = None if self.operator is None else int(self.operator.fid)
         self._local_boxes = self._geometry_boxes()
         self.markers_fn = items.markers
-        self.operator = items.operator
-        self._markers_with_q = False
-        if callable(self.markers_fn):
-            try:
-                self._markers_with_q = "q" in inspect.signature(self.markers_fn).parameters
-            except (TypeError, ValueError):
-                pass
         self.marker_names: list[str] = []
         self._marker_pos: dict[str, np.ndarray] = {}
         self._last_visible: dict[str, bool] = {}
         self._draw_static()
 
-    # -- what the policy offers ------------------------------------------------------------------
+    # -- what the scene items offer --------------------------------------------------------------
     def _control_point_elements(self) -> list[int] | None:
         f = self.field
-        if f is None or not self.cp_names or not all(hasattr(f, a) for a in ("p_robot", "p_obstacle", "update")):
+        if f is None or not self.cp_names:
             return None
         try:
             return [int(f.element_index(n)) for n in self.cp_names]
-        except Exception:  # noqa: BLE001 - a field without these names: draw no distance segment
-            n_geom = int(getattr(f, "n_geometries", 0))
-            return [n_geom + k for k in range(len(self.cp_names))]
+        except HqpTpmError:  # control points the field does not know by name: the elements after its geometries
+            return [f.n_geometries + k for k in range(len(self.cp_names))]
 
     def _ee_frame(self) -> int | None:
-        for cand in (self._ee_frame_name, getattr(self.ee_task, "frame", None)):
-            if isinstance(cand, str) and self.model.existFrame(cand):
+        """The EE frame: ``ee_frame`` if the model has it, else the EE task's frame (:attr:`Task.frame`)."""
+        for cand in (self._ee_frame_name, None if self.ee_task is None else self.ee_task.frame):
+            if cand is not None and self.model.existFrame(cand):
                 return self.model.getFrameId(cand)
-        fid = getattr(self.ee_task, "fid", None)
-        return int(fid) if fid is not None else None
+        return None
+
+    def periodic_target(self) -> float | None:
+        """The period (s) of the EE task's target when it is periodic (a :class:`Harmonic`), else None."""
+        traj = None if self.ee_task is None else self.ee_task.trajectory
+        if isinstance(traj, Harmonic) and traj.omega:
+            return 2.0 * np.pi / abs(float(traj.omega))
+        return None
 
     def desired_position(self, t: float) -> np.ndarray | None:
         """The EE task's desired position at ``t`` (None if there is none or it is not 3-D)."""
-        traj = getattr(self.ee_task, "trajectory", None)
-        if traj is None:
+        if self.ee_task is None:
             return None
         try:
-            x = np.asarray(traj.reference(float(t))[0], dtype=float)
+            x = np.asarray(self.ee_task.reference(float(t))[0], dtype=float)
         except Exception:  # noqa: BLE001 - e.g. a relative trajectory never started
             return None
         return x if x.shape == (3,) and np.all(np.isfinite(x)) else None
 
     def _pointing_params(self):
         pt = self.pointing
-        z_d, alpha, fid = getattr(pt, "z_d", None), getattr(pt, "alpha_d", None), getattr(pt, "fid", None)
-        if z_d is None or alpha is None or fid is None or not (0.0 < float(alpha) < np.radians(85.0)):
+        if pt is None or not (0.0 < pt.alpha_d < np.radians(85.0)):
             return None
-        return np.asarray(z_d, dtype=float), float(alpha), int(fid)
+        return np.asarray(pt.z_d, dtype=float), float(pt.alpha_d), int(pt.fid)
 
     def _markers(self, t: float, q) -> list:
-        if not callable(self.markers_fn):
+        if self.markers_fn is None:
             return []
-        out = self.markers_fn(t, q=q) if self._markers_with_q else self.markers_fn(t)
-        return list(out or [])
+        return list(self.markers_fn(t, q) or [])
 
     # -- static objects ----------------------------------------------------------------------------
     def _draw_static(self) -> None:
