@@ -15,10 +15,13 @@ FIGURE_SAMPLES = 20_000
 
 def _every(arrays: dict, n: int, limit: int = FIGURE_SAMPLES) -> dict:
     """Every k-th row of the per-step arrays, so that at most ``limit`` rows remain (k = 1 up to ``limit``)."""
+    import numpy as np
+
     k = max(1, -(-n // limit))
     if k == 1:
         return arrays
-    return {key: (v[::k] if getattr(v, "ndim", 0) and v.shape[0] == n else v) for key, v in arrays.items()}
+    return {key: (v[::k] if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == n else v)
+            for key, v in arrays.items()}
 
 
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
@@ -63,7 +66,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         if viz:
             from hqp_tpm.app.viewer import LiveViewer
 
-            live = LiveViewer(robot, ctx, realtime=realtime)
+            live = LiveViewer(robot, ctx.scene, policy=ctx.policy, realtime=realtime)
             probes.append(live.probe)
         rec = runner.Recording(list(robot.joint_names), folder.path / ".columns")
         failure = None
@@ -119,12 +122,12 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         if figures:
             from hqp_tpm.app import figures as figs
 
-            written += [Path(p).name for p in figs.write_all(folder.path, _every(arrays, done), sc, tasks, ctx)]
+            written += [Path(p).name for p in figs.write_all(folder.path, _every(arrays, done), ctx)]
         if replay:
             from hqp_tpm.app.viewer import write_replay
 
-            write_replay(folder.path / "replay.html", robot, arrays, ctx,
-                         title=f"hqp-tpm replay: {Path(out).name} ({getattr(robot, 'name', '')})")
+            write_replay(folder.path / "replay.html", robot, arrays, ctx.scene,
+                         title=f"hqp-tpm replay: {Path(out).name} ({robot.name})")
             written.append("replay.html")
             if explainer is not None:  # the account of the current frame beside the robot
                 from hqp_tpm.app.explain import annotate_replay
@@ -393,7 +396,7 @@ def main(argv=None) -> int:
                                    stop=signals.stop, realtime=args.realtime if args.viz else 0.0,
                                    serve=args.viz)
     except HqpTpmError as exc:
-        where = getattr(exc, "partial_result", None)
+        where = exc.partial_result
         extra = f" (the steps before it are in {where}, marked partial)" if where is not None else ""
         print(f"hqp-tpm: error: {exc}{extra}", file=sys.stderr)
         return 2

@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers.account import StepAccount, account, explain
 
 #: Cause bits of ``explain_cause`` (0: met; NaN: the task is not in the stack at that step).
@@ -70,10 +71,9 @@ def bound_kinds(limits, state, x_bound: np.ndarray, joints, sides, *, columns=No
     Velocity level: ``v_max``, the position limit one period ahead, or the braking term; acceleration
     level: ``a_max``, the velocity limit one period ahead, or the position/braking (viability) term.
     """
-    cols = getattr(limits, "cols", None)
-    if cols is None or not hasattr(limits, "limits"):
+    if not isinstance(limits, JointLimits):
         return ["box"] * len(joints)
-    lim = limits.limits
+    cols, lim = limits.cols, limits.limits
     where = {int(c): k for k, c in enumerate(cols)}
     q = state.q[limits.qidx]
     v = state.v[cols]
@@ -103,7 +103,7 @@ def bound_kinds(limits, state, x_bound: np.ndarray, joints, sides, *, columns=No
 
 def _task_split(stack_level, m: int) -> list[tuple[str, slice]]:
     """Rows of a level per task: by the tasks' dimensions when they add up, else all rows to each."""
-    dims = [int(getattr(t, "dim", 0) or 0) for t in stack_level]
+    dims = [int(t.dim) for t in stack_level]
     if len(stack_level) > 1 and sum(dims) == m:
         edges = np.cumsum([0, *dims])
         return [(t.name, slice(int(a), int(b))) for t, a, b in zip(stack_level, edges, edges[1:], strict=False)]
@@ -116,7 +116,7 @@ class Explainer:
     def __init__(self, ctrl, *, causes: bool = True):
         self.tasks = [t.name for t in ctrl.tasks()]
         self.index = {name: i for i, name in enumerate(self.tasks)}
-        self.dims = {t.name: int(getattr(t, "dim", 0) or 0) for t in ctrl.tasks()}
+        self.dims = {t.name: int(t.dim) for t in ctrl.tasks()}
         self.joint_names = list(ctrl.robot.joint_names)
         self.causes = causes
         self.last: StepAccount | None = None

@@ -14,6 +14,22 @@ from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 from matplotlib.lines import Line2D
 
+from hqp_tpm.app.context import RunContext
+from hqp_tpm.tasks import (
+    CenterOfMass,
+    Force,
+    FrameOrientation,
+    FramePose,
+    FramePosition,
+    JointLimit,
+    Manipulability,
+    Pointing,
+    Posture,
+    QuaternionOrientation,
+    Task,
+)
+from hqp_tpm.tasks.avoidance import Avoidance
+
 #: Colours and line styles of threshold lines, in the order the thresholds are given (distinct pairs).
 THRESHOLD_STYLES = [("tab:red", "--"), ("tab:green", ":"), ("tab:orange", "-."), ("tab:purple", (0, (5, 1, 1, 1)))]
 
@@ -46,27 +62,27 @@ def error_groups(tasks: dict) -> list[tuple[str, str, slice | None, str]]:
     """
     out = []
     for name, task in tasks.items():
-        kind = type(task).__name__
-        if kind == "FramePose":
+        if isinstance(task, FramePose):
             out += [(name, "position", slice(0, 3), "m"), (name, "orientation", slice(3, 6), "rad")]
-        elif kind in ("FramePosition", "CenterOfMass"):
+        elif isinstance(task, (FramePosition, CenterOfMass)):
             out.append((name, "position", None, "m"))
-        elif kind == "FrameOrientation":
+        elif isinstance(task, FrameOrientation):
             out.append((name, "orientation", None, "rad"))
-        elif kind == "Posture":
+        elif isinstance(task, Posture):
             out.append((name, "joint angles", None, "rad"))
-        elif kind == "Force":
+        elif isinstance(task, Force):
             out.append((name, "force", None, "N"))
-        elif kind == "Pointing":
+        elif isinstance(task, Pointing):
             out.append((name, "pointing angle", None, "deg"))
-        else:  # quaternion vector part, manipulability and joint-limit indices, avoidance: no unit
-            out.append((name, _QUANTITIES.get(kind, kind), None, "1"))
+        else:  # quaternion vector part, manipulability and joint-limit indices, avoidance, others: no unit
+            quantity = next((q for cls, q in _QUANTITIES if isinstance(task, cls)), type(task).__name__)
+            out.append((name, quantity, None, "1"))
     return out
 
 
-#: What the error of a dimensionless task is, for the legend.
-_QUANTITIES = {"QuaternionOrientation": "quaternion error (10)", "Manipulability": "σ_m* − σ_m",
-               "JointLimit": "−σ_l", "Avoidance": "avoidance"}
+#: What the error of a dimensionless task is, for the legend (any other task: its class name).
+_QUANTITIES = ((QuaternionOrientation, "quaternion error (10)"), (Manipulability, "σ_m* − σ_m"),
+               (JointLimit, "−σ_l"), (Avoidance, "avoidance"))
 
 _UNIT_TITLES = {"m": "position error [m]", "rad": "angle error [rad]", "N": "force error [N]",
                 "deg": "pointing angle error [deg]\n(cone: outside it only)", "1": "error (dimensionless)"}
@@ -77,15 +93,14 @@ def _pointing_angle_deg(e: np.ndarray, alpha_d: float) -> np.ndarray:
     return np.rad2deg(np.arccos(np.clip(np.cos(alpha_d) - np.asarray(e, dtype=float), -1.0, 1.0)))
 
 
-def _error_norm(arrays: dict, task, name: str, rows, unit: str) -> np.ndarray | None:
+def _error_norm(arrays: dict, task: Task, name: str, rows, unit: str) -> np.ndarray | None:
     e = arrays.get(f"error_{name}")
     if e is None:
         return None
     e = np.asarray(e, dtype=float)
-    if unit == "deg":  # pointing: the cone (21): how far the axis is outside it; the equality (16): |α − α_d|
-        alpha = float(getattr(task, "alpha_d", 0.0))
-        dev = _pointing_angle_deg(e, alpha) - np.rad2deg(alpha)
-        return np.maximum(dev, 0.0) if getattr(task, "inequality", True) else np.abs(dev)
+    if isinstance(task, Pointing):  # the cone (21): how far the axis is outside it; the equality (16): |α − α_d|
+        dev = _pointing_angle_deg(e, task.alpha_d) - np.rad2deg(task.alpha_d)
+        return np.maximum(dev, 0.0) if task.inequality else np.abs(dev)
     if e.ndim == 1:
         return np.abs(e)
     return np.linalg.norm(e[:, rows] if rows is not None else e, axis=1)
@@ -258,28 +273,33 @@ def comanipulation(path: Path, runs: dict, sigma_m_bar: float = 1.5, sigma_l_bar
 
 
 # ------------------------------------------------------------------------------------------ a run's figures
-def _first_pointing(tasks: dict):
-    return next((task for task in tasks.values() if type(task).__name__ == "Pointing"), None)
+def _first_pointing(tasks: dict) -> Pointing | None:
+    return next((task for task in tasks.values() if isinstance(task, Pointing)), None)
 
 
-def write_all(out: Path, arrays: dict, sc, tasks: dict, context) -> list[Path]:
+#: Co-manipulation thresholds drawn when the policy's ``thresholds`` do not give them (papers/003 values).
+SIGMA_M_BAR, SIGMA_L_BAR = 1.5, 2.0
+
+
+def write_all(out: Path, arrays: dict, ctx: RunContext) -> list[Path]:
     """The figures that apply to this run, chosen from what it recorded; returns their paths.
 
-    ``context``: the run's :class:`~hqp_tpm.app.context.RunContext` (its ``velocity_limits`` and
-    ``thresholds``), or the policy of an older caller (the same attributes)."""
+    From the run context ``ctx``: ``scenario.name`` (titles), ``tasks`` (task errors, pointing),
+    ``velocity_limits`` (the joint box; None: none, then a robot of more than :data:`GRID_JOINTS` joints
+    has its ``robot.velocity_limits()`` drawn for comparison) and ``thresholds`` (the policy's; a policy
+    without them: none drawn on distances, :data:`SIGMA_M_BAR` / :data:`SIGMA_L_BAR` on co-manipulation)."""
     out = Path(out)
-    name = sc.name
+    name, tasks = ctx.scenario.name, ctx.tasks
     written = []
-    limits = getattr(context, "velocity_limits", None)  # the run's joint box
+    limits = ctx.velocity_limits  # the run's joint box
     if limits is not None and not np.isfinite(np.asarray(limits, dtype=float)).any():
         limits = None
     enforced = limits is not None
-    robot = getattr(context, "robot", None)
-    if limits is None and robot is not None and arrays["dq"].shape[1] > GRID_JOINTS:
-        robot_limits = np.asarray(robot.velocity_limits(), dtype=float)  # many joints: one axis each, with the
-        if np.isfinite(robot_limits).any():  # robot's limits for comparison
+    if limits is None and arrays["dq"].shape[1] > GRID_JOINTS:
+        robot_limits = np.asarray(ctx.robot.velocity_limits(), dtype=float)  # many joints: one axis each, with
+        if np.isfinite(robot_limits).any():  # the robot's limits for comparison
             limits = robot_limits
-    thresholds = getattr(context, "thresholds", None) or {}
+    thresholds = ctx.thresholds
     p = out / "joint_velocities.png"
     joint_velocities(p, arrays, limits, f"{name}: joint velocities", enforced=enforced)
     written.append(p)
@@ -297,9 +317,8 @@ def write_all(out: Path, arrays: dict, sc, tasks: dict, context) -> list[Path]:
         written.append(p)
     if "sigma_m" in arrays:
         p = out / "comanipulation.png"
-        sigma_m_bar = thresholds.get("sigma_m", {}).get("sigma_bar_m", getattr(context, "sigma_m_bar", 1.5))
-        sigma_l_bar = thresholds.get("joint_deviation_max", {}).get("sigma_bar_l",
-                                                                    getattr(context, "sigma_l_bar", 2.0))
+        sigma_m_bar = thresholds.get("sigma_m", {}).get("sigma_bar_m", SIGMA_M_BAR)
+        sigma_l_bar = thresholds.get("joint_deviation_max", {}).get("sigma_bar_l", SIGMA_L_BAR)
         comanipulation(p, {name: arrays}, sigma_m_bar, sigma_l_bar, f"{name}: co-manipulation indices")
         written.append(p)
     return written
