@@ -3,6 +3,9 @@ run context carries what the app needs (no attributes attached to the policy and
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -67,3 +70,111 @@ def test_plain_callables_and_stacks_become_policies():
     assert isinstance(ctrl.policy, FixedStack)
     with pytest.raises(TypeError):
         Controller(robot, 3.0)
+
+
+# ------------------------------------------------------------------------------------------ a third-party policy
+class OnlyRequired(Policy):
+    """A third-party policy: the two required members and nothing else (every optional one is the default)."""
+
+    def __init__(self, stack: Stack):
+        self.stack = stack
+
+    def __call__(self, state, t):
+        return self.stack
+
+    def tasks(self):
+        return self.stack.tasks()
+
+
+THIRD_PARTY = """
+[scenario]
+name = "third_party"
+description = "a policy from outside the library, registered by name"
+robot = "lwr4"
+level = "velocity"
+solver = "sns_tpm"
+period = 0.01
+duration = 3.0
+
+[initial]
+q = [0.923, -0.854, 0.903, 1.195, 0.971, 1.796, 0.0]
+
+[limits]
+velocity_scale = 0.2
+
+[[obstacles]]
+name = "o1"
+type = "sphere"
+center = [0.3, 0.3, 0.3]
+radius = 0.05
+
+[[tasks]]
+name = "ee"
+type = "frame_position"
+frame = "lwr_ee"
+kp = 10.0
+target = { type = "harmonic", center = [0.0, 0.6, 0.0], cos_amplitude = [0.2, 0.0, 0.2], \
+           sin_amplitude = [0.0, 0.1, 0.0], omega = 2.0 }
+
+[[tasks]]
+name = "pointing"
+type = "pointing"
+frame = "lwr_ee"
+axis = [1.0, 0.0, 0.0]
+alpha_d_deg = 5.0
+inequality = false
+kp = 5.0
+
+[policy]
+type = "only_required"
+"""
+
+
+@pytest.fixture
+def third_party(tmp_path, monkeypatch):
+    """The scenario file of a run whose policy is :class:`OnlyRequired` (registered as a builder)."""
+    from hqp_tpm.app.policy_builders import POLICY_BUILDERS
+
+    def build_only_required(sc, robot, tasks, sec, obstacles):
+        sec.check_unused()
+        return OnlyRequired(Stack.of(*tasks.values()))
+
+    monkeypatch.setitem(POLICY_BUILDERS, "only_required", build_only_required)
+    path = tmp_path / "third_party.toml"
+    path.write_text(THIRD_PARTY)
+    return path
+
+
+def test_a_third_party_policy_runs_through_figures_replay_and_explain(third_party, tmp_path):
+    from test_viewer import commands, object_paths
+
+    from hqp_tpm.app.cli import run_scenario
+    from hqp_tpm.app.explain import explain_run
+
+    ctx = build.build_run(scenario.load(third_party))
+    assert type(ctx.policy) is OnlyRequired and ctx.channels == () and ctx.thresholds == {}
+    assert [o.name for o in ctx.scene.obstacles] == ["o1"] and ctx.scene.ee_task is None  # the default scene()
+    out = tmp_path / "run"
+    summary = run_scenario(third_party, out, steps=120, progress=False, explain=True)
+    names = {Path(f).name for f in summary["files"]}
+    assert names == {"trajectory.npz", "metrics.json", "explain.png", "joint_velocities.png", "task_errors.png",
+                     "pointing_error.png", "replay.html", "manifest.json"}, names
+    arrays = np.load(out / "trajectory.npz")
+    assert (np.abs(arrays["dq"]) <= ctx.velocity_limits + 1e-9).all()  # the joint box held
+    assert np.isclose(np.abs(arrays["dq"]), ctx.velocity_limits).any()  # and was reached: explain has bounds
+    assert np.isfinite(arrays["explain_fraction"]).all()
+    html = (out / "replay.html").read_text(encoding="utf-8")
+    assert "/meshcat/world/obstacles/o1" in object_paths(commands(html)) and "hqp-tpm replay: run (lwr4)" in html
+    text = explain_run(out, 0.6)
+    assert "ee" in text and "pointing" in text
+    assert json.loads((out / "metrics.json").read_text())["explain"]["degraded_s"].keys() == {"ee", "pointing"}
+
+
+def test_a_third_party_policy_in_the_live_viewer(third_party):
+    from hqp_tpm.app.viewer import LiveViewer
+
+    ctx = build.build_run(scenario.load(third_party))
+    with LiveViewer(ctx.robot, ctx.scene, policy=ctx.policy, every=1, quiet=True) as live:
+        res = ctx.controller.step()
+        assert live.probe(ctx.controller, res) == {}
+        assert live.scene.cp_names == [] and live.scene.ee_fid is None and live.scene.obstacles == ctx.obstacles
