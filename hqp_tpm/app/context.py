@@ -26,7 +26,14 @@ Probe = Callable[[Controller, StepResult], dict]
 
 @dataclass
 class RunContext:
-    """One built scenario: robot, controller, tasks, policy and what the app needs around them."""
+    """One built scenario: robot, controller, tasks, policy and what the app needs around them.
+
+    Handed over as it is (never probed): the figures read ``scenario.name``, ``tasks``, ``robot``,
+    ``velocity_limits`` and ``thresholds``; the viewers take ``scene`` (and the live viewer ``policy``);
+    the runner ``controller`` and ``probes()``. A policy with only the required members gets the
+    :class:`~hqp_tpm.control.policy.Policy` defaults: no channels, no thresholds, an empty scene to which
+    :func:`~hqp_tpm.app.build.build_run` adds the scenario's obstacles.
+    """
 
     scenario: Scenario
     robot: Robot
