@@ -74,6 +74,10 @@ def test_base_file_runs(tmp_path):
         ("joints_deg = { lwr_joint_2 = 30.0 }", "q = [0, 100, 0, 0, 0, 0, 0]",
          r"initial: joint 'lwr_joint_2' = 100 rad .* outside its limits"),
         ("kp = 40.0", "kp = 1e300", r"tasks\[0\]\.kp: .*too large"),
+        ("duration = 0.01", 'duration = 0.01\nsolver = "tpm"\n[limits]\nvelocity = true',
+         r"s\.toml\.limits: a hard joint box, which solver 'tpm' .*ignores; valid: .*sns_tpm"),
+        ("duration = 0.01", 'duration = 0.01\n[limits]\nvelocity = true',
+         r"limits: .*solver 'tpm' \(s\.toml\.scenario\.solver\)"),
     ],
 )
 def test_bad_field_is_a_scenario_error_naming_it(tmp_path, old, new, match):

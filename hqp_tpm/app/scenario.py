@@ -24,7 +24,7 @@ except ModuleNotFoundError:  # Python 3.10
 
 from hqp_tpm.data import scenarios_dir
 from hqp_tpm.errors import ScenarioError
-from hqp_tpm.solvers.registry import SOLVER_NAMES, check_solver_name
+from hqp_tpm.solvers.registry import ANALYTIC, BOXED, SOLVER_NAMES, check_solver_name
 
 #: Folder of the shipped scenario files (package data ``hqp_tpm/data/scenarios/``).
 SCENARIO_DIR = scenarios_dir()
@@ -321,6 +321,10 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
         limits=top.table("limits", None), raw=data,
     )
+    if out.limits is not None and solver in ANALYTIC:  # the analytic solvers ignore a box: say so, don't run
+        raise ScenarioError(f"{out.limits.where}: a hard joint box, which solver {solver!r} ({sc.where}.solver) "
+                            f"ignores; valid: a boxed solver ({', '.join(BOXED)}, qp, qp:<backend>), or no "
+                            "[limits] section")
     sc.check_unused()
     top.check_unused()
     if not out.tasks:
