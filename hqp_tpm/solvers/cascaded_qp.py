@@ -243,6 +243,12 @@ class _Cascade:
                                 f"try another backend") from error
 
 
+#: Backends handed sparse matrices although they take dense ones. ProxQP's dense backend (AVX2 build) gives
+#: results whose last bits depend on where the heap placed its work buffers (16- vs 32-byte aligned), so a
+#: run would depend on what the process did before; its sparse backend returns the same bits every time.
+SPARSE_CALL = frozenset({"proxqp"})
+
+
 def _problem(solver: str, P, q, G, h, A, b) -> qpsolvers.Problem:
     """A qpsolvers problem without empty blocks, sparse for the backends that only take sparse matrices."""
     import qpsolvers
@@ -250,25 +256,28 @@ def _problem(solver: str, P, q, G, h, A, b) -> qpsolvers.Problem:
 
     G, h = (G, h) if G.shape[0] else (None, None)
     A, b = (A, b) if A.shape[0] else (None, None)
-    if solver not in qpsolvers.dense_solvers:
+    if solver not in qpsolvers.dense_solvers or solver in SPARSE_CALL:
         P, G, A = (None if M is None else sparse.csc_matrix(M) for M in (P, G, A))
     return qpsolvers.Problem(P, q, G, h, A, b)
 
 
 def _proxqp_direct(problem: qpsolvers.Problem, options: dict) -> tuple[np.ndarray, np.ndarray] | None:
-    """ProxQP called through ProxSuite itself, for the tight infeasibility tests qpsolvers cannot set.
+    """ProxQP called through ProxSuite itself, without the infeasibility tests qpsolvers cannot switch off.
 
-    ProxQP's default ``eps_primal_inf`` (1e-4) now and then calls a feasible level infeasible; every
-    cascade QP is feasible (``z = 0`` is), so here the tests are as tight as the solution.
+    ProxQP's default ``eps_primal_inf`` (1e-4) now and then calls a feasible level infeasible, and so does
+    its sparse backend even at 1e-12 (romeo_qp step 1,277, level 4: one variable, 18 rows, feasible on
+    [-0.111, 0.097]). Every cascade QP is feasible (``z = 0`` is), so here the tests are off (tolerance 0:
+    never met); a level that does not converge ends at ``max_iter`` or the time budget.
     """
     from proxsuite import proxqp
 
     P, q, G, h, A, b = problem.P, problem.q, problem.G, problem.h, problem.A, problem.b
-    qp = proxqp.dense.QP(q.size, 0 if A is None else A.shape[0], 0 if G is None else G.shape[0])
+    kind = proxqp.dense if isinstance(P, np.ndarray) else proxqp.sparse  # sparse: see SPARSE_CALL
+    qp = kind.QP(q.size, 0 if A is None else A.shape[0], 0 if G is None else G.shape[0])
     for key in ("eps_abs", "eps_rel", "max_iter"):
         if key in options:
             setattr(qp.settings, key, options[key])
-    qp.settings.eps_primal_inf = qp.settings.eps_dual_inf = 1e-12
+    qp.settings.eps_primal_inf = qp.settings.eps_dual_inf = 0.0
     qp.init(P, q, A, b, G, None if G is None else np.full(G.shape[0], -np.inf), h, rho=options.get("rho", 1e-6))
     qp.solve()
     if qp.results.info.status != proxqp.QPSolverOutput.PROXQP_SOLVED:
