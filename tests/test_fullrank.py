@@ -5,17 +5,24 @@
 1e-12: random stacks exact and damped, ill-conditioned upper levels and crossing levels, dependent
 stacks with a posture level, ``x0`` (no effect at rank n), and the side-by-side benchmark's stacks and
 closed loops (no bundled scenario's stack goes past rank n: they keep the general path).
+These tests hold the numpy shortcut (the compiled kernel is off here; tests/test_compiled.py holds the kernel
+to this one).
 """
 
 import numpy as np
 import pytest
 
-from hqp_tpm.solvers import sns_tpm, sns_tpm_reference, tpm, tpm_reference
+from hqp_tpm.solvers import _compiled, sns_tpm, sns_tpm_reference, tpm, tpm_reference
 from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers.levels import stacked
 from hqp_tpm.testing.stacks import dependent_stack
 
 TOL = 1e-12
+
+
+@pytest.fixture(autouse=True)
+def _numpy_path(monkeypatch):
+    monkeypatch.setattr(_compiled, "ENABLED", False)
 DAMPING = [{}, {"lambda_max": 0.05, "eps": 0.1}, {"lambda_max": 0.1, "eps": 0.5}]
 
 

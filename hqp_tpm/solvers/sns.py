@@ -71,12 +71,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hqp_tpm.errors import BoxError, ShapeError
-from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers._kernels import Factorization, FreeColumns
 from hqp_tpm.solvers.damping import matrix_tol, pinv, rank_tol
 from hqp_tpm.solvers.levels import as_levels, equality_stack, stacked
 from hqp_tpm.solvers.nullspace import projected_step
-from hqp_tpm.solvers.tpm import tpm_factors
+from hqp_tpm.solvers.tpm import past_rank, tpm_factors
 
 #: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (|bound| + B)``, ``B``
 #: the box's largest finite bound (so the test does not depend on units);
@@ -450,7 +449,7 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
     if sizes and J.shape[0] > n:                 # rank n before the last level: hqp_tpm.solvers._fullrank
-        x = solve_past_rank(J, xd, sizes, n, lambda_max, eps)
+        x = past_rank(J, xd, sizes, n, lambda_max, eps)
         if x is not None and ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
     if sizes:                                    # W = I: eq. (4) is the TPM solution (1)

@@ -31,7 +31,8 @@ import numpy as np
 import scipy.linalg as sla
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
-from hqp_tpm.solvers._fullrank import solve_past_rank
+from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers._fullrank import COND, MARGIN, solve_past_rank
 from hqp_tpm.solvers._kernels import Factorization
 from hqp_tpm.solvers.damping import check_damping, pinv, pinv_times, rank_tol
 from hqp_tpm.solvers.levels import stacked
@@ -147,13 +148,21 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
     return tpm_stacked(J, b, sizes, n, lambda_max, eps, x0)
 
 
+def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float):
+    """:func:`hqp_tpm.solvers._fullrank.solve_past_rank`, by its compiled kernel (:mod:`hqp_tpm.solvers._compiled`)
+    when enabled, else by the numpy reference."""
+    if _compiled.ENABLED:
+        return _compiled.past_rank(J, b, sizes, n, lambda_max, eps, MARGIN, COND)
+    return solve_past_rank(J, b, sizes, n, lambda_max, eps)
+
+
 def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float = 0.0, eps: float = 0.0,
                 x0: np.ndarray | None = None) -> np.ndarray:
     """:func:`tpm` of a stack already stacked and checked: ``J`` (m x n, m >= 1) and ``b`` finite floats,
     ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
     :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step)."""
     if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
-        x = solve_past_rank(J, b, sizes, n, lambda_max, eps)
+        x = past_rank(J, b, sizes, n, lambda_max, eps)
         if x is not None:
             return x
     return Factorization(J, sizes, n, lambda_max, eps).solve(b, x0)

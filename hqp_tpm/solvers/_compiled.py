@@ -1,0 +1,340 @@
+"""Compiled (numba) kernels of the solvers' hot paths (private to :mod:`hqp_tpm.solvers`).
+
+The numpy code stays the readable reference: :func:`past_rank` computes what
+:func:`hqp_tpm.solvers._fullrank.solve_past_rank` computes (same decisions: the same certificates, margins,
+rank tolerances of :mod:`hqp_tpm.solvers.damping` and damping law), in one call into compiled code instead of
+~14 calls of scipy's LAPACK wrappers. ``tests/test_compiled.py`` proves the two equal (1e-12).
+
+How it computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._fullrank`):
+
+* Householder QR of ``J_<k^T`` (LAPACK's ``dlarfg`` convention) on the rows of ``J`` (contiguous), the
+  certificates from ``R1^{-1}`` (back substitution; its entries never reach the result), ``z = R1^{-T} b_<k``;
+* ``J_k Q`` by applying the reflectors from the right: its first ``m1`` columns give ``J_k x1``, the others
+  are ``A = J_k Z``;
+* ``A = Q_A R_A`` (Householder): ``||A#||_F = ||R_A^{-1}||_F`` exactly, and ``1/||R_A^{-1}||_F <= sigma_min(A)
+  <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide, the SVD of ``A``
+  (LAPACK ``dgesdd``, as the reference) decides and solves;
+* the crossing level's least squares ``y = A# r`` from ``R_A`` (undamped) or from the QR of ``[R_A; lambda I]``
+  (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``);
+* ``x = Q [z; y]`` (the reflectors applied once more).
+
+Dispatch: the solvers call these kernels when numba is importable and the environment variable
+``HQP_TPM_COMPILED`` is not ``0`` at import time; :data:`ENABLED` is the module flag (set it to False to force
+the numpy path in a running process). Compiled code is cached on disk (``cache=True``): next to this file, or
+where ``NUMBA_CACHE_DIR`` points, or (read-only install) numba's user cache directory. The first call of a
+process compiles (~2-5 s) or loads the cache (~0.1-1 s).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
+
+try:  # pragma: no cover - depends on the environment
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+#: numba is importable (the kernels can run).
+AVAILABLE = numba is not None
+#: The solvers use the compiled kernels (default: when available, unless ``HQP_TPM_COMPILED=0``).
+ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip() not in ("0", "false", "no", "off")
+
+#: Kernel modes: the cheap certificates decide when they can, else the SVD (the default); or always the SVD.
+AUTO, SVD = 0, 1
+
+
+def _njit(fn):
+    return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
+
+
+# ----------------------------------------------------------------------------------------
+# Small dense building blocks (row-major; a "column" of a transposed matrix is a contiguous row).
+# ----------------------------------------------------------------------------------------
+@_njit
+def _householder_rows(V, tau, R):
+    """QR of ``M = V^T`` (``q x p``, ``q >= p``), in place on the rows of ``V`` (``p x q``).
+
+    Reflector ``i`` is ``I - tau_i v v^T`` with ``v = (0..0, 1, V[i, i+1:])``; ``R`` (``p x p``) gets the upper
+    triangle. LAPACK ``dgeqr2``/``dlarfg`` convention: ``r_ii = -sign(alpha) ||x||``.
+    """
+    p, q = V.shape
+    for i in range(p):
+        alpha = V[i, i]
+        xn = 0.0
+        for t in range(i + 1, q):
+            xn += V[i, t] * V[i, t]
+        if xn == 0.0:
+            tau[i] = 0.0
+            beta = alpha
+        else:
+            beta = -math.copysign(math.sqrt(alpha * alpha + xn), alpha)
+            tau[i] = (beta - alpha) / beta
+            scal = 1.0 / (alpha - beta)
+            for t in range(i + 1, q):
+                V[i, t] *= scal
+        R[i, i] = beta
+        ti = tau[i]
+        for j in range(i + 1, p):                      # H_i applied to column j of M (row j of V)
+            w = V[j, i]
+            for t in range(i + 1, q):
+                w += V[i, t] * V[j, t]
+            w *= ti
+            V[j, i] -= w
+            for t in range(i + 1, q):
+                V[j, t] -= w * V[i, t]
+            R[i, j] = V[j, i]
+
+
+@_njit
+def _apply_right(B, V, tau, p):
+    """``B <- B H_0 H_1 ... H_{p-1}`` (each row of ``B`` times the reflectors of :func:`_householder_rows`)."""
+    rows, q = B.shape
+    for i in range(p):
+        ti = tau[i]
+        if ti == 0.0:
+            continue
+        for r in range(rows):
+            w = B[r, i]
+            for t in range(i + 1, q):
+                w += B[r, t] * V[i, t]
+            w *= ti
+            B[r, i] -= w
+            for t in range(i + 1, q):
+                B[r, t] -= w * V[i, t]
+
+
+@_njit
+def _apply_q(x, V, tau, p):
+    """``x <- H_0 H_1 ... H_{p-1} x`` (``Q x``)."""
+    q = x.shape[0]
+    for i in range(p - 1, -1, -1):
+        ti = tau[i]
+        if ti == 0.0:
+            continue
+        w = x[i]
+        for t in range(i + 1, q):
+            w += V[i, t] * x[t]
+        w *= ti
+        x[i] -= w
+        for t in range(i + 1, q):
+            x[t] -= w * V[i, t]
+
+
+@_njit
+def _apply_qt(x, V, tau, p):
+    """``x <- H_{p-1} ... H_0 x`` (``Q^T x``)."""
+    q = x.shape[0]
+    for i in range(p):
+        ti = tau[i]
+        if ti == 0.0:
+            continue
+        w = x[i]
+        for t in range(i + 1, q):
+            w += V[i, t] * x[t]
+        w *= ti
+        x[i] -= w
+        for t in range(i + 1, q):
+            x[t] -= w * V[i, t]
+
+
+@_njit
+def _triangular_inverse(R):
+    """``R^{-1}`` of an upper-triangular ``R`` with a nonzero diagonal (back substitution)."""
+    p = R.shape[0]
+    X = np.zeros((p, p))
+    for j in range(p):
+        X[j, j] = 1.0 / R[j, j]
+        for i in range(j - 1, -1, -1):
+            s = 0.0
+            for t in range(i + 1, j + 1):
+                s += R[i, t] * X[t, j]
+            X[i, j] = -s / R[i, i]
+    return X
+
+
+@_njit
+def _solve_upper(R, c):
+    """``R^{-1} c`` (upper triangular)."""
+    p = R.shape[0]
+    y = np.empty(p)
+    for i in range(p - 1, -1, -1):
+        s = c[i]
+        for t in range(i + 1, p):
+            s -= R[i, t] * y[t]
+        y[i] = s / R[i, i]
+    return y
+
+
+@_njit
+def _solve_upper_t(R, c):
+    """``R^{-T} c`` (forward substitution with ``R^T``)."""
+    p = R.shape[0]
+    y = np.empty(p)
+    for i in range(p):
+        s = c[i]
+        for t in range(i):
+            s -= R[t, i] * y[t]
+        y[i] = s / R[i, i]
+    return y
+
+
+@_njit
+def _fro_block(X, a, e, c0, c1):
+    s = 0.0
+    for i in range(a, e):
+        for j in range(c0, c1):
+            s += X[i, j] * X[i, j]
+    return math.sqrt(s)
+
+
+@_njit
+def _damped_ls(RA, c, lam2):
+    """``argmin ||R_A y - c||^2 + lam2 ||y||^2`` by the QR of ``[R_A; sqrt(lam2) I]`` (``r x r`` each)."""
+    r = RA.shape[0]
+    lam = math.sqrt(lam2)
+    S = np.zeros((r, 2 * r))                           # rows: the columns of [R_A; lam I]
+    for j in range(r):
+        for i in range(j + 1):
+            S[j, i] = RA[i, j]
+        S[j, r + j] = lam
+    tau = np.empty(r)
+    R2 = np.zeros((r, r))
+    _householder_rows(S, tau, R2)
+    rhs = np.zeros(2 * r)
+    rhs[:r] = c
+    _apply_qt(rhs, S, tau, r)
+    return _solve_upper(R2, rhs[:r])
+
+
+# ----------------------------------------------------------------------------------------
+# solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
+# ----------------------------------------------------------------------------------------
+@_njit
+def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, mode):
+    """``x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`, or an empty array when it declines.
+
+    ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
+    reference's ``MARGIN`` and ``COND``; ``mode``: :data:`AUTO` or :data:`SVD`.
+    """
+    none = np.empty(0)
+    m = J.shape[0]
+    size = max(m, n)
+    m1 = 0
+    k = 0
+    while m1 + sizes[k] < n:
+        m1 += sizes[k]
+        k += 1
+    mk = sizes[k]
+    r = n - m1
+    # levels < k: J_<k^T = Q1 R1 on the rows of J, pivots certified regular by 1/||R_ii^-1||_F
+    V = np.empty((m1, n))
+    for i in range(m1):
+        for t in range(n):
+            V[i, t] = J[i, t]
+    tau = np.zeros(m1)
+    R1 = np.zeros((m1, m1))
+    a_inv = 0.0
+    z = np.empty(m1)
+    if m1:
+        _householder_rows(V, tau, R1)
+        for i in range(m1):
+            if R1[i, i] == 0.0:                        # dtrtri's info > 0
+                return none
+        R1inv = _triangular_inverse(R1)
+        a = 0
+        for lev in range(k):
+            e = a + sizes[lev]
+            bound = 1.0 / _fro_block(R1inv, a, e, a, e)
+            norm = _fro_block(J, a, e, 0, n)
+            if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
+                return none
+            a = e
+        a_inv = _fro_block(R1inv, 0, m1, 0, m1)
+        z = _solve_upper_t(R1, b[:m1])
+    # J_k Q = [J_k Q1, A]: J_k x1 = (J_k Q1) z and A = J_k Z
+    B = np.empty((mk, n))
+    for i in range(mk):
+        for t in range(n):
+            B[i, t] = J[m1 + i, t]
+    norm_k = _fro_block(B, 0, mk, 0, n)
+    _apply_right(B, V, tau, m1)
+    res = np.empty(mk)
+    for i in range(mk):
+        s = b[m1 + i]
+        for t in range(m1):
+            s -= B[i, t] * z[t]
+        res[i] = s
+    thr_k = max(margin * unit * size * norm_k, cond * norm_k)
+    norm = _fro_block(J, 0, m, 0, n)
+    thr = max(margin * unit * size * norm, cond * norm)
+    y = np.empty(r)
+    decided = False
+    if mode == 0:
+        AT = np.empty((r, mk))                         # A^T: the columns of A as rows
+        for j in range(r):
+            for i in range(mk):
+                AT[j, i] = B[i, m1 + j]
+        tauA = np.empty(r)
+        RA = np.zeros((r, r))
+        _householder_rows(AT, tauA, RA)
+        dmin = math.inf
+        for j in range(r):
+            dmin = min(dmin, abs(RA[j, j]))
+        if dmin <= thr_k:                              # sigma_min <= min |r_jj|: rank n not reached clearly
+            return none
+        RAinv = _triangular_inverse(RA)
+        p = _fro_block(RAinv, 0, r, 0, r)              # = ||A#||_F = sqrt(sum 1/sigma^2)
+        lower = 1.0 / p                                # <= sigma_min(A)
+        damp_square = lambda_max > 0.0 and r == mk     # the pivot's smallest singular value is sigma_min(A)
+        if lower > thr_k and not (damp_square and lower < eps):
+            decided = True
+            if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
+                return none
+            c = res.copy()
+            _apply_qt(c, AT, tauA, r)
+            if lambda_max > 0.0 and r < mk and 0.0 < eps:   # R_kk has zero singular values: lambda = lambda_max
+                y = _damped_ls(RA, c[:r], lambda_max * lambda_max)
+            else:
+                y = _solve_upper(RA, c[:r])
+    if not decided:                                    # the reference's own steps: SVD of A (LAPACK dgesdd)
+        A = np.ascontiguousarray(B[:, m1:])
+        U, s, Vt = np.linalg.svd(A, full_matrices=False)
+        smin = s[-1]
+        if smin <= thr_k:
+            return none
+        sinv = 1.0 / s
+        p = math.sqrt(np.sum(sinv * sinv))
+        if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
+            return none
+        smin_pivot = 0.0 if s.size < mk else smin
+        if lambda_max > 0.0 and smin_pivot < eps:
+            inv = s / (s * s + (1.0 - (smin_pivot / eps) ** 2) * lambda_max**2)
+        else:
+            inv = sinv
+        y = Vt.T @ (inv * (U.T @ res))
+    w = np.empty(n)                                    # x = Q [z; y]
+    w[:m1] = z
+    w[m1:] = y
+    _apply_q(w, V, tau, m1)
+    return w
+
+
+_SIZES: dict[tuple, np.ndarray] = {}
+_UNIT = RANK_FACTOR * EPS
+
+
+def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float,
+              cond: float, mode: int = AUTO):
+    """The compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`: ``x`` or None (declined)."""
+    s = _SIZES.get(sizes)
+    if s is None:
+        s = np.asarray(sizes, dtype=np.int64)
+        if isinstance(sizes, tuple) and len(_SIZES) < 256:
+            _SIZES[sizes] = s
+    x = _past_rank(J, b, s, n, float(lambda_max), float(eps), _UNIT, margin, cond, mode)
+    return x if x.shape[0] else None

@@ -1,0 +1,265 @@
+"""The compiled kernels (hqp_tpm.solvers._compiled) equal their numpy references.
+
+``past_rank`` (the compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`, taken by ``tpm`` /
+``tpm_stacked`` / ``sns_tpm`` when the stack has more rows than joints) against the numpy shortcut: the same
+decision (solve or decline) and the same ``x`` to 1e-12 on random stacks past rank ``n`` (the suite's
+full-rank stacks with a posture level, the benchmark's shapes, dependent stacks, scales 1e-6..1e6, exact
+and damped, ``x0``), in both kernel modes (certificates from ``R_A``, or the SVD as the reference). On
+ill-conditioned draws (cond up to 1e10, the numerics issue's) two exact formulas differ by ``cond * eps``
+in rounding, so there both are held to a 50-digit reference: the compiled ``x`` is as accurate as the
+numpy one. Then the side-by-side benchmark's stacks, every step of its closed loops, and scenario runs
+with the compiled path forced on and off.
+"""
+
+import sys
+from pathlib import Path
+
+import mpmath
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from test_fullrank import ill_conditioned_past_rank
+
+from hqp_tpm.solvers import _compiled, sns_tpm, tpm
+from hqp_tpm.solvers._fullrank import COND, MARGIN, solve_past_rank
+from hqp_tpm.solvers.levels import stacked
+from hqp_tpm.solvers.tpm import tpm_stacked
+from hqp_tpm.testing.stacks import dependent_stack, nearly_dependent_stack, random_stack
+from hqp_tpm.testing.strategies import full_rank_stacks
+from hqp_tpm.testing.strategies import stacks as stack_strategy
+
+pytestmark = pytest.mark.skipif(not _compiled.AVAILABLE, reason="numba is not installed")
+
+TOL = 1e-12
+DAMPING = [(0.0, 0.0), (0.05, 0.1), (0.1, 0.5), (1e-3, 1e-2)]
+MODES = (_compiled.AUTO, _compiled.SVD)
+
+
+def rel_diff(a, b) -> float:
+    return float(np.linalg.norm(a - b) / max(1.0, np.linalg.norm(b)))
+
+
+def with_posture(levels, n, rng, scale=1.0):
+    """The stack with a last level ``I_n`` (a posture task): more rows than joints."""
+    return list(levels) + [(np.eye(n), scale * rng.standard_normal(n))]
+
+
+def check_equal(levels, n, tol=TOL):
+    """Same decision and same ``x`` (to ``tol``) as the numpy shortcut, every damping, both modes. Returns the
+    number of (damping, mode) cases the shortcut solved."""
+    _, J, b, sizes, n = stacked(levels, n)
+    solved = 0
+    for lam, eps in DAMPING:
+        ref = solve_past_rank(J, b, sizes, n, lam, eps)
+        for mode in MODES:
+            x = _compiled.past_rank(J, b, sizes, n, lam, eps, MARGIN, COND, mode)
+            assert (x is None) == (ref is None), (sizes, lam, eps, mode)
+            if ref is not None:
+                solved += 1
+                assert rel_diff(x, ref) <= tol, (sizes, lam, eps, mode, rel_diff(x, ref))
+    return solved
+
+
+@pytest.fixture
+def compiled(monkeypatch):
+    """Switch the solvers' dispatch: ``compiled(True)`` / ``compiled(False)``."""
+    return lambda on: monkeypatch.setattr(_compiled, "ENABLED", bool(on))
+
+
+def test_random_shapes_past_rank():
+    rng = np.random.default_rng(2026)
+    solved = 0
+    for _ in range(300):
+        n = int(rng.integers(2, 15))
+        sizes = [int(rng.integers(1, n + 3)) for _ in range(int(rng.integers(1, 5)))]
+        if sum(sizes) <= n:
+            sizes.append(n - sum(sizes) + int(rng.integers(1, 4)))
+        levels = random_stack(rng, n, sizes, scale=10.0 ** rng.uniform(-2, 2))
+        levels = [(10.0 ** rng.uniform(-2, 2) * J, b) for J, b in levels]
+        solved += check_equal(levels, n)
+    assert solved >= 600
+
+
+@pytest.mark.parametrize("shape", [([6, 7], 7), ([6, 2, 3, 3, 3, 21], 27), ([6, 27], 27), ([3, 3, 7], 7),
+                                   ([6, 3, 6, 12, 27], 27), ([12, 40], 40)])
+def test_robot_shaped_stacks(shape):
+    """EE pose > posture (iiwa), sole > CoM > foot > hands > posture (Romeo) and other whole-body shapes."""
+    sizes, n = shape
+    rng = np.random.default_rng(sum(sizes))
+    solved = 0
+    for _ in range(20):
+        levels = random_stack(rng, n, sizes[:-1])
+        levels = with_posture(levels, n, rng) if sizes[-1] == n else levels + random_stack(rng, n, sizes[-1:])
+        solved += check_equal(levels, n)
+    assert solved >= 20  # (declined: damped upper pivots, a Gaussian square crossing level near singular)
+
+
+@settings(max_examples=60, deadline=None)
+@given(full_rank_stacks(max_n=30), st.sampled_from([1e-6, 1e-3, 1.0, 1e3, 1e6]))
+def test_suite_full_rank_stacks_with_a_posture_level(case, scale):
+    """The suite's full-rank stacks (the ``tpm`` property tests' draws), units 1e-6..1e6, plus a posture."""
+    levels, rng = case
+    n = levels[0][0].shape[1]
+    levels = [(scale * J, scale * b) for J, b in with_posture(levels, n, rng)]
+    check_equal(levels, n)
+
+
+@pytest.mark.parametrize("within", [False, True])
+def test_dependent_stacks_with_a_posture_level(within):
+    """Exactly dependent, nearly dependent and repeated tasks: the shortcut declines (rank lost above)."""
+    rng = np.random.default_rng(7 + within)
+    for _ in range(30):
+        check_equal(with_posture(dependent_stack(rng, 12, within), 12, rng), 12)
+
+
+def test_x0_and_tpm_stacked(compiled):
+    """Through ``tpm`` and ``tpm_stacked`` (the lean step's call), with ``x0``: kernel on == kernel off."""
+    rng = np.random.default_rng(11)
+    for _ in range(100):
+        n = int(rng.integers(3, 12))
+        levels = with_posture(random_stack(rng, n, [int(rng.integers(1, n))]), n, rng)
+        x0 = rng.standard_normal(n)
+        _, J, b, sizes, _ = stacked(levels, n)
+        for lam, eps in DAMPING:
+            out = []
+            for on in (False, True):
+                compiled(on)
+                out.append((tpm(levels, lambda_max=lam, eps=eps, x0=x0), tpm_stacked(J, b, sizes, n, lam, eps, x0)))
+            (ref, ref_s), (x, x_s) = out
+            assert rel_diff(x, ref) <= TOL and rel_diff(x_s, ref_s) <= TOL
+            assert rel_diff(x_s, ref) <= TOL
+
+
+# ----------------------------------------------------------------------------------------
+# Ill-conditioned draws: both as accurate as a 50-digit reference allows.
+# ----------------------------------------------------------------------------------------
+def mp_past_rank(levels, n, lam=0.0):
+    """``x1 + Z (A^T A + lam^2 I)^{-1} A^T (b_k - J_k x1)`` in 50 digits (``A = J_k Z``, undamped or the damping
+    of a crossing level with more rows than the null space): the shortcut's exact answer."""
+    with mpmath.workdps(50):
+        k, m1 = 0, 0
+        while m1 + levels[k][0].shape[0] < n:
+            m1 += levels[k][0].shape[0]
+            k += 1
+        Jk, bk = (mpmath.matrix(v.tolist()) for v in levels[k])
+        if m1:
+            J1 = mpmath.matrix(np.vstack([J for J, _ in levels[:k]]).tolist())
+            b1 = mpmath.matrix(np.concatenate([b for _, b in levels[:k]]).tolist())
+            x1 = J1.T * mpmath.lu_solve(J1 * J1.T, b1)
+            Q, _ = mpmath.qr(J1.T, mode="full")
+            Z = Q[:, m1:]
+        else:
+            x1, Z = mpmath.matrix(n, 1), mpmath.eye(n)
+        A = Jk * Z
+        y = mpmath.lu_solve(A.T * A + lam**2 * mpmath.eye(n - m1), A.T * (bk - Jk * x1))
+        return np.array([float(v) for v in x1 + Z * y])
+
+
+def ill_conditioned(rng, i):
+    """The numerics issue's nearly dependent stacks (cond up to 1e10) with a posture level, or test_fullrank's
+    draws (upper levels within 1e-11..1e-3 of dependence, a crossing level nearly in their span)."""
+    if i % 2:
+        levels, _ = nearly_dependent_stack(rng, max_cond=1e10)
+        n = levels[0][0].shape[1]
+        return with_posture(levels, n, rng), n
+    return ill_conditioned_past_rank(rng)
+
+
+def test_ill_conditioned_draws_as_accurate_as_numpy():
+    """Same decisions; where solved, the compiled ``x`` is within 1e-12 of the 50-digit answer or no farther
+    from it than the numpy one (x 2)."""
+    rng = np.random.default_rng(1410)
+    solved = 0
+    for i in range(400):
+        levels, n = ill_conditioned(rng, i)
+        _, J, b, sizes, _ = stacked(levels, n)
+        lam, eps = DAMPING[(i // 2) % 2]
+        ref = solve_past_rank(J, b, sizes, n, lam, eps)
+        for mode in MODES:
+            x = _compiled.past_rank(J, b, sizes, n, lam, eps, MARGIN, COND, mode)
+            assert (x is None) == (ref is None)
+            if ref is None:
+                continue
+            solved += 1
+            xm = mp_past_rank(levels, n, lam)
+            err, err_ref = rel_diff(x, xm), rel_diff(ref, xm)
+            assert err <= max(TOL, 2.0 * err_ref), (i, mode, err, err_ref)
+    assert solved >= 50
+
+
+@settings(max_examples=40, deadline=None)
+@given(stack_strategy(n=(3, 20), levels=(1, 4), rows=(1, 4), full_rank=True, cond=(1e2, 1e10), scale=(1e-6, 1.0, 1e6)))
+def test_prescribed_condition_numbers(case):
+    """The suite's prescribed-condition stacks (cond 1e2..1e10) with a posture level: same decisions, and
+    where solved equal to ``TOL * cond`` (the rounding two exact formulas may differ by)."""
+    levels = with_posture(case.levels, case.n, case.rng)
+    check_equal(levels, case.n, tol=TOL * max(1.0, case.cond / 1e3))
+
+
+# ----------------------------------------------------------------------------------------
+# The side-by-side benchmark's stacks, closed loops, scenarios.
+# ----------------------------------------------------------------------------------------
+def _peers():
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: ``benchmarks``
+    from benchmarks.peers import problems
+
+    return problems
+
+
+@pytest.mark.parametrize("kind", ["iiwa_vel", "iiwa_acc", "romeo_vel"])
+def test_benchmark_stacks(kind):
+    P = _peers()
+    robot = P.load_robot(P.ROMEO if kind.startswith("romeo") else P.IIWA)
+    prob = P.romeo_problem(robot, n=30) if kind.startswith("romeo") else \
+        P.iiwa_problem(robot, order=1 if kind == "iiwa_vel" else 2, n=30)
+    for cfg in prob.configs:
+        levels = P.hqp_controller(robot, prob, cfg).compute().levels
+        assert check_equal(levels, robot.nv) >= 2  # undamped: always (damped EE pivots may decline)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_closed_loop_steps(order, compiled):
+    """Every step of 300 of the iiwa circle loop: the same commands and states with the kernel on and off."""
+    P = _peers()
+    robot = P.load_robot(P.IIWA)
+    ctrls = [P.hqp_circle_controller(robot, order)[0] for _ in range(2)]
+    for _ in range(300):
+        steps = []
+        for on, ctrl in zip((False, True), ctrls, strict=True):
+            compiled(on)
+            steps.append(ctrl.step())
+        ref, res = steps
+        assert rel_diff(res.command, ref.command) <= TOL
+        assert rel_diff(ctrls[1].q, ctrls[0].q) <= TOL
+        _, J, b, sizes, n = stacked(res.levels, robot.nv)
+        compiled(True)
+        assert rel_diff(tpm_stacked(J, b, sizes, n), solve_past_rank(J, b, sizes, n, 0.0, 0.0)) <= TOL
+
+
+def test_sns_tpm_takes_the_kernel_inside_the_box(compiled):
+    rng = np.random.default_rng(12)
+    for _ in range(50):
+        n = int(rng.integers(3, 10))
+        levels = with_posture(random_stack(rng, n, [int(rng.integers(1, n))]), n, rng)
+        x = tpm(levels)
+        lo, up = -2 * np.abs(x) - 1e-3, 2 * np.abs(x) + 1e-3
+        compiled(False)
+        ref = sns_tpm(levels, lo, up)
+        compiled(True)
+        assert rel_diff(sns_tpm(levels, lo, up), ref) <= TOL
+
+
+@pytest.mark.parametrize("name", ["romeo_tpm"])
+def test_scenario_runs_equal_with_the_kernel_on_and_off(name, compiled):
+    """A bundled scenario run (its whole trajectory) with the compiled path forced on and off."""
+    from hqp_tpm.app.build import build
+    from hqp_tpm.app.scenario import load
+
+    runs = []
+    for on in (False, True):
+        compiled(on)
+        ctrl = build(load(name))[1]
+        qs = [ctrl.step().command for _ in range(200)]
+        runs.append(np.array(qs))
+    assert np.max(np.abs(runs[1] - runs[0])) <= TOL * max(1.0, np.abs(runs[0]).max())
