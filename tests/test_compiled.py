@@ -4,7 +4,7 @@
 ``tpm_stacked`` / ``sns_tpm`` when the stack has more rows than joints) against the numpy shortcut: the same
 decision (solve or decline) and the same ``x`` to 1e-12 on random stacks past rank ``n`` (the suite's
 full-rank stacks with a posture level, the benchmark's shapes, dependent stacks, scales 1e-6..1e6, exact
-and damped, ``x0``), in both kernel modes (certificates from ``R_A``, or the SVD as the reference). On
+and damped, ``x0``). On
 ill-conditioned draws (cond up to 1e10, the numerics issue's) two exact formulas differ by ``cond * eps``
 in rounding, so there both are held to a 50-digit reference: the compiled ``x`` is as accurate as the
 numpy one. Then the side-by-side benchmark's stacks, every step of its closed loops, and scenario runs
@@ -33,7 +33,6 @@ pytestmark = pytest.mark.skipif(not _compiled.AVAILABLE, reason="numba is not in
 
 TOL = 1e-12
 DAMPING = [(0.0, 0.0), (0.05, 0.1), (0.1, 0.5), (1e-3, 1e-2)]
-MODES = (_compiled.AUTO, _compiled.SVD)
 
 
 def rel_diff(a, b) -> float:
@@ -46,18 +45,17 @@ def with_posture(levels, n, rng, scale=1.0):
 
 
 def check_equal(levels, n, tol=TOL):
-    """Same decision and same ``x`` (to ``tol``) as the numpy shortcut, every damping, both modes. Returns the
-    number of (damping, mode) cases the shortcut solved."""
+    """Same decision and same ``x`` (to ``tol``) as the numpy shortcut, every damping. Returns the number of
+    dampings for which the shortcut solved."""
     _, J, b, sizes, n = stacked(levels, n)
     solved = 0
     for lam, eps in DAMPING:
         ref = solve_past_rank(J, b, sizes, n, lam, eps)
-        for mode in MODES:
-            x = _compiled.past_rank(J, b, sizes, n, lam, eps, MARGIN, COND, mode)
-            assert (x is None) == (ref is None), (sizes, lam, eps, mode)
-            if ref is not None:
-                solved += 1
-                assert rel_diff(x, ref) <= tol, (sizes, lam, eps, mode, rel_diff(x, ref))
+        x = _compiled.past_rank(J, b, sizes, n, lam, eps, MARGIN, COND)
+        assert (x is None) == (ref is None), (sizes, lam, eps)
+        if ref is not None:
+            solved += 1
+            assert rel_diff(x, ref) <= tol, (sizes, lam, eps, rel_diff(x, ref))
     return solved
 
 
@@ -78,7 +76,7 @@ def test_random_shapes_past_rank():
         levels = random_stack(rng, n, sizes, scale=10.0 ** rng.uniform(-2, 2))
         levels = [(10.0 ** rng.uniform(-2, 2) * J, b) for J, b in levels]
         solved += check_equal(levels, n)
-    assert solved >= 600
+    assert solved >= 300
 
 
 @pytest.mark.parametrize("shape", [([6, 7], 7), ([6, 2, 3, 3, 3, 21], 27), ([6, 27], 27), ([3, 3, 7], 7),
@@ -92,7 +90,7 @@ def test_robot_shaped_stacks(shape):
         levels = random_stack(rng, n, sizes[:-1])
         levels = with_posture(levels, n, rng) if sizes[-1] == n else levels + random_stack(rng, n, sizes[-1:])
         solved += check_equal(levels, n)
-    assert solved >= 20  # (declined: damped upper pivots, a Gaussian square crossing level near singular)
+    assert solved >= 10  # (declined: damped upper pivots, a Gaussian square crossing level near singular)
 
 
 @settings(max_examples=60, deadline=None)
@@ -176,16 +174,15 @@ def test_ill_conditioned_draws_as_accurate_as_numpy():
         _, J, b, sizes, _ = stacked(levels, n)
         lam, eps = DAMPING[(i // 2) % 2]
         ref = solve_past_rank(J, b, sizes, n, lam, eps)
-        for mode in MODES:
-            x = _compiled.past_rank(J, b, sizes, n, lam, eps, MARGIN, COND, mode)
-            assert (x is None) == (ref is None)
-            if ref is None:
-                continue
-            solved += 1
-            xm = mp_past_rank(levels, n, lam)
-            err, err_ref = rel_diff(x, xm), rel_diff(ref, xm)
-            assert err <= max(TOL, 2.0 * err_ref), (i, mode, err, err_ref)
-    assert solved >= 50
+        x = _compiled.past_rank(J, b, sizes, n, lam, eps, MARGIN, COND)
+        assert (x is None) == (ref is None)
+        if ref is None:
+            continue
+        solved += 1
+        xm = mp_past_rank(levels, n, lam)
+        err, err_ref = rel_diff(x, xm), rel_diff(ref, xm)
+        assert err <= max(TOL, 2.0 * err_ref), (i, err, err_ref)
+    assert solved >= 25
 
 
 @settings(max_examples=40, deadline=None)
@@ -215,7 +212,7 @@ def test_benchmark_stacks(kind):
         P.iiwa_problem(robot, order=1 if kind == "iiwa_vel" else 2, n=30)
     for cfg in prob.configs:
         levels = P.hqp_controller(robot, prob, cfg).compute().levels
-        assert check_equal(levels, robot.nv) >= 2  # undamped: always (damped EE pivots may decline)
+        assert check_equal(levels, robot.nv) >= 1  # undamped: always (damped EE pivots may decline)
 
 
 @pytest.mark.parametrize("order", [1, 2])

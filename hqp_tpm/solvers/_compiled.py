@@ -12,8 +12,8 @@ How it computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._
 * ``J_k Q`` by applying the reflectors from the right: its first ``m1`` columns give ``J_k x1``, the others
   are ``A = J_k Z``;
 * ``A = Q_A R_A`` (Householder): ``||A#||_F = ||R_A^{-1}||_F`` exactly, and ``1/||R_A^{-1}||_F <= sigma_min(A)
-  <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide, the SVD of ``A``
-  (LAPACK ``dgesdd``, as the reference) decides and solves;
+  <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide (``sigma_min`` within
+  a factor ``sqrt(r)`` of a threshold), the numpy reference runs instead (its SVD decides);
 * the crossing level's least squares ``y = A# r`` from ``R_A`` (undamped) or from the QR of ``[R_A; lambda I]``
   (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``);
 * ``x = Q [z; y]`` (the reflectors applied once more).
@@ -27,35 +27,54 @@ process compiles (~2-5 s) or loads the cache (~0.1-1 s).
 
 from __future__ import annotations
 
+import importlib.util
 import math
 import os
 
 import numpy as np
 
+from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
 
-try:  # pragma: no cover - depends on the environment
-    import numba
-except ImportError:  # pragma: no cover
-    numba = None
-
-#: numba is importable (the kernels can run).
-AVAILABLE = numba is not None
+#: numba is importable (the kernels can run). numba itself is imported, and the kernels compiled or loaded
+#: from the cache, on the first call of a kernel (importing numba takes ~0.3-1 s).
+AVAILABLE = importlib.util.find_spec("numba") is not None
 #: The solvers use the compiled kernels (default: when available, unless ``HQP_TPM_COMPILED=0``).
-ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip() not in ("0", "false", "no", "off")
+ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip().lower() not in ("0", "false", "no", "off")
 
-#: Kernel modes: the cheap certificates decide when they can, else the SVD (the default); or always the SVD.
-AUTO, SVD = 0, 1
+#: Kernel outcomes: ``x`` computed; declined (the general path decides, as the reference declines); the
+#: certificates cannot decide (the numpy reference runs: it needs ``sigma_min`` from an SVD).
+SOLVED, DECLINED, UNDECIDED = 0, 1, 2
+
+_KERNELS: list[str] = []  # compiled on first use, callees first
+_READY = False
 
 
-def _njit(fn):
-    return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
+def _kernel(fn):
+    """Mark ``fn`` (plain Python until :func:`_compile`) as a kernel."""
+    _KERNELS.append(fn.__name__)
+    return fn
+
+
+def _compile() -> None:
+    """Replace every kernel of this module by its numba dispatcher (cached on disk when a cache location is
+    writable: next to this file, ``NUMBA_CACHE_DIR`` or numba's user cache directory; else in memory)."""
+    global _READY
+    import numba
+
+    g = globals()
+    for name in _KERNELS:
+        try:
+            g[name] = numba.njit(cache=True, nogil=True)(g[name])
+        except RuntimeError:  # pragma: no cover - no writable cache location at all: compile per process
+            g[name] = numba.njit(nogil=True)(g[name])
+    _READY = True
 
 
 # ----------------------------------------------------------------------------------------
 # Small dense building blocks (row-major; a "column" of a transposed matrix is a contiguous row).
 # ----------------------------------------------------------------------------------------
-@_njit
+@_kernel
 def _householder_rows(V, tau, R):
     """QR of ``M = V^T`` (``q x p``, ``q >= p``), in place on the rows of ``V`` (``p x q``).
 
@@ -90,7 +109,7 @@ def _householder_rows(V, tau, R):
             R[i, j] = V[j, i]
 
 
-@_njit
+@_kernel
 def _apply_right(B, V, tau, p):
     """``B <- B H_0 H_1 ... H_{p-1}`` (each row of ``B`` times the reflectors of :func:`_householder_rows`)."""
     rows, q = B.shape
@@ -108,7 +127,7 @@ def _apply_right(B, V, tau, p):
                 B[r, t] -= w * V[i, t]
 
 
-@_njit
+@_kernel
 def _apply_q(x, V, tau, p):
     """``x <- H_0 H_1 ... H_{p-1} x`` (``Q x``)."""
     q = x.shape[0]
@@ -125,7 +144,7 @@ def _apply_q(x, V, tau, p):
             x[t] -= w * V[i, t]
 
 
-@_njit
+@_kernel
 def _apply_qt(x, V, tau, p):
     """``x <- H_{p-1} ... H_0 x`` (``Q^T x``)."""
     q = x.shape[0]
@@ -142,7 +161,7 @@ def _apply_qt(x, V, tau, p):
             x[t] -= w * V[i, t]
 
 
-@_njit
+@_kernel
 def _triangular_inverse(R):
     """``R^{-1}`` of an upper-triangular ``R`` with a nonzero diagonal (back substitution)."""
     p = R.shape[0]
@@ -157,7 +176,7 @@ def _triangular_inverse(R):
     return X
 
 
-@_njit
+@_kernel
 def _solve_upper(R, c):
     """``R^{-1} c`` (upper triangular)."""
     p = R.shape[0]
@@ -170,7 +189,7 @@ def _solve_upper(R, c):
     return y
 
 
-@_njit
+@_kernel
 def _solve_upper_t(R, c):
     """``R^{-T} c`` (forward substitution with ``R^T``)."""
     p = R.shape[0]
@@ -183,7 +202,7 @@ def _solve_upper_t(R, c):
     return y
 
 
-@_njit
+@_kernel
 def _fro_block(X, a, e, c0, c1):
     s = 0.0
     for i in range(a, e):
@@ -192,7 +211,7 @@ def _fro_block(X, a, e, c0, c1):
     return math.sqrt(s)
 
 
-@_njit
+@_kernel
 def _damped_ls(RA, c, lam2):
     """``argmin ||R_A y - c||^2 + lam2 ||y||^2`` by the QR of ``[R_A; sqrt(lam2) I]`` (``r x r`` each)."""
     r = RA.shape[0]
@@ -214,14 +233,14 @@ def _damped_ls(RA, c, lam2):
 # ----------------------------------------------------------------------------------------
 # solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
 # ----------------------------------------------------------------------------------------
-@_njit
-def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, mode):
-    """``x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`, or an empty array when it declines.
+@_kernel
+def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
+    """``out <- x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`; returns :data:`SOLVED`, :data:`DECLINED`
+    or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the reference).
 
     ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
-    reference's ``MARGIN`` and ``COND``; ``mode``: :data:`AUTO` or :data:`SVD`.
+    reference's ``MARGIN`` and ``COND``.
     """
-    none = np.empty(0)
     m = J.shape[0]
     size = max(m, n)
     m1 = 0
@@ -244,7 +263,7 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, mode):
         _householder_rows(V, tau, R1)
         for i in range(m1):
             if R1[i, i] == 0.0:                        # dtrtri's info > 0
-                return none
+                return DECLINED
         R1inv = _triangular_inverse(R1)
         a = 0
         for lev in range(k):
@@ -252,7 +271,7 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, mode):
             bound = 1.0 / _fro_block(R1inv, a, e, a, e)
             norm = _fro_block(J, a, e, 0, n)
             if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
-                return none
+                return DECLINED
             a = e
         a_inv = _fro_block(R1inv, 0, m1, 0, m1)
         z = _solve_upper_t(R1, b[:m1])
@@ -272,56 +291,35 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, mode):
     thr_k = max(margin * unit * size * norm_k, cond * norm_k)
     norm = _fro_block(J, 0, m, 0, n)
     thr = max(margin * unit * size * norm, cond * norm)
-    y = np.empty(r)
-    decided = False
-    if mode == 0:
-        AT = np.empty((r, mk))                         # A^T: the columns of A as rows
-        for j in range(r):
-            for i in range(mk):
-                AT[j, i] = B[i, m1 + j]
-        tauA = np.empty(r)
-        RA = np.zeros((r, r))
-        _householder_rows(AT, tauA, RA)
-        dmin = math.inf
-        for j in range(r):
-            dmin = min(dmin, abs(RA[j, j]))
-        if dmin <= thr_k:                              # sigma_min <= min |r_jj|: rank n not reached clearly
-            return none
-        RAinv = _triangular_inverse(RA)
-        p = _fro_block(RAinv, 0, r, 0, r)              # = ||A#||_F = sqrt(sum 1/sigma^2)
-        lower = 1.0 / p                                # <= sigma_min(A)
-        damp_square = lambda_max > 0.0 and r == mk     # the pivot's smallest singular value is sigma_min(A)
-        if lower > thr_k and not (damp_square and lower < eps):
-            decided = True
-            if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
-                return none
-            c = res.copy()
-            _apply_qt(c, AT, tauA, r)
-            if lambda_max > 0.0 and r < mk and 0.0 < eps:   # R_kk has zero singular values: lambda = lambda_max
-                y = _damped_ls(RA, c[:r], lambda_max * lambda_max)
-            else:
-                y = _solve_upper(RA, c[:r])
-    if not decided:                                    # the reference's own steps: SVD of A (LAPACK dgesdd)
-        A = np.ascontiguousarray(B[:, m1:])
-        U, s, Vt = np.linalg.svd(A, full_matrices=False)
-        smin = s[-1]
-        if smin <= thr_k:
-            return none
-        sinv = 1.0 / s
-        p = math.sqrt(np.sum(sinv * sinv))
-        if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
-            return none
-        smin_pivot = 0.0 if s.size < mk else smin
-        if lambda_max > 0.0 and smin_pivot < eps:
-            inv = s / (s * s + (1.0 - (smin_pivot / eps) ** 2) * lambda_max**2)
-        else:
-            inv = sinv
-        y = Vt.T @ (inv * (U.T @ res))
-    w = np.empty(n)                                    # x = Q [z; y]
-    w[:m1] = z
-    w[m1:] = y
-    _apply_q(w, V, tau, m1)
-    return w
+    AT = np.empty((r, mk))                             # A^T: the columns of A as rows
+    for j in range(r):
+        for i in range(mk):
+            AT[j, i] = B[i, m1 + j]
+    tauA = np.empty(r)
+    RA = np.zeros((r, r))
+    _householder_rows(AT, tauA, RA)
+    dmin = math.inf
+    for j in range(r):
+        dmin = min(dmin, abs(RA[j, j]))
+    if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
+        return DECLINED
+    RAinv = _triangular_inverse(RA)
+    p = _fro_block(RAinv, 0, r, 0, r)                  # = ||A#||_F = sqrt(sum 1/sigma^2)
+    lower = 1.0 / p                                    # <= sigma_min(A)
+    if lower <= thr_k or (lambda_max > 0.0 and r == mk and lower < eps):
+        return UNDECIDED                               # sigma_min itself needed: the reference's SVD decides
+    if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
+        return DECLINED
+    c = res.copy()
+    _apply_qt(c, AT, tauA, r)
+    if lambda_max > 0.0 and r < mk and 0.0 < eps:     # R_kk has zero singular values: lambda = lambda_max
+        y = _damped_ls(RA, c[:r], lambda_max * lambda_max)
+    else:
+        y = _solve_upper(RA, c[:r])
+    out[:m1] = z                                       # x = Q [z; y]
+    out[m1:] = y
+    _apply_q(out, V, tau, m1)
+    return SOLVED
 
 
 _SIZES: dict[tuple, np.ndarray] = {}
@@ -329,12 +327,24 @@ _UNIT = RANK_FACTOR * EPS
 
 
 def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float,
-              cond: float, mode: int = AUTO):
+              cond: float):
     """The compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`: ``x`` or None (declined)."""
+    global ENABLED
+    if not _READY:
+        try:
+            _compile()
+        except ImportError:  # pragma: no cover - numba found but not importable: the numpy path from now on
+            ENABLED = False
+            return solve_past_rank(J, b, sizes, n, lambda_max, eps)
     s = _SIZES.get(sizes)
     if s is None:
         s = np.asarray(sizes, dtype=np.int64)
         if isinstance(sizes, tuple) and len(_SIZES) < 256:
             _SIZES[sizes] = s
-    x = _past_rank(J, b, s, n, float(lambda_max), float(eps), _UNIT, margin, cond, mode)
-    return x if x.shape[0] else None
+    x = np.empty(n)
+    status = _past_rank(J, b, s, n, float(lambda_max), float(eps), _UNIT, margin, cond, x)
+    if status == SOLVED:
+        return x
+    if status == DECLINED:
+        return None
+    return solve_past_rank(J, b, sizes, n, lambda_max, eps)
