@@ -432,6 +432,34 @@ def _scale_and_pick(a, b, sb: _ScalarBox, free, viol) -> tuple[float, int]:
     return factor, j
 
 
+class _FreeStack:
+    """TPM of the stack restricted to the free joints (``J W`` of the extension, ``m > n``): the full-rank shortcut
+    (:func:`hqp_tpm.solvers.tpm.past_rank`, compiled when enabled) when it applies, else the padded general path.
+    The shortcut's decisions do not depend on the right-hand side, so trying it once on ``xd`` tells."""
+
+    __slots__ = ("Jf", "xd", "x_xd", "sizes", "nf", "damping", "fac")
+
+    @classmethod
+    def of(cls, Jf, xd, sizes, lambda_max, eps, k_fit):
+        """The solver, or None when the first level of ``J W`` has a singular pivot and ``k_fit`` watches it."""
+        self = cls.__new__(cls)
+        nf = Jf.shape[1]
+        self.Jf, self.xd, self.sizes, self.nf, self.damping, self.fac = Jf, xd, sizes, nf, (lambda_max, eps), None
+        self.x_xd = past_rank(Jf, xd, sizes, nf, lambda_max, eps)        # Jf has m > n > nf rows
+        if self.x_xd is not None:                # upper pivots regular: only a crossing first level can be singular
+            return None if k_fit and sizes[0] > nf else self
+        self.fac = Factorization(Jf, sizes, nf, lambda_max, eps)
+        return None if any(p.singular for p in self.fac.pivots[:k_fit]) else self
+
+    def solve(self, c):
+        """``(J W)# F_W c`` on the free joints."""
+        if self.fac is not None:
+            return self.fac.solve(c)
+        if c is self.xd:
+            return self.x_xd
+        return past_rank(self.Jf, c, self.sizes, self.nf, *self.damping)
+
+
 def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
             return_info: bool = False):
     """SNS-TPM (papers/002 Algorithm 1, eq. (4)): prioritized stack under the box ``lower <= x <= upper``.
@@ -448,15 +476,20 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     lo, up = _box(lower, upper, None)
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
+    x = fac = None
     if sizes and J.shape[0] > n:                 # rank n before the last level: hqp_tpm.solvers._fullrank
         x = past_rank(J, xd, sizes, n, lambda_max, eps)
         if x is not None and ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
-    if sizes:                                    # W = I: eq. (4) is the TPM solution (1)
+    if x is not None:                            # the TPM solution by the shortcut: F is not needed (m > n)
+        F_times = Fxd = None
+        first_singular = sizes[0] > n            # the first level crosses rank n with more rows than n
+    elif sizes:                                  # W = I: eq. (4) is the TPM solution (1)
         fac = Factorization(J, sizes, n, lambda_max, eps)
         F_times = fac.F_times
         Fxd = F_times(xd)
         x = fac.pinv_times(Fxd)[:n]
+        first_singular = fac.pivots[0].singular
     else:
         F_times, Fxd, x = (lambda v: v), xd, np.zeros(n)
     if ((x >= lo) & (x <= up)).all():            # no bound reached (the common case): the TPM solution
@@ -469,15 +502,16 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     best = None                                  # (s*, a, b, saturated) of the best scaled solution
     iterations = 0
     G = sb = None
-    tol = fac.tol if sizes else 0.0              # rank(JW) relative to the stack (damping doc)
+    tol = fac.tol if fac is not None else 0.0    # rank(JW) relative to the stack (damping doc; m <= n only)
     extended = bool(sizes) and J.shape[0] > n    # more rows than joints: this library's extension (module doc)
-    k_fit = int(extended and not fac.pivots[0].singular)  # m > n: the rank test watches the first level only
+    k_fit = int(extended and not first_singular)  # m > n: the rank test watches the first level only
     while True:
         iterations += 1
         if order:                                # (JW)# applied by triangular solves, never formed
             if extended:                         # TPM of the stack J W
                 ab = np.zeros((n, 2))
-                ab[free] = G.solve(np.column_stack([xd, J[:, order] @ xN[order]]))
+                ab[free, 0] = G.solve(xd)
+                ab[free, 1] = G.solve(J[:, order] @ xN[order])
             else:
                 ab = G.times(np.column_stack([Fxd, F_times(J[:, order] @ xN[order])]))
             a = ab[:, 0]
@@ -501,8 +535,7 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
             if not extended:
                 G = FreeColumns.of(J, free, tol)
             elif free.any():
-                G = Factorization(J[:, free], sizes, int(free.sum()), lambda_max, eps)
-                G = None if any(p.singular for p in G.pivots[:k_fit]) else G
+                G = _FreeStack.of(J[:, free], xd, sizes, lambda_max, eps, k_fit)
             else:
                 G = None
         if j < 0 or G is None:
