@@ -102,3 +102,32 @@ def test_unknown_direction_is_rejected_at_construction(lwr):
     ee = FramePosition(lwr, "lwr_ee", None, Gains(40, 20), name="ee")
     with pytest.raises(UnknownNameError, match="'mean', 'nearest'"):
         Algorithm1(lwr, ee, None, CPS, "lwr_ee", [], direction="average")
+
+
+def test_nearest_from_one_masked_grid_equals_nearest_element(lwr):
+    """Algorithm1._nearest (one masked copy of the grid) makes nearest_element's choices: same element, obstacle,
+    distance and direction, on random grids with ties, +inf (culled) pairs, pairs out of range and beyond eps2."""
+    from hqp_tpm.geometry.repulsion import nearest_element
+
+    pol, _ = make(lwr, [Obstacle.sphere(f"o{i}", [3.0 + i, 3.0, 3.0]) for i in range(3)])
+    f, th = pol.field, pol.th
+    rng = np.random.default_rng(3)
+    seen = set()
+    for _ in range(400):
+        D = rng.choice([-0.01, 0.02, 0.05, 0.09, 0.15, 0.2, np.inf], size=f.distance.shape)
+        D[rng.random(D.shape) < 0.3] = rng.uniform(-0.01, 0.3)
+        if rng.random() < 0.3:  # no body point within eps2
+            D[pol.body] = rng.choice([0.16, 0.3, np.inf], size=D[pol.body].shape)
+        f.distance[...] = D
+        f.normal[...] = rng.normal(size=f.normal.shape)
+        f.in_range[...] = (D <= f.surveillance) & (rng.random(D.shape) < 0.9)
+        j_ee, d_ee, n_ee, k, j, d_min, r_hat = pol._nearest()
+        ref_ee = nearest_element(f.distance[pol.ee], f.normal[pol.ee], f.in_range[pol.ee])
+        ref = nearest_element(f.distance[pol.body], f.normal[pol.body], f.in_range[pol.body], "nearest", th.eps2)
+        assert (j_ee, d_ee) == ref_ee[1:3] and (k, j, d_min) == ref[:3]
+        for a, b in ((n_ee, ref_ee[3]), (r_hat, ref[3])):
+            assert (a is None) == (b is None)
+            if a is not None:
+                np.testing.assert_array_equal(a, b)
+        seen.add((k >= 0, j_ee >= 0))
+    assert seen == {(True, True), (True, False), (False, True), (False, False)}

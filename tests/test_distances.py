@@ -555,3 +555,31 @@ def test_convexified_panda_geometry_is_convex(panda):
     shapes = [g.geometry for g in field.geometry_model.geometryObjects]
     assert isinstance(shapes[0], coal.ConvexBase) and isinstance(shapes[1], coal.Box)
     assert isinstance(geom.geometryObjects[4].geometry, coal.BVHModelBase)  # caller's model untouched
+
+
+def _records(field):
+    return [a.copy() for a in (field.distance, field.p_robot, field.p_obstacle, field.normal, field.computed,
+                               field.in_range, field.snapshot()[1])]
+
+
+@pytest.mark.parametrize("radius", [0.0, 0.05])
+def test_sphere_block_in_place_equals_its_reference_bit_for_bit(radius):
+    """The in-place sphere block (views of the records) against the readable one: identical arrays, also when a
+    control point sits on an obstacle's centre (fallback normal) and with spherical links (non-zero radii)."""
+    model, geom = tiny()
+    rng = np.random.default_rng(11)
+    data = kinematics(model, rng.uniform(-2, 2, model.nq), rng.normal(size=model.nv))
+    tip = data.oMf[model.getFrameId("tip")].translation.copy()
+    obs = [Obstacle.sphere("a", [0.3, 0.2, 0.5], radius), Obstacle.sphere("b", [0.1, -0.3, 0.2]),
+           Obstacle.sphere("on_tip", tip, radius)]
+    geoms = ["ball3"] if radius else []
+    fast = DistanceField(model, geom, ["cp_mid", "tip"], obs, surveillance=0.3, geometries=geoms)
+    slow = DistanceField(model, geom, ["cp_mid", "tip"], obs, surveillance=0.3, geometries=geoms)
+    assert fast._sph_views
+    slow._update_spheres = slow._update_spheres_reference
+    for q in [None, *rng.uniform(-2, 2, (20, model.nq))]:
+        d = data if q is None else kinematics(model, q, rng.normal(size=model.nv))
+        fast.update(d)
+        slow.update(d)
+        for a, b in zip(_records(fast), _records(slow), strict=True):
+            np.testing.assert_array_equal(a, b)

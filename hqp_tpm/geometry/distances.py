@@ -136,6 +136,10 @@ class DistanceField:
         self._sph_re_zero, self._sph_ro_zero = part.sph_re_zero, part.sph_ro_zero
         self._sph_erows, self._sph_orows, self._sph_grid = part.sph_erows, part.sph_orows, part.sph_grid
         self._sph_all = part.sph_all
+        # the sphere block as basic slices: updated in place through views of the records
+        self._sph_views = isinstance(self._sph_grid, tuple) and all(isinstance(g, slice) for g in self._sph_grid)
+        self._sph_diff = np.zeros((len(part.sph_e), len(part.sph_o), 3))
+        self._sph_delta = np.zeros((len(part.sph_e), len(part.sph_o)))
         self._coal_e, self._coal_o = part.coal_e, part.coal_o
         self._point_shape = part.point_shape
         self._coal_e_list, self._coal_o_list = part.coal_e_list, part.coal_o_list
@@ -252,7 +256,42 @@ class DistanceField:
         return self
 
     def _update_spheres(self):
-        """Closed-form sphere-sphere block (control points are zero-radius spheres)."""
+        """Closed-form sphere-sphere block (control points are zero-radius spheres).
+
+        Same operations as :meth:`_update_spheres_reference`, into preallocated buffers and, when the block
+        is a pair of basic slices, straight into the record's views (equal bit for bit, tests/test_distances.py).
+        """
+        grid = self._sph_grid
+        if not self._sph_views:
+            self._update_spheres_reference()
+            return
+        ce = self._elem_center[self._sph_erows]
+        co = self._obs_center[self._sph_orows]
+        diff = np.subtract(ce[:, None, :], co[None, :, :], out=self._sph_diff)
+        delta = np.sqrt(np.einsum("ijk,ijk->ij", diff, diff, out=self._sph_delta), out=self._sph_delta)
+        n = self.normal[grid]                                          # a view
+        if delta.min() > _TINY:
+            np.divide(diff, delta[..., None], out=n)
+        else:
+            ok = delta > _TINY
+            n[...] = 0.0
+            np.divide(diff, delta[..., None], out=n, where=ok[..., None])
+            for a, b in zip(*np.nonzero(~ok), strict=True):
+                n[a, b] = self._fallback_normal(self._sph_e[a], self._sph_o[b], ce[a], None)
+        np.subtract(delta, self._sph_rsum, out=self.distance[grid])
+        self._last_normal[grid] = n
+        if self._sph_re_zero:
+            self.p_robot[grid] = ce[:, None, :]
+        else:
+            np.subtract(ce[:, None, :], self._sph_re[:, None, None] * n, out=self.p_robot[grid])
+        if self._sph_ro_zero:
+            self.p_obstacle[grid] = co[None, :, :]
+        else:
+            np.add(co[None], self._sph_ro[None, :, None] * n, out=self.p_obstacle[grid])
+        self.computed[grid] = True
+
+    def _update_spheres_reference(self):
+        """The closed-form sphere-sphere block, readable (any index sets)."""
         ce = self._elem_center[self._sph_erows]
         co = self._obs_center[self._sph_orows]
         diff = ce[:, None, :] - co[None, :, :]

@@ -92,33 +92,66 @@ class Algorithm1(DistancePolicy):
         return SceneItems(self.obstacles, self.control_points, self.ee_frame, self.ee_task, self.pointing, self.field)
 
     # the algorithm -------------------------------------------------------------------------
-    def __call__(self, state: State, t: float) -> Stack:
-        f, th, body, ee = self.field, self.th, self.body, self.ee
+    def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict[str, np.ndarray]]:
+        """This step's stack as its tasks, one per level (highest first), and the extra commands by task
+        name: what :meth:`__call__` wraps in a :class:`Stack` and the lean step writes as rows."""
+        f, th = self.field, self.th
         # EE control point: repulsion added to the EE command (30) while d_ee <= eps_ee; the obstacle of
         # largest magnitude is the nearest, direction (p_ee - o)/||p_ee - o||
-        _, _, d_ee, n_ee = nearest_element(f.distance[ee], f.normal[ee], f.in_range[ee])
+        # critical body point: largest repulsion magnitude = nearest within eps2 (31)
+        _, d_ee, n_ee, k, j, d_minimal, r_hat = self._nearest()
         extras = {}
         if d_ee <= th.eps_ee:
             extras[self.ee_task.name] = self.ee_repulsion.magnitude(d_ee) * n_ee
-        # critical body point: largest repulsion magnitude = nearest within eps2 (31)
-        k, j, d_minimal, r_hat = nearest_element(f.distance[body], f.normal[body], f.in_range[body],
-                                                 self.direction, th.eps2)
         critical = k >= 0
-        levels: list[tuple[Task, ...]] = [(self.ee_task,)]
+        levels: list[Task] = [self.ee_task]
         placed = False
         if critical:
             self.avoid.assign(f.jacobian(state.data, k, j), f.jdot_qdot(state.data, k, j), r_hat,
                               self.body_repulsion.magnitude(d_minimal), f.p_robot[k, j])
             if d_minimal <= th.eps1:
                 d_ee_eff = d_ee if d_ee <= th.eps_ee else th.d_ee_default
-                levels.insert(0 if d_minimal <= d_ee_eff else 1, (self.avoid,))
+                levels.insert(0 if d_minimal <= d_ee_eff else 1, self.avoid)
                 placed = True
         if self.pointing is not None and self.pointing.is_active(state):
-            levels.append((self.pointing,))
+            levels.append(self.pointing)
         if critical and not placed:
-            levels.append((self.avoid,))
+            levels.append(self.avoid)
         self._last = {"d_minimal": d_minimal, "d_ee": d_ee, "active_point": k}
-        return Stack(levels, extras)
+        return tuple(levels), extras
+
+    def _nearest(self):
+        """``(j_ee, d_ee, n_ee, k, j, d_minimal, r_hat)``: :func:`nearest_element` of the EE row and of the body rows
+        (within eps2), from one masked copy of the distances for the ``"nearest"`` direction (same choices:
+        the first minimum in row-major order, tests/test_algorithm1.py)."""
+        f, th = self.field, self.th
+        if self.direction != "nearest" or f.distance.shape[1] == 0:
+            j_ee, _, d_ee, n_ee = nearest_element(f.distance[self.ee], f.normal[self.ee], f.in_range[self.ee])
+            k, j, d_minimal, r_hat = nearest_element(f.distance[self.body], f.normal[self.body],
+                                                     f.in_range[self.body], self.direction, th.eps2)
+            return j_ee, d_ee, n_ee, k, j, d_minimal, r_hat
+        H = f.distance.shape[1]
+        Dm = np.where(f.in_range, f.distance, np.inf)
+        row = Dm[self.ee_index]
+        j_ee = int(row.argmin())
+        d_ee = float(row[j_ee])
+        if d_ee == np.inf:
+            j_ee, d_ee, n_ee = -1, np.inf, None
+        else:
+            n_ee = f.normal[self.ee_index, j_ee].copy()
+        k, j, d_minimal, r_hat = -1, -1, np.inf, None
+        if self.ee_index:
+            k, j = divmod(int(Dm[: self.ee_index].argmin()), H)
+            d_minimal = float(Dm[k, j])
+            if d_minimal > th.eps2:  # also +inf: nothing in range
+                k, j, d_minimal = -1, -1, np.inf
+            else:
+                r_hat = f.normal[k, j].copy()
+        return j_ee, d_ee, n_ee, k, j, d_minimal, r_hat
+
+    def __call__(self, state: State, t: float) -> Stack:
+        tasks, extras = self.plan(state, t)
+        return Stack([(task,) for task in tasks], extras)
 
     def probe(self, ctrl, res) -> dict:
         """Per-step record: D_minimal (31) and D_min(p_ee) (NaN when nothing in range), critical point."""

@@ -1,0 +1,165 @@
+"""The lean step of a policy that plans its stack (Algorithm 1 of papers/000): same numbers, fewer objects.
+
+The readable step (:meth:`hqp_tpm.control.controller.Controller.step`) builds every step a
+:class:`~hqp_tpm.control.stack.Stack`, one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks
+them, looks the solver up by name and wraps the result in a ``StepResult``. A policy with a ``plan(state, t)
+-> (tasks, extras)`` method (one task per level, highest first, and extra commands by task name:
+:meth:`hqp_tpm.policies.algorithm1.Algorithm1.plan`) solved by ``tpm`` without a box needs none of that.
+:class:`PlannedStep` does per step:
+
+1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field);
+2. the plan, and each planned task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
+   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its own ``jacobian`` and ``command``, an
+   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and an inequality :class:`~hqp_tpm.tasks.pointing.Pointing`
+   (its cone row while ``e > 0``, target = its command) likewise, as their ``level`` does; any other task through
+   its level's analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes);
+3. one finiteness check and one call of :func:`~hqp_tpm.solvers.tpm.tpm_stacked` (the kernel :func:`tpm` calls),
+   with ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000);
+4. one integration.
+
+The rows, their order and the kernel call are those of the readable step, so the commands and states are equal
+bit for bit (``tests/test_planned_step.py``: every step of ``lwr_relaxed``). A step whose rows are not finite is
+handed to the readable path, which raises the same typed error naming the task. Transactional like
+:meth:`Controller.step`: on any error the controller and the policy keep their state.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.solvers.tpm import tpm_stacked
+from hqp_tpm.tasks.avoidance import Avoidance
+from hqp_tpm.tasks.base import Task
+from hqp_tpm.tasks.pointing import Pointing
+
+
+class PlannedStep:
+    """The lean step of a :class:`~hqp_tpm.control.controller.Controller` whose policy plans (build it with :meth:`of`).
+
+    :meth:`step` advances the controller exactly like ``ctrl.step()`` and returns the command; :meth:`label` is the
+    stack of the last step as text (``StepResult.stack.label()``). The controller stays the owner of the state.
+    """
+
+    __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels")
+
+    @staticmethod
+    def why_not(ctrl) -> str | None:
+        """Why the planned step does not apply to ``ctrl`` (None when it does)."""
+        policy = ctrl.policy
+        if not callable(getattr(policy, "plan", None)):
+            return f"the policy {type(policy).__name__} has no plan()"
+        if policy.blends:
+            return "the policy blends"
+        if ctrl.solver != "tpm":
+            return f"solver {ctrl.solver!r} (the planned step solves with 'tpm')"
+        if ctrl.box is not None:
+            return "a box is set"
+        if ctrl.crosscheck is not None:
+            return "a crosscheck solver is set"
+        return None
+
+    @classmethod
+    def of(cls, ctrl) -> PlannedStep | None:
+        """The planned step of ``ctrl``, or None when its set-up is not supported (:meth:`why_not`)."""
+        if cls.why_not(ctrl) is not None:
+            return None
+        self = cls.__new__(cls)
+        self.ctrl, self.policy = ctrl, ctrl.policy
+        self.n, self.order = ctrl.robot.nv, ctrl.order
+        self.lambda_max, self.eps = ctrl.lambda_max, ctrl.eps
+        self.damping = ctrl.nullspace_damping if ctrl.order == 2 else 0.0
+        self.J = np.zeros((8, self.n))
+        self.b = np.zeros(8)
+        self.tasks: tuple[Task, ...] = ()
+        self._labels: dict[tuple[str, ...], str] = {}
+        return self
+
+    def label(self) -> str:
+        """``"a > b"``: the last step's stack as text."""
+        key = tuple(task.name for task in self.tasks)
+        text = self._labels.get(key)
+        if text is None:
+            text = self._labels[key] = " > ".join(key)
+        return text
+
+    def _rows(self, st, t: float, tasks, extras) -> tuple[int, list[int]]:
+        """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
+        order, a, sizes = self.order, 0, []
+        for task in tasks:
+            extra = extras.get(task.name) if extras else None
+            kind = type(task)
+            if kind.level is Task.level:  # an equality task: its own rows, no Level object
+                Jt = task.jacobian(st)
+                bt = task.command(st, t, order, extra, Jt)
+            elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
+                Jt, bt = task.jacobian(st), task.command(st, t, order)
+            elif kind is Pointing and task.inequality:  # Pointing.level: the cone row (J, command) while e > 0
+                if not task.pointing_error(st) > 0.0:
+                    continue
+                Jt = task.jacobian(st)
+                bt = task.command(st, t, order, extra, Jt)
+            else:
+                lv = task.level(st, t, order, extra)
+                Jt, bt = (lv.J, lv.b) if lv.b is not None else lv.check_finite().as_equality()
+            m = Jt.shape[0]
+            if not m:
+                continue
+            if a + m > self.J.shape[0]:
+                self._grow(a + m)
+            self.J[a:a + m] = Jt
+            self.b[a:a + m] = bt
+            a += m
+            sizes.append(m)
+        return a, sizes
+
+    def _grow(self, rows: int) -> None:
+        J, b = np.zeros((2 * rows, self.n)), np.zeros(2 * rows)
+        J[: self.J.shape[0]], b[: self.b.shape[0]] = self.J, self.b
+        self.J, self.b = J, b
+
+    def compute(self) -> np.ndarray:
+        """The command at the controller's current state (policy state advanced as in a step)."""
+        ctrl, policy = self.ctrl, self.policy
+        if not ctrl._started:
+            ctrl.start()
+        t = ctrl.t
+        st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False)
+        policy.update(st, t)
+        tasks, extras = policy.plan(st, t)
+        self.tasks = tasks
+        m, sizes = self._rows(st, t, tasks, extras)
+        J, b = self.J[:m], self.b[:m]
+        Jf = J.ravel()
+        if not math.isfinite(Jf @ Jf + b @ b):      # NaN or inf anywhere (an overflow only costs the slow path)
+            return ctrl._compute().command          # the readable path raises the typed error naming the task
+        x0 = -self.damping * ctrl._v if self.damping else None
+        if sizes:
+            x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0)
+        else:
+            x = np.zeros(self.n) if x0 is None else x0.copy()
+        if not np.isfinite(x).all():
+            raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
+        return x
+
+    def step(self) -> np.ndarray:
+        """One control step (as :meth:`Controller.step`, transactional); returns the command."""
+        ctrl = self.ctrl
+        started, saved = ctrl._started, self.policy.snapshot()
+        try:
+            x = self.compute()
+            q, v = ctrl.state.integrate(ctrl._q, ctrl._v, x, ctrl.dt, self.order)
+            if not (np.isfinite(q).all() and np.isfinite(v).all()):
+                raise NonFiniteError(f"integration produced a non-finite state at t = {ctrl.t:.6f}")
+        except BaseException:
+            self.policy.restore(saved)
+            ctrl._started = started
+            raise
+        ctrl._q, ctrl._v = q, v
+        if self.order == 2:
+            ctrl.a = x.copy()
+        ctrl.t += ctrl.dt
+        ctrl.steps += 1
+        return x

@@ -1,0 +1,97 @@
+"""The planned step (hqp_tpm.policies.planned_step) equals the readable step (Stack -> Level -> solver).
+
+Two controllers built alike, one stepped by ``Controller.step()``, the other by ``PlannedStep.step()``:
+commands, ``q``, ``v`` and the stack labels are *equal* (bit for bit) at every step of ``lwr_relaxed``
+(Algorithm 1 with coal distances, acceleration level, damped TPM, null-space damping), in two windows that
+together cover every stack the run goes through.
+"""
+
+import numpy as np
+import pytest
+
+from hqp_tpm.app.build import build
+from hqp_tpm.app.scenario import load
+from hqp_tpm.errors import NonFiniteError
+from hqp_tpm.policies.planned_step import PlannedStep
+
+#: The state of the recorded lwr_relaxed run at step 17,890 (t = 17.89 s): the avoidance goes above the EE
+#: task some 30 steps later (the run's only "avoid > ee > pointing" steps).
+Q_LATE = [0.7936698442743068, -1.1051930504766985, 1.2915109774917937, 1.6398984172273288, 0.5975509037816644,
+          2.297180618228236, 2.0966677549494903e-16]
+V_LATE = [0.07287855567991329, 0.1812309499497944, -0.17140408443826932, -0.4741915143000077,
+          -0.22488637220684907, -1.096428534024704, 1.0736396232966852e-17]
+
+
+def lwr():
+    return build(load("lwr_relaxed"))[1]
+
+
+def same_steps(ref, fast, steps) -> set[str]:
+    planned = PlannedStep.of(fast)
+    assert planned is not None, PlannedStep.why_not(fast)
+    labels = set()
+    for _ in range(steps):
+        res = ref.step()
+        x = planned.step()
+        np.testing.assert_array_equal(x, res.command)
+        np.testing.assert_array_equal(fast.q, ref.q)
+        np.testing.assert_array_equal(fast.v, ref.v)
+        np.testing.assert_array_equal(fast.a, ref.a)
+        assert planned.label() == res.stack.label()
+        assert fast.t == ref.t and fast.steps == ref.steps
+        labels.add(res.stack.label())
+    return labels
+
+
+def test_lwr_relaxed_first_steps_equal_bit_for_bit():
+    labels = same_steps(lwr(), lwr(), 2000)
+    assert labels == {"ee > avoid", "ee > pointing > avoid", "ee > pointing", "ee"}
+
+
+def test_lwr_relaxed_avoidance_above_the_ee_task_equal_bit_for_bit():
+    ref, fast = lwr(), lwr()
+    for c in (ref, fast):
+        c.set_state(Q_LATE, V_LATE)
+        c.t = 17.89
+    labels = same_steps(ref, fast, 80)
+    assert {"avoid > ee > pointing", "ee > avoid > pointing"} <= labels
+
+
+def test_planned_and_readable_steps_mix_on_one_controller():
+    ref, fast = lwr(), lwr()
+    planned = PlannedStep.of(fast)
+    for i in range(400):
+        x_ref = ref.step().command
+        x = planned.step() if i % 3 else fast.step().command
+        np.testing.assert_array_equal(x, x_ref)
+    np.testing.assert_array_equal(fast.q, ref.q)
+
+
+def test_non_finite_rows_raise_the_readable_error_and_change_nothing():
+    ctrl = lwr()
+    planned = PlannedStep.of(ctrl)
+    for _ in range(50):
+        planned.step()
+    q, v, t, steps = ctrl.q.copy(), ctrl.v.copy(), ctrl.t, ctrl.steps
+    history = ctrl.policy.snapshot()
+    ee = ctrl.policy.ee_task
+    ee.trajectory.center = np.array([np.nan, 0.6, 0.0])
+    with pytest.raises(NonFiniteError, match="ee"):
+        planned.step()
+    np.testing.assert_array_equal(ctrl.q, q)
+    np.testing.assert_array_equal(ctrl.v, v)
+    assert (ctrl.t, ctrl.steps) == (t, steps)
+    np.testing.assert_array_equal(ctrl.policy.snapshot()[1], history[1])
+
+
+@pytest.mark.parametrize("change, why", [
+    (lambda c: setattr(c, "solver", "sns_tpm"), "solver 'sns_tpm'"),
+    (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box"),
+    (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
+    (lambda c: setattr(c, "policy", []), "no plan"),
+])
+def test_unsupported_set_ups_say_why(change, why):
+    ctrl = lwr()
+    change(ctrl)
+    assert PlannedStep.of(ctrl) is None
+    assert why in PlannedStep.why_not(ctrl)
