@@ -95,3 +95,22 @@ def test_unsupported_set_ups_say_why(change, why):
     change(ctrl)
     assert PlannedStep.of(ctrl) is None
     assert why in PlannedStep.why_not(ctrl)
+
+
+@pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm"])
+def test_runner_lean_run_records_the_same_arrays(name):
+    """``runner.run(..., lean=True)`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what the
+    readable run records, bit for bit, probes included."""
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.runner import run
+
+    out = []
+    for lean in (False, True):
+        ctx = build_run(load(name))
+        rec, timing = run(ctx.controller, 300, probes=ctx.probes(), lean=lean)
+        assert timing["lean"] is lean
+        out.append(rec.arrays())
+        rec.discard()
+    assert out[0].keys() == out[1].keys()
+    for k in out[0]:
+        np.testing.assert_array_equal(out[1][k], out[0][k], err_msg=k)

@@ -73,7 +73,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         with threadpool_limits(limits=1):
             try:
                 rec, timing = runner.run(ctrl, n_steps, progress=progress, crosscheck=other, probes=probes,
-                                         label=sc.name, recording=rec, stop=stop)
+                                         label=sc.name, recording=rec, stop=stop,
+                                         lean=explainer is None and live is None)
             except HqpTpmError as exc:  # the steps before the failing one are kept, as a partial result
                 failure = exc
                 rec.close()

@@ -9,6 +9,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 
@@ -149,9 +150,34 @@ class Recording:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
+class LeanResult(NamedTuple):
+    """What the runner keeps of a lean step (the probes' ``res``): time, command, solver info, stack label."""
+
+    t: float
+    command: np.ndarray
+    info: dict
+    label: str
+
+
+def lean_stepper(ctrl: Controller):
+    """``step() -> command`` and ``label() -> str`` of the lean step of ``ctrl`` (same numbers as ``ctrl.step()``):
+    :meth:`Controller.lean` for a fixed stack, :class:`~hqp_tpm.policies.planned_step.PlannedStep` for a policy
+    that plans (Algorithm 1); None when neither applies."""
+    from hqp_tpm.policies.planned_step import PlannedStep
+
+    planned = PlannedStep.of(ctrl)
+    if planned is not None:
+        return planned.step, planned.label
+    lean = ctrl.lean()
+    if lean is not None:
+        text = ctrl.policy.stack.label()
+        return lean.step, lambda: text
+    return None
+
+
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
         probes=(), label: str = "run", recording: Recording | None = None,
-        stop: Callable[[], bool] | None = None) -> tuple[Recording, dict]:
+        stop: Callable[[], bool] | None = None, lean: bool = False) -> tuple[Recording, dict]:
     """Step ``ctrl`` ``steps`` times, recording the state at each sample time and the command.
 
     ``dq`` is the joint velocity applied during the step (the command at velocity level, the
@@ -164,6 +190,9 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     ``recording``: where to stream the rows (default: a new :class:`Recording` in a temporary folder);
     it is returned closed. ``stop``: checked before each step; when it returns true the run ends there
     (``timing["steps"]`` says how many steps were done, ``timing["stopped"]`` is true).
+    ``lean``: step with the controller's lean step when it has one (:func:`lean_stepper`; not with a
+    ``crosscheck``): the same numbers, and the probes get a :class:`LeanResult` (``t``, ``command``, ``info``,
+    ``label``) instead of a ``StepResult`` (``timing["lean"]`` says whether it was used).
     """
     rec = Recording(list(ctrl.robot.joint_names)) if recording is None else recording
     bar = None
@@ -176,6 +205,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     own_check = ctrl.crosscheck
     if crosscheck:  # solved by the controller at every step, through the same path as the command
         ctrl.crosscheck = check_solver_name(crosscheck)
+    fast = lean_stepper(ctrl) if lean and ctrl.crosscheck is None else None
     t_start = time.perf_counter()
     done = 0
     stopped = False
@@ -185,7 +215,13 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
             break
         q, v, t = ctrl.q.copy(), ctrl.v.copy(), ctrl.t
         t0 = time.perf_counter()
-        res = ctrl.step()
+        if fast is None:
+            res = ctrl.step()
+            stack = res.stack.label()
+        else:
+            x = fast[0]()
+            stack = fast[1]()
+            res = LeanResult(t, x, {}, stack)
         solve_time += time.perf_counter() - t0
         dq = res.command if ctrl.order == 1 else v
         if ctrl.order == 2:
@@ -193,7 +229,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         else:
             ddq = np.zeros_like(dq) if prev_dq is None else (dq - prev_dq) / ctrl.dt
         prev_dq = dq
-        row = {"t": t, "q": q, "dq": dq, "ddq": ddq, "stack": res.stack.label()}
+        row = {"t": t, "q": q, "dq": dq, "ddq": ddq, "stack": stack}
         for key in ("scale", "iterations"):
             if key in res.info and np.isscalar(res.info[key]):
                 row[key] = float(res.info[key])
@@ -216,7 +252,8 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     ctrl.crosscheck = own_check
     wall = time.perf_counter() - t_start
     rec.close()
-    timing = {"wall_time_s": wall, "steps": done, "mean_step_us": 1e6 * solve_time / max(done, 1)}
+    timing = {"wall_time_s": wall, "steps": done, "mean_step_us": 1e6 * solve_time / max(done, 1),
+              "lean": fast is not None}
     if stopped:
         timing["stopped"] = True
     return rec, timing
