@@ -192,3 +192,48 @@ def test_short_run_keeps_distances_positive_and_boxes(name):
     # the avoidance really worked: the ball is engaged in the first 0.9 s (romeo_tpm would penetrate it)
     assert (a["n_avoid_obstacle"] > 0).any()
     assert np.nanmin(a["d_obstacle"]) > 0.05
+
+
+def test_pairs_culled_at_the_activation_distances_could_not_have_been_active():
+    """The control field culls pairs beyond the activation distances (0.10 m obstacles, 0.05 m self): along the
+    scenario's first 0.6 s (the ball engaged) the stack, the chosen pairs and the avoidance rows equal those from a
+    field that computes every pair (no broad phase) up to the recorded range; the culled pairs' true distances
+    exceed the activation distances."""
+    import copy
+
+    ctx = build.build_run(scenario.load("romeo_obstacles_sns_tpm"))
+    ctrl, pol = ctx.controller, ctx.policy
+    assert pol.field.surveillance == 0.10 and pol.field.self_surveillance == 0.05
+    ref = copy.copy(pol)
+    ref.field = DistanceField(ctx.robot.model, wb.control_geometries(ctx.robot), (), pol.obstacles,
+                              surveillance=0.3, self_pairs=pol.pairs, broad_phase=False)
+    ref.avoid_obstacle, ref.avoid_self = wb.PairAvoidance("avoid_obstacle"), wb.PairAvoidance("avoid_self")
+    labels, culled = set(), 0
+    for i in range(600):
+        ctrl.step()
+        if i % 4:
+            continue
+        st, t = ctrl.state, ctrl.t
+        pol.update(st, t)
+        ref.update(st, t)
+        a, b = pol(st, t), ref(st, t)
+        assert a.label() == b.label()
+        labels.add(a.label())
+        assert [(e, j) for e, j, _ in pol.obstacle_pairs()] == [(e, j) for e, j, _ in ref.obstacle_pairs()]
+        for la, lb in zip(a.to_levels(st, t, 1), b.to_levels(st, t, 1), strict=True):
+            np.testing.assert_allclose(la.J, lb.J, rtol=0, atol=1e-12)
+            if not la.is_equality:
+                np.testing.assert_allclose(la.lower, lb.lower, rtol=0, atol=1e-12)
+        out = ~pol.field.computed
+        culled += int(out.sum())
+        assert (ref.field.distance[out] > 0.10).all()
+        assert (ref.field.self_distance[~pol.field.self_computed] > 0.05).all()
+    assert culled > 0 and any("avoid_obstacle" in s for s in labels)
+
+
+def test_recorded_distances_reach_the_record_range():
+    """probe() records distances up to record_range (0.3 m) from its own field, beyond the control field's 0.10 m."""
+    ctx = build.build_run(scenario.load("romeo_obstacles_sns_tpm"))
+    rec, _ = runner.run(ctx.controller, 40, probes=[ctx.policy.probe])
+    d = rec.arrays()["d_obstacle"]
+    assert np.isfinite(d).all() and (d > 0.10).any() and (d <= 0.3).all()

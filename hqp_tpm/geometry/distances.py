@@ -81,6 +81,7 @@ class DistanceField:
     control_points: frame names; each is a zero-radius sphere at the frame origin.
     obstacles: :class:`Obstacle` s (unique names).
     surveillance: the surveillance distance ``epsilon_2``; pairs farther than it are not in range.
+    self_surveillance: the same for the self pairs (default: ``surveillance``).
     geometries: names of the geometries to use (default: all of ``geometry_model``).
     self_pairs: pairs of geometry names (among ``geometries``) whose mutual distance is also computed.
     convexify: replace BVH meshes by their convex hull (default; raw meshes are ~1000x slower).
@@ -92,10 +93,13 @@ class DistanceField:
                  control_points: Sequence[str] = (), obstacles: Sequence[Obstacle] = (),
                  surveillance: float = 0.15, geometries: Iterable[str] | None = None,
                  self_pairs: Iterable[tuple[str, str]] = (), *, convexify: bool = True,
-                 broad_phase: bool = True, analytic_spheres: bool = True):
+                 broad_phase: bool = True, analytic_spheres: bool = True, self_surveillance: float | None = None):
         surveillance = float(surveillance)
-        if not np.isfinite(surveillance) or surveillance < 0.0:
-            raise GeometryError(f"surveillance distance must be finite and >= 0, got {surveillance}")
+        self_surveillance = surveillance if self_surveillance is None else float(self_surveillance)
+        for value in (surveillance, self_surveillance):
+            if not np.isfinite(value) or value < 0.0:
+                raise GeometryError(f"surveillance distance must be finite and >= 0, got {value}")
+        self.self_surveillance = self_surveillance
         self.model = model
         self.surveillance = surveillance
         self.broad_phase = bool(broad_phase)
@@ -422,7 +426,7 @@ class DistanceField:
         a, b = self.self_pairs[:, 0], self.self_pairs[:, 1]
         if self.broad_phase:
             todo = near_pairs(self._elem_center[a], self._elem_center[b], self._elem_radius[a],
-                               self._elem_radius[b], self.surveillance)
+                               self._elem_radius[b], self.self_surveillance)
         else:
             todo = np.arange(len(a))
         if todo.size:
@@ -442,7 +446,7 @@ class DistanceField:
             self.self_normal[todo] = N
             self._self_last_normal[todo] = N
             self.self_computed[todo] = True
-        np.less_equal(self.self_distance, self.surveillance, out=self.self_in_range)
+        np.less_equal(self.self_distance, self.self_surveillance, out=self.self_in_range)
 
     # ------------------------------------------------------------------ queries
     def nearest(self, *kinds: str) -> Nearest:

@@ -41,6 +41,10 @@ obstacle in range (its closest robot part): both hands may be near their obstacl
 time, and a single row would leave the other pair uncontrolled. ``"closest"``: one row, the closest
 pair overall. The self level always has one row, the closest self pair.
 
+Distances for control come from a field whose broad phase culls every pair whose bounding spheres are
+farther apart than the activation distance (such a pair cannot be active: its distance is at least that lower
+bound); the recorded distances (up to ``record_range``) from a second field, updated by ``probe`` only.
+
 ``probe`` records ``d_obstacle`` (closest robot-obstacle distance), ``d_self`` (closest checked self
 pair), ``n_avoid_obstacle`` and ``n_avoid_self`` (rows of the avoidance levels); the runner records
 the stack label.
@@ -207,20 +211,30 @@ class WholeBody(DistancePolicy):
         self.obstacle_rows = obstacle_rows
         gm = control_geometries(robot, geometries)
         self.pairs = self_pairs(robot.model, robot.collision_model) if pairs is None else list(pairs)
-        self.field = DistanceField(robot.model, gm, (), self.obstacles,
-                                   surveillance=max(record_range, d_obstacle_activation, d_self_activation),
-                                   self_pairs=self.pairs)
+        # control: pairs whose bounding spheres are farther apart than the activation distances cannot be
+        # active, so the broad phase culls them (tests/test_whole_body.py); recording: the distances within
+        # record_range, from a second field updated by probe() only
+        self.field = DistanceField(robot.model, gm, (), self.obstacles, surveillance=d_obstacle_activation,
+                                   self_pairs=self.pairs, self_surveillance=d_self_activation)
+        self.record_field = DistanceField(robot.model, gm, (), self.obstacles,
+                                          surveillance=max(record_range, d_obstacle_activation, d_self_activation),
+                                          self_pairs=self.pairs)
         self.avoid_obstacle = PairAvoidance("avoid_obstacle")
         self.avoid_self = PairAvoidance("avoid_self")
         self.thresholds = {"d_obstacle": {"activation": d_obstacle_activation, "safe": d_obstacle_safe},
                            "d_self": {"activation": d_self_activation, "safe": d_self_safe}}
         self._last = {"n_avoid_obstacle": 0.0, "n_avoid_self": 0.0}
+        self._data = None  # the pinocchio data of the last update (probe() reads the record field from it)
 
     def tasks(self) -> list[Task]:
         return [*self.top, *self.below]
 
+    def update(self, state: State, t: float) -> None:
+        self._data = state.data
+        self.field.update(state.data, None, t)
+
     def scene(self) -> SceneItems:
-        return SceneItems(self.obstacles, field=self.field)
+        return SceneItems(self.obstacles, field=self.record_field)
 
     # ------------------------------------------------------------------ rows
     def obstacle_pairs(self) -> list[tuple[int, int, float]]:
@@ -259,7 +273,7 @@ class WholeBody(DistancePolicy):
 
     def probe(self, ctrl, res) -> dict:
         """Per step: closest robot-obstacle and self distances (NaN beyond the recorded range), avoidance rows."""
-        f = self.field
+        f = self.record_field.update(self._data, None, self.field.t)  # the kinematics of the step's state
         d_obs = np.where(f.in_range, f.distance, np.inf).min(initial=np.inf)
         d_self = np.where(f.self_in_range, f.self_distance, np.inf).min(initial=np.inf)
         return {"d_obstacle": float(d_obs) if np.isfinite(d_obs) else np.nan,
