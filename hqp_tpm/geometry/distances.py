@@ -408,8 +408,9 @@ class DistanceField:
             d = funs[k](elem_M[e], placements[j], req, res)
             pr = C[e] if e >= ng else res.getNearestPoint1()  # a control point's witness is the point itself
             po = res.getNearestPoint2()
-            u = pr - po
-            nu = math.sqrt(u.dot(u))
+            u = (pr - po)[None]
+            nu = math.sqrt(np.einsum("ij,ij->i", u, u)[0])  # the batched path's expression: the same bits
+            u = u[0]
             if nu > _TINY:
                 n = u * ((1.0 if d >= 0.0 else -1.0) / nu)
             else:
