@@ -88,7 +88,7 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing():
     (lambda c: setattr(c, "solver", "sns_tpm"), "solver 'sns_tpm'"),
     (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box"),
     (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
-    (lambda c: setattr(c, "policy", []), "no plan"),
+    (lambda c: setattr(c, "policy", []), "not a PlanningPolicy"),
 ])
 def test_unsupported_set_ups_say_why(change, why):
     ctrl = lwr()

@@ -20,11 +20,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from hqp_tpm.control.policy import DistancePolicy, SceneItems
-from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.geometry.repulsion import DIRECTIONS, Repulsion, nearest_element
+from hqp_tpm.policies.planned_step import PlanningPolicy
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import Pointing
 from hqp_tpm.tasks.avoidance import Avoidance
@@ -53,7 +53,7 @@ BODY_REPULSION = Repulsion(0.15, 0.15, 2.0, 3.0)
 DEFAULT_THRESHOLDS = Thresholds()
 
 
-class Algorithm1(DistancePolicy):
+class Algorithm1(DistancePolicy, PlanningPolicy):
     """Dynamic stack of papers/000 for an EE position task, a pointing task and body avoidance."""
 
     channels = ("d_minimal", "d_ee", "active_point")
@@ -94,7 +94,8 @@ class Algorithm1(DistancePolicy):
     # the algorithm -------------------------------------------------------------------------
     def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict[str, np.ndarray]]:
         """This step's stack as its tasks, one per level (highest first), and the extra commands by task
-        name: what :meth:`__call__` wraps in a :class:`Stack` and the lean step writes as rows."""
+        name: what ``__call__`` wraps in a :class:`Stack` and the lean step (:mod:`~hqp_tpm.policies.planned_step`)
+        writes as rows."""
         f, th = self.field, self.th
         # EE control point: repulsion added to the EE command (30) while d_ee <= eps_ee; the obstacle of
         # largest magnitude is the nearest, direction (p_ee - o)/||p_ee - o||
@@ -148,10 +149,6 @@ class Algorithm1(DistancePolicy):
             else:
                 r_hat = f.normal[k, j].copy()
         return j_ee, d_ee, n_ee, k, j, d_minimal, r_hat
-
-    def __call__(self, state: State, t: float) -> Stack:
-        tasks, extras = self.plan(state, t)
-        return Stack([(task,) for task in tasks], extras)
 
     def probe(self, ctrl, res) -> dict:
         """Per-step record: D_minimal (31) and D_min(p_ee) (NaN when nothing in range), critical point."""

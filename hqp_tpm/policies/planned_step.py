@@ -2,9 +2,9 @@
 
 The readable step (:meth:`hqp_tpm.control.controller.Controller.step`) builds every step a
 :class:`~hqp_tpm.control.stack.Stack`, one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks
-them, looks the solver up by name and wraps the result in a ``StepResult``. A policy with a ``plan(state, t)
--> (tasks, extras)`` method (one task per level, highest first, and extra commands by task name:
-:meth:`hqp_tpm.policies.algorithm1.Algorithm1.plan`) solved by ``tpm`` without a box needs none of that.
+them, looks the solver up by name and wraps the result in a ``StepResult``. A :class:`PlanningPolicy` (its stack is
+``plan(state, t) -> (tasks, extras)``: one task per level, highest first, and extra commands by task name;
+:class:`~hqp_tpm.policies.algorithm1.Algorithm1`) solved by ``tpm`` without a box needs none of that.
 :class:`PlannedStep` does per step:
 
 1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field);
@@ -26,14 +26,29 @@ handed to the readable path, which raises the same typed error naming the task. 
 from __future__ import annotations
 
 import math
+from abc import abstractmethod
 
 import numpy as np
 
+from hqp_tpm.control.policy import Policy
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import NonFiniteError, SolverFailedError
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.pointing import Pointing
+
+
+class PlanningPolicy(Policy):
+    """A policy whose stack is one task per level: :meth:`plan` gives it, :meth:`__call__` wraps it in a Stack."""
+
+    @abstractmethod
+    def plan(self, state, t: float) -> tuple[tuple[Task, ...], dict]:
+        """This step's tasks, one per level (highest first), and the extra commands by task name."""
+
+    def __call__(self, state, t: float) -> Stack:
+        tasks, extras = self.plan(state, t)
+        return Stack([(task,) for task in tasks], extras)
 
 
 class PlannedStep:
@@ -49,8 +64,8 @@ class PlannedStep:
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not callable(getattr(policy, "plan", None)):
-            return f"the policy {type(policy).__name__} has no plan()"
+        if not isinstance(policy, PlanningPolicy):
+            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan())"
         if policy.blends:
             return "the policy blends"
         if ctrl.solver != "tpm":
