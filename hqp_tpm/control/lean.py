@@ -7,19 +7,23 @@ validated), stacks them, looks the solver up by name and wraps the result in a `
 once, at construction, and per step does only:
 
 1. the state update (pinocchio: forward kinematics, joint Jacobians, frame placements);
-2. each task's Jacobian and command written into one preallocated stacked ``J`` and ``b``;
-3. one finiteness check of ``J`` and ``b`` and one call of the TPM kernel
-   (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), no Level objects, no solver registry;
-4. one integration (:meth:`hqp_tpm.robot.state.State.integrate`).
+2. each task's rows written in place into one preallocated stacked ``J`` and ``b`` by its row writer
+   (:meth:`hqp_tpm.tasks.base.Task.row_writer`: pinocchio's data read through views, no Level objects);
+3. the joint box, if any, into preallocated arrays (:class:`JointBox` for
+   :class:`~hqp_tpm.robot.limits.JointLimits`; any other box function is called as the controller does);
+4. one finiteness check of ``J`` and ``b`` and one solver call: ``tpm`` through the TPM kernel
+   (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), ``sns_tpm`` through :func:`hqp_tpm.solvers.sns.sns_tpm` on
+   levels built once as views of ``J`` and ``b``, any other solver through the registry on those levels;
+5. one integration (:meth:`hqp_tpm.robot.state.State.integrate`).
 
-Same numbers as the readable path, step by step (``tests/test_lean.py``): the task rows come from the
-tasks' own ``jacobian`` and ``command`` and the kernel is the one :func:`~hqp_tpm.solvers.tpm.tpm` calls.
+Same numbers as the readable path, step by step (``tests/test_lean.py``: the row writers repeat the
+operations of ``jacobian`` and ``command``, the box those of :mod:`hqp_tpm.robot.joint_boxes`, and the
+solvers are the readable path's own).
 
-Supported (else :meth:`LeanStep.of` returns ``None`` and says why in ``LeanStep.why_not(ctrl)``): a
+Supported (else :meth:`LeanStep.of` returns ``None`` and :meth:`LeanStep.why_not` says why): a
 :class:`~hqp_tpm.control.stack.FixedStack` without extra commands whose tasks are equality tasks (their
-``level`` is :meth:`Task.level`), solver ``tpm``, no box, no crosscheck, a policy that neither updates
-nor blends. A step whose rows are not finite is handed to the readable path, which raises the same
-typed error naming the task.
+``level`` is :meth:`Task.level`), no crosscheck, a policy that neither updates nor blends. A step whose
+rows are not finite is handed to the readable path, which raises the same typed error naming the task.
 """
 
 from __future__ import annotations
@@ -31,8 +35,140 @@ import numpy as np
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
 from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.robot.limits import JointLimits
+from hqp_tpm.solvers.levels import Level
+from hqp_tpm.solvers.registry import solve
+from hqp_tpm.solvers.sns import sns_tpm
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.base import Task
+
+
+def _finite(*arrays: np.ndarray) -> bool:
+    """Are all entries finite? (one dot product each; an overflow of the sum only costs the exact test)"""
+    for a in arrays:
+        if not (math.isfinite(a @ a) or np.isfinite(a).all()):
+            return False
+    return True
+
+
+def _columns(idx: np.ndarray) -> slice | np.ndarray:
+    """``idx`` as a slice when it is a contiguous increasing range (assignments through it are views)."""
+    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
+        return slice(int(idx[0]), int(idx[0]) + idx.size)
+    return idx
+
+
+class JointBox:
+    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays.
+
+    The same numbers as ``JointLimits.__call__`` (:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.velocity_box`,
+    :meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.acceleration_box`) in about half the numpy calls: both sides
+    are computed at once on a ``2n`` array whose lower half is negated (``-(a - b) = b - a`` and
+    ``-max(a, b) = min(-a, -b)`` hold exactly in floating point, and the velocity box is symmetric). This
+    covers joints with finite position limits and ``a_max > 0`` inside their viable set; any other case
+    (an infinite limit, a joint beyond its limits whose box the recovery rules decide) is computed by
+    ``BoxLimits`` itself and copied.
+    """
+
+    __slots__ = ("limits", "order", "lo", "up", "fast", "_qidx2", "_cols2", "_cols", "_sgn", "_B", "_two_a",
+                 "_V", "_A", "_ad2", "_mad", "_n", "_g", "_r", "_t", "_ok", "_L", "_dt", "_lo_c", "_up_c")
+
+    def __init__(self, limits: JointLimits):
+        L = limits.limits
+        self.limits, self.order = limits, limits.order
+        nv = limits.robot.nv
+        self.lo, self.up = np.full(nv, -np.inf), np.full(nv, np.inf)
+        n = self._n = limits.cols.size
+        self._cols = _columns(limits.cols)
+        self._lo_c = self.lo[self._cols] if isinstance(self._cols, slice) else None
+        self._up_c = self.up[self._cols] if isinstance(self._cols, slice) else None
+        self.fast = bool(n) and bool(np.isfinite(L.q_min).all() and np.isfinite(L.q_max).all() and (L.a_max > 0).all())
+        two = np.concatenate
+        self._qidx2, self._cols2 = two([limits.qidx, limits.qidx]), two([limits.cols, limits.cols])
+        self._sgn = two([-np.ones(n), np.ones(n)])
+        self._B = two([L.q_min, L.q_max])
+        self._two_a = two([L._two_a, L._two_a])
+        self._V, self._A = two([L.v_max, L.v_max]), two([L.a_max, L.a_max])
+        ad = L.a_max * L.dt
+        self._ad2, self._mad = two([ad * ad, ad * ad]), two([-ad, -ad])
+        self._dt = L.dt
+        self._g, self._r, self._t, self._L = np.zeros(2 * n), np.zeros(2 * n), np.zeros(n), np.zeros(2 * n)
+        self._ok = np.zeros(2 * n, dtype=bool)
+
+    def __call__(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``(lower, upper)`` at ``(q, v)`` (the arrays are this object's, overwritten by the next call)."""
+        res = self._velocity(q) if self.order == 1 else self._acceleration(q, v)
+        if res is None:  # a case the fast formulas do not cover: BoxLimits itself
+            lim = self.limits
+            lo, up = (lim.limits.velocity_box(q[lim.qidx]) if self.order == 1 else
+                      lim.limits.acceleration_box(q[lim.qidx], v[lim.cols]))
+            self.lo[self._cols], self.up[self._cols] = lo, up
+            return self.lo, self.up
+        n = self._n
+        if self._lo_c is not None:
+            np.negative(res[:n], out=self._lo_c)
+            self._up_c[...] = res[n:]
+        else:
+            self.lo[self._cols] = -res[:n]
+            self.up[self._cols] = res[n:]
+        return self.lo, self.up
+
+    def _ordered(self, p: np.ndarray) -> bool:
+        """``p_lo <= p_up`` for every joint, with ``p`` the negated-lower/upper array (else the recovery rules)."""
+        n, t = self._n, self._t
+        np.add(p[:n], p[n:], out=t)  # -p_lo + p_up: its sign is exact
+        return bool(np.greater_equal(t, 0.0, out=self._ok[:n]).all())
+
+    def _velocity(self, q):
+        if not self.fast:
+            return None
+        g, r = self._g, self._r
+        np.take(q, self._qidx2, out=g)
+        np.subtract(self._B, g, out=g)
+        np.multiply(g, self._sgn, out=g)            # [q - q_min, q_max - q]
+        np.maximum(g, 0.0, out=r)
+        np.multiply(self._two_a, r, out=r)
+        np.sqrt(r, out=r)                           # braking terms (the lower one negated)
+        np.divide(g, self._dt, out=g)               # one-period position terms (the lower one negated)
+        np.minimum(g, r, out=g)
+        if not self._ordered(g):
+            return None
+        np.maximum(g, -self._V, out=g)              # into [-v_max, v_max] (symmetric: negation commutes)
+        np.minimum(g, self._V, out=g)
+        return g
+
+    def _acceleration(self, q, v):
+        if not self.fast:
+            return None
+        g, r, L, dt = self._g, self._r, self._L, self._dt
+        n = self._n
+        D = np.take(v, self._cols2)
+        np.multiply(D, self._sgn, out=D)            # [-dq, dq]
+        np.subtract(self._V, D, out=r)
+        np.divide(r, dt, out=r)
+        np.maximum(r, -self._A, out=r)
+        np.minimum(r, self._A, out=r)               # velocity-limit terms [-lo_v, up_v]
+        np.negative(r[n:], out=L[:n])
+        np.negative(r[:n], out=L[n:])               # [-up_v, lo_v]: the other side's bound
+        np.take(q, self._qidx2, out=g)
+        np.subtract(self._B, g, out=g)
+        np.multiply(g, self._sgn, out=g)            # [q - q_min, q_max - q]
+        h = np.multiply(D, 0.5)
+        np.multiply(h, dt, out=h)
+        np.subtract(g, h, out=g)                    # delta_lo, delta_up of BoxLimits.acceleration_box
+        if not np.greater_equal(g, 0.0, out=self._ok).all():
+            return None                             # a state outside its viable set: the recovery rules
+        np.multiply(self._two_a, g, out=g)
+        np.add(self._ad2, g, out=g)
+        np.sqrt(g, out=g)
+        np.add(self._mad, g, out=g)                 # braking velocities w (the lower one negated)
+        np.subtract(g, D, out=g)
+        np.divide(g, dt, out=g)
+        if not self._ordered(g):
+            return None
+        np.maximum(g, L, out=g)
+        np.minimum(g, r, out=g)
+        return g
 
 
 class LeanStep:
@@ -44,7 +180,8 @@ class LeanStep:
     can be mixed.
     """
 
-    __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping")
+    __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
+                 "writers", "levels", "box", "x0", "solver", "frames", "_flat")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -56,10 +193,6 @@ class LeanStep:
             return "the policy updates or blends"
         if policy.stack.extras:
             return "the stack has extra commands"
-        if ctrl.solver != "tpm":
-            return f"solver {ctrl.solver!r} (the lean step solves with 'tpm')"
-        if ctrl.box is not None:
-            return "a box is set"
         if ctrl.crosscheck is not None:
             return "a crosscheck solver is set"
         for task in policy.stack.tasks():
@@ -76,11 +209,12 @@ class LeanStep:
             return None
         self = cls.__new__(cls)
         self.ctrl = ctrl
-        self.n = ctrl.robot.nv
+        self.n = n = ctrl.robot.nv
         self.order = ctrl.order
+        self.solver = ctrl.solver
         self.lambda_max, self.eps = ctrl.lambda_max, ctrl.eps
         self.damping = ctrl.nullspace_damping if ctrl.order == 2 else 0.0
-        tasks, rows, sizes = [], [], []
+        tasks, rows, sizes, spans = [], [], [], []
         a = 0
         for level in ctrl.policy.stack.levels:
             m = 0
@@ -88,36 +222,67 @@ class LeanStep:
                 tasks.append(task)
                 rows.append(slice(a + m, a + m + task.dim))
                 m += task.dim
-            sizes.append(m)
+            if m:
+                sizes.append(m)
+                spans.append((slice(a, a + m), "+".join(task.name for task in level)))
             a += m
-        sizes = [m for m in sizes if m]
         self.tasks, self.rows, self.sizes = tuple(tasks), tuple(rows), tuple(sizes)
-        self.J = np.zeros((a, self.n))
-        self.b = np.zeros(a)
+        self._flat = np.zeros(a * n + a)  # J and b in one buffer: one finiteness test per step
+        self.J = self._flat[: a * n].reshape(a, n)
+        self.b = self._flat[a * n:]
+        st = ctrl.state
+        self.writers = tuple(task.row_writer(st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
+                                                                                                      strict=True))
+        # the solver's levels, built once: views of J and b (their rows change in place every step)
+        levels = [Level(self.J[r], self.b[r], name=name, defer_finite=True) for r, name in spans]
+        self.x0 = np.zeros(n) if self.damping else None
+        if self.x0 is not None and self.solver == "sns_tpm":  # as the registry does: one more level
+            levels.append(Level(np.eye(n), self.x0, name="x0", defer_finite=True))
+        self.levels = tuple(levels)
+        # the frames the row writers read (the others are placed if a task asks the state for them)
+        self.frames = tuple(dict.fromkeys(task.fid for task in tasks if type(task).row_writer is not Task.row_writer
+                                          and isinstance(getattr(task, "fid", None), int)))
+        box = ctrl.box
+        self.box = JointBox(box) if type(box) is JointLimits and box.order == self.order else box
         return self
+
+    def _box(self, st, t):
+        box = self.box
+        if box is None:
+            return None
+        if type(box) is JointBox:
+            return box(st.q, st.v)
+        return box(st, t)
 
     def compute(self) -> np.ndarray:
         """The command at the controller's current state (state update, rows, one solve)."""
         ctrl = self.ctrl
         if not ctrl._started:
             ctrl.start()
-        t, order = ctrl.t, self.order
-        st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False)
+        t = ctrl.t
+        st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames, velocities=self.order == 2)
+        for write in self.writers:
+            write(t)
         J, b = self.J, self.b
-        for task, r in zip(self.tasks, self.rows, strict=True):
-            Jt = task.jacobian(st)
-            J[r] = Jt
-            b[r] = task.command(st, t, order, None, Jt)
-        Jf = J.ravel()                              # a view: J is C-contiguous
-        if not math.isfinite(Jf @ Jf + b @ b):      # NaN or inf anywhere (an overflow only costs the slow path)
-            return ctrl._compute().command          # the readable path raises the typed error naming the task
-        x0 = -self.damping * ctrl._v if self.damping else None
-        if self.sizes:
-            x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0)
+        if not _finite(self._flat):
+            return ctrl._compute().command      # the readable path raises the typed error naming the task
+        x0 = self.x0
+        if x0 is not None:
+            np.multiply(ctrl._v, -self.damping, out=x0)
+        solver = self.solver
+        if solver == "tpm":
+            if self.sizes:
+                x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0)
+            else:
+                x = np.zeros(self.n) if x0 is None else x0.copy()
+        elif solver == "sns_tpm":
+            lo, up = self._box(st, t) or (np.full(self.n, -np.inf), np.full(self.n, np.inf))
+            x = sns_tpm(self.levels, lo, up, lambda_max=self.lambda_max, eps=self.eps)
         else:
-            x = np.zeros(self.n) if x0 is None else x0.copy()
-        if not (math.isfinite(x @ x) or np.isfinite(x).all()):
-            raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
+            x = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,
+                      eps=self.eps)[0]
+        if not _finite(x):
+            raise SolverFailedError(f"solver {solver!r} returned a non-finite command at t = {t:.6f}")
         return x
 
     def step(self) -> np.ndarray:
@@ -127,7 +292,7 @@ class LeanStep:
         try:
             x = self.compute()
             q, v = ctrl.state.integrate(ctrl._q, ctrl._v, x, ctrl.dt, self.order)
-            if not (np.isfinite(q).all() and np.isfinite(v).all()):
+            if not _finite(q, v):
                 raise NonFiniteError(f"integration produced a non-finite state at t = {ctrl.t:.6f}")
         except BaseException:
             ctrl._started = started

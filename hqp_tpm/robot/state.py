@@ -29,6 +29,7 @@ class State:
         self.t = 0.0
         self._zero = np.zeros(robot.nv)
         self._cache: dict = {}
+        self._partial = False
         self.updates = 0
 
     def __repr__(self) -> str:
@@ -48,21 +49,40 @@ class State:
                 raise NonFiniteError(f"{what} holds non-finite values at {np.flatnonzero(~np.isfinite(arr)).tolist()}")
         return q, v
 
-    def update(self, q, v, t: float = 0.0, *, validate: bool = True) -> State:
+    def update(self, q, v, t: float = 0.0, *, validate: bool = True, frames=None, velocities: bool = True) -> State:
         """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
 
         ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the
         controller's ``q``, ``v``): float vectors of the right sizes, finite, not modified afterwards.
+
+        The lean step (:mod:`hqp_tpm.control.lean`) may ask for less: ``frames`` (frame ids) places only
+        those frames, ``velocities=False`` runs the position pass only. The rest is then computed by the
+        first method of this class that needs it (reading ``state.data`` directly sees only what was asked).
         """
         if validate:
             q, v = self.check(q, v)
         self.q, self.v, self.t = q, v, float(t)
-        pin.forwardKinematics(self.model, self.data, q, v, self._zero)
-        pin.computeJointJacobians(self.model, self.data)  # from the placements computed just above
-        pin.updateFramePlacements(self.model, self.data)
+        model, data = self.model, self.data
+        if velocities:
+            pin.forwardKinematics(model, data, q, v, self._zero)
+        else:
+            pin.forwardKinematics(model, data, q)
+        pin.computeJointJacobians(model, data)  # from the placements computed just above
+        if frames is None:
+            pin.updateFramePlacements(model, data)
+        else:
+            for fid in frames:
+                pin.updateFramePlacement(model, data, fid)
+        self._partial = frames is not None or not velocities
         self._cache.clear()
         self.updates += 1
         return self
+
+    def _complete(self) -> None:
+        """The kinematics a partial :meth:`update` left out (velocities, J-dot q-dot, every frame)."""
+        pin.forwardKinematics(self.model, self.data, self.q, self.v, self._zero)
+        pin.updateFramePlacements(self.model, self.data)
+        self._partial = False
 
     def memo(self, key, compute):
         """``compute()`` once per update under ``key``: a derived quantity shared by its users within a step."""
@@ -73,12 +93,18 @@ class State:
 
     # -- frames --------------------------------------------------------------------------------
     def placement(self, fid: int) -> pin.SE3:
+        if self._partial:
+            self._complete()
         return self.data.oMf[fid]
 
     def position(self, fid: int) -> np.ndarray:
+        if self._partial:
+            self._complete()
         return self.data.oMf[fid].translation
 
     def rotation(self, fid: int) -> np.ndarray:
+        if self._partial:
+            self._complete()
         return self.data.oMf[fid].rotation
 
     def jacobian(self, fid: int) -> np.ndarray:
@@ -92,16 +118,46 @@ class State:
         """6-vector J-dot q-dot of the frame: classical linear and angular acceleration at zero q-ddot."""
         key = ("Jdqd", fid)
         if key not in self._cache:
+            if self._partial:
+                self._complete()
             self._cache[key] = pin.getFrameClassicalAcceleration(self.model, self.data, fid, LWA).vector.copy()
         return self._cache[key]
 
     def velocity(self, fid: int) -> np.ndarray:
         """6-vector frame velocity (linear, angular), world-aligned."""
+        if self._partial:
+            self._complete()
         return pin.getFrameVelocity(self.model, self.data, fid, LWA).vector
 
+    def frame_views(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Position and rotation of frame ``fid`` as views of pinocchio's data, updated in place by every
+        :meth:`update` (for the lean step's row writers); None if this pinocchio returns copies."""
+        M = self.data.oMf[fid]
+        views = M.translation, M.rotation
+        again = self.data.oMf[fid]
+        return views if _same_memory(views, (again.translation, again.rotation)) else None
+
     # -- centre of mass --------------------------------------------------------------------------
+    def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
+        """CoM, CoM Jacobian and CoM J-dot q-dot as views of pinocchio's data, filled by :meth:`com_kinematics`
+        (for the lean step's row writers); None if this pinocchio returns copies."""
+        d = self.data
+        views = d.com[0], d.Jcom, d.acom[0]
+        return views if _same_memory(views, (d.com[0], d.Jcom, d.acom[0])) else None
+
+    def com_kinematics(self, order: int) -> None:
+        """Fill :meth:`com_views` from the kinematics of :meth:`update`: the CoM and its Jacobian, and at
+        ``order`` 2 first its J-dot q-dot (the same calls, in the same order, as :meth:`com`)."""
+        if order == 2:
+            if self._partial:
+                self._complete()
+            pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
+        pin.jacobianCenterOfMass(self.model, self.data, False)
+
     def _com_all(self):
         if "com" not in self._cache:  # from the kinematics of update() (no second forward pass)
+            if self._partial:
+                self._complete()
             pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
             Jc = pin.jacobianCenterOfMass(self.model, self.data, False)
             d = self.data
@@ -124,6 +180,11 @@ class State:
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
         return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
+
+
+def _same_memory(a, b) -> bool:
+    """Do the arrays ``a`` and ``b`` (pairwise) start at the same address (two reads of one stored value)?"""
+    return all(x.__array_interface__["data"][0] == y.__array_interface__["data"][0] for x, y in zip(a, b, strict=True))
 
 
 def _short(x: np.ndarray, limit: int = 8) -> str:

@@ -9,6 +9,7 @@ desired velocity/acceleration before the feedback terms.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -97,6 +98,20 @@ class Task(ABC):
         rate = (self.jacobian(state) if J is None else J).dot(state.v)
         return xdd + self.gains.kd * (xd_d - rate) + self.gains.kp * e - self.jdot_qdot(state)
 
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
+        """``write(t)`` for the lean step (:mod:`hqp_tpm.control.lean`): this task's rows at ``state``'s current
+        kinematics written in place into ``J`` (``dim x n``) and ``b`` (``dim``), views of the stacked arrays.
+
+        The numbers of :meth:`jacobian` and :meth:`command` (without an extra command); built once, called
+        every step after the state update. This default calls them; the frame, CoM, posture and joint
+        velocity tasks write with fewer calls (``tests/test_lean.py`` compares every writer with them).
+        """
+        def write(t: float) -> None:
+            Jt = self.jacobian(state)
+            J[...] = Jt
+            b[...] = self.command(state, t, order, None, Jt)
+        return write
+
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
         """The task as a solver level (equality ``J x = b``)."""
         J = self.jacobian(state)
@@ -104,6 +119,26 @@ class Task(ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
+
+
+def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: np.ndarray | None = None,
+             jdq: np.ndarray | None = None) -> None:
+    """:meth:`Task.command` from the error ``e`` written into ``b`` (row writers; ``e`` and ``rate`` are scratch).
+
+    ``ref = (x_d, xd_d, xdd_d)``; at order 2 ``rate = J qd`` and ``jdq = Jdot qd`` (None: zero). The same
+    operations in the same order as :meth:`Task.command`, so the same numbers to the last bit.
+    """
+    if order == 1:                                   # b = xd_d + kp e
+        np.multiply(e, gains.kp, out=b)
+        np.add(ref[1], b, out=b)
+        return
+    np.subtract(ref[1], rate, out=rate)              # b = xdd_d + kd (xd_d - J qd) + kp e - Jdot qd
+    np.multiply(rate, gains.kd, out=rate)
+    np.add(ref[2], rate, out=b)
+    np.multiply(e, gains.kp, out=e)
+    np.add(b, e, out=b)
+    if jdq is not None:
+        np.subtract(b, jdq, out=b)
 
 
 def select_axes(axes: str) -> np.ndarray:

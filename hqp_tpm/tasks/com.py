@@ -6,7 +6,7 @@ import numpy as np
 
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, Task, feedback, row_selector, select_axes
 
 
 class CenterOfMass(Task):
@@ -36,3 +36,26 @@ class CenterOfMass(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.com_jdot_qdot()[self._sel]
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """:meth:`Task.row_writer`: pinocchio's CoM Jacobian and ``b``, the same numbers (``jacobianCenterOfMass``
+        computes the CoM the readable path reads, after ``centerOfMass`` at acceleration level for order 2)."""
+        views = state.com_views()
+        if views is None:
+            return super().row_writer(state, order, J, b)
+        com, Jcom, acom = views
+        sel = self._sel
+        e = np.zeros(self.dim)
+        rate = np.zeros(self.dim)
+
+        def write(t: float) -> None:
+            ref = self.trajectory.reference(t)
+            state.com_kinematics(order)
+            J[...] = Jcom[sel]
+            np.subtract(ref[0], com[self.rows], out=e)
+            if order == 1:
+                feedback(b, e, ref, self.gains, 1)
+            else:
+                np.dot(J, state.v, out=rate)
+                feedback(b, e, ref, self.gains, 2, rate, acom[sel])
+        return write

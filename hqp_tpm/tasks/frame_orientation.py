@@ -7,8 +7,8 @@ import pinocchio as pin
 
 from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.robot.state import LWA, State
+from hqp_tpm.tasks.base import Gains, Task, feedback
 
 
 class FrameOrientation(Task):
@@ -43,3 +43,26 @@ class FrameOrientation(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)[3:]
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """:meth:`Task.row_writer`: the angular rows of the frame Jacobian and ``b``, the same numbers."""
+        model, data, fid = state.model, state.data, self.fid
+        views = state.frame_views(fid)
+        if views is None:
+            return super().row_writer(state, order, J, b)
+        R = views[1]
+        e = np.zeros(3)
+        rate = np.zeros(3)
+
+        def write(t: float) -> None:
+            ref = self.trajectory.reference(t)
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)[3:]
+            J[...] = Jt
+            e[...] = pin.log3(self._R_target.dot(R.T))
+            if order == 1:
+                feedback(b, e, ref, self.gains, 1)
+            else:
+                np.dot(Jt, state.v, out=rate)
+                feedback(b, e, ref, self.gains, 2, rate,
+                         pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:])
+        return write

@@ -7,8 +7,8 @@ import pinocchio as pin
 
 from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.robot.state import LWA, State
+from hqp_tpm.tasks.base import Gains, Task, feedback
 
 
 class FramePose(Task):
@@ -45,3 +45,32 @@ class FramePose(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """:meth:`Task.row_writer`: the frame Jacobian and ``b`` from pinocchio's data, the same numbers."""
+        model, data, fid = state.model, state.data, self.fid
+        views = state.frame_views(fid)
+        if views is None:
+            return super().row_writer(state, order, J, b)
+        p, R = views
+        e = np.zeros(6)
+        e_p = e[:3]
+        rate = np.zeros(6)
+        target = [None, None, None]  # the target placement and views of its translation and rotation
+
+        def write(t: float) -> None:
+            ref = self.trajectory.reference(t)
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)
+            J[...] = Jt
+            M = self._M_target
+            if M is not target[0]:
+                target[:] = M, M.translation, M.rotation
+            np.subtract(target[1], p, out=e_p)
+            e[3:] = pin.log3(target[2].dot(R.T))
+            if order == 1:
+                feedback(b, e, ref, self.gains, 1)
+            else:
+                np.dot(Jt, state.v, out=rate)
+                jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+                feedback(b, e, ref, self.gains, 2, rate, jdq)
+        return write

@@ -3,10 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task, row_selector, select_axes
+from hqp_tpm.robot.state import LWA, State
+from hqp_tpm.tasks.base import Gains, Task, feedback, row_selector, select_axes
 
 
 class FramePosition(Task):
@@ -29,3 +30,27 @@ class FramePosition(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)[self._sel]
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """:meth:`Task.row_writer`: the selected linear rows of the frame Jacobian and ``b``, the same numbers."""
+        model, data, fid, sel = state.model, state.data, self.fid, self._sel
+        views = state.frame_views(fid)
+        if views is None:
+            return super().row_writer(state, order, J, b)
+        p = views[0]
+        p_sel = p[sel] if isinstance(sel, slice) else None  # a view pinocchio updates (else indexed per step)
+        e = np.zeros(self.dim)
+        rate = np.zeros(self.dim)
+
+        def write(t: float) -> None:
+            ref = self.trajectory.reference(t)
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)[sel]
+            J[...] = Jt
+            np.subtract(ref[0], p[sel] if p_sel is None else p_sel, out=e)
+            if order == 1:
+                feedback(b, e, ref, self.gains, 1)
+            else:
+                np.dot(Jt, state.v, out=rate)
+                feedback(b, e, ref, self.gains, 2, rate,
+                         pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel])
+        return write

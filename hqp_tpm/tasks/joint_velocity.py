@@ -62,5 +62,15 @@ class JointVelocity(Task):
                                  f"got {order!r}")
         return self.qd0
 
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """:meth:`Task.row_writer`: the identity once, then ``qd_0`` per step (order 2: the readable error)."""
+        if order != 1:
+            return super().row_writer(state, order, J, b)
+        J[...] = self._I
+
+        def write(t: float) -> None:
+            b[...] = self.qd0
+        return write
+
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
         return Level(self._I, self.command(state, t, order), name=self.name)

@@ -10,7 +10,7 @@ import numpy as np
 
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.tasks.base import Gains, Task, feedback
 from hqp_tpm.tasks.manipulability import JointAngles
 
 
@@ -38,3 +38,24 @@ class Posture(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         return np.zeros(self.dim)
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """:meth:`Task.row_writer`: the constant selection rows once, then ``b`` from ``q[joints]`` per step."""
+        J[...] = self._J
+        angles, cols = self.angles, self.cols
+        e = np.zeros(self.dim)
+        rate = np.zeros(self.dim)
+
+        def write(t: float) -> None:
+            ref = self.trajectory.reference(t)
+            if angles._plain:
+                np.take(state.q, angles.idx, out=e)
+                np.subtract(ref[0], e, out=e)
+            else:
+                e[...] = angles.difference(ref[0], angles.of(state.q))
+            if order == 1:
+                feedback(b, e, ref, self.gains, 1)
+            else:
+                np.take(state.v, cols, out=rate)  # J qd of a selection matrix
+                feedback(b, e, ref, self.gains, 2, rate)
+        return write
