@@ -53,19 +53,27 @@ class Hqp:
         st = self.ctrl.state
         self.box = self.ctrl.box(st, self.ctrl.t) if self.ctrl.box is not None else None
         if self.lean:  # the lean step (hqp_tpm.control.lean): one preallocated J, b; no Level objects
+            from hqp_tpm.solvers.sns import sns_tpm
             from hqp_tpm.solvers.tpm import tpm_stacked
 
-            self.fast = self.ctrl.lean()
-            self.fast.compute()
-            f = self.fast
-            self._lean_solve = lambda: tpm_stacked(f.J, f.b, f.sizes, f.n, f.lambda_max, f.eps)
+            self.fast = f = self.ctrl.lean()
+            if f is None:
+                raise RuntimeError(f"no lean step: {type(f).why_not(self.ctrl)}")
+            f.compute()
+            if self.solver == "tpm":
+                self._lean_solve = lambda: tpm_stacked(f.J, f.b, f.sizes, f.n, f.lambda_max, f.eps)
+            elif self.solver == "sns_tpm":
+                lo, up = (a.copy() for a in f._box(st, self.ctrl.t))
+                self._lean_solve = lambda: sns_tpm(f.levels, lo, up, lambda_max=f.lambda_max, eps=f.eps)
+            else:
+                self._lean_solve = None
 
     def step(self):
         return self.fast.compute() if self.lean else self.ctrl.compute().command
 
     def solve(self):
         nv = self.robot.nv
-        if self.lean:
+        if self.lean and self._lean_solve is not None:
             return self._lean_solve()
         if self.solver == "tpm":
             return self._tpm(self.levels, n=nv)

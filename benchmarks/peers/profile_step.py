@@ -1,6 +1,10 @@
 """Where hqp-tpm's full step goes on the peer problems: every call of one step, and time per function.
 
-    python benchmarks/peers/profile_step.py [--problem iiwa_vel|romeo_vel|iiwa_acc] [--solver tpm] [--steps 2000]
+    python benchmarks/peers/profile_step.py [--problem iiwa_vel|romeo_vel|iiwa_acc] [--solver tpm] [--steps N] [--lean]
+
+``--lean`` profiles the lean step (:mod:`hqp_tpm.control.lean`) instead of ``Controller.compute``; its phases are
+the partial state update, each task's row writer, the joint box, the finiteness test and the solver call, and
+the readable step is timed beside it (interleaved, same configurations) for the ratio.
 
 1. Phases of one step timed apart in tight loops (median µs of ``--reps`` calls at one configuration,
    no profiler overhead): pinocchio's kinematics alone, ``State.update``, each task's ``level``,
@@ -136,6 +140,35 @@ def phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
     return out
 
 
+def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
+    """Median µs of the phases of one lean step (``LeanStep.compute``) and of the readable step beside it."""
+    from hqp_tpm.control import lean as lean_mod
+
+    fast = ctrl.lean()
+    st, t = ctrl.state, ctrl.t
+    out = [("LeanStep.compute (whole lean step)", _median_us(fast.compute, reps)),
+           ("Controller.compute (readable step, for the ratio)", _median_us(ctrl.compute, reps)),
+           ("  state update (partial: the writers' frames; no velocity pass at order 1)", _median_us(
+               lambda: st.update(ctrl.q, ctrl.v, t, validate=False, frames=fast.frames, velocities=ctrl.order == 2),
+               reps))]
+    for task, write in zip(fast.tasks, fast.writers, strict=True):
+        out.append((f"  {type(task).__name__}({task.name}) row writer", _median_us(lambda w=write: w(t), reps)))
+    if fast.box is not None:
+        out.append((f"  box ({type(fast.box).__name__})", _median_us(lambda: fast._box(st, t), reps)))
+    out.append(("  finiteness test of J and b", _median_us(lambda: lean_mod._finite(fast._flat), reps)))
+    if ctrl.solver == "tpm":
+        out.append(("  tpm_stacked (solve)", _median_us(
+            lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))
+    elif ctrl.solver == "sns_tpm":
+        lo, up = (a.copy() for a in fast._box(st, t))
+        out.append(("  sns_tpm on the prebuilt levels (solve)", _median_us(
+            lambda: lean_mod.sns_tpm(fast.levels, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
+    out.append(("  integration (State.integrate)", _median_us(
+        lambda: st.integrate(ctrl.q, ctrl.v, ctrl.v, ctrl.dt, ctrl.order), reps)))
+    out.append((f"stacked J: {fast.J.shape[0]} x {fast.J.shape[1]}, levels {list(fast.sizes)}", float("nan")))
+    return out
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--problem", default="iiwa_vel", choices=("iiwa_vel", "romeo_vel", "iiwa_acc"))
@@ -143,6 +176,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--reps", type=int, default=3000)
     ap.add_argument("--out", type=Path, default=common.RESULTS / "peers")
+    ap.add_argument("--lean", action="store_true", help="profile the lean step (hqp_tpm.control.lean)")
     args = ap.parse_args(argv)
     with common.one_blas_thread():
         if args.problem == "romeo_vel":
@@ -154,18 +188,23 @@ def main(argv=None) -> int:
         ctrls = [P.hqp_controller(robot, prob, cfg, args.solver) for cfg in prob.configs]
         for c in ctrls:
             c.compute()
-        phases = phase_times(ctrls[0], args.reps)
-        lines, counts = trace_one(ctrls[0].compute)
-        times = []
+        steps = [c.lean().compute if args.lean else c.compute for c in ctrls]
+        phases = lean_phase_times(ctrls[0], args.reps) if args.lean else phase_times(ctrls[0], args.reps)
+        lines, counts = trace_one(steps[0])
+        times, readable = [], []
         for k in range(args.steps):
             t0 = time.perf_counter_ns()
-            ctrls[k % len(ctrls)].compute()
-            times.append(time.perf_counter_ns() - t0)
+            steps[k % len(ctrls)]()
+            t1 = time.perf_counter_ns()
+            if args.lean:  # the readable step of the same configuration, interleaved
+                ctrls[k % len(ctrls)].compute()
+                readable.append(time.perf_counter_ns() - t1)
+            times.append(t1 - t0)
         med = sorted(times)[len(times) // 2] / 1e3
         pr = cProfile.Profile()
         pr.enable()
         for k in range(args.steps):
-            ctrls[k % len(ctrls)].compute()
+            steps[k % len(ctrls)]()
         pr.disable()
     st = pstats.Stats(pr)
     rows = []
@@ -173,10 +212,16 @@ def main(argv=None) -> int:
         short = file.split("site-packages/")[-1] if "site-packages/" in file else Path(file).name
         rows.append((tt, ct, nc, f"{short}:{line}:{fn}"))
     n = args.steps
-    out = [f"# hqp-tpm full step (Controller.compute) on {prob.name}, solver {args.solver}",
+    what = "lean step (LeanStep.compute)" if args.lean else "full step (Controller.compute)"
+    out = [f"# hqp-tpm {what} on {prob.name}, solver {args.solver}",
            f"median step without profiler: {med:.1f} µs over {n} steps; {sum(counts.values())} calls in one step "
-           f"({sum(v for k, v in counts.items() if k.endswith('[C]'))} of them builtin C functions)", "",
-           "## Phases (median µs, tight loops at one configuration)", ""]
+           f"({sum(v for k, v in counts.items() if k.endswith('[C]'))} of them builtin C functions)"]
+    if readable:
+        ratios = sorted(r / s for r, s in zip(readable, times, strict=True))
+        out.append(f"readable step interleaved: median {sorted(readable)[n // 2] / 1e3:.1f} µs; readable / lean "
+                   f"per step: median {ratios[n // 2]:.2f}")
+    out += ["",
+            "## Phases (median µs, tight loops at one configuration)", ""]
     out += [f"{t:8.1f}  {name}" if t == t else f"          {name}" for name, t in phases]
     out += ["", "## Calls per function in one step", ""]
     out += [f"{v:4d}  {k}" for k, v in counts.most_common()]
@@ -185,7 +230,7 @@ def main(argv=None) -> int:
         out.append(f"{1e6 * tt / n:8.2f} {1e6 * ct / n:8.2f} {nc / n:6.2f}  {name}")
     out += ["", "## Call tree of one step", ""] + lines
     args.out.mkdir(parents=True, exist_ok=True)
-    path = args.out / f"profile_{prob.name}_{args.solver}.txt"
+    path = args.out / f"profile_{prob.name}_{args.solver}{'_lean' if args.lean else ''}.txt"
     path.write_text("\n".join(out) + "\n")
     print("\n".join(out[:60]))
     print(f"wrote {path}", file=sys.stderr)

@@ -25,6 +25,7 @@ SUMMARY_COLUMNS = (  # (column title, contender, environments to take it from, i
     ("hqp-tpm `tpm`", "hqp-tpm tpm", ("pin4", "pin34", "pin38")),
     ("hqp-tpm `tpm`, lean step", "hqp-tpm tpm (lean)", ("pin4", "pin34", "pin38")),
     ("hqp-tpm `sns_tpm`", "hqp-tpm sns_tpm", ("pin4", "pin34", "pin38")),
+    ("hqp-tpm `sns_tpm`, lean step", "hqp-tpm sns_tpm (lean)", ("pin4", "pin34", "pin38")),
     ("hqp-tpm cascaded QP (daqp)", "hqp-tpm qp:daqp", ("pin4", "pin34", "pin38")),
     ("pink 4.4 (weighted QP, daqp)", "pink", ("pin4", "pin38")),
     ("pink + limits", "pink + limits", ("pin4", "pin38")),

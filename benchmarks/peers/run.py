@@ -57,6 +57,9 @@ def env_info(name: str) -> dict[str, str]:
 def contenders_for(problem, robot, quick: bool):
     out = [C.Hqp(robot, problem, s) for s in HQP_SOLVERS]
     out.insert(1, C.Hqp(robot, problem, "tpm", lean=True))   # the lean step (hqp_tpm.control.lean)
+    if "sns_tpm" in HQP_SOLVERS:
+        out.insert(out.index(next(c for c in out if c.solver == "sns_tpm" and not c.lean)) + 1,
+                   C.Hqp(robot, problem, "sns_tpm", lean=True))
     if problem.order == 1:
         if has("pink"):
             out += [C.Pink(robot, problem, False), C.Pink(robot, problem, True),
@@ -160,7 +163,8 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
 
 def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
     kinds = [("hqp-tpm tpm", "hqp", {"solver": "tpm"}), ("hqp-tpm tpm (lean)", "hqp", {"solver": "tpm", "lean": True}),
-             ("hqp-tpm sns_tpm", "hqp", {"solver": "sns_tpm"})]
+             ("hqp-tpm sns_tpm", "hqp", {"solver": "sns_tpm"}),
+             ("hqp-tpm sns_tpm (lean)", "hqp", {"solver": "sns_tpm", "lean": True})]
     if order == 1:
         if has("pink"):
             kinds += [("pink", "pink", {}), ("pink + limits", "pink", {"limits": True})]
