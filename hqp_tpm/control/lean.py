@@ -240,8 +240,8 @@ class LeanStep:
             levels.append(Level(np.eye(n), self.x0, name="x0", defer_finite=True))
         self.levels = tuple(levels)
         # the frames the row writers read (the others are placed if a task asks the state for them)
-        self.frames = tuple(dict.fromkeys(task.fid for task in tasks if type(task).row_writer is not Task.row_writer
-                                          and isinstance(getattr(task, "fid", None), int)))
+        self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks
+                                          if type(task).row_writer is not Task.row_writer and task.frame is not None))
         box = ctrl.box
         self.box = JointBox(box) if type(box) is JointLimits and box.order == self.order else box
         return self
