@@ -139,7 +139,19 @@ class Controller:
         box = self.box(state, t) if self.box is not None else None
         return x0, box
 
+    def _where(self) -> str:
+        """Where a step failed: the time and the size of the state it started from (a run that diverged
+        overflows into NaN long after the cause; ``max|v|`` of 1e250 says so at once)."""
+        return (f" (step at t = {self.t:.6f} from max|q| = {np.abs(self._q).max():.3g}, "
+                f"max|v| = {np.abs(self._v).max():.3g})")
+
     def _compute(self) -> StepResult:
+        try:
+            return self._solve_step()
+        except NonFiniteError as exc:  # name the state: a NaN in a level may come from a diverged state
+            raise NonFiniteError(f"{exc}{self._where()}") from exc
+
+    def _solve_step(self) -> StepResult:
         if not self._started:
             self.start()
         st = self.state.update(self._q, self._v, self.t, validate=False)  # checked whenever they are set
@@ -184,7 +196,7 @@ class Controller:
             res = self._compute()
             q, v = self.state.integrate(self._q, self._v, res.command, self.dt, self.order)
             if not (np.isfinite(q).all() and np.isfinite(v).all()):
-                raise NonFiniteError(f"integration produced a non-finite state at t = {self.t:.6f}")
+                raise NonFiniteError(f"integration produced a non-finite state{self._where()}")
         except BaseException:
             self.policy.restore(saved)
             self._started = started
