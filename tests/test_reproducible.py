@@ -12,8 +12,6 @@ import sys
 import numpy as np
 import pytest
 
-pytestmark = pytest.mark.slow
-
 #: Runs scenarios one after the other in a fresh process through the Python API (no thread limit) and
 #: saves their float columns: ``python -c SCENARIOS out.npz name:steps ...``.
 SCENARIOS = """
@@ -67,6 +65,7 @@ def _differences(a: dict, b: dict, prefix: str) -> dict:
     return diff
 
 
+@pytest.mark.slow
 def test_cascaded_qp_same_bits_in_fresh_processes():
     """40 random boxed stacks solved in four fresh processes: the same bits every time."""
     digests = {_fresh(STACKS).strip() for _ in range(4)}
@@ -86,12 +85,14 @@ def both_orders(tmp_path_factory):
     return runs
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["romeo_qp", "romeo_sns_tpm"])
 def test_scenarios_in_both_orders_are_bit_equal(both_orders, name):
     """Each scenario gives the same bits whichever ran first in its process (and in two fresh processes)."""
     assert _differences(both_orders["sns_first"], both_orders["qp_first"], f"{name}/") == {}
 
 
+@pytest.mark.slow
 def test_romeo_qp_here_equals_fresh_processes(both_orders, tmp_path):
     """romeo_qp through the CLI path in this (long-lived) test process equals the fresh processes' runs."""
     from hqp_tpm.app.cli import run_scenario
@@ -133,3 +134,19 @@ def test_romeo_qp_step_1277_level_is_solved(solver):
     v, mult = c.backend(P, q, G, STEP_1277_H, np.zeros((0, 1)), np.zeros(0), "level 4")
     assert abs(v[0] - interval[0]) <= 1e-9
     assert (G @ v <= STEP_1277_H + 1e-10).all() and (mult >= -1e-9).all()
+
+
+def test_csc_is_scipys():
+    """The CSC matrices handed to ProxQP's sparse backend are SciPy's conversion, entry for entry."""
+    from scipy import sparse
+
+    from hqp_tpm.solvers.cascaded_qp import _csc
+
+    rng = np.random.default_rng(3)
+    for shape in [(1, 1), (5, 3), (3, 7), (42, 16)]:
+        M = rng.standard_normal(shape) * (rng.random(shape) < 0.4)
+        M[:, 0] = 0.0  # an empty column
+        mine, scipys = _csc(M), sparse.csc_matrix(M)
+        for attr in ("data", "indices", "indptr"):
+            assert np.array_equal(getattr(mine, attr), getattr(scipys, attr)), (shape, attr)
+        assert mine.shape == scipys.shape and np.array_equal(mine.toarray(), M)

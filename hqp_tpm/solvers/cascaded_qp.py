@@ -18,7 +18,9 @@ Numerical care, because the stacked "keep the optimum" constraints are often dep
   feasible start; bounds that meet (``lower == upper``) and kept bounds with a positive
   multiplier (active at every optimum of their level) become equalities;
 * a backend that returns no solution is retried with :data:`RETRY_OPTIONS`; ProxQP last through
-  ProxSuite itself (:data:`LAST_RESORT`), whose infeasibility tolerance qpsolvers cannot set.
+  ProxSuite itself (:data:`LAST_RESORT`), whose infeasibility tests qpsolvers cannot switch off;
+* ProxQP runs its sparse backend (:data:`SPARSE_CALL`): the same inputs give the same bits in any
+  process, whatever ran before (tests/test_reproducible.py).
 """
 
 from __future__ import annotations
@@ -250,15 +252,25 @@ SPARSE_CALL = frozenset({"proxqp"})
 
 
 def _problem(solver: str, P, q, G, h, A, b) -> qpsolvers.Problem:
-    """A qpsolvers problem without empty blocks, sparse for the backends that only take sparse matrices."""
+    """A qpsolvers problem without empty blocks, sparse for the backends that only take sparse matrices and
+    for :data:`SPARSE_CALL`."""
     import qpsolvers
-    from scipy import sparse  # loaded by qpsolvers anyway; not at package import
 
     G, h = (G, h) if G.shape[0] else (None, None)
     A, b = (A, b) if A.shape[0] else (None, None)
     if solver not in qpsolvers.dense_solvers or solver in SPARSE_CALL:
-        P, G, A = (None if M is None else sparse.csc_matrix(M) for M in (P, G, A))
+        P, G, A = (None if M is None else _csc(M) for M in (P, G, A))
     return qpsolvers.Problem(P, q, G, h, A, b)
+
+
+def _csc(M: np.ndarray):
+    """``M`` as a SciPy CSC matrix (its non-zeros, column by column), at half the cost of ``csc_matrix(M)``."""
+    from scipy import sparse
+
+    cols, rows = np.nonzero(M.T)
+    indptr = np.zeros(M.shape[1] + 1, dtype=np.int32)
+    np.cumsum(np.bincount(cols, minlength=M.shape[1]), out=indptr[1:])
+    return sparse.csc_matrix((M.T[cols, rows], rows.astype(np.int32), indptr), shape=M.shape)
 
 
 def _proxqp_direct(problem: qpsolvers.Problem, options: dict) -> tuple[np.ndarray, np.ndarray] | None:
