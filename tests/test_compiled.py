@@ -290,3 +290,107 @@ def test_sns_tpm_saturations_past_rank_take_the_shortcut(on, compiled, monkeypat
         iterations += info.iterations
         assert rel_diff(x, sns_tpm_reference(levels, lo, up)) <= 1e-10
     assert iterations >= 60 and len(calls) <= 0.1 * iterations, (iterations, len(calls))
+
+
+# ----------------------------------------------------------------------------------------
+# The general path's kernel (m <= n: regular or damped 1 x 1 pivots): tpm_stacked on == off.
+# ----------------------------------------------------------------------------------------
+EPS = np.finfo(float).eps
+
+
+def check_general(levels, n, rng, compiled, tol=TOL):
+    """``tpm_stacked`` (and ``tpm``) with the kernel on and off, every damping, with and without ``x0``.
+    Returns how many of these the kernel solved itself (the others: ``Factorization`` decided)."""
+    _, J, b, sizes, n = stacked(levels, n)
+    x0 = rng.standard_normal(n)
+    solved = 0
+    for lam, eps in DAMPING:
+        for x0_ in (None, x0):
+            compiled(False)
+            ref = tpm_stacked(J, b, sizes, n, lam, eps, x0_)
+            compiled(True)
+            x = tpm_stacked(J, b, sizes, n, lam, eps, x0_)
+            assert rel_diff(x, ref) <= tol, (sizes, lam, eps, rel_diff(x, ref))
+            solved += _compiled.general(J, b, sizes, n, lam, eps, x0_) is not None
+    compiled(False)
+    ref = tpm(levels, x0=x0)
+    compiled(True)
+    assert rel_diff(tpm(levels, x0=x0), ref) <= tol
+    return solved
+
+
+def _switch(on):
+    _compiled.ENABLED = bool(on)
+
+
+@settings(max_examples=80, deadline=None)
+@given(full_rank_stacks(), st.sampled_from([1e-6, 1e-3, 1.0, 1e3, 1e6]))
+def test_general_path_on_the_suite_full_rank_stacks(case, scale):
+    """The ``tpm`` property tests' draws (up to 40 joints, 10 levels), units 1e-6..1e6."""
+    levels, rng = case
+    n = levels[0][0].shape[1]
+    levels = [(scale * J, scale * b) for J, b in levels]
+    before = _compiled.ENABLED
+    try:
+        check_general(levels, n, rng, _switch)
+    finally:
+        _switch(before)
+
+
+def test_general_path_on_random_and_dependent_stacks(compiled):
+    rng = np.random.default_rng(77)
+    solved = 0
+    for _ in range(150):
+        n = int(rng.integers(2, 30))
+        sizes = [int(rng.integers(1, 6)) for _ in range(int(rng.integers(1, 6)))]
+        while sum(sizes) > n:
+            sizes.pop()
+        if sizes:
+            solved += check_general(random_stack(rng, n, sizes, 10.0 ** rng.uniform(-3, 3)), n, rng, compiled)
+    assert solved >= 600
+    for within in (False, True):  # exactly dependent and repeated tasks: singular pivots, Factorization decides
+        for _ in range(10):
+            assert check_general(dependent_stack(rng, 12, within), 12, rng, compiled) == 0
+
+
+def test_general_path_ill_conditioned_draws(compiled):
+    """The numerics issue's nearly dependent stacks (cond up to 1e10, pivots still regular): kernel and numpy
+    path both within ``10 eps cond`` of the 50-digit minimum-norm solution (what a backward-stable solve can
+    promise; they differ from each other by ~eps cond in rounding), same as numpy's to 1e-12 up to cond 1e3."""
+    from test_numerics import mp_min_norm
+
+    rng = np.random.default_rng(1412)
+    solved = 0
+    for _ in range(150):
+        levels, cond = nearly_dependent_stack(rng, max_cond=1e10)
+        n = levels[0][0].shape[1]
+        _, J, b, sizes, _ = stacked(levels, n)
+        compiled(False)
+        ref = tpm_stacked(J, b, sizes, n)
+        x = _compiled.general(J, b, sizes, n, 0.0, 0.0)
+        if x is None:
+            continue
+        solved += 1
+        xm = mp_min_norm(levels)
+        assert rel_diff(x, xm) <= max(TOL, 10 * EPS * cond) and rel_diff(ref, xm) <= max(TOL, 10 * EPS * cond)
+        if cond <= 1e3:
+            assert rel_diff(x, ref) <= TOL
+    assert solved >= 100
+
+
+@pytest.mark.parametrize("name", ["lwr_tracking", "planar5_exact", "iiwa_admittance"])
+def test_tpm_scenarios_equal_with_the_kernel_on_and_off(name, compiled, monkeypatch):
+    """Bundled ``tpm`` scenarios (m <= n: the general path's kernel), 300 steps each, kernel on and off."""
+    from hqp_tpm.app.build import build
+    from hqp_tpm.app.scenario import load
+
+    solved = []
+    kernel = _compiled.general
+    monkeypatch.setattr(_compiled, "general", lambda *a: solved.append(kernel(*a)) or solved[-1])
+    runs = []
+    for on in (False, True):
+        compiled(on)
+        ctrl = build(load(name))[1]
+        runs.append(np.array([ctrl.step().command for _ in range(300)]))
+    assert np.max(np.abs(runs[1] - runs[0])) <= TOL * max(1.0, np.abs(runs[0]).max())
+    assert sum(x is not None for x in solved) >= 300  # the kernel solved (at least) a step's worth of calls

@@ -1,11 +1,19 @@
 """Compiled (numba) kernels of the solvers' hot paths (private to :mod:`hqp_tpm.solvers`).
 
-The numpy code stays the readable reference: :func:`past_rank` computes what
-:func:`hqp_tpm.solvers._fullrank.solve_past_rank` computes (same decisions: the same certificates, margins,
-rank tolerances of :mod:`hqp_tpm.solvers.damping` and damping law), in one call into compiled code instead of
-~14 calls of scipy's LAPACK wrappers. ``tests/test_compiled.py`` proves the two equal (1e-12).
+The numpy code stays the readable reference; each kernel makes its decisions (the same certificates, margins,
+rank tolerances of :mod:`hqp_tpm.solvers.damping` and damping law) in one call into compiled code instead of
+~6-14 calls of scipy's LAPACK wrappers, and hands back to the reference whatever its certificates cannot decide:
 
-How it computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._fullrank`):
+* :func:`past_rank`: :func:`hqp_tpm.solvers._fullrank.solve_past_rank` (stacks with ``m > n`` that reach rank
+  ``n`` before their last level), used by ``tpm``/``tpm_stacked`` and SNS-TPM (its free-column stacks too);
+* :func:`general`: :meth:`hqp_tpm.solvers._kernels.Factorization.solve` for ``m <= n`` when every pivot is
+  certified regular or is a damped 1 x 1 block (the Householder QR, Steps 2-4 on the pivot blocks,
+  ``x = Q R^{-T} F b``, ``x0`` term); larger damped or singular pivots: ``Factorization`` (SVDs).
+
+``tests/test_compiled.py`` proves kernels and references equal (1e-12; on ill-conditioned draws both against a
+50-digit reference).
+
+How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._fullrank`):
 
 * Householder QR of ``J_<k^T`` (LAPACK's ``dlarfg`` convention) on the rows of ``J`` (contiguous), the
   certificates from ``R1^{-1}`` (back substitution; its entries never reach the result), ``z = R1^{-T} b_<k``;
@@ -322,25 +330,120 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
     return SOLVED
 
 
+# ----------------------------------------------------------------------------------------
+# The general TPM path (hqp_tpm.solvers._kernels.Factorization.solve) when m <= n.
+# ----------------------------------------------------------------------------------------
+@_kernel
+def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
+    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
+    :meth:`hqp_tpm.solvers._kernels.Factorization.solve` when every pivot is either certified regular
+    (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or a damped, nonsingular 1 x 1 block (Steps 2-4 on the
+    pivot blocks then give ``F``). Returns :data:`SOLVED`, or :data:`UNDECIDED` for anything else (a larger
+    block the certificate does not decide, a singular pivot): the caller runs ``Factorization``.
+    """
+    m, n = J.shape
+    size = max(m, n)
+    nlev = sizes.shape[0]
+    V = np.empty((m, n))
+    for i in range(m):
+        for t in range(n):
+            V[i, t] = J[i, t]
+    tau = np.zeros(m)
+    R = np.zeros((m, m))
+    _householder_rows(V, tau, R)
+    for i in range(m):
+        if R[i, i] == 0.0:
+            return UNDECIDED
+    Rinv = _triangular_inverse(R)
+    damp = np.zeros(nlev)                              # 0: regular; else the damped inverse of a 1 x 1 pivot
+    a = 0
+    for lev in range(nlev):
+        e = a + sizes[lev]
+        tol = unit * size * _fro_block(J, a, e, 0, n)
+        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro_block(Rinv, a, e, a, e)
+        if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
+            if e - a > 1 or bound <= tol:              # a larger block to decide by SVD, or a singular pivot
+                return UNDECIDED
+            inv = bound / (bound * bound + (1.0 - (bound / eps) ** 2) * lambda_max**2)
+            damp[lev] = inv if R[a, a] >= 0.0 else -inv
+        a = e
+    c = b.copy()
+    if np.any(damp != 0.0):                            # Steps 1-4 on the pivot blocks: c = F b = Fbar^T b
+        Fb = np.zeros((m, m))
+        for i in range(m):
+            for j in range(i, m):
+                Fb[i, j] = R[i, j]
+        a = 0
+        for lev in range(nlev):
+            e = a + sizes[lev]
+            if damp[lev] == 0.0:                       # Step 2: R_ii^{-1} Fbar_i (back substitution)
+                for col in range(a, m):
+                    for i in range(e - 1, a - 1, -1):
+                        s = Fb[i, col]
+                        for t in range(i + 1, e):
+                            s -= R[i, t] * Fb[t, col]
+                        Fb[i, col] = s / R[i, i]
+            else:
+                for col in range(a, m):
+                    Fb[a, col] *= damp[lev]
+            for i in range(a):                         # Step 3
+                for col in range(a, m):
+                    s = 0.0
+                    for t in range(a, e):
+                        s += Fb[i, t] * Fb[t, col]
+                    Fb[i, col] -= s
+            a = e
+        for col in range(m):
+            s = 0.0
+            for i in range(m):
+                s += Fb[i, col] * b[i]
+            c[col] = s
+    if use_x0:
+        for i in range(m):
+            s = 0.0
+            for t in range(n):
+                s += J[i, t] * x0[t]
+            c[i] -= s
+    z = _solve_upper_t(R, c)
+    for i in range(n):
+        out[i] = 0.0
+    out[:m] = z
+    _apply_q(out, V, tau, m)
+    if use_x0:
+        for i in range(n):
+            out[i] += x0[i]
+    return SOLVED
+
+
 _SIZES: dict[tuple, np.ndarray] = {}
 _UNIT = RANK_FACTOR * EPS
+_NO_X0 = np.zeros(0)
 
 
-def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float,
-              cond: float):
-    """The compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`: ``x`` or None (declined)."""
+def _sizes(sizes) -> np.ndarray | None:
+    """``sizes`` as an int64 array (cached per tuple), after compiling the kernels on first use; None if numba
+    cannot be imported after all (then :data:`ENABLED` becomes False: the numpy path from now on)."""
     global ENABLED
     if not _READY:
         try:
             _compile()
-        except ImportError:  # pragma: no cover - numba found but not importable: the numpy path from now on
+        except ImportError:  # pragma: no cover - numba found but not importable
             ENABLED = False
-            return solve_past_rank(J, b, sizes, n, lambda_max, eps)
+            return None
     s = _SIZES.get(sizes)
     if s is None:
         s = np.asarray(sizes, dtype=np.int64)
         if isinstance(sizes, tuple) and len(_SIZES) < 256:
             _SIZES[sizes] = s
+    return s
+
+
+def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float,
+              cond: float):
+    """The compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`: ``x`` or None (declined)."""
+    s = _sizes(sizes)
+    if s is None:
+        return solve_past_rank(J, b, sizes, n, lambda_max, eps)
     x = np.empty(n)
     status = _past_rank(J, b, s, n, float(lambda_max), float(eps), _UNIT, margin, cond, x)
     if status == SOLVED:
@@ -348,3 +451,15 @@ def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
     if status == DECLINED:
         return None
     return solve_past_rank(J, b, sizes, n, lambda_max, eps)
+
+
+def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None):
+    """``x`` of the general TPM path for ``m <= n`` (:func:`_general`), or None: then
+    :class:`hqp_tpm.solvers._kernels.Factorization` decides and solves."""
+    s = _sizes(sizes)
+    if s is None:
+        return None
+    x = np.empty(n)
+    use = x0 is not None
+    status = _general(J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
+    return x if status == SOLVED else None

@@ -165,4 +165,8 @@ def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float =
         x = past_rank(J, b, sizes, n, lambda_max, eps)
         if x is not None:
             return x
+    elif _compiled.ENABLED:  # m <= n: x = Q R^-T F b in one compiled call (regular or damped 1 x 1 pivots)
+        x = _compiled.general(J, b, sizes, n, lambda_max, eps, x0)
+        if x is not None:
+            return x
     return Factorization(J, sizes, n, lambda_max, eps).solve(b, x0)
