@@ -22,6 +22,19 @@ from hqp_tpm.errors import NonFiniteError
 
 TOL = 1e-12
 
+#: Both paths of the lean step's arithmetic: the compiled kernels (hqp_tpm.robot._compiled) and numpy.
+PATHS = [pytest.param(True, id="compiled"), pytest.param(False, id="numpy")]
+
+
+@pytest.fixture
+def compiled(request, monkeypatch):
+    from hqp_tpm.robot import _compiled
+
+    if request.param and not _compiled.AVAILABLE:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(_compiled, "ENABLED", request.param)
+    return request.param
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))  # the repository root: ``benchmarks``
 
 
@@ -71,9 +84,10 @@ def test_every_qualifying_scenario(name):
     assert name != "romeo_tpm" or ref.lambda_max > 0  # damped TPM
 
 
+@pytest.mark.parametrize("compiled", PATHS, indirect=True)
 @pytest.mark.parametrize("solver", ["tpm", "sns_tpm", "sns", "qp:daqp"])
 @pytest.mark.parametrize("kind", ["iiwa_vel", "iiwa_acc", "romeo_vel"])
-def test_benchmark_problems(kind, solver):
+def test_benchmark_problems(kind, solver, compiled):
     from benchmarks.peers import problems as P
 
     robot = P.load_robot(P.ROMEO if kind.startswith("romeo") else P.IIWA)
@@ -191,8 +205,9 @@ def _writer_cases():
     ]
 
 
+@pytest.mark.parametrize("compiled", PATHS, indirect=True)
 @pytest.mark.parametrize("order", [1, 2])
-def test_row_writers_equal_jacobian_and_command(order):
+def test_row_writers_equal_jacobian_and_command(order, compiled):
     """Every row writer gives its task's ``jacobian`` and ``command`` to the last bit, at random states."""
     import pinocchio as pin
 
@@ -234,10 +249,11 @@ def test_row_writers_equal_jacobian_and_command(order):
                 np.testing.assert_array_equal(b[r], task.command(ref, t, order), err_msg=task.name)
 
 
+@pytest.mark.parametrize("compiled", PATHS, indirect=True)
 @pytest.mark.parametrize("position", [True, False])
 @pytest.mark.parametrize("order", [1, 2])
 @pytest.mark.parametrize("robot_name", ["iiwa7", "romeo21"])
-def test_lean_joint_box_equals_joint_limits(robot_name, order, position):
+def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compiled):
     """The lean box equals JointLimits' to the last bit: inside the limits, on them, beyond them, fast or not."""
     import pinocchio as pin
 
@@ -267,7 +283,14 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position):
         got = box(st.q, st.v)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
-        fast += box.fast and (box._velocity(st.q) if order == 1 else box._acceleration(st.q, st.v)) is not None
+        if compiled and box.fast:
+            from hqp_tpm.robot import _compiled
+
+            lo_k, up_k = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
+            fast += (_compiled.velocity_box(st.q, box._P, box._idx, 1e-3, lo_k, up_k) if order == 1 else
+                     _compiled.acceleration_box(st.q, st.v, box._P, box._idx, 1e-3, lo_k, up_k))
+        else:
+            fast += box.fast and (box._velocity(st.q) if order == 1 else box._acceleration(st.q, st.v)) is not None
     assert (fast > 100) == position  # the fast formulas do the common case
 
 
@@ -289,3 +312,24 @@ def test_partial_state_update_completes_on_demand():
     np.testing.assert_array_equal(part.position(other), full.position(other))
     np.testing.assert_array_equal(part.velocity(other), full.velocity(other))
     np.testing.assert_array_equal(part.com_jdot_qdot(), full.com_jdot_qdot())
+
+
+def test_compiled_integration_equals_numpy(monkeypatch):
+    """State.integrate at acceleration level: the compiled and the numpy arithmetic give the same bits."""
+    from benchmarks.peers import problems as P
+    from hqp_tpm.robot import _compiled
+    from hqp_tpm.robot.state import State
+
+    if not _compiled.AVAILABLE:
+        pytest.skip("numba is not installed")
+    robot = P.load_robot(P.ROMEO)
+    st, rng = State(robot), np.random.default_rng(4)
+    q = P.romeo_q0(robot)
+    for _ in range(50):
+        v, a = rng.normal(0.0, 2.0, robot.nv), rng.normal(0.0, 50.0, robot.nv)
+        monkeypatch.setattr(_compiled, "ENABLED", True)
+        got = st.integrate(q, v, a, 1e-3, 2)
+        monkeypatch.setattr(_compiled, "ENABLED", False)
+        want = st.integrate(q, v, a, 1e-3, 2)
+        np.testing.assert_array_equal(got[0], want[0])
+        np.testing.assert_array_equal(got[1], want[1])

@@ -35,6 +35,7 @@ import numpy as np
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
 from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.solvers.registry import solve
@@ -71,7 +72,7 @@ class JointBox:
     """
 
     __slots__ = ("limits", "order", "lo", "up", "fast", "_qidx2", "_cols2", "_cols", "_sgn", "_B", "_two_a",
-                 "_V", "_A", "_ad2", "_mad", "_n", "_g", "_r", "_t", "_ok", "_L", "_dt", "_lo_c", "_up_c")
+                 "_V", "_A", "_ad2", "_mad", "_n", "_g", "_r", "_t", "_ok", "_L", "_dt", "_lo_c", "_up_c", "_P", "_idx")
 
     def __init__(self, limits: JointLimits):
         L = limits.limits
@@ -94,10 +95,19 @@ class JointBox:
         self._dt = L.dt
         self._g, self._r, self._t, self._L = np.zeros(2 * n), np.zeros(2 * n), np.zeros(n), np.zeros(2 * n)
         self._ok = np.zeros(2 * n, dtype=bool)
+        # the compiled kernels' inputs (hqp_tpm.robot._compiled): the limits as rows, the joint indices
+        self._P = np.ascontiguousarray(np.vstack([L.q_min, L.q_max, L.v_max, L.a_max, L._two_a, ad]))
+        self._idx = np.ascontiguousarray(np.vstack([limits.qidx, limits.cols]).astype(np.int64))
 
     def __call__(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(lower, upper)`` at ``(q, v)`` (the arrays are this object's, overwritten by the next call)."""
-        res = self._velocity(q) if self.order == 1 else self._acceleration(q, v)
+        if self.fast and _compiled.ENABLED:  # one compiled call, the same operations as BoxLimits
+            if (_compiled.velocity_box(q, self._P, self._idx, self._dt, self.lo, self.up) if self.order == 1 else
+                    _compiled.acceleration_box(q, v, self._P, self._idx, self._dt, self.lo, self.up)):
+                return self.lo, self.up
+            res = None
+        else:
+            res = self._velocity(q) if self.order == 1 else self._acceleration(q, v)
         if res is None:  # a case the fast formulas do not cover: BoxLimits itself
             lim = self.limits
             lo, up = (lim.limits.velocity_box(q[lim.qidx]) if self.order == 1 else

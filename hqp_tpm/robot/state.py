@@ -12,6 +12,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
@@ -179,6 +180,10 @@ class State:
         ``q + v dt + a dt^2 / 2`` and ``v + a dt`` (docs/setups.md, 'Initial state and run')."""
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
+        if _compiled.ENABLED:  # one compiled call, the same operations
+            dq, v_next = np.empty(v.shape[0]), np.empty(v.shape[0])
+            _compiled.acceleration_step(v, a, dt, dq, v_next)
+            return pin.integrate(self.model, q, dq), v_next
         return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
 
 

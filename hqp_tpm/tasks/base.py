@@ -16,6 +16,7 @@ import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.references.trajectories import Trajectory, as_trajectory
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 
@@ -131,6 +132,9 @@ def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: 
     if order == 1:                                   # b = xd_d + kp e
         np.multiply(e, gains.kp, out=b)
         np.add(ref[1], b, out=b)
+        return
+    if jdq is not None and _compiled.ENABLED:        # one compiled call, the same operations
+        _compiled.feedback2(b, e, ref[1], ref[2], rate, jdq, gains.kp, gains.kd)
         return
     np.subtract(ref[1], rate, out=rate)              # b = xdd_d + kd (xd_d - J qd) + kp e - Jdot qd
     np.multiply(rate, gains.kd, out=rate)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task, feedback
@@ -48,6 +49,10 @@ class Posture(Task):
 
         def write(t: float) -> None:
             ref = self.trajectory.reference(t)
+            if angles._plain and _compiled.ENABLED:  # one compiled call, the same operations
+                g = self.gains
+                _compiled.posture_rows(b, state.q, state.v, angles.idx, cols, ref[0], ref[1], ref[2], g.kp, g.kd, order)
+                return
             if angles._plain:
                 np.take(state.q, angles.idx, out=e)
                 np.subtract(ref[0], e, out=e)

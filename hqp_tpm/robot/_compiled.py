@@ -1,0 +1,109 @@
+"""Compiled (numba) kernels of the lean step's arithmetic around pinocchio (private; :mod:`hqp_tpm.control.lean`).
+
+One call each instead of 10-30 small numpy calls: the joint box of
+:class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (velocity and acceleration level, the common case of a state
+inside its limits; the recovery cases return False and the caller computes them with ``BoxLimits``), and the
+tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the error (order 2, and the posture rows).
+Every kernel does the readable code's floating-point operations in the same order (no fast-math, no
+contraction), so the results are the same to the last bit (``tests/test_lean.py`` compares both paths).
+
+Used when numba is importable and ``HQP_TPM_COMPILED`` is not ``0`` (the switch of the solvers' compiled
+kernels too); :data:`ENABLED` may be set to False in a running process. Compiled code is cached on disk
+(``cache=True``); the first call of a process compiles (~1-3 s) or loads the cache.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+try:  # pragma: no cover - depends on the environment
+    import numba
+except ImportError:  # pragma: no cover
+    numba = None
+
+#: numba is importable (the kernels can run).
+AVAILABLE = numba is not None
+#: The lean step uses the kernels (default: when available, unless ``HQP_TPM_COMPILED=0``).
+ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def _njit(fn):
+    return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
+
+
+@_njit
+def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
+    """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a joint's
+    position box is empty (the recovery rules: the caller computes the box with ``BoxLimits``).
+
+    ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt`` (finite limits, ``a_max > 0``).
+    """
+    for j in range(P.shape[1]):
+        qj = q[idx[0, j]]
+        q_min, q_max, v_max, two_a = P[0, j], P[1, j], P[2, j], P[4, j]
+        g = qj - q_min
+        stop_lo = -math.sqrt(two_a * max(g, 0.0))
+        g = q_max - qj
+        stop_up = math.sqrt(two_a * max(g, 0.0))
+        p_lo = max((q_min - qj) / dt, stop_lo)
+        p_up = min((q_max - qj) / dt, stop_up)
+        if not p_lo <= p_up:
+            return False
+        c = idx[1, j]
+        lo[c] = min(max(p_lo, -v_max), v_max)
+        up[c] = min(max(p_up, -v_max), v_max)
+    return True
+
+
+@_njit
+def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
+    """``BoxLimits.acceleration_box`` at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False
+    for a state outside its viable set or an empty position box (the caller then uses ``BoxLimits``)."""
+    for j in range(P.shape[1]):
+        c = idx[1, j]
+        qj, dq = q[idx[0, j]], v[c]
+        q_min, q_max, v_max, a_max, two_a, ad = P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j]
+        lo_v = min(max((-v_max - dq) / dt, -a_max), a_max)
+        up_v = min(max((v_max - dq) / dt, -a_max), a_max)
+        h = 0.5 * dq * dt
+        delta_up = q_max - qj - h
+        delta_lo = qj - q_min + h
+        if not (delta_up >= 0.0 and delta_lo >= 0.0):
+            return False
+        w_up = -ad + math.sqrt(ad * ad + two_a * delta_up)
+        w_lo = -(-ad + math.sqrt(ad * ad + two_a * delta_lo))
+        p_lo = (w_lo - dq) / dt
+        p_up = (w_up - dq) / dt
+        if not p_lo <= p_up:
+            return False
+        lo[c] = min(max(p_lo, lo_v), up_v)
+        up[c] = min(max(p_up, lo_v), up_v)
+    return True
+
+
+@_njit
+def feedback2(b, e, xd, xdd, rate, jdq, kp, kd):  # pragma: no cover - compiled
+    """``b = xdd + kd (xd - rate) + kp e - jdq`` (:meth:`Task.command`, order 2), entry by entry."""
+    for i in range(b.shape[0]):
+        b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e[i] - jdq[i]
+
+
+@_njit
+def posture_rows(b, q, v, idx, cols, x_d, xd, xdd, kp, kd, order):  # pragma: no cover - compiled
+    """The posture task's ``b`` (revolute/prismatic joints): ``e = x_d - q[idx]``; order 1 ``xd + kp e``,
+    order 2 ``xdd + kd (xd - v[cols]) + kp e - 0``."""
+    for i in range(b.shape[0]):
+        e = x_d[i] - q[idx[i]]
+        if order == 1:
+            b[i] = xd[i] + kp * e
+        else:
+            b[i] = xdd[i] + kd * (xd[i] - v[cols[i]]) + kp * e - 0.0
+
+
+@_njit
+def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
+    """``dq = v dt + a dt^2 / 2`` and ``v_next = v + a dt`` (:meth:`State.integrate`, order 2), entry by entry."""
+    for i in range(v.shape[0]):
+        dq[i] = v[i] * dt + 0.5 * a[i] * dt * dt
+        v_next[i] = v[i] + a[i] * dt
