@@ -303,7 +303,7 @@ class LeanStep:
             x = self.compute()
             q, v = ctrl.state.integrate(ctrl._q, ctrl._v, x, ctrl.dt, self.order)
             if not _finite(q, v):
-                raise NonFiniteError(f"integration produced a non-finite state at t = {ctrl.t:.6f}")
+                raise NonFiniteError(f"integration produced a non-finite state{ctrl._where()}")
         except BaseException:
             ctrl._started = started
             raise
