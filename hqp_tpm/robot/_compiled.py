@@ -107,3 +107,19 @@ def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
     for i in range(v.shape[0]):
         dq[i] = v[i] * dt + 0.5 * a[i] * dt * dt
         v_next[i] = v[i] + a[i] * dt
+
+
+@_njit
+def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - compiled
+    """A task's rows at order 1: ``J[i] = Jsrc[rows[i]]``; ``e = [x_d - x[xrows], w]`` (``w``: the rows after
+    ``x_d``, e.g. a frame's rotation error); ``b = xd + kp e`` (:meth:`Task.command`)."""
+    m, n = J.shape
+    for i in range(m):
+        r = rows[i]
+        for c in range(n):
+            J[i, c] = Jsrc[r, c]
+    k = x_d.shape[0]
+    for i in range(k):
+        b[i] = xd[i] + kp * (x_d[i] - x[xrows[i]])
+    for i in range(k, m):
+        b[i] = xd[i] + kp * w[i - k]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, Task, feedback, row_selector, select_axes
@@ -48,9 +49,14 @@ class CenterOfMass(Task):
         e = np.zeros(self.dim)
         rate = np.zeros(self.dim)
 
+        rows, none = self.rows, np.zeros(0)
+
         def write(t: float) -> None:
             ref = self.trajectory.reference(t)
             state.com_kinematics(order)
+            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
+                _compiled.rows1(J, Jcom, rows, b, ref[0], com, rows, none, ref[1], self.gains.kp)
+                return
             J[...] = Jcom[sel]
             np.subtract(ref[0], com[self.rows], out=e)
             if order == 1:

@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.references.trajectories import Constant, Hold
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import Gains, Task, feedback
@@ -54,8 +55,15 @@ class FrameOrientation(Task):
         e = np.zeros(3)
         rate = np.zeros(3)
 
+        rows, none, no_rows = np.arange(3, 6), np.zeros(0), np.zeros(0, dtype=np.int64)
+
         def write(t: float) -> None:
             ref = self.trajectory.reference(t)
+            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
+                w = pin.log3(self._R_target.dot(R.T))
+                _compiled.rows1(J, pin.getFrameJacobian(model, data, fid, LWA), rows, b, none, none, no_rows, w,
+                                ref[1], self.gains.kp)
+                return
             Jt = pin.getFrameJacobian(model, data, fid, LWA)[3:]
             J[...] = Jt
             e[...] = pin.log3(self._R_target.dot(R.T))

@@ -6,6 +6,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.references.trajectories import Hold
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import Gains, Task, feedback
@@ -58,15 +59,21 @@ class FramePose(Task):
         rate = np.zeros(6)
         target = [None, None, None]  # the target placement and views of its translation and rotation
 
+        rows, xrows = np.arange(6), np.arange(3)
+
         def write(t: float) -> None:
             ref = self.trajectory.reference(t)
             Jt = pin.getFrameJacobian(model, data, fid, LWA)
-            J[...] = Jt
             M = self._M_target
             if M is not target[0]:
                 target[:] = M, M.translation, M.rotation
+            w = pin.log3(target[2].dot(R.T))
+            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
+                _compiled.rows1(J, Jt, rows, b, target[1], p, xrows, w, ref[1], self.gains.kp)
+                return
+            J[...] = Jt
             np.subtract(target[1], p, out=e_p)
-            e[3:] = pin.log3(target[2].dot(R.T))
+            e[3:] = w
             if order == 1:
                 feedback(b, e, ref, self.gains, 1)
             else:

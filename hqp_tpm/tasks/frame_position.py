@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import Gains, Task, feedback, row_selector, select_axes
@@ -42,8 +43,14 @@ class FramePosition(Task):
         e = np.zeros(self.dim)
         rate = np.zeros(self.dim)
 
+        rows, none = self.rows, np.zeros(0)
+
         def write(t: float) -> None:
             ref = self.trajectory.reference(t)
+            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
+                _compiled.rows1(J, pin.getFrameJacobian(model, data, fid, LWA), rows, b, ref[0], p, rows, none,
+                                ref[1], self.gains.kp)
+                return
             Jt = pin.getFrameJacobian(model, data, fid, LWA)[sel]
             J[...] = Jt
             np.subtract(ref[0], p[sel] if p_sel is None else p_sel, out=e)
