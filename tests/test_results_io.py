@@ -186,3 +186,50 @@ def test_peak_memory_is_flat_in_the_number_of_steps(tmp_path):
                              capture_output=True, text=True, timeout=600, check=True)
         rss.append(int(out.stdout.split()[-1]))
     assert rss[1] - rss[0] < 15_000, rss  # KB: today's lists grew by ~1 KB per step
+
+
+def test_metrics_in_blocks_equal_whole_column_metrics(tmp_path, monkeypatch):
+    """metrics() reads the columns in blocks: with one block its numbers are those of the whole-column formulas
+    (checked here for the jumps, errors, pointing violation and stacks), with blocks of 37 rows the same except the
+    RMS values (summation order: 1e-14 relative)."""
+    from hqp_tpm.app import results, runner
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.scenario import load
+
+    ctx = build_run(load("lwr_relaxed"))
+    rec, timing = runner.run(ctx.controller, 2500, probes=ctx.probes(), lean=True,
+                             recording=runner.Recording(ctx.robot.joint_names, tmp_path / "rec"))
+    arrays = rec.load()
+    results.standard_aliases(arrays, ctx.tasks)
+    one = results.metrics(arrays, timing, ctx.tasks)
+    dq, ee, t = np.asarray(arrays["dq"]), np.linalg.norm(arrays["ee_error"], axis=1), np.asarray(arrays["t"])
+    jumps = np.abs(np.diff(dq, axis=0)).max(axis=1)
+    assert one["max_dq_jump"] == jumps.max() and one["max_dq_jump_step"] == jumps.argmax() + 1
+    assert one["ee_error_rms"] == np.sqrt(np.mean(ee**2)) and one["ee_error_max_settled"] == ee[t >= 2.0].max()
+    p = np.clip(np.cos(np.deg2rad(5.0)) - np.asarray(arrays["pointing_error"]), -1.0, 1.0)
+    assert one["pointing_violation_max_deg"] == max(0.0, np.rad2deg(np.arccos(p).max() - np.deg2rad(5.0)))
+    stack = np.asarray(arrays["stack"])
+    assert one["stack_changes"] == int((stack[1:] != stack[:-1]).sum()) > 0
+    monkeypatch.setattr(results, "BLOCK_ROWS", 37)
+    many = results.metrics(arrays, timing, ctx.tasks)
+    assert many.keys() == one.keys()
+    for k in one:
+        if k.endswith(("_rms", "_rms_settled")):
+            assert many[k] == pytest.approx(one[k], rel=1e-14, abs=0), k
+        else:
+            assert many[k] == one[k], k
+
+
+def test_blocks_of_a_memory_mapped_column_and_of_its_views(tmp_path):
+    from hqp_tpm.app.results import blocks
+
+    a = np.arange(60.0).reshape(20, 3)
+    np.save(tmp_path / "a.npy", a)
+    m = np.load(tmp_path / "a.npy", mmap_mode="r")
+    for view, expect in ((m, a), (m[::-1], a[::-1]), (m[:, 1:], a[:, 1:]), (m[5:], a[5:]), (a, a)):
+        got = [b for _, b in blocks(view, rows=6)]
+        assert all(type(b) is np.ndarray for b in got)
+        np.testing.assert_array_equal(np.concatenate(got), expect)
+        over = list(blocks(view, rows=6, overlap=1))
+        assert [i for i, _ in over] == list(range(0, len(expect), 6))
+        np.testing.assert_array_equal(over[1][1], expect[5:12])

@@ -156,60 +156,149 @@ def _norm(e: np.ndarray) -> np.ndarray:
     return np.abs(e) if e.ndim == 1 else np.linalg.norm(e, axis=1)
 
 
+#: Rows of a recorded column that :func:`metrics` holds in memory at a time.
+BLOCK_ROWS = 65536
+
+
+def blocks(a: np.ndarray, rows: int | None = None, overlap: int = 0):
+    """``(start, block)`` for row blocks ``a[start - overlap : start + rows]`` (clipped at 0) as in-memory arrays
+    (``rows``: :data:`BLOCK_ROWS`).
+
+    A whole memory-mapped column (``np.memmap``, e.g. from :meth:`Recording.load`) is mapped again for each
+    block and unmapped after it: its file pages do not accumulate in the process's memory, so the peak memory of
+    the metrics does not grow with the number of steps (``benchmarks/peak_rss.py``).
+    """
+    n, rows = a.shape[0], BLOCK_ROWS if rows is None else rows
+    whole = None
+    if isinstance(a, np.memmap) and a.filename is not None:
+        m = np.load(a.filename, mmap_mode="r")
+        if m.shape == a.shape and m.strides == a.strides and m.dtype == a.dtype:
+            whole = a.filename  # the column itself (a view of the same shape and strides is the whole file)
+        del m
+    for i in range(0, n, rows):
+        lo = max(i - overlap, 0)
+        if whole is None:
+            yield i, np.asarray(a[lo:i + rows])
+        else:
+            m = np.load(whole, mmap_mode="r")
+            block = np.array(m[lo:i + rows])
+            del m
+            yield i, block
+
+
+class _Stat:
+    """Maximum, sum of squares and count of a per-step norm over row blocks (``rms = sqrt(sum / count)``: for one
+    block exactly ``np.sqrt(np.mean(x**2))``; over several, the same up to the summation order)."""
+
+    __slots__ = ("max", "sq", "count")
+
+    def __init__(self):
+        self.max, self.sq, self.count = -np.inf, 0.0, 0
+
+    def add(self, x: np.ndarray) -> None:
+        if x.size:
+            self.max = _top(self.max, float(x.max()))
+            self.sq += np.sum(x**2)
+            self.count += x.size
+
+    def rms(self) -> float:
+        return float(np.sqrt(self.sq / self.count))
+
+
+def _top(a: float, b: float) -> float:
+    """``max(a, b)`` that keeps a NaN (as ``ndarray.max`` over the whole column would)."""
+    return a if (a != a or a >= b) else b
+
+
+def _pointing_task(tasks) -> Pointing | None:
+    return next((task for task in tasks.values() if isinstance(task, Pointing)), None)
+
+
+def _reduce(fn, values) -> float:
+    """``fn`` (np.max, np.min) of per-block results, NaN kept."""
+    return float(fn(np.array(list(values), dtype=float)))
+
+
 def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
     """Summary numbers of a run (plain floats, JSON-ready), each metric once (:data:`METRICS`); ``*_settled`` ones
-    from ``t >= SETTLE_S``; ``units`` gives the unit of every numeric entry."""
-    out: dict = {"steps": int(arrays["t"].size), **{k: float(v) for k, v in timing.items() if k != "steps"}}
+    from ``t >= SETTLE_S``; ``units`` gives the unit of every numeric entry.
+
+    The columns are read in blocks of :data:`BLOCK_ROWS` rows (:func:`blocks`): memory does not grow with the run.
+    """
+    t = arrays["t"]
+    n = int(t.size)
+    out: dict = {"steps": n, **{k: float(v) for k, v in timing.items() if k != "steps"}}
     units: dict = {}
     dq = arrays["dq"]
     if dq.shape[0] > 1:
-        jumps = np.abs(np.diff(dq, axis=0)).max(axis=1)
-        out["max_dq_jump"] = float(jumps.max())
-        out["max_dq_jump_step"] = int(jumps.argmax() + 1)
-    out["max_abs_dq"] = float(np.abs(dq).max()) if dq.size else 0.0
+        best, where = -np.inf, 0
+        for i, b in blocks(dq, overlap=1):
+            lo = max(i - 1, 0)
+            jumps = np.abs(np.diff(b, axis=0)).max(axis=1)
+            k = int(jumps.argmax())
+            if best == best and not jumps[k] <= best:  # the first largest (or NaN) jump, as argmax over the run
+                best, where = float(jumps[k]), lo + k + 1
+        out["max_dq_jump"] = best
+        out["max_dq_jump_step"] = where
+    out["max_abs_dq"] = _reduce(np.max, (np.abs(b).max() for _, b in blocks(dq))) if dq.size else 0.0
     for name, task in tasks.items():
         e = arrays.get(f"error_{name}")
         if e is None or (name == "ee" and "ee_error" in arrays) or isinstance(task, Pointing):
             continue  # the EE task is summarized as ee_error_*, a pointing task in degrees below
         if type(task).__name__ == "FramePose" and e.ndim == 2 and e.shape[1] == 6:
             for part, cols, unit in (("position", slice(0, 3), "m"), ("orientation", slice(3, 6), "rad")):
-                norm = np.linalg.norm(e[:, cols], axis=1)
-                out[f"error_{name}_{part}_max"] = float(norm.max())
-                out[f"error_{name}_{part}_rms"] = float(np.sqrt(np.mean(norm**2)))
+                st = _Stat()
+                for _, b in blocks(e):
+                    st.add(np.linalg.norm(b[:, cols], axis=1))
+                out[f"error_{name}_{part}_max"] = st.max
+                out[f"error_{name}_{part}_rms"] = st.rms()
                 units[f"error_{name}_{part}_max"] = units[f"error_{name}_{part}_rms"] = unit
             continue
-        norm = _norm(e)
-        out[f"error_{name}_max"] = float(norm.max())
-        out[f"error_{name}_rms"] = float(np.sqrt(np.mean(norm**2)))
+        st = _Stat()
+        for _, b in blocks(e):
+            st.add(_norm(b))
+        out[f"error_{name}_max"] = st.max
+        out[f"error_{name}_rms"] = st.rms()
         units[f"error_{name}_max"] = units[f"error_{name}_rms"] = task_unit(task)
-    settled = arrays["t"] >= SETTLE_S
+    any_settled = any(bool((b >= SETTLE_S).any()) for _, b in blocks(t))
     if "ee_error" in arrays:
-        n = _norm(np.asarray(arrays["ee_error"]))
-        out["ee_error_max"], out["ee_error_rms"] = float(n.max()), float(np.sqrt(np.mean(n**2)))
-        if settled.any():
-            out["ee_error_max_settled"] = float(n[settled].max())
-            out["ee_error_rms_settled"] = float(np.sqrt(np.mean(n[settled] ** 2)))
+        whole, settled = _Stat(), _Stat()
+        for (_, b), (_, bt) in zip(blocks(arrays["ee_error"]), blocks(t), strict=True):
+            nb = _norm(b)
+            whole.add(nb)
+            settled.add(nb[bt >= SETTLE_S])
+        out["ee_error_max"], out["ee_error_rms"] = whole.max, whole.rms()
+        if any_settled:
+            out["ee_error_max_settled"] = settled.max
+            out["ee_error_rms_settled"] = settled.rms()
+    pointing = _pointing_task(tasks)
     if "pointing_error" in arrays:
-        out["pointing_violation_max_deg"] = _violation_deg(arrays, tasks, np.ones_like(settled))
-        if settled.any():
-            out["pointing_violation_max_deg_settled"] = _violation_deg(arrays, tasks, settled)
+        out["pointing_violation_max_deg"] = _violation_deg(arrays["pointing_error"], pointing, None)
+        if any_settled:
+            out["pointing_violation_max_deg_settled"] = _violation_deg(arrays["pointing_error"], pointing, t)
     for key in ("d_minimal", "d_ee", "d_obstacle", "d_self"):
-        if key in arrays and np.isfinite(arrays[key]).any():
-            out[f"{key}_min"] = float(np.nanmin(arrays[key]))
+        if key in arrays:
+            lows = [float(np.nanmin(b)) for _, b in blocks(arrays[key]) if np.isfinite(b).any()]
+            if lows:
+                out[f"{key}_min"] = min(lows)
     if "crosscheck_diff" in arrays:
-        out["crosscheck_max_diff"] = float(arrays["crosscheck_diff"].max())
+        diff = arrays["crosscheck_diff"]
+        out["crosscheck_max_diff"] = _reduce(np.max, (b.max() for _, b in blocks(diff)))
         if "crosscheck_same_problem" in arrays:
-            same = arrays["crosscheck_same_problem"] > 0.5
-            out["crosscheck_max_diff_same_problem"] = float(arrays["crosscheck_diff"][same].max(initial=0.0))
-            out["crosscheck_steps_different_problems"] = int((~same).sum())
+            top, different = 0.0, 0
+            for (_, d), (_, s) in zip(blocks(diff), blocks(arrays["crosscheck_same_problem"]), strict=True):
+                same = s > 0.5
+                top = _top(top, float(d[same].max(initial=0.0)))
+                different += int((~same).sum())
+            out["crosscheck_max_diff_same_problem"] = top
+            out["crosscheck_steps_different_problems"] = different
     if "scale" in arrays:
-        out["scale_min"] = float(arrays["scale"].min())
-        out["steps_scaled"] = int((arrays["scale"] < 1 - 1e-12).sum())
-    dt = float(arrays["t"][1] - arrays["t"][0]) if arrays["t"].size > 1 else 0.0
+        out["scale_min"] = _reduce(np.min, (b.min() for _, b in blocks(arrays["scale"])))
+        out["steps_scaled"] = sum(int((b < 1 - 1e-12).sum()) for _, b in blocks(arrays["scale"]))
+    dt = float(t[1] - t[0]) if n > 1 else 0.0
     counts: Counter = Counter()
-    changes, stack, step = 0, arrays["stack"], 65536  # in blocks: memory does not grow with the run
-    for i in range(0, stack.shape[0], step):
-        block = np.asarray(stack[max(i - 1, 0):i + step])
+    changes = 0
+    for i, block in blocks(arrays["stack"], overlap=1):
         counts.update(block[1:].tolist() if i else block.tolist())
         changes += int((block[1:] != block[:-1]).sum())
     out["time_in_stack_s"] = {k: v * dt for k, v in counts.items()}
@@ -247,13 +336,20 @@ def metrics_doc() -> str:
     return "\n".join(lines) + "\n"
 
 
-def _violation_deg(arrays, tasks, mask) -> float:
-    """Largest angle (deg) by which the pointing axis was outside its cone, over the steps in ``mask``."""
-    for task in tasks.values():
-        if isinstance(task, Pointing):
-            p = np.clip(np.cos(task.alpha_d) - arrays["pointing_error"][mask], -1.0, 1.0)
-            return float(max(0.0, np.rad2deg(np.arccos(p).max() - task.alpha_d)))
-    return 0.0
+def _violation_deg(pointing_error: np.ndarray, task: Pointing | None, t: np.ndarray | None) -> float:
+    """Largest angle (deg) by which the pointing axis was outside its cone, over all steps (``t`` None) or the
+    steps with ``t >= SETTLE_S``."""
+    if task is None:
+        return 0.0
+    top = -np.inf
+    times = blocks(t) if t is not None else None
+    for _, b in blocks(pointing_error):
+        if times is not None:
+            b = b[next(times)[1] >= SETTLE_S]
+        if b.size:
+            p = np.clip(np.cos(task.alpha_d) - b, -1.0, 1.0)
+            top = _top(top, float(np.arccos(p).max()))
+    return float(max(0.0, np.rad2deg(top - task.alpha_d)))
 
 
 def strict(value, reasons: dict | None = None, key: str = ""):
