@@ -157,7 +157,7 @@ def _norm(e: np.ndarray) -> np.ndarray:
 
 
 #: Rows of a recorded column that :func:`metrics` holds in memory at a time.
-BLOCK_ROWS = 65536
+BLOCK_ROWS = 16384
 
 
 def blocks(a: np.ndarray, rows: int | None = None, overlap: int = 0):

@@ -13,6 +13,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from hqp_tpm.app.results import blocks
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.errors import ShapeError, StateError
 from hqp_tpm.solvers.registry import check_solver_name
@@ -124,8 +125,8 @@ class Recording:
             src = np.load(codes.path, mmap_mode="r")
             with open(self.folder / "stack.npy", "wb") as fh:
                 fh.write(_npy_header(dtype, (src.shape[0],)))
-                for i in range(0, src.shape[0], 16 * CHUNK_ROWS):
-                    fh.write(lookup[np.asarray(src[i:i + 16 * CHUNK_ROWS], dtype=int)].tobytes())
+                for _, block in blocks(src, rows=4 * CHUNK_ROWS):  # memory does not grow with the run
+                    fh.write(lookup[np.asarray(block, dtype=int)].tobytes())
             del src
             codes.path.unlink()
         np.save(self.folder / "joint_names.npy", np.array(self.joint_names, dtype=str))
