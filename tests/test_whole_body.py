@@ -196,9 +196,9 @@ def test_short_run_keeps_distances_positive_and_boxes(name):
 
 def test_pairs_culled_at_the_activation_distances_could_not_have_been_active():
     """The control field culls pairs beyond the activation distances (0.10 m obstacles, 0.05 m self): along the
-    scenario's first 0.6 s (the ball engaged) the stack, the chosen pairs and the avoidance rows equal those from a
-    field that computes every pair (no broad phase) up to the recorded range; the culled pairs' true distances
-    exceed the activation distances."""
+    scenario's first 0.4 s (the ball engaged from 0.24 s) the stack, the chosen pairs and the avoidance rows equal
+    those from a field that computes every pair (no broad phase) up to the recorded range; the culled pairs' true
+    distances exceed the activation distances."""
     import copy
 
     ctx = build.build_run(scenario.load("romeo_obstacles_sns_tpm"))
@@ -209,7 +209,7 @@ def test_pairs_culled_at_the_activation_distances_could_not_have_been_active():
                               surveillance=0.3, self_pairs=pol.pairs, broad_phase=False)
     ref.avoid_obstacle, ref.avoid_self = wb.PairAvoidance("avoid_obstacle"), wb.PairAvoidance("avoid_self")
     labels, culled = set(), 0
-    for i in range(600):
+    for i in range(400):
         ctrl.step()
         if i % 4:
             continue
