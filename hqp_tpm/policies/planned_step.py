@@ -9,7 +9,9 @@ them, looks the solver up by name and wraps the result in a ``StepResult``. A :c
 
 1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field);
 2. the plan, and each planned task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
-   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its own ``jacobian`` and ``command``, an
+   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its row writer (:meth:`Task.row_writer
+   <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and no extra command is added) or its own
+   ``jacobian`` and ``command``, an
    :class:`~hqp_tpm.tasks.avoidance.Avoidance` and an inequality :class:`~hqp_tpm.tasks.pointing.Pointing`
    (its cone row while ``e > 0``, target = its command) likewise, as their ``level`` does; any other task through
    its level's analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes);
@@ -58,7 +60,8 @@ class PlannedStep:
     stack of the last step as text (``StepResult.stack.label()``). The controller stays the owner of the state.
     """
 
-    __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels")
+    __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
+                 "_writers")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -90,6 +93,14 @@ class PlannedStep:
         self.b = np.zeros(8)
         self.tasks: tuple[Task, ...] = ()
         self._labels: dict[tuple[str, ...], str] = {}
+        # equality tasks with their own row writer (hqp_tpm.tasks.base.Task.row_writer: the numbers of jacobian and
+        # command in fewer calls) write into scratch rows, used on the steps without an extra command
+        self._writers = {}
+        for task in ctrl.policy.tasks():
+            kind = type(task)
+            if kind.level is Task.level and kind.row_writer is not Task.row_writer:
+                Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
+                self._writers[id(task)] = (task.row_writer(ctrl.state, self.order, Jt, bt), Jt, bt)
         return self
 
     def label(self) -> str:
@@ -100,13 +111,17 @@ class PlannedStep:
             text = self._labels[key] = " > ".join(key)
         return text
 
-    def _rows(self, st, t: float, tasks, extras) -> tuple[int, list[int]]:
+    def _rows(self, st, t: float, tasks, extras) -> tuple[int, tuple[int, ...]]:
         """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
         order, a, sizes = self.order, 0, []
         for task in tasks:
             extra = extras.get(task.name) if extras else None
             kind = type(task)
-            if kind.level is Task.level:  # an equality task: its own rows, no Level object
+            writer = self._writers.get(id(task)) if extra is None else None
+            if writer is not None:        # an equality task's row writer
+                writer[0](t)
+                Jt, bt = writer[1], writer[2]
+            elif kind.level is Task.level:  # an equality task: its own rows, no Level object
                 Jt = task.jacobian(st)
                 bt = task.command(st, t, order, extra, Jt)
             elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
@@ -128,7 +143,7 @@ class PlannedStep:
             self.b[a:a + m] = bt
             a += m
             sizes.append(m)
-        return a, sizes
+        return a, tuple(sizes)
 
     def _grow(self, rows: int) -> None:
         J, b = np.zeros((2 * rows, self.n)), np.zeros(2 * rows)
