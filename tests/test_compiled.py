@@ -394,3 +394,58 @@ def test_tpm_scenarios_equal_with_the_kernel_on_and_off(name, compiled, monkeypa
         runs.append(np.array([ctrl.step().command for _ in range(300)]))
     assert np.max(np.abs(runs[1] - runs[0])) <= TOL * max(1.0, np.abs(runs[0]).max())
     assert sum(x is not None for x in solved) >= 300  # the kernel solved (at least) a step's worth of calls
+
+
+@pytest.mark.parametrize("kind", ["full_rank", "any", "damped"])
+def test_sns_tpm_equal_with_the_kernel_on_and_off(kind, compiled, monkeypatch):
+    """SNS-TPM on the suite's boxed draws (``random_problem``; boxes cutting the TPM solution or not): the same
+    command with the kernels on and off. With ``m <= n`` and the TPM solution inside the box the compiled
+    general path answers alone (no ``Factorization``)."""
+    import importlib
+
+    from hqp_tpm.testing.stacks import random_problem
+
+    sns_mod = importlib.import_module("hqp_tpm.solvers.sns")
+    calls = []
+    real = sns_mod.Factorization
+    monkeypatch.setattr(sns_mod, "Factorization", lambda *a: calls.append(1) or real(*a))
+    rng = np.random.default_rng({"full_rank": 1, "any": 2, "damped": 3}[kind])
+    inside = 0
+    for _ in range(200):
+        levels, lo, up, damp = random_problem(rng, kind)
+        if rng.random() < 0.5:  # a box that holds the TPM solution
+            lo, up = lo - 10 * np.abs(lo).max() - 1.0, up + 10 * np.abs(up).max() + 1.0
+        compiled(False)
+        ref = sns_tpm(levels, lo, up, **damp)
+        compiled(True)
+        calls.clear()
+        x = sns_tpm(levels, lo, up, **damp)
+        assert rel_diff(x, ref) <= TOL
+        _, J, b, sizes, n = stacked(levels, lo.shape[0])
+        x_tpm = _compiled.general(J, b, sizes, n, **{"lambda_max": 0.0, "eps": 0.0, **damp}) \
+            if sizes and J.shape[0] <= n else None
+        if x_tpm is not None and ((x_tpm >= lo) & (x_tpm <= up)).all():  # the TPM solution is the answer
+            inside += 1
+            assert not calls
+    assert inside >= 30
+
+
+def test_general_path_damped_one_row_pivots_between_regular_levels(compiled):
+    """Regular levels, then 1-row levels nearly in their span (relative pivot 3e-3..5e-2: damped), more levels after
+    them: Steps 2-4 of the kernel (the update of the rows above by later pivots) == Factorization's."""
+    rng = np.random.default_rng(99)
+    solved = 0
+    for _ in range(200):
+        n = int(rng.integers(6, 20))
+        sizes = [int(rng.integers(1, 4)) for _ in range(int(rng.integers(3, 7)))]
+        while sum(sizes) > n:
+            sizes.pop()
+        levels = random_stack(rng, n, sizes)
+        for k in range(1, len(levels)):
+            if sizes[k] == 1 and rng.random() < 0.7:
+                above = np.vstack([J for J, _ in levels[:k]])
+                row = rng.standard_normal(above.shape[0]) @ above
+                row += 10.0 ** rng.uniform(-2.5, -1.3) * np.linalg.norm(row) * rng.standard_normal(n) / np.sqrt(n)
+                levels[k] = (row[None, :], levels[k][1])
+        solved += check_general(levels, n, rng, compiled)
+    assert solved >= 400

@@ -386,11 +386,14 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
             else:
                 for col in range(a, m):
                     Fb[a, col] *= damp[lev]
-            for i in range(a):                         # Step 3
+            mult = np.empty(e - a)
+            for i in range(a):                         # Step 3: Fbar[:a, a:] -= Fbar[:a, a:e] Fbar[a:e, a:]
+                for t in range(a, e):
+                    mult[t - a] = Fb[i, t]             # (the row's old values: the update overwrites them)
                 for col in range(a, m):
                     s = 0.0
                     for t in range(a, e):
-                        s += Fb[i, t] * Fb[t, col]
+                        s += mult[t - a] * Fb[t, col]
                     Fb[i, col] -= s
             a = e
         for col in range(m):

@@ -71,6 +71,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hqp_tpm.errors import BoxError, ShapeError
+from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._kernels import Factorization, FreeColumns
 from hqp_tpm.solvers.damping import matrix_tol, pinv, rank_tol
 from hqp_tpm.solvers.levels import as_levels, equality_stack, stacked
@@ -481,6 +482,10 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
         x = past_rank(J, xd, sizes, n, lambda_max, eps)
         if x is not None and ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
+    elif sizes and _compiled.ENABLED:            # m <= n: the TPM solution by the compiled general path
+        x0 = _compiled.general(J, xd, sizes, n, lambda_max, eps)
+        if x0 is not None and ((x0 >= lo) & (x0 <= up)).all():
+            return (x0, SNSInfo(1.0, (), 1)) if return_info else x0
     if x is not None:                            # the TPM solution by the shortcut: F is not needed (m > n)
         F_times = Fxd = None
         first_singular = sizes[0] > n            # the first level crosses rank n with more rows than n
