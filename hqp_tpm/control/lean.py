@@ -6,11 +6,14 @@ validated), stacks them, looks the solver up by name and wraps the result in a `
 *fixed* stack of equality tasks all of that is the same every step, so :class:`LeanStep` checks it
 once, at construction, and per step does only:
 
-1. the state update (pinocchio: forward kinematics, joint Jacobians, frame placements);
+1. the state update: pinocchio's kinematics, partial (:meth:`hqp_tpm.robot.state.State.update` with the
+   frames the row writers read, and no velocity pass at velocity level; the rest on demand);
 2. each task's rows written in place into one preallocated stacked ``J`` and ``b`` by its row writer
-   (:meth:`hqp_tpm.tasks.base.Task.row_writer`: pinocchio's data read through views, no Level objects);
+   (:meth:`hqp_tpm.tasks.base.Task.row_writer`: pinocchio's data read through views, no Level objects;
+   the arithmetic in one compiled call per task where numba is available, :mod:`hqp_tpm.robot._compiled`);
 3. the joint box, if any, into preallocated arrays (:class:`JointBox` for
-   :class:`~hqp_tpm.robot.limits.JointLimits`; any other box function is called as the controller does);
+   :class:`~hqp_tpm.robot.limits.JointLimits`, one compiled call; any other box function is called as the
+   controller does);
 4. one finiteness check of ``J`` and ``b`` and one solver call: ``tpm`` through the TPM kernel
    (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), ``sns_tpm`` through :func:`hqp_tpm.solvers.sns.sns_tpm` on
    levels built once as views of ``J`` and ``b``, any other solver through the registry on those levels;
