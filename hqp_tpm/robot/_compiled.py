@@ -123,3 +123,18 @@ def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - com
         b[i] = xd[i] + kp * (x_d[i] - x[xrows[i]])
     for i in range(k, m):
         b[i] = xd[i] + kp * w[i - k]
+
+
+@_njit
+def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pragma: no cover - compiled
+    """A task's rows at order 2: ``J`` and ``e`` as :func:`rows1`, ``b = xdd + kd (xd - rate) + kp e - jdq``
+    (``rate = J qd`` computed by the caller with numpy's dot, as :meth:`Task.command` does)."""
+    m, n = J.shape
+    for i in range(m):
+        r = rows[i]
+        for c in range(n):
+            J[i, c] = Jsrc[r, c]
+    k = x_d.shape[0]
+    for i in range(m):
+        e = x_d[i] - x[xrows[i]] if i < k else w[i - k]
+        b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e - jdq[i]

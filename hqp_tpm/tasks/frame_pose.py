@@ -68,8 +68,14 @@ class FramePose(Task):
             if M is not target[0]:
                 target[:] = M, M.translation, M.rotation
             w = pin.log3(target[2].dot(R.T))
-            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
-                _compiled.rows1(J, Jt, rows, b, target[1], p, xrows, w, ref[1], self.gains.kp)
+            if _compiled.ENABLED:  # one compiled call, the same operations
+                g = self.gains
+                if order == 1:
+                    _compiled.rows1(J, Jt, rows, b, target[1], p, xrows, w, ref[1], g.kp)
+                else:
+                    np.dot(Jt, state.v, out=rate)
+                    jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+                    _compiled.rows2(J, Jt, rows, b, target[1], p, xrows, w, rate, jdq, ref[1], ref[2], g.kp, g.kd)
                 return
             J[...] = Jt
             np.subtract(target[1], p, out=e_p)

@@ -47,9 +47,14 @@ class FramePosition(Task):
 
         def write(t: float) -> None:
             ref = self.trajectory.reference(t)
-            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
-                _compiled.rows1(J, pin.getFrameJacobian(model, data, fid, LWA), rows, b, ref[0], p, rows, none,
-                                ref[1], self.gains.kp)
+            if _compiled.ENABLED:  # one compiled call, the same operations
+                g, Jt = self.gains, pin.getFrameJacobian(model, data, fid, LWA)
+                if order == 1:
+                    _compiled.rows1(J, Jt, rows, b, ref[0], p, rows, none, ref[1], g.kp)
+                else:
+                    np.dot(Jt[sel], state.v, out=rate)
+                    jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
+                    _compiled.rows2(J, Jt, rows, b, ref[0], p, rows, none, rate, jdq, ref[1], ref[2], g.kp, g.kd)
                 return
             Jt = pin.getFrameJacobian(model, data, fid, LWA)[sel]
             J[...] = Jt
