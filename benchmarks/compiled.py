@@ -9,6 +9,7 @@ acceleration level, Romeo sole > CoM > foot > hands > posture), per configuratio
 * ``tpm_stacked`` on the numpy path (``_compiled.ENABLED = False``): the readable reference;
 * the general TPM path (``Factorization(...).solve``): what ``tpm`` did on these stacks before the full-rank
   shortcut (padded ``J``, SVD of ``R^T``);
+* the same stack without its posture level (``m <= n``: the general path's kernel), compiled and numpy;
 * ``tpm(levels)`` and ``sns_tpm(levels, box)`` (URDF velocity limits at velocity level; validation included),
   compiled and numpy.
 
@@ -88,6 +89,13 @@ def main(argv=None) -> int:
                     "sns_tpm(levels, box), compiled": (True, lambda lv=levels, lo=lo, up=up: sns_tpm(lv, lo, up)),
                     "sns_tpm(levels, box), numpy": (False, lambda lv=levels, lo=lo, up=up: sns_tpm(lv, lo, up)),
                 }
+                _, Jt, bt, st, _ = stacked(levels[:-1], n)  # without the posture level: m <= n, the general path
+                cand.update({
+                    "top levels only (m <= n): tpm_stacked, compiled": (True, lambda J=Jt, b=bt, s=st, n=n:
+                                                                        tpm_stacked(J, b, s, n)),
+                    "top levels only (m <= n): tpm_stacked, numpy": (False, lambda J=Jt, b=bt, s=st, n=n:
+                                                                     tpm_stacked(J, b, s, n)),
+                })
                 for key, (on, fn) in cand.items():
                     switch(on)
                     fn()
