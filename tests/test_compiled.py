@@ -449,3 +449,43 @@ def test_general_path_damped_one_row_pivots_between_regular_levels(compiled):
                 levels[k] = (row[None, :], levels[k][1])
         solved += check_general(levels, n, rng, compiled)
     assert solved >= 400
+
+
+READ_ONLY_SCRIPT = """
+import numpy as np, hqp_tpm.solvers as s, hqp_tpm.solvers._compiled as C
+rng = np.random.default_rng(0)
+lv = [(rng.standard_normal((6, 7)), rng.standard_normal(6)), (np.eye(7), rng.standard_normal(7))]
+x = s.tpm(lv)
+C.ENABLED = False
+print(float(np.abs(x - s.tpm(lv)).max()), C._past_rank._cache._cache_path)
+"""
+
+
+@pytest.mark.slow
+def test_read_only_install_caches_in_the_user_directory(tmp_path):
+    """The package in a read-only folder (a wheel in a read-only site-packages): the kernels compile once and
+    numba caches them in the user's cache directory (``~/.cache/numba``); the next process loads them. Needs
+    root for a read-only bind mount in a private mount namespace (``unshare -m``), skipped otherwise."""
+    import os
+    import shutil
+    import subprocess
+
+    if os.geteuid() != 0 or shutil.which("unshare") is None:
+        pytest.skip("needs root and unshare for a read-only bind mount")
+    ro, home = tmp_path / "ro", tmp_path / "home"
+    home.mkdir()
+    shutil.copytree(Path(_compiled.__file__).parents[1], ro / "hqp_tpm", ignore=shutil.ignore_patterns("__pycache__"))
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "XDG_CACHE_HOME", "HQP_TPM_COMPILED")}
+    env.update(HOME=str(home), PYTHONPATH=str(ro))
+    cmd = f"mount --bind {ro} {ro} && mount -o remount,ro,bind {ro} && cd {tmp_path} && " \
+          f"{sys.executable} -c '{READ_ONLY_SCRIPT}'"
+    outs = []
+    for _ in range(2):
+        out = subprocess.run(["unshare", "-m", "sh", "-c", cmd], env=env, capture_output=True, text=True, timeout=900)
+        if out.returncode != 0 and "unshare" in out.stderr:
+            pytest.skip(f"no private mount namespace here: {out.stderr.strip()}")
+        assert out.returncode == 0, out.stderr
+        outs.append(out.stdout.split())
+    for diff, path in outs:
+        assert float(diff) <= 1e-12 and Path(path).is_relative_to(home / ".cache" / "numba")
+    assert not list(ro.rglob("*.nbi")) and list((home / ".cache" / "numba").rglob("*.nbi"))

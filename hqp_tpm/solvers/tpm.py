@@ -20,6 +20,10 @@ If the stack has more rows than columns (``m > n``) the Jacobian is padded with 
 columns up to ``m``: the minimum-norm solution has zeros there and they are dropped. When such a
 stack reaches rank ``n`` before its last level (a final posture level), :func:`tpm` takes the
 shortcut of :mod:`hqp_tpm.solvers._fullrank` instead (same numbers, no padding, no SVD of ``R^T``).
+
+:func:`tpm_stacked` (hence :func:`tpm`) runs the shortcut and the general path through the compiled kernels of
+:mod:`hqp_tpm.solvers._compiled` when numba is importable (``HQP_TPM_COMPILED=0`` forces the numpy code, which
+stays the reference; ``tests/test_compiled.py`` proves them equal).
 """
 
 from __future__ import annotations
