@@ -444,8 +444,8 @@ def _sizes(sizes) -> np.ndarray | None:
 def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float,
               cond: float):
     """The compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`: ``x`` or None (declined)."""
-    s = _sizes(sizes)
-    if s is None:
+    s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
+    if s is None and (s := _sizes(sizes)) is None:
         return solve_past_rank(J, b, sizes, n, lambda_max, eps)
     x = np.empty(n)
     status = _past_rank(J, b, s, n, float(lambda_max), float(eps), _UNIT, margin, cond, x)
@@ -459,8 +459,8 @@ def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
 def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None):
     """``x`` of the general TPM path for ``m <= n`` (:func:`_general`), or None: then
     :class:`hqp_tpm.solvers._kernels.Factorization` decides and solves."""
-    s = _sizes(sizes)
-    if s is None:
+    s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
+    if s is None and (s := _sizes(sizes)) is None:
         return None
     x = np.empty(n)
     use = x0 is not None

@@ -166,7 +166,8 @@ def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float =
     ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
     :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step)."""
     if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
-        x = past_rank(J, b, sizes, n, lambda_max, eps)
+        x = _compiled.past_rank(J, b, sizes, n, lambda_max, eps, MARGIN, COND) if _compiled.ENABLED else \
+            solve_past_rank(J, b, sizes, n, lambda_max, eps)
         if x is not None:
             return x
     elif _compiled.ENABLED:  # m <= n: x = Q R^-T F b in one compiled call (regular or damped 1 x 1 pivots)
