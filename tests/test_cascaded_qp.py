@@ -228,7 +228,7 @@ def test_backend_without_solution_raises_solver_failed(monkeypatch):
     monkeypatch.setattr(qpsolvers, "solve_problem", no_solution)
     met = Level(np.eye(3)[:1], lower=-1.0, upper=1.0)  # met at x = 0: needs no QP
     with pytest.raises(SolverFailedError, match=r"level 1.*'daqp'"):
-        cascaded_qp([met, (np.eye(3)[1:], [1.0, 2.0])], "daqp")
+        cascaded_qp([met, (np.eye(3)[1:], [1.0, 2.0])], "daqp", fallback=())
 
 
 @pytest.mark.parametrize("backend", ["proxqp", "daqp", "quadprog"])
@@ -249,11 +249,18 @@ def test_damped_cascade_equals_damped_tpm(backend):
 
 def test_romeo_level_that_needs_many_proxqp_iterations():
     """A real Romeo stack (romeo_sns_tpm solved by the cascade, step 3221, one BLAS thread) whose
-    third level takes ProxQP about 1,300 iterations: it must be solved, and agree with DAQP."""
+    third level takes ProxQP about 1,300 iterations: it must be solved by ProxQP itself, and agree with DAQP.
+
+    Damped and boxed, the cascade is defined only up to where each level leaves the directions its objective
+    does not see (any point of them is optimal for the level; the damped levels below start from it): the
+    backends' commands differ by ~1e-5 here while every level's residual agrees to 1e-6 relative.
+    """
     data = np.load(Path(__file__).parent / "data" / "romeo_step3221_levels.npz")
     levels = [Level(data[f"J{i}"], data[f"b{i}"], name=str(data[f"name{i}"])) for i in range(5)]
     kw = {"lower": data["lower"], "upper": data["upper"], "lambda_max": float(data["lambda_max"]),
           "eps": float(data["eps"])}
-    x = cascaded_qp(levels, "proxqp", **kw)
-    assert ((x >= kw["lower"]) & (x <= kw["upper"])).all()
-    assert np.abs(x - cascaded_qp(levels, "daqp", **kw)).max() < 1e-6
+    x, info = cascaded_qp(levels, "proxqp", return_info=True, **kw)
+    assert ((x >= kw["lower"]) & (x <= kw["upper"])).all() and info.fallbacks == ()
+    xd, info_d = cascaded_qp(levels, "daqp", return_info=True, **kw)
+    np.testing.assert_allclose(info.residuals, info_d.residuals, rtol=1e-6, atol=1e-9)
+    assert np.abs(x - xd).max() < 1e-4

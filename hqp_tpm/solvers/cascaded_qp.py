@@ -17,8 +17,13 @@ Numerical care, because the stacked "keep the optimum" constraints are often dep
 * the current point is always feasible (kept bounds are relaxed to it), so ``z = 0`` is a
   feasible start; bounds that meet (``lower == upper``) and kept bounds with a positive
   multiplier (active at every optimum of their level) become equalities;
+* each QP is handed to the backend in units where it is of order 1 (:func:`normalized`), so that the
+  backends' absolute tolerances mean the same whatever the units of ``J``, ``b`` and the box;
 * a backend that returns no solution is retried with :data:`RETRY_OPTIONS`; ProxQP last through
-  ProxSuite itself (:data:`LAST_RESORT`), whose infeasibility tests qpsolvers cannot switch off;
+  ProxSuite itself (:data:`LAST_RESORT`), whose infeasibility tests qpsolvers cannot switch off; then
+  the :data:`FALLBACK` backends, reported in :attr:`CascadeInfo.fallbacks`;
+* a level has :data:`TIME_BUDGET` CPU seconds, all attempts included; OSQP and DAQP get the rest of it
+  as their own time limit, the others are checked after each call;
 * ProxQP runs its sparse backend (:data:`SPARSE_CALL`): the same inputs give the same bits in any
   process, whatever ran before (tests/test_reproducible.py).
 """
@@ -79,8 +84,10 @@ DEFAULT_OPTIONS = {
 }
 
 #: Settings tried in turn when a backend returns no solution (ProxQP's infeasibility test is loose,
-#: 1e-4, and qpsolvers cannot tighten it: it now and then calls a feasible level infeasible).
+#: 1e-4, and qpsolvers cannot tighten it: it now and then calls a feasible level infeasible). DAQP's
+#: proximal setting fails on some nearly dependent levels that it solves without (benchmarks/qp_backends.py).
 RETRY_OPTIONS = {
+    "daqp": [{"primal_tol": 1e-10, "dual_tol": 1e-10}],
     "proxqp": [{"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 0.1},
                {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 1e-3, "compute_preconditioner": False},
                {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 20_000}],  # slow convergence seen on Romeo: ~1,300
@@ -99,6 +106,15 @@ FREE_WEIGHT = {"quadprog": 1e-12, "pyqpmad": 1e-12}
 #: that level (ProxQP was seen spending 10-40 s on a diverging one).
 TIME_BUDGET = 1.0
 
+#: The setting through which a backend stops itself after the level's remaining budget (wall seconds,
+#: which are at least the CPU seconds of this single-threaded call); the others are checked between calls.
+TIME_LIMIT_KEY = {"osqp": "time_limit", "daqp": "time_limit"}
+
+#: Backends tried, in this order, on a QP that the chosen backend returned no solution for with all its
+#: settings (installed ones only, with their own default and retry settings). The QP is solved, the level
+#: goes on, and :attr:`CascadeInfo.fallbacks` says which backend solved it. ``fallback=()`` turns this off.
+FALLBACK = ("proxqp", "daqp", "quadprog")
+
 #: Two bounds of a row closer than this (relative to the bound) make the row an equality.
 EQUAL_BOUNDS_RTOL = 1e-10
 
@@ -113,12 +129,15 @@ class CascadeInfo:
 
     ``residuals[k]``: ``||J_k x - b_k||`` of an equality level, the norm of the bound
     violation of an inequality level. ``qp_count``: QPs handed to the backend, retries
-    included (a level already decided or met needs none).
+    included (a level already decided or met needs none). ``fallbacks``: ``(level, backend)`` for each
+    QP that ``solver`` returned no solution for and a :data:`FALLBACK` backend solved (empty: ``solver``
+    solved every level).
     """
 
     residuals: np.ndarray
     solver: str
     qp_count: int
+    fallbacks: tuple[tuple[str, str], ...] = ()
 
 
 @dataclass
@@ -133,6 +152,8 @@ class _Cascade:
     attempts: list[dict]
     qp_count: int = field(default=0)
     time_budget: float | None = None
+    fallback: tuple[str, ...] = ()
+    fallbacks: list[tuple[str, str]] = field(default_factory=list)
     level_start: float = field(default=0.0)
 
     def start_level(self) -> None:
@@ -191,7 +212,7 @@ class _Cascade:
         rows, Gy, hy = self.kept_bounds_in(B)
         G = np.vstack([C[up], -C[lo], np.hstack([Gy * scale, np.zeros((rows.size, p - r))])])
         h = np.concatenate([upper[up], -lower[lo], hy])
-        v, mult = self.solve(P, q, G, h, C[eq], upper[eq], where)
+        v, mult = self.solve(P, q, G, h, C[eq], upper[eq], where, magnitude(q, lower, upper))
         self.move(B @ (scale * v[:r]))
         n_up, n_lo = up.sum(), lo.sum()
         self.restrict(self.G[rows[positive(mult[n_up + n_lo:], mult)]])
@@ -200,49 +221,73 @@ class _Cascade:
         active[lo] |= positive(mult[n_up: n_up + n_lo], mult)
         return active
 
-    def solve(self, P, q, G, h, A, b, where: str) -> tuple[np.ndarray, np.ndarray]:
+    def solve(self, P, q, G, h, A, b, where: str, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
         """``min 1/2 v'Pv + q'v  s.t.  G v <= h, A v = b`` for a diagonal ``P``: solution, multipliers of G.
 
         A variable that neither ``q`` nor any constraint sees is decoupled: it stays 0 and is left out.
+        ``size``: the expected magnitude of ``v`` (:func:`magnitude`), see :meth:`backend`.
         """
         used = (q != 0.0) | G.any(axis=0) | A.any(axis=0)
         v, mult = np.zeros(q.size), np.zeros(G.shape[0])
         if used.any():
-            v[used], mult = self.backend(P[np.ix_(used, used)], q[used], G[:, used], h, A[:, used], b, where)
+            v[used], mult = self.backend(P[np.ix_(used, used)], q[used], G[:, used], h, A[:, used], b, where, size)
         return v, mult
 
-    def backend(self, P, q, G, h, A, b, where: str) -> tuple[np.ndarray, np.ndarray]:
-        """One QP through qpsolvers: solution and multipliers of ``G``; on failure the retry settings."""
+    def backend(self, P, q, G, h, A, b, where: str, size: float = 1.0) -> tuple[np.ndarray, np.ndarray]:
+        """One QP through qpsolvers: solution and multipliers of ``G``; on failure the retry settings.
+
+        The backend gets the problem in units where it is of order 1 (:func:`normalized`: rows of ``G`` and
+        ``A`` of unit norm, ``v = size w``), so that its absolute tolerances mean the same in any units;
+        the multipliers returned are those of that problem (scale-free: :func:`positive` compares them
+        with 1, so a level in other units pins the same bounds).
+        """
+        m = G.shape[0]
+        arrays, d = normalized(P, q, G, h, A, b, size)
+        errors: list[Exception] = []
+        for solver in (self.solver, *self.fallback):
+            attempts = self.attempts if solver == self.solver else _attempts(solver, {})
+            found = self._attempt(solver, attempts, _problem(solver, *arrays), m, where, errors)
+            if found is not None:
+                if solver != self.solver:
+                    self.fallbacks.append((where, solver))
+                return d * found[0], found[1]
+        error = errors[-1] if errors else None
+        tried = f"; nor did the fallback backends {', '.join(map(repr, self.fallback))}" if self.fallback else ""
+        raise SolverFailedError(f"{where}: backend {self.solver!r} returned no solution with any of its "
+                                f"{len(self.attempts)} settings{f' ({error})' if error else ''}{tried}; "
+                                f"try another backend") from error
+
+    def _attempt(self, solver: str, attempts: list[dict], problem, m: int, where: str,
+                 errors: list) -> tuple[np.ndarray, np.ndarray] | None:
+        """Solve ``problem`` with ``solver`` and each of ``attempts`` in turn (then :data:`LAST_RESORT`)."""
         import qpsolvers
 
-        m = G.shape[0]
-        problem = _problem(self.solver, P, q, G, h, A, b)
-        error = None
-        for options in self.attempts:
+        for options in attempts:
             if problem.G is None and problem.A is None:
                 options = {k: v for k, v in options.items() if k != POLISH}  # OSQP would print it skipped it
+            if self.time_budget is not None and solver in TIME_LIMIT_KEY:
+                left = self.time_budget - (time.process_time() - self.level_start)
+                options = {**options, TIME_LIMIT_KEY[solver]: max(left, 1e-3)}
             self.qp_count += 1
             try:
-                sol = qpsolvers.solve_problem(problem, self.solver, **options)
+                sol = qpsolvers.solve_problem(problem, solver, **options)
             except qpsolvers.SolverNotFound as exc:
-                raise _not_available(self.solver, sorted(qpsolvers.available_solvers)) from exc
+                raise _not_available(solver, sorted(qpsolvers.available_solvers)) from exc
             except Exception as exc:  # backends raise their own types on numerical trouble
-                error = exc
+                errors.append(exc)
                 self.check_budget(where, exc)
                 continue
             self.check_budget(where)
             if sol.found and sol.x is not None and np.isfinite(sol.x).all():
                 mult = np.zeros(m) if sol.z is None or m == 0 else np.asarray(sol.z, dtype=float).reshape(m)
                 return sol.x, mult
-        if self.solver in LAST_RESORT:
+        if solver in LAST_RESORT:
             self.qp_count += 1
-            found = LAST_RESORT[self.solver](problem, self.attempts[0])
+            found = LAST_RESORT[solver](problem, attempts[0])
             self.check_budget(where)
             if found is not None:
                 return found[0], np.zeros(m) if m == 0 else found[1]
-        raise SolverFailedError(f"{where}: backend {self.solver!r} returned no solution with any of its "
-                                f"{len(self.attempts)} settings{f' ({error})' if error else ''}; "
-                                f"try another backend") from error
+        return None
 
 
 #: Backends handed sparse matrices although they take dense ones. ProxQP's dense backend (AVX2 build) gives
@@ -301,6 +346,37 @@ def _proxqp_direct(problem: qpsolvers.Problem, options: dict) -> tuple[np.ndarra
 LAST_RESORT = {"proxqp": _proxqp_direct}
 
 
+def magnitude(q: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> float:
+    """Expected size of a level QP's solution: ``max |q|`` and, per row of ``lower <= C v <= upper``, the
+    distance from ``C v = 0`` to the nearest finite bound (the violation of a violated row)."""
+    lo, up = np.abs(lower), np.abs(upper)
+    near = np.where(np.isfinite(lo) & np.isfinite(up), np.minimum(lo, up), np.where(np.isfinite(lo), lo, up))
+    near = near[np.isfinite(near)]
+    return float(max(np.abs(q).max(initial=0.0), near.max(initial=0.0)))
+
+
+def normalized(P, q, G, h, A, b, size: float):
+    """``min 1/2 v'Pv + q'v  s.t.  G v <= h, A v = b`` in units where it is of order 1 for the backend.
+
+    ``v = d w`` with ``d = size / sqrt(max(P_jj, 1))`` (``size``: :func:`magnitude`, 1 if zero): the
+    variables in units of the solution's expected size, those a damped level weighs heavily
+    (``1 + lambda^2 / s^2``) scaled to a unit Hessian; then the rows of ``G`` and ``A`` divided by their
+    norms. Returns the problem in ``w`` and ``d``. Without it a level in other units (J times 1e6, or
+    targets and box times 1e-6) met the backends' absolute tolerances 1e6 times too tight or loose:
+    DAQP, ProxQP and OSQP failed or ran out of time on a few percent of such levels, and multipliers
+    that are rounding noise pinned bounds that are not active.
+    """
+    size = size if np.isfinite(size) and size > 0.0 else 1.0
+    p = np.diag(P)
+    d = size / np.sqrt(np.maximum(p, 1.0))
+    P, q, G, A = np.diag(p * d * d / size**2), q * d / size**2, G * d, A * d
+    g = np.linalg.norm(G, axis=1)
+    g = np.where(g > 0.0, g, 1.0)
+    a = np.linalg.norm(A, axis=1)
+    a = np.where(a > 0.0, a, 1.0)
+    return (P, q, G / g[:, None], h / g, A / a[:, None], b / a), d
+
+
 def bound_kinds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Masks of the rows of ``lower <= y <= upper`` that are equalities, finite upper and finite lower bounds."""
     size = np.maximum(1.0, np.abs(np.where(np.isfinite(upper), upper, 0.0)))
@@ -324,8 +400,10 @@ def null_space_basis(A: np.ndarray, tol: float) -> np.ndarray:
 class _Split:
     """Truncated SVD ``A = U1 diag(s1) V1'`` of a level on the free space; ``B = [V1 V2]`` is orthonormal.
 
-    The level's variables are ``z = B diag(scale) (u, t)`` with ``scale = (1/s1, 1)``, so that
-    ``A z = U1 u`` and ``t`` spans the directions the level cannot see.
+    The level's variables are ``z = B diag(scale) (u, t)`` with ``scale = (1/s1, 1/unit)``, so that
+    ``A z = U1 u`` and ``t`` spans the directions the level cannot see. ``unit`` (the largest ``s1``)
+    puts ``t`` in the level's units, as ``u``: with ``t`` in the units of ``z`` instead, a level
+    whose ``J`` is 1e6 times larger handed the backend variables 1e6 apart in size.
     """
 
     U1: np.ndarray
@@ -338,8 +416,13 @@ class _Split:
         return self.s1.size
 
     @property
+    def unit(self) -> float:
+        """``t = unit V2' z``: the size of the level's ``J`` on the free space (1 if it has rank 0)."""
+        return float(self.s1[0]) if self.rank else 1.0
+
+    @property
     def scale(self) -> np.ndarray:
-        return np.concatenate([1.0 / self.s1, np.ones(self.B.shape[1] - self.rank)])
+        return np.concatenate([1.0 / self.s1, np.full(self.B.shape[1] - self.rank, 1.0 / self.unit)])
 
 
 def split(A: np.ndarray, tol: float) -> _Split:
@@ -395,6 +478,18 @@ def check_box(lower, upper, n: int) -> tuple[np.ndarray, np.ndarray]:
     return lo, up
 
 
+def _fallback(solver: str, fallback: Iterable[str]) -> tuple[str, ...]:
+    """The installed backends of ``fallback`` other than ``solver``, in order (a name qpsolvers does not know
+    raises :class:`SolverNotAvailableError`; a known one that is not installed is skipped)."""
+    import qpsolvers
+
+    names = [fallback] if isinstance(fallback, str) else list(fallback)
+    for name in names:
+        if name not in qpsolvers.available_solvers and name not in PIP_PACKAGE:
+            check_solver(name)
+    return tuple(dict.fromkeys(s for s in names if s != solver and s in qpsolvers.available_solvers))
+
+
 def _attempts(solver: str, solver_options: dict) -> list[dict]:
     """Settings to try in turn: the defaults, then the retry settings, each overridden by the caller's."""
     tries = [DEFAULT_OPTIONS.get(solver, {}), *RETRY_OPTIONS.get(solver, [])]
@@ -430,7 +525,8 @@ def _equality_level(c: _Cascade, J: np.ndarray, b: np.ndarray, k: int, lambda_ma
     # ||J (x + N z) - b||^2 + lam2 ||z||^2 = ||u - target||^2 + lam2 (||u / s1||^2 + ||t||^2) + const
     target = sp.U1.T @ (b - J @ c.x)
     free = c.N.shape[1] - sp.rank
-    P = np.diag(np.concatenate([1.0 + lam2 / sp.s1**2, np.full(free, max(lam2, FREE_WEIGHT.get(c.solver, 0.0)))]))
+    weight = max(lam2 / sp.unit**2, FREE_WEIGHT.get(c.solver, 0.0))  # lam2 ||t / unit||^2 + weight (level units)
+    P = np.diag(np.concatenate([1.0 + lam2 / sp.s1**2, np.full(free, weight)]))
     c.qp(P, np.concatenate([-target, np.zeros(free)]), sp.B, sp.scale, f"level {k}")
     c.restrict(J)
 
@@ -460,7 +556,7 @@ def _inequality_level(c: _Cascade, J: np.ndarray, lower: np.ndarray, upper: np.n
         Jv = J[violated]
         lam2 = damping_lambda2(np.linalg.svd(Jv @ c.N, compute_uv=False), lambda_max, eps, min(Jv.shape))
     C = np.hstack([sp.U1, np.zeros((m, r - sp.rank)), -np.eye(m)])
-    free = max(lam2, FREE_WEIGHT.get(c.solver, 0.0))
+    free = max(lam2 / sp.unit**2, FREE_WEIGHT.get(c.solver, 0.0))
     P = np.diag(np.concatenate([lam2 / sp.s1**2, np.full(r - sp.rank, free), np.ones(m)]))
     if lam2 == 0.0:
         P[: sp.rank, : sp.rank] = np.eye(sp.rank) * FREE_WEIGHT.get(c.solver, 0.0)
@@ -489,7 +585,7 @@ def residuals(levels: Iterable, x: np.ndarray) -> np.ndarray:
 def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | None = None,
                 lower=None, upper=None, n: int | None = None, return_info: bool = False,
                 lambda_max: float = 0.0, eps: float = 0.0, time_budget: float | None = TIME_BUDGET,
-                **solver_options):
+                fallback: Iterable[str] = FALLBACK, **solver_options):
     """Solve a prioritized stack lexicographically, one QP per level (see module doc).
 
     ``levels``: highest priority first, ``(J, b)`` pairs or :class:`Level` (inequality
@@ -501,7 +597,10 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     the damped recursive null-space solution) or inequality (:func:`_inequality_level`).
     ``time_budget``: CPU seconds one level may take, retries included; beyond it the cascade stops with
     :class:`~hqp_tpm.errors.SolverBudgetError` naming the level (None: no budget).
-    ``solver_options`` override :data:`DEFAULT_OPTIONS`.
+    ``fallback``: backends tried on a QP ``solver`` finds no solution for (:data:`FALLBACK`, installed
+    ones; ``()``: none, the cascade stops with :class:`~hqp_tpm.errors.SolverFailedError` naming the
+    level); which solved what is in ``CascadeInfo.fallbacks``.
+    ``solver_options`` override :data:`DEFAULT_OPTIONS` (for ``solver`` only).
     Returns ``x``, or ``(x, CascadeInfo)`` with ``return_info=True``.
     """
     solver = check_solver(solver)
@@ -511,7 +610,8 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     lambda_max, eps = check_damping(lambda_max, eps)
     x0 = np.zeros(n) if x0 is None else check_x0(x0, n)
     c = _Cascade(np.clip(np.zeros(n), box_lo, box_up), np.eye(n), np.zeros((0, n)), np.zeros(0),
-                 solver, _attempts(solver, solver_options), time_budget=time_budget)
+                 solver, _attempts(solver, solver_options), time_budget=time_budget,
+                 fallback=_fallback(solver, fallback))
     c.keep_bounds(np.eye(n), box_lo, box_up)
     for k, level in enumerate(lv):
         c.start_level()
@@ -524,5 +624,5 @@ def cascaded_qp(levels: Iterable, solver: str = "proxqp", *, x0: np.ndarray | No
     x = np.clip(c.x, box_lo, box_up)
     if not return_info:
         return x
-    return x, CascadeInfo(residuals(lv, x), solver, c.qp_count)
+    return x, CascadeInfo(residuals(lv, x), solver, c.qp_count, tuple(c.fallbacks))
 
