@@ -19,7 +19,9 @@ budget errors counted apart) or an untyped exception; a box violation beyond 1e-
 lexicographically worse than the best backend's (level by level, beyond 1e-7 of ``max|J| max|x| + max|target|``);
 the solution more than ``--rtol`` (relative, osqp ``--osqp-rtol``) from the majority of the backends
 (the largest group within that tolerance of each other, at least two; ``--backends`` may add e.g. the
-interior-point ``clarabel`` as a voter); the CPU time of each level (this process's). Writes ``qp_backends.md`` and
+interior-point ``clarabel`` as a voter); the CPU time of each level (this process's). Each backend runs
+alone (``fallback=()``); with ``--fallback`` the cascade's automatic fallback is on and the draws where
+another backend solved a level are counted (``fell_back``). Writes ``qp_backends.md`` and
 ``qp_backends.json`` (failing and disagreeing draws, replayable: family, index, units, scale)::
 
     .venv/bin/python benchmarks/qp_backends.py --draws 300        # per family and unit scale
@@ -141,19 +143,21 @@ class LevelClock:
         return list(np.diff(t))
 
 
-def solve_all(levels, lo, up, damping, backends, clock):
-    """Per backend: ``{"x", "res", "error", "kind", "times", "solved_by"}``."""
+def solve_all(levels, lo, up, damping, backends, clock, fallback=()):
+    """Per backend: ``{"x", "res", "error", "kind", "times", "fallbacks"}`` (``fallback=()``: the backend alone)."""
+    import inspect
+
     from hqp_tpm.errors import SolverBudgetError, SolverFailedError
     from hqp_tpm.solvers.cascaded_qp import cascaded_qp
 
+    extra = {"fallback": fallback} if "fallback" in inspect.signature(cascaded_qp).parameters else {}  # old checkouts
     out = {}
     for s in backends:
-        r = {"x": None, "res": None, "error": None, "kind": "ok", "solved_by": None}
+        r = {"x": None, "res": None, "error": None, "kind": "ok", "fallbacks": ()}
         clock.levels()
         try:
-            x, info = cascaded_qp(levels, s, lower=lo, upper=up, return_info=True, **damping)
-            r["x"], r["res"] = x, info.residuals
-            r["solved_by"] = getattr(info, "solved_by", None)
+            x, info = cascaded_qp(levels, s, lower=lo, upper=up, return_info=True, **extra, **damping)
+            r["x"], r["res"], r["fallbacks"] = x, info.residuals, getattr(info, "fallbacks", ())
         except SolverBudgetError as e:
             r["kind"], r["error"] = "budget", str(e)
         except SolverFailedError as e:
@@ -212,6 +216,8 @@ def main(argv=None) -> int:
     p.add_argument("--max-cond", type=float, default=1e10, help="cond(J) bound of the 'near' family")
     p.add_argument("--rtol", type=float, default=1e-6)
     p.add_argument("--osqp-rtol", type=float, default=1e-5)
+    p.add_argument("--fallback", action="store_true", help="the cascade's default fallback backends on "
+                   "(counted in 'fell_back'); default: each backend alone")
     p.add_argument("--replay", default=None, help="family:index:units:scale of one draw, printed per backend")
     p.add_argument("--out", type=Path, default=RESULTS)
     p.add_argument("--tag", default="", help="suffix of the output file names")
@@ -225,6 +231,9 @@ def main(argv=None) -> int:
     draws = 5 if a.quick else a.draws
     scales = [float(c) for c in a.scales.split(",")]
     families = a.families.split(",")
+    from hqp_tpm.solvers.cascaded_qp import FALLBACK
+
+    fallback = FALLBACK if a.fallback else ()
     cases = strategy_cases(max(draws, 1)) if "strategies" in families or (a.replay or "").startswith("strat") else []
 
     with one_blas_thread(), LevelClock() as clock:
@@ -232,7 +241,7 @@ def main(argv=None) -> int:
             fam, i, units, c = a.replay.split(":")
             lv, lo, up, dmp = draw(fam, int(i), a.max_cond, cases)
             lv, lo, up = in_units(lv, lo, up, units, float(c))
-            for s, r in solve_all(lv, lo, up, dmp, voters, clock).items():
+            for s, r in solve_all(lv, lo, up, dmp, voters, clock, fallback).items():
                 print(s, r["kind"], r["error"] or "", "levels CPU s:", np.round(r["times"], 4),
                       "x:", None if r["x"] is None else np.array2string(r["x"], precision=6))
             return 0
@@ -247,7 +256,7 @@ def main(argv=None) -> int:
                     lv, lo, up, dmp = draw(fam, i, a.max_cond, cases)
                     lv, lo, up = in_units(lv, lo, up, units, c)
                     n = lo.size
-                    res = solve_all(lv, lo, up, dmp, voters, clock)
+                    res = solve_all(lv, lo, up, dmp, voters, clock, fallback)
                     xs = {s: r["x"] for s, r in res.items()}
                     group, xm = majority(xs, rtol)
                     ok = [s for s in voters if xs[s] is not None]
@@ -264,6 +273,9 @@ def main(argv=None) -> int:
                         times[s].extend(r["times"])
                         st["max_level_s"] = max(st["max_level_s"], max(r["times"], default=0.0))
                         flags = []
+                        if r["fallbacks"]:
+                            st["fell_back"] += 1
+                            flags.append("fell_back")
                         if r["kind"] != "ok":
                             st[r["kind"]] += 1
                             flags.append(r["kind"])
@@ -288,7 +300,7 @@ def main(argv=None) -> int:
                                         else rel_diff(r["x"], xm), "level_s": r["times"]})
             print(f"{fam} done, {time.process_time() - t0:.0f} s CPU", flush=True)
     env = environment()
-    cols = ["draws", "failed", "budget", "untyped", "box", "lex_worse", "disagree", "no_majority"]
+    cols = ["draws", "failed", "budget", "untyped", "fell_back", "box", "lex_worse", "disagree", "no_majority"]
     rows = []
     for s in voters:
         for key, st in stats[s].items():
