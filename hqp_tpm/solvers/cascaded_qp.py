@@ -73,12 +73,17 @@ def _osqp_polish_key() -> str:
 
 POLISH = _osqp_polish_key()
 
+#: ProxQP's tolerances: its residuals at 1e-11 leave an active bound up to ~1e-9 short (the sparse backend),
+#: so its duality gap is checked too (then bounds are met to ~3e-11).
+_PROXQP = {"eps_abs": 1e-11, "eps_rel": 0.0, "check_duality_gap": True, "eps_duality_gap_abs": 1e-11,
+           "eps_duality_gap_rel": 0.0}
+
 #: First settings tried per backend, tight enough for 1e-8 agreement with TPM (``**solver_options``
 #: override them; other backends run with their own defaults). ProxQP stalls at 1e-12 on degenerate
 #: levels and needs a stronger proximal rho than its default on semidefinite ones; DAQP stalls at
 #: 1e-12 and needs ``eps_prox`` for a semidefinite Hessian; OSQP (first order) gets 1e-9 with polishing.
 DEFAULT_OPTIONS = {
-    "proxqp": {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 1e-3},
+    "proxqp": {**_PROXQP, "max_iter": 1000, "rho": 1e-3},
     "osqp": {"eps_abs": 1e-9, "eps_rel": 1e-9, POLISH: True, "max_iter": 100_000, "rho": 1e-3, "raise_error": False},
     "daqp": {"primal_tol": 1e-10, "dual_tol": 1e-10, "eps_prox": -1},
 }
@@ -88,9 +93,9 @@ DEFAULT_OPTIONS = {
 #: proximal setting fails on some nearly dependent levels that it solves without (benchmarks/qp_backends.py).
 RETRY_OPTIONS = {
     "daqp": [{"primal_tol": 1e-10, "dual_tol": 1e-10}],
-    "proxqp": [{"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 0.1},
-               {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 1000, "rho": 1e-3, "compute_preconditioner": False},
-               {"eps_abs": 1e-11, "eps_rel": 0.0, "max_iter": 20_000}],  # slow convergence seen on Romeo: ~1,300
+    "proxqp": [{**_PROXQP, "max_iter": 1000, "rho": 0.1},
+               {**_PROXQP, "max_iter": 1000, "rho": 1e-3, "compute_preconditioner": False},
+               {**_PROXQP, "max_iter": 20_000}],  # slow convergence seen on Romeo: ~1,300
     # OSQP's adaptive rho stalls (dual residual ~1e-3 after 100,000 iterations) at degenerate vertices of
     # damped boxed levels, where a fixed large rho converges: 13 of 13 such QPs (benchmarks/qp_backends.py)
     "osqp": [{"eps_abs": 1e-9, "eps_rel": 1e-9, POLISH: True, "max_iter": 100_000, "raise_error": False, **o}
