@@ -231,9 +231,9 @@ def main(argv=None) -> int:
     draws = 5 if a.quick else a.draws
     scales = [float(c) for c in a.scales.split(",")]
     families = a.families.split(",")
-    from hqp_tpm.solvers.cascaded_qp import FALLBACK
-
-    fallback = FALLBACK if a.fallback else ()
+    fallback: tuple = ()
+    if a.fallback:
+        from hqp_tpm.solvers.cascaded_qp import FALLBACK as fallback
     cases = strategy_cases(max(draws, 1)) if "strategies" in families or (a.replay or "").startswith("strat") else []
 
     with one_blas_thread(), LevelClock() as clock:

@@ -375,13 +375,13 @@ def normalized(P, q, G, h, A, b, size: float):
     """
     size = size if np.isfinite(size) and size > 0.0 else 1.0
     p = np.diag(P)
-    d = size / np.sqrt(np.maximum(p, 1.0))
-    P, q, G, A = np.diag(p * d * d / size**2), q * d / size**2, G * d, A * d
+    unit = 1.0 / np.sqrt(np.maximum(p, 1.0))  # d = size * unit; no product with size: it may be huge
+    P, q, G, A = np.diag(p * unit * unit), q * unit / size, G * unit, A * unit
     g = np.linalg.norm(G, axis=1)
     g = np.where(g > 0.0, g, 1.0)
     a = np.linalg.norm(A, axis=1)
     a = np.where(a > 0.0, a, 1.0)
-    return (P, q, G / g[:, None], h / g, A / a[:, None], b / a), d
+    return (P, q, G / g[:, None], h / g / size, A / a[:, None], b / a / size), size * unit
 
 
 def bound_kinds(lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
