@@ -498,8 +498,14 @@ def _fallback(solver: str, fallback: Iterable[str]) -> tuple[str, ...]:
 
 
 def _attempts(solver: str, solver_options: dict) -> list[dict]:
-    """Settings to try in turn: the defaults, then the retry settings, each overridden by the caller's."""
+    """Settings to try in turn: the defaults, then the retry settings, each overridden by the caller's.
+
+    A caller's ProxQP ``eps_abs`` is also its duality-gap tolerance (unless given): asked for a loose
+    solution, ProxQP gives one.
+    """
     tries = [DEFAULT_OPTIONS.get(solver, {}), *RETRY_OPTIONS.get(solver, [])]
+    if solver == "proxqp" and "eps_abs" in solver_options:
+        solver_options = {"eps_duality_gap_abs": solver_options["eps_abs"], **solver_options}
     return [{**options, **solver_options} for options in tries]
 
 
