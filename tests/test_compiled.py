@@ -489,3 +489,17 @@ def test_read_only_install_caches_in_the_user_directory(tmp_path):
     for diff, path in outs:
         assert float(diff) <= 1e-12 and Path(path).is_relative_to(home / ".cache" / "numba")
     assert not list(ro.rglob("*.nbi")) and list((home / ".cache" / "numba").rglob("*.nbi"))
+
+
+def test_sizes_as_a_list_or_an_array(compiled):
+    """``tpm_stacked``'s ``sizes`` may be a tuple, a list or an array (a list used to raise TypeError in the
+    kernels' size cache)."""
+    rng = np.random.default_rng(4)
+    for sizes, n in (((2, 3), 7), ((6, 7), 7)):
+        levels = random_stack(rng, n, list(sizes))
+        _, J, b, _, _ = stacked(levels, n)
+        compiled(False)
+        ref = tpm_stacked(J, b, sizes, n)
+        compiled(True)
+        for s in (tuple(sizes), list(sizes), np.array(sizes)):
+            assert rel_diff(tpm_stacked(J, b, s, n), ref) <= TOL

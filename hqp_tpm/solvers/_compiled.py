@@ -433,10 +433,12 @@ def _sizes(sizes) -> np.ndarray | None:
         except ImportError:  # pragma: no cover - numba found but not importable
             ENABLED = False
             return None
+    if type(sizes) is not tuple:                       # a list or an array: not hashable, converted each call
+        return np.asarray(sizes, dtype=np.int64)
     s = _SIZES.get(sizes)
     if s is None:
         s = np.asarray(sizes, dtype=np.int64)
-        if isinstance(sizes, tuple) and len(_SIZES) < 256:
+        if len(_SIZES) < 256:
             _SIZES[sizes] = s
     return s
 
