@@ -84,12 +84,16 @@ def test_every_qualifying_scenario(name):
     assert name != "romeo_tpm" or ref.lambda_max > 0  # damped TPM
 
 
-@pytest.mark.parametrize("compiled", PATHS, indirect=True)
-@pytest.mark.parametrize("solver", ["tpm", "sns_tpm", "sns", "qp:daqp"])
-@pytest.mark.parametrize("kind", ["iiwa_vel", "iiwa_acc", "romeo_vel"])
+#: Every problem and solver on the compiled path; the numpy path on the iiwa problems with tpm and sns_tpm
+#: (they cover its arithmetic).
+BENCHMARK_CASES = [pytest.param(kind, solver, on, id=f"{kind}-{solver}-{'compiled' if on else 'numpy'}")
+                   for on in (True, False) for solver in ("tpm", "sns_tpm", "sns", "qp:daqp")
+                   for kind in ("iiwa_vel", "iiwa_acc", "romeo_vel")
+                   if on or (kind != "romeo_vel" and solver in ("tpm", "sns_tpm"))]
+
+
+@pytest.mark.parametrize(("kind", "solver", "compiled"), BENCHMARK_CASES, indirect=["compiled"])
 def test_benchmark_problems(kind, solver, compiled):
-    if not compiled and (kind == "romeo_vel" or solver in ("sns", "qp:daqp")):
-        pytest.skip("the numpy path: the iiwa problems with tpm and sns_tpm cover its arithmetic")
     from benchmarks.peers import problems as P
 
     robot = P.load_robot(P.ROMEO if kind.startswith("romeo") else P.IIWA)
