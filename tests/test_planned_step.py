@@ -97,10 +97,11 @@ def test_unsupported_set_ups_say_why(change, why):
     assert why in PlannedStep.why_not(ctrl)
 
 
-@pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm"])
+@pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm", "romeo_sns_tpm", "romeo_sns"])
 def test_runner_lean_run_records_the_same_arrays(name):
     """``runner.run(..., lean=True)`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what the
-    readable run records, bit for bit, probes included."""
+    readable run records, bit for bit, probes and the SNS solvers' scale, iterations and saturated joints
+    included (the lean run once dropped them: notebook 03 plots ``scale``)."""
     from hqp_tpm.app.build import build_run
     from hqp_tpm.app.runner import run
 

@@ -161,18 +161,19 @@ class LeanResult(NamedTuple):
 
 
 def lean_stepper(ctrl: Controller):
-    """``step() -> command`` and ``label() -> str`` of the lean step of ``ctrl`` (same numbers as ``ctrl.step()``):
-    :meth:`Controller.lean` for a fixed stack, :class:`~hqp_tpm.policies.planned_step.PlannedStep` for a policy
-    that plans (Algorithm 1); None when neither applies."""
+    """``step() -> command``, ``label() -> str`` and ``info() -> dict`` (the solver's info of the last command, as
+    ``StepResult.info``) of the lean step of ``ctrl`` (same numbers as ``ctrl.step()``): :meth:`Controller.lean`
+    for a fixed stack, :class:`~hqp_tpm.policies.planned_step.PlannedStep` for a policy that plans (Algorithm 1,
+    solved by ``tpm``: no info); None when neither applies."""
     from hqp_tpm.policies.planned_step import PlannedStep
 
     planned = PlannedStep.of(ctrl)
     if planned is not None:
-        return planned.step, planned.label
+        return planned.step, planned.label, dict
     lean = ctrl.lean()
     if lean is not None:
         text = ctrl.policy.stack.label()
-        return lean.step, lambda: text
+        return lean.step, lambda: text, lambda: lean.info
     return None
 
 
@@ -222,7 +223,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         else:
             x = fast[0]()
             stack = fast[1]()
-            res = LeanResult(t, x, {}, stack)
+            res = LeanResult(t, x, fast[2](), stack)
         solve_time += time.perf_counter() - t0
         dq = res.command if ctrl.order == 1 else v
         if ctrl.order == 2:

@@ -194,7 +194,7 @@ class LeanStep:
     """
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
-                 "writers", "levels", "box", "x0", "solver", "frames", "_flat")
+                 "writers", "levels", "box", "x0", "solver", "frames", "_flat", "info")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -257,6 +257,7 @@ class LeanStep:
                                           if type(task).row_writer is not Task.row_writer and task.frame is not None))
         box = ctrl.box
         self.box = JointBox(box) if type(box) is JointLimits and box.order == self.order else box
+        self.info = {}
         return self
 
     def _box(self, st, t):
@@ -283,6 +284,7 @@ class LeanStep:
         if x0 is not None:
             np.multiply(ctrl._v, -self.damping, out=x0)
         solver = self.solver
+        info = {}
         if solver == "tpm":
             if self.sizes:
                 x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0)
@@ -290,12 +292,14 @@ class LeanStep:
                 x = np.zeros(self.n) if x0 is None else x0.copy()
         elif solver == "sns_tpm":
             lo, up = self._box(st, t) or (np.full(self.n, -np.inf), np.full(self.n, np.inf))
-            x = sns_tpm(self.levels, lo, up, lambda_max=self.lambda_max, eps=self.eps)
+            x, sinfo = sns_tpm(self.levels, lo, up, lambda_max=self.lambda_max, eps=self.eps, return_info=True)
+            info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         else:
-            x = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,
-                      eps=self.eps)[0]
+            x, info = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,
+                            eps=self.eps)
         if not math.isfinite(x @ x) and not np.isfinite(x).all():
             raise SolverFailedError(f"solver {solver!r} returned a non-finite command at t = {t:.6f}")
+        self.info = info  # the solver's info of this command, as the readable step's StepResult.info
         return x
 
     def step(self) -> np.ndarray:
