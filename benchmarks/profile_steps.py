@@ -144,7 +144,8 @@ def write(res: dict, out: Path, env: dict) -> Path:
     text += [f"{r['self_us_per_step']:13.1f} {r['cum_us_per_step']:12.1f} {r['calls_per_step']:11.1f}  {r['function']}"
              for r in res["top"]]
     text += ["", "=" * 100, "cProfile, by cumulative time", "=" * 100, res["cumulative"]]
-    path.write_text("\n".join(text))
+    root = str(Path(__file__).resolve().parents[1]) + "/"  # paths relative to the checkout (no machine paths)
+    path.write_text("\n".join(text).replace(root, ""))
     return path
 
 
