@@ -17,6 +17,7 @@ distance-field history: :meth:`Policy.snapshot`) are left exactly as they were b
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -33,6 +34,14 @@ from hqp_tpm.solvers.registry import ANALYTIC, check_solver_name, solve
 from hqp_tpm.tasks.base import Task
 
 BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
+
+
+def _finite(*arrays: np.ndarray) -> bool:
+    """Are all entries finite? (one dot product each; an overflow of the sum only costs the exact test)"""
+    for a in arrays:
+        if not (math.isfinite(a @ a) or np.isfinite(a).all()):
+            return False
+    return True
 
 
 @dataclass
@@ -191,23 +200,39 @@ class Controller:
 
     def step(self) -> StepResult:
         """One control step, transactional: on any error the controller and its policy keep their state."""
+        t, out = self.t, []
+
+        def command() -> np.ndarray:
+            out.append(self._compute())
+            return out[0].command
+
+        self.advance(command)
+        res = out[0]
+        if "crosscheck" in res.info:
+            self.crosscheck_log.append(t, res.info["crosscheck"])
+        return res
+
+    def advance(self, command: Callable[[], np.ndarray]) -> np.ndarray:
+        """Compute a command with ``command()``, integrate it over ``dt`` and advance the controller; returns the
+        command. Transactional: on any error (in ``command`` or a non-finite state) the controller and its policy
+        keep their state. The one place a step is committed (:meth:`step` and the lean steps of
+        :mod:`hqp_tpm.control.lean` and :mod:`hqp_tpm.policies.planned_step`)."""
         started, saved = self._started, self.policy.snapshot()
         try:
-            res = self._compute()
-            q, v = self.state.integrate(self._q, self._v, res.command, self.dt, self.order)
-            if not (np.isfinite(q).all() and np.isfinite(v).all()):
+            x = command()
+            q, v = self.state.integrate(self._q, self._v, x, self.dt, self.order)
+            if not _finite(q, v):
                 raise NonFiniteError(f"integration produced a non-finite state{self._where()}")
         except BaseException:
             self.policy.restore(saved)
             self._started = started
             raise
         self._q, self._v = q, v
-        self.a = res.command.copy() if self.order == 2 else self.a
-        if "crosscheck" in res.info:
-            self.crosscheck_log.append(self.t, res.info["crosscheck"])
+        if self.order == 2:
+            self.a = x.copy()
         self.t += self.dt
         self.steps += 1
-        return res
+        return x
 
     def lean(self):
         """The lean step of this controller (:class:`hqp_tpm.control.lean.LeanStep`: the same numbers in far

@@ -37,7 +37,7 @@ import numpy as np
 
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
-from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers.levels import Level
@@ -45,14 +45,6 @@ from hqp_tpm.solvers.registry import solve
 from hqp_tpm.solvers.sns import sns_tpm
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.base import Task
-
-
-def _finite(*arrays: np.ndarray) -> bool:
-    """Are all entries finite? (one dot product each; an overflow of the sum only costs the exact test)"""
-    for a in arrays:
-        if not (math.isfinite(a @ a) or np.isfinite(a).all()):
-            return False
-    return True
 
 
 def _columns(idx: np.ndarray) -> slice | np.ndarray:
@@ -304,19 +296,4 @@ class LeanStep:
 
     def step(self) -> np.ndarray:
         """One control step (as :meth:`Controller.step`, transactional); returns the command."""
-        ctrl = self.ctrl
-        started = ctrl._started
-        try:
-            x = self.compute()
-            q, v = ctrl.state.integrate(ctrl._q, ctrl._v, x, ctrl.dt, self.order)
-            if not _finite(q, v):
-                raise NonFiniteError(f"integration produced a non-finite state{ctrl._where()}")
-        except BaseException:
-            ctrl._started = started
-            raise
-        ctrl._q, ctrl._v = q, v
-        if self.order == 2:
-            ctrl.a = x.copy()
-        ctrl.t += ctrl.dt
-        ctrl.steps += 1
-        return x
+        return self.ctrl.advance(self.compute)

@@ -34,7 +34,7 @@ import numpy as np
 
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task
@@ -176,20 +176,4 @@ class PlannedStep:
 
     def step(self) -> np.ndarray:
         """One control step (as :meth:`Controller.step`, transactional); returns the command."""
-        ctrl = self.ctrl
-        started, saved = ctrl._started, self.policy.snapshot()
-        try:
-            x = self.compute()
-            q, v = ctrl.state.integrate(ctrl._q, ctrl._v, x, ctrl.dt, self.order)
-            if not (np.isfinite(q).all() and np.isfinite(v).all()):
-                raise NonFiniteError(f"integration produced a non-finite state at t = {ctrl.t:.6f}")
-        except BaseException:
-            self.policy.restore(saved)
-            ctrl._started = started
-            raise
-        ctrl._q, ctrl._v = q, v
-        if self.order == 2:
-            ctrl.a = x.copy()
-        ctrl.t += ctrl.dt
-        ctrl.steps += 1
-        return x
+        return self.ctrl.advance(self.compute)
