@@ -136,37 +136,33 @@ def _apply_right(B, V, tau, p):
 
 
 @_kernel
+def _reflect(x, V, tau, i):
+    """``x <- H_i x`` with ``H_i = I - tau_i v_i v_i^T``, ``v_i = (1, V[i, i+1:])`` on rows ``i:``."""
+    ti = tau[i]
+    if ti == 0.0:
+        return
+    q = x.shape[0]
+    w = x[i]
+    for t in range(i + 1, q):
+        w += V[i, t] * x[t]
+    w *= ti
+    x[i] -= w
+    for t in range(i + 1, q):
+        x[t] -= w * V[i, t]
+
+
+@_kernel
 def _apply_q(x, V, tau, p):
     """``x <- H_0 H_1 ... H_{p-1} x`` (``Q x``)."""
-    q = x.shape[0]
     for i in range(p - 1, -1, -1):
-        ti = tau[i]
-        if ti == 0.0:
-            continue
-        w = x[i]
-        for t in range(i + 1, q):
-            w += V[i, t] * x[t]
-        w *= ti
-        x[i] -= w
-        for t in range(i + 1, q):
-            x[t] -= w * V[i, t]
+        _reflect(x, V, tau, i)
 
 
 @_kernel
 def _apply_qt(x, V, tau, p):
     """``x <- H_{p-1} ... H_0 x`` (``Q^T x``)."""
-    q = x.shape[0]
     for i in range(p):
-        ti = tau[i]
-        if ti == 0.0:
-            continue
-        w = x[i]
-        for t in range(i + 1, q):
-            w += V[i, t] * x[t]
-        w *= ti
-        x[i] -= w
-        for t in range(i + 1, q):
-            x[t] -= w * V[i, t]
+        _reflect(x, V, tau, i)
 
 
 @_kernel
