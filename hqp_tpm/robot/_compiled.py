@@ -110,14 +110,20 @@ def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
 
 
 @_njit
+def copy_rows(J, Jsrc, rows):  # pragma: no cover - compiled
+    """``J[i] = Jsrc[rows[i]]`` for every row of ``J``."""
+    for i in range(J.shape[0]):
+        r = rows[i]
+        for c in range(J.shape[1]):
+            J[i, c] = Jsrc[r, c]
+
+
+@_njit
 def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - compiled
     """A task's rows at order 1: ``J[i] = Jsrc[rows[i]]``; ``e = [x_d - x[xrows], w]`` (``w``: the rows after
     ``x_d``, e.g. a frame's rotation error); ``b = xd + kp e`` (:meth:`Task.command`)."""
-    m, n = J.shape
-    for i in range(m):
-        r = rows[i]
-        for c in range(n):
-            J[i, c] = Jsrc[r, c]
+    m = J.shape[0]
+    copy_rows(J, Jsrc, rows)
     k = x_d.shape[0]
     for i in range(k):
         b[i] = xd[i] + kp * (x_d[i] - x[xrows[i]])
@@ -129,11 +135,8 @@ def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - com
 def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pragma: no cover - compiled
     """A task's rows at order 2: ``J`` and ``e`` as :func:`rows1`, ``b = xdd + kd (xd - rate) + kp e - jdq``
     (``rate = J qd`` computed by the caller with numpy's dot, as :meth:`Task.command` does)."""
-    m, n = J.shape
-    for i in range(m):
-        r = rows[i]
-        for c in range(n):
-            J[i, c] = Jsrc[r, c]
+    m = J.shape[0]
+    copy_rows(J, Jsrc, rows)
     k = x_d.shape[0]
     for i in range(m):
         e = x_d[i] - x[xrows[i]] if i < k else w[i - k]
