@@ -17,8 +17,8 @@ How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hq
 
 * Householder QR of ``J_<k^T`` (LAPACK's ``dlarfg`` convention) on the rows of ``J`` (contiguous), the
   certificates from ``R1^{-1}`` (back substitution; its entries never reach the result), ``z = R1^{-T} b_<k``;
-* ``J_k Q`` by applying the reflectors from the right: its first ``m1`` columns give ``J_k x1``, the others
-  are ``A = J_k Z``;
+* ``J_k Q`` by applying the reflectors from the right (to a row-major ``J_k^T``): its first ``m1`` columns
+  give ``J_k x1``, the others are ``A = J_k Z``;
 * ``A = Q_A R_A`` (Householder): ``||A#||_F = ||R_A^{-1}||_F`` exactly, and ``1/||R_A^{-1}||_F <= sigma_min(A)
   <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide (``sigma_min`` within
   a factor ``sqrt(r)`` of a threshold), the numpy reference runs instead (its SVD decides);
@@ -80,21 +80,28 @@ def _compile() -> None:
 
 
 # ----------------------------------------------------------------------------------------
-# Small dense building blocks (row-major; a "column" of a transposed matrix is a contiguous row).
+# Small dense building blocks (row-major; loops over a contiguous row run innermost and from 0, so that
+# numba drops the negative-index check and LLVM vectorizes them; no sum is reordered).
 # ----------------------------------------------------------------------------------------
 @_kernel
 def _householder_rows(V, tau, R):
-    """QR of ``M = V^T`` (``q x p``, ``q >= p``), in place on the rows of ``V`` (``p x q``).
+    """QR of ``M = V^T`` (``q x p``, ``q >= p``), in place on the rows of ``V`` (``p x q``, row-major).
 
     Reflector ``i`` is ``I - tau_i v v^T`` with ``v = (0..0, 1, V[i, i+1:])``; ``R`` (``p x p``) gets the upper
     triangle. LAPACK ``dgeqr2``/``dlarfg`` convention: ``r_ii = -sign(alpha) ||x||``.
+
+    Each column's ``w_j = V[j, i] + sum_t v_t V[j, t]`` is one sum in ``t`` order; four columns run at once
+    (four independent chains instead of one latency-bound chain), and the updates ``V[j, t] -= w_j v_t`` run
+    along contiguous rows from 0 (LLVM vectorizes them; no sum is reordered).
     """
     p, q = V.shape
     for i in range(p):
         alpha = V[i, i]
+        t0 = i + 1                                     # entries t0 + tt of a row (loops from 0: numba then
+        c = q - t0                                     # drops its negative-index check and LLVM vectorizes)
         xn = 0.0
-        for t in range(i + 1, q):
-            xn += V[i, t] * V[i, t]
+        for tt in range(c):
+            xn += V[i, t0 + tt] * V[i, t0 + tt]
         if xn == 0.0:
             tau[i] = 0.0
             beta = alpha
@@ -102,37 +109,96 @@ def _householder_rows(V, tau, R):
             beta = -math.copysign(math.sqrt(alpha * alpha + xn), alpha)
             tau[i] = (beta - alpha) / beta
             scal = 1.0 / (alpha - beta)
-            for t in range(i + 1, q):
-                V[i, t] *= scal
+            for tt in range(c):
+                V[i, t0 + tt] *= scal
         R[i, i] = beta
         ti = tau[i]
-        for j in range(i + 1, p):                      # H_i applied to column j of M (row j of V)
+        j = i + 1
+        while j + 4 <= p:                              # H_i applied to columns j..j+3 of M (rows of V)
+            w0 = V[j, i]
+            w1 = V[j + 1, i]
+            w2 = V[j + 2, i]
+            w3 = V[j + 3, i]
+            for tt in range(c):
+                v = V[i, t0 + tt]
+                w0 += v * V[j, t0 + tt]
+                w1 += v * V[j + 1, t0 + tt]
+                w2 += v * V[j + 2, t0 + tt]
+                w3 += v * V[j + 3, t0 + tt]
+            w0 *= ti
+            w1 *= ti
+            w2 *= ti
+            w3 *= ti
+            V[j, i] -= w0
+            V[j + 1, i] -= w1
+            V[j + 2, i] -= w2
+            V[j + 3, i] -= w3
+            for tt in range(c):                        # one loop per row: each one vectorizes
+                V[j, t0 + tt] -= w0 * V[i, t0 + tt]
+            for tt in range(c):
+                V[j + 1, t0 + tt] -= w1 * V[i, t0 + tt]
+            for tt in range(c):
+                V[j + 2, t0 + tt] -= w2 * V[i, t0 + tt]
+            for tt in range(c):
+                V[j + 3, t0 + tt] -= w3 * V[i, t0 + tt]
+            R[i, j] = V[j, i]
+            R[i, j + 1] = V[j + 1, i]
+            R[i, j + 2] = V[j + 2, i]
+            R[i, j + 3] = V[j + 3, i]
+            j += 4
+        while j < p:
             w = V[j, i]
-            for t in range(i + 1, q):
-                w += V[i, t] * V[j, t]
+            for tt in range(c):
+                w += V[i, t0 + tt] * V[j, t0 + tt]
             w *= ti
             V[j, i] -= w
-            for t in range(i + 1, q):
-                V[j, t] -= w * V[i, t]
+            for tt in range(c):
+                V[j, t0 + tt] -= w * V[i, t0 + tt]
             R[i, j] = V[j, i]
+            j += 1
 
 
 @_kernel
-def _apply_right(B, V, tau, p):
-    """``B <- B H_0 H_1 ... H_{p-1}`` (each row of ``B`` times the reflectors of :func:`_householder_rows`)."""
-    rows, q = B.shape
+def _apply_right_t(BT, V, tau, p, w):
+    """``B <- B H_0 H_1 ... H_{p-1}`` on ``BT = B^T`` (``q x rows``, row-major) with the reflectors of
+    :func:`_householder_rows` (rows of ``V``); ``w``: scratch of length ``>= rows``. Each row's
+    ``w_r = B[r, i] + sum_t B[r, t] v_t`` in ``t`` order, all rows at once along the contiguous rows of ``BT``."""
+    q, rows = BT.shape
     for i in range(p):
         ti = tau[i]
         if ti == 0.0:
             continue
         for r in range(rows):
-            w = B[r, i]
-            for t in range(i + 1, q):
-                w += B[r, t] * V[i, t]
-            w *= ti
-            B[r, i] -= w
-            for t in range(i + 1, q):
-                B[r, t] -= w * V[i, t]
+            w[r] = BT[i, r]
+        t = i + 1
+        while t + 4 <= q:                              # four terms of each sum per pass, still in t order
+            v0, v1, v2, v3 = V[i, t], V[i, t + 1], V[i, t + 2], V[i, t + 3]
+            for r in range(rows):
+                w[r] = (((w[r] + BT[t, r] * v0) + BT[t + 1, r] * v1) + BT[t + 2, r] * v2) + BT[t + 3, r] * v3
+            t += 4
+        while t < q:
+            vt = V[i, t]
+            for r in range(rows):
+                w[r] += BT[t, r] * vt
+            t += 1
+        for r in range(rows):
+            w[r] *= ti
+            BT[i, r] -= w[r]
+        t = i + 1
+        while t + 4 <= q:
+            v0, v1, v2, v3 = V[i, t], V[i, t + 1], V[i, t + 2], V[i, t + 3]
+            for r in range(rows):
+                wr = w[r]
+                BT[t, r] -= wr * v0
+                BT[t + 1, r] -= wr * v1
+                BT[t + 2, r] -= wr * v2
+                BT[t + 3, r] -= wr * v3
+            t += 4
+        while t < q:
+            vt = V[i, t]
+            for r in range(rows):
+                BT[t, r] -= w[r] * vt
+            t += 1
 
 
 @_kernel
@@ -141,14 +207,15 @@ def _reflect(x, V, tau, i):
     ti = tau[i]
     if ti == 0.0:
         return
-    q = x.shape[0]
+    t0 = i + 1
+    c = x.shape[0] - t0
     w = x[i]
-    for t in range(i + 1, q):
-        w += V[i, t] * x[t]
+    for tt in range(c):
+        w += V[i, t0 + tt] * x[t0 + tt]
     w *= ti
     x[i] -= w
-    for t in range(i + 1, q):
-        x[t] -= w * V[i, t]
+    for tt in range(c):
+        x[t0 + tt] -= w * V[i, t0 + tt]
 
 
 @_kernel
@@ -166,17 +233,48 @@ def _apply_qt(x, V, tau, p):
 
 
 @_kernel
+def _sumsq_rows(J, a, e, acc):
+    """``||J[a:e]||_F^2``: squares accumulated per column along the contiguous rows (``acc``: scratch of
+    length ``>= n``), then the columns' sums added in order."""
+    n = J.shape[1]
+    for t in range(n):
+        acc[t] = 0.0
+    for i in range(a, e):
+        for t in range(n):
+            acc[t] += J[i, t] * J[i, t]
+    s = 0.0
+    for t in range(n):
+        s += acc[t]
+    return s
+
+
+@_kernel
 def _triangular_inverse(R):
-    """``R^{-1}`` of an upper-triangular ``R`` with a nonzero diagonal (back substitution)."""
+    """``R^{-1}`` of an upper-triangular ``R`` with a nonzero diagonal (back substitution, row by row).
+
+    ``X[i, j] = -(sum_{t=i+1..j} R[i, t] X[t, j]) / R[i, i]``, each sum accumulated in ``t`` order along the
+    contiguous rows ``X[t, t:]`` (the loop vectorizes; the same sums as column by column).
+    """
     p = R.shape[0]
     X = np.zeros((p, p))
-    for j in range(p):
-        X[j, j] = 1.0 / R[j, j]
-        for i in range(j - 1, -1, -1):
-            s = 0.0
-            for t in range(i + 1, j + 1):
-                s += R[i, t] * X[t, j]
-            X[i, j] = -s / R[i, i]
+    for i in range(p - 1, -1, -1):
+        t = i + 1
+        while t + 2 <= p:                              # two terms per pass (t, t + 1), still in t order
+            r0 = R[i, t]
+            r1 = R[i, t + 1]
+            X[i, t] += r0 * X[t, t]
+            t1 = t + 1
+            for jj in range(p - t1):                   # j = t + 1 + jj (from 0: vectorized)
+                X[i, t1 + jj] = (X[i, t1 + jj] + r0 * X[t, t1 + jj]) + r1 * X[t1, t1 + jj]
+            t += 2
+        if t < p:
+            rit = R[i, t]
+            for jj in range(p - t):
+                X[i, t + jj] += rit * X[t, t + jj]
+        rii = R[i, i]
+        X[i, i] = 1.0 / rii
+        for j in range(i + 1, p):
+            X[i, j] = -X[i, j] / rii
     return X
 
 
@@ -254,6 +352,14 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
         k += 1
     mk = sizes[k]
     r = n - m1
+    nlev = sizes.shape[0]
+    w = np.empty(max(n, mk))                           # scratch of the Householder updates and row norms
+    sq = np.empty(nlev)                                # ||J_lev||_F^2
+    a = 0
+    for lev in range(nlev):
+        e = a + sizes[lev]
+        sq[lev] = _sumsq_rows(J, a, e, w)
+        a = e
     # levels < k: J_<k^T = Q1 R1 on the rows of J, pivots certified regular by 1/||R_ii^-1||_F
     V = np.empty((m1, n))
     for i in range(m1):
@@ -273,32 +379,36 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
         for lev in range(k):
             e = a + sizes[lev]
             bound = 1.0 / _fro_block(R1inv, a, e, a, e)
-            norm = _fro_block(J, a, e, 0, n)
+            norm = math.sqrt(sq[lev])
             if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
                 return DECLINED
             a = e
         a_inv = _fro_block(R1inv, 0, m1, 0, m1)
         z = _solve_upper_t(R1, b[:m1])
-    # J_k Q = [J_k Q1, A]: J_k x1 = (J_k Q1) z and A = J_k Z
-    B = np.empty((mk, n))
+    # (J_k Q)^T = [J_k Q1, A]^T: J_k x1 = (J_k Q1) z and A = J_k Z
+    BT = np.empty((n, mk))
     for i in range(mk):
         for t in range(n):
-            B[i, t] = J[m1 + i, t]
-    norm_k = _fro_block(B, 0, mk, 0, n)
-    _apply_right(B, V, tau, m1)
+            BT[t, i] = J[m1 + i, t]
+    norm_k = math.sqrt(sq[k])
+    _apply_right_t(BT, V, tau, m1, w)
     res = np.empty(mk)
     for i in range(mk):
-        s = b[m1 + i]
-        for t in range(m1):
-            s -= B[i, t] * z[t]
-        res[i] = s
+        res[i] = b[m1 + i]
+    for t in range(m1):                                # res_i = b_i - sum_t (J_k Q1)[i, t] z_t (t ascending)
+        zt = z[t]
+        for i in range(mk):
+            res[i] -= BT[t, i] * zt
     thr_k = max(margin * unit * size * norm_k, cond * norm_k)
-    norm = _fro_block(J, 0, m, 0, n)
+    norm = 0.0
+    for lev in range(nlev):
+        norm += sq[lev]
+    norm = math.sqrt(norm)
     thr = max(margin * unit * size * norm, cond * norm)
     AT = np.empty((r, mk))                             # A^T: the columns of A as rows
     for j in range(r):
         for i in range(mk):
-            AT[j, i] = B[i, m1 + j]
+            AT[j, i] = BT[m1 + j, i]
     tauA = np.empty(r)
     RA = np.zeros((r, r))
     _householder_rows(AT, tauA, RA)
@@ -314,12 +424,11 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
         return UNDECIDED                               # sigma_min itself needed: the reference's SVD decides
     if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
         return DECLINED
-    c = res.copy()
-    _apply_qt(c, AT, tauA, r)
+    _apply_qt(res, AT, tauA, r)
     if lambda_max > 0.0 and r < mk and 0.0 < eps:     # R_kk has zero singular values: lambda = lambda_max
-        y = _damped_ls(RA, c[:r], lambda_max * lambda_max)
+        y = _damped_ls(RA, res[:r], lambda_max * lambda_max)
     else:
-        y = _solve_upper(RA, c[:r])
+        y = _solve_upper(RA, res[:r])
     out[:m1] = z                                       # x = Q [z; y]
     out[m1:] = y
     _apply_q(out, V, tau, m1)

@@ -71,10 +71,11 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hqp_tpm.errors import BoxError, ShapeError
-from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers import _compiled, _compiled_sns
+from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers._kernels import Factorization, FreeColumns
 from hqp_tpm.solvers.damping import matrix_tol, pinv, rank_tol
-from hqp_tpm.solvers.levels import as_levels, equality_stack, stacked
+from hqp_tpm.solvers.levels import Level, as_levels, equality_stack, stacked
 from hqp_tpm.solvers.nullspace import projected_step
 from hqp_tpm.solvers.tpm import past_rank, tpm_factors
 
@@ -477,6 +478,35 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     lo, up = _box(lower, upper, None)
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
+    return _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info)
+
+
+def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambda_max: float = 0.0,
+                    eps: float = 0.0, return_info: bool = False):
+    """:func:`sns_tpm` of a stack already stacked: ``J`` (m x n) and ``xd`` finite floats, ``sizes`` the row
+    counts of the levels (a tuple, summing to m). The box is checked as by :func:`sns_tpm`, the stack is not
+    (the lean step, :mod:`hqp_tpm.control.lean`, checks it once per step). Same result as :func:`sns_tpm`."""
+    n = J.shape[1]
+    if (_compiled.ENABLED and sizes and type(lower) is np.ndarray and type(upper) is np.ndarray
+            and lower.dtype == np.float64 and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
+        out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lower, upper, lambda_max, eps, MARGIN, COND)
+        if type(out) is tuple:                   # else handed back (a status code): numpy solves
+            x, sat, s, iterations, feasible = out
+            return (x, SNSInfo(s, sat, iterations, feasible)) if return_info else x
+    lo, up = _box(lower, upper, n)
+    return _sns_tpm(J, xd, sizes, lo, up, None, lambda_max, eps, return_info)
+
+
+def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info):
+    """The fast path of :func:`sns_tpm` on the stacked active rows (``lv``: the levels, or None: built from
+    ``J``, ``xd``, ``sizes`` when the box-point shift needs them). The compiled loop
+    (:mod:`hqp_tpm.solvers._compiled_sns`) when enabled, else (or when it hands back) numpy."""
+    n = lo.shape[0]
+    if _compiled.ENABLED and sizes:
+        out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, MARGIN, COND)
+        if type(out) is tuple:                   # else handed back (a status code): numpy solves
+            x, sat, s, iterations, feasible = out
+            return (x, SNSInfo(s, sat, iterations, feasible)) if return_info else x
     x = fac = None
     if sizes and J.shape[0] > n:                 # rank n before the last level: hqp_tpm.solvers._fullrank
         x = past_rank(J, xd, sizes, n, lambda_max, eps)
@@ -545,6 +575,9 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
                 G = None
         if j < 0 or G is None:
             if best is None:                     # no factor kept the box (0 is outside it)
+                if lv is None:
+                    off = np.cumsum((0, *sizes))
+                    lv = [Level(J[a:e], xd[a:e]) for a, e in zip(off, off[1:], strict=False)]
                 return _around_box_point(sns_tpm, lv, box, lambda_max, eps, iterations, return_info)
             s, a, b, sat = best
             return _result(s * a + b, box, SNSInfo(float(s), sat, iterations), return_info)

@@ -1,0 +1,425 @@
+"""Compiled (numba) SNS-TPM loop (private to :mod:`hqp_tpm.solvers`).
+
+:func:`sns_tpm_loop` runs the loop of :func:`hqp_tpm.solvers.sns.sns_tpm` (papers/002 Algorithm 1, eq. (4)) in
+one call, with the scale factor and the most critical joint computed joint by joint as ``_scale_and_pick``,
+the best scaled solution and the clip into the exact box as ``_result``:
+
+* ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack and of each free-column stack
+  ``J W`` by the full-rank shortcut kernel :func:`hqp_tpm.solvers._compiled._past_rank` (called inside compiled
+  code; its own certificates), the rank test on the first level;
+* ``m <= n`` when every pivot of the stack is certified regular and undamped (``F = I``, the certificates of
+  :func:`hqp_tpm.solvers._compiled._general`): ``(J W)#`` by the QR of ``(J W)^T`` and the rank test
+  ``rank(J W) < m`` of ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol`` keeps it).
+
+It takes the same decisions on the same numbers as the numpy path; whatever it does not implement it hands
+back before returning anything (a status code says why), and the numpy path then solves from the start:
+
+* a stack or free-column stack the certificates do not decide, or a damped/singular pivot (``Factorization``,
+  SVDs);
+* no scale factor in ``[0, 1]`` keeps the box (the box-point shift ``_around_box_point``);
+* a box that is not valid (``_box`` raises the typed error).
+
+``tests/test_compiled_sns.py`` proves it equal to the numpy fast path and to ``sns_tpm_reference``.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from hqp_tpm.solvers import _compiled
+
+#: Outcomes: solved; handed back to the numpy path (which starts over) because the box is not valid, the
+#: full-rank shortcut declined or could not decide on the stack or a free-column stack, or no scale factor
+#: in ``[0, 1]`` kept the box (the box-point shift).
+DONE, BAD_BOX, DECLINED, SHIFT = 0, 1, 2, 3
+
+_KERNELS: list[str] = []
+_READY = False
+
+
+def _kernel(fn):
+    """Mark ``fn`` (plain Python until :func:`_compile`) as a kernel."""
+    _KERNELS.append(fn.__name__)
+    return fn
+
+
+def _compile() -> None:
+    """Compile :mod:`hqp_tpm.solvers._compiled` first (its kernels are called from here), then this module's."""
+    global _READY
+    import numba
+
+    if not _compiled._READY:
+        _compiled._compile()
+    g = globals()
+    for name in _KERNELS:
+        try:
+            g[name] = _with_callees_stamp(numba.njit(cache=True, nogil=True)(g[name]))
+        except RuntimeError:  # pragma: no cover - no writable cache location at all: compile per process
+            g[name] = numba.njit(nogil=True)(g[name])
+    _READY = True
+
+
+def _with_callees_stamp(dispatcher):
+    """numba's disk cache checks a kernel against its own source file only, but these kernels contain the
+    compiled code of :mod:`hqp_tpm.solvers._compiled`'s: add that file's stamp (modification time and size, as
+    numba's own), so that a changed callee recompiles them instead of loading stale code."""
+    try:
+        cache_file = dispatcher._cache._cache_file
+        st = os.stat(_compiled.__file__)
+        cache_file._source_stamp = (cache_file._source_stamp, st.st_mtime, st.st_size)
+    except (AttributeError, OSError):  # pragma: no cover - another numba layout, or no cache: its own check only
+        pass
+    return dispatcher
+
+# ----------------------------------------------------------------------------------------
+# Building blocks (the arithmetic of hqp_tpm.solvers._compiled's, copied: its internals are free to change).
+# ----------------------------------------------------------------------------------------
+@_kernel
+def _qr_rows(V, tau, R):
+    """QR of ``V^T`` (``V``: ``p x q``, ``q >= p``) in place on the rows of ``V``: LAPACK's ``dgeqr2``/``dlarfg``
+    convention, reflector ``i`` is ``I - tau_i v v^T`` with ``v = (0..0, 1, V[i, i+1:])``; ``R`` gets the
+    upper triangle."""
+    p, q = V.shape
+    for i in range(p):
+        alpha = V[i, i]
+        xn = 0.0
+        for t in range(i + 1, q):
+            xn += V[i, t] * V[i, t]
+        if xn == 0.0:
+            tau[i] = 0.0
+            beta = alpha
+        else:
+            beta = -math.copysign(math.sqrt(alpha * alpha + xn), alpha)
+            tau[i] = (beta - alpha) / beta
+            scal = 1.0 / (alpha - beta)
+            for t in range(i + 1, q):
+                V[i, t] *= scal
+        R[i, i] = beta
+        ti = tau[i]
+        for j in range(i + 1, p):
+            w = V[j, i]
+            for t in range(i + 1, q):
+                w += V[i, t] * V[j, t]
+            w *= ti
+            V[j, i] -= w
+            for t in range(i + 1, q):
+                V[j, t] -= w * V[i, t]
+            R[i, j] = V[j, i]
+
+
+@_kernel
+def _inverse_upper(R):
+    """``R^{-1}`` of an upper-triangular ``R`` with a nonzero diagonal (back substitution)."""
+    p = R.shape[0]
+    X = np.zeros((p, p))
+    for j in range(p):
+        X[j, j] = 1.0 / R[j, j]
+        for i in range(j - 1, -1, -1):
+            s = 0.0
+            for t in range(i + 1, j + 1):
+                s += R[i, t] * X[t, j]
+            X[i, j] = -s / R[i, i]
+    return X
+
+
+@_kernel
+def _fro(X, a, e, c0, c1):
+    s = 0.0
+    for i in range(a, e):
+        for j in range(c0, c1):
+            s += X[i, j] * X[i, j]
+    return math.sqrt(s)
+
+
+@_kernel
+def _q_rinv_t(V, tau, R, c, out):
+    """``out <- Q R^{-T} c`` (``(J W)# c`` when ``(J W)^T = Q R``, :func:`_qr_rows` on ``V = J W``)."""
+    p, q = V.shape
+    for i in range(p):
+        s = c[i]
+        for t in range(i):
+            s -= R[t, i] * out[t]
+        out[i] = s / R[i, i]
+    for i in range(p, q):
+        out[i] = 0.0
+    for i in range(p - 1, -1, -1):
+        ti = tau[i]
+        if ti == 0.0:
+            continue
+        w = out[i]
+        for t in range(i + 1, q):
+            w += V[i, t] * out[t]
+        w *= ti
+        out[i] -= w
+        for t in range(i + 1, q):
+            out[t] -= w * V[i, t]
+
+
+@_kernel
+def _free_columns(J, free, nf, tol, V, tau, R):
+    """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(J W)^T`` into ``V`` (``m x nf``), ``tau``,
+    ``R``. Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``), 0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an
+    SVD decides: hand back)."""
+    m, n = J.shape
+    if nf < m:
+        return 0
+    f = 0
+    for t in range(n):
+        if free[t]:
+            for i in range(m):
+                V[i, f] = J[i, t]
+            f += 1
+    _qr_rows(V, tau, R)
+    dmin = math.inf
+    for i in range(m):
+        dmin = min(dmin, abs(R[i, i]))
+    if dmin <= tol:                                    # sigma_min <= min |r_jj|
+        return 0
+    Rinv = _inverse_upper(R)
+    if 1.0 / _fro(Rinv, 0, m, 0, m) > tol:             # <= sigma_min
+        return 1
+    return -1
+
+
+@_kernel
+def _regular_tpm(J, xd, sizes, lambda_max, eps, unit, x):
+    """TPM of a stack with ``m <= n`` whose pivots are all certified regular and undamped (then ``F = I``,
+    ``x = Q R^{-T} xd``): the certificates of :func:`hqp_tpm.solvers._compiled._general`. False otherwise."""
+    m, n = J.shape
+    size = max(m, n)
+    V = np.empty((m, n))
+    for i in range(m):
+        for t in range(n):
+            V[i, t] = J[i, t]
+    tau = np.zeros(m)
+    R = np.zeros((m, m))
+    _qr_rows(V, tau, R)
+    for i in range(m):
+        if R[i, i] == 0.0:
+            return False
+    Rinv = _inverse_upper(R)
+    a = 0
+    for lev in range(sizes.shape[0]):
+        e = a + sizes[lev]
+        tol = unit * size * _fro(J, a, e, 0, n)
+        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro(Rinv, a, e, a, e)
+        if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
+            return False
+        a = e
+    _q_rinv_t(V, tau, R, xd, x)
+    return True
+
+
+@_kernel
+def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
+    """``_scale_and_pick`` of :mod:`hqp_tpm.solvers.sns` (the same operations): ``(factor, j)``."""
+    n = a.shape[0]
+    for j in range(n):
+        smax[j] = math.inf
+    factor = 0.0
+    decided = False
+    for j in range(n):                                 # saturated joints must sit inside, at s = 0 and s = 1
+        if not free[j]:
+            bj = b[j]
+            s1 = a[j] + bj
+            if not (wlo[j] <= bj <= wup[j] and wlo[j] <= s1 <= wup[j]):
+                factor = -1.0
+                decided = True
+                break
+    if not decided:
+        for j in range(n):                             # s has no effect on a joint outside the box
+            if free[j] and a[j] == 0.0 and not (wlo[j] <= b[j] <= wup[j]):
+                smax[j] = -math.inf
+                factor = -1.0
+                decided = True
+    if not decided:
+        s_hi_w, s_lo, s_hi, any_idx = math.inf, -math.inf, math.inf, False
+        for j in range(n):
+            aj = a[j]
+            if free[j] and aj != 0.0:
+                any_idx = True
+                bj = b[j]
+                if aj > 0.0:
+                    sm, sw, sl = (up[j] - bj) / aj, (wup[j] - bj) / aj, (wlo[j] - bj) / aj
+                else:
+                    sm, sw, sl = (lo[j] - bj) / aj, (wlo[j] - bj) / aj, (wup[j] - bj) / aj
+                smax[j] = sm
+                s_hi, s_hi_w, s_lo = min(s_hi, sm), min(s_hi_w, sw), max(s_lo, sl)
+        if not any_idx:
+            factor = 1.0
+        else:
+            s_lo = max(s_lo, 0.0)
+            factor = -1.0 if s_lo > min(s_hi_w, 1.0) else max(min(s_hi, 1.0), s_lo)
+    j = 0                                              # first argmin, as np.argmin
+    for k in range(1, n):
+        if smax[k] < smax[j]:
+            j = k
+    if not (free[j] and viol[j]):
+        j = -1
+        for k in range(n):
+            if free[k] and viol[k] and (j < 0 or smax[k] < smax[j]):
+                j = k
+    return factor, j
+
+
+@_kernel
+def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, order):
+    """SNS-TPM of a stack ``J`` under ``lo <= x <= up``: ``x``, ``order[:nsat]`` the saturated joints. ``m > n``:
+    the extension, each ``J W`` by the full-rank shortcut; ``m <= n``: the paper's loop when every pivot of the
+    stack is regular and undamped (``F = I``), ``(J W)#`` by the QR of ``(J W)^T`` (``FreeColumns``).
+
+    Returns ``(status, scale, nsat, iterations, feasible)``; ``status`` :data:`DONE` or why it hands back.
+    """
+    m, n = J.shape
+    for j in range(n):                                 # _box's test (NaN fails it): else the typed error
+        if not (lo[j] <= up[j] and lo[j] < math.inf and up[j] > -math.inf):
+            return BAD_BOX, 0.0, 0, 0, False
+    extended = m > n
+    if extended:
+        if _compiled._past_rank(J, xd, sizes, n, lambda_max, eps, unit, margin, cond, x) != _compiled.SOLVED:
+            return DECLINED, 0.0, 0, 0, False
+    elif not _regular_tpm(J, xd, sizes, lambda_max, eps, unit, x):
+        return DECLINED, 0.0, 0, 0, False
+    inside = True
+    for j in range(n):
+        if not (x[j] >= lo[j] and x[j] <= up[j]):
+            inside = False
+            break
+    if inside:                                         # no bound reached: the TPM solution
+        return DONE, 1.0, 0, 1, True
+    scale = 0.0                                        # _Box: the largest finite bound, the widened box
+    for j in range(n):
+        if math.isfinite(lo[j]):
+            scale = max(scale, abs(lo[j]))
+        if math.isfinite(up[j]):
+            scale = max(scale, abs(up[j]))
+    if not scale > 0.0:
+        scale = 1.0
+    tlo = np.empty(n)
+    tup = np.empty(n)
+    wlo = np.empty(n)
+    wup = np.empty(n)
+    for j in range(n):
+        tlo[j] = 1e-10 * (scale + abs(lo[j]))          # sns.VIOLATION_TOL
+        tup[j] = 1e-10 * (scale + abs(up[j]))
+        wlo[j] = lo[j] - tlo[j]
+        wup[j] = up[j] + tup[j]
+    free = np.ones(n, dtype=np.bool_)
+    viol = np.zeros(n, dtype=np.bool_)
+    xN = np.zeros(n)
+    a = x.copy()
+    b = np.zeros(n)
+    smax = np.empty(n)
+    best_a = np.empty(n)
+    best_b = np.empty(n)
+    best_s = 0.0
+    best_nsat = 0
+    found = False
+    nsat = 0
+    iterations = 0
+    k_fit = not sizes[0] > n                           # the rank test watches the first level (module doc of sns)
+    Jf = np.empty((m, 0))
+    tol = unit * max(m, n) * _fro(J, 0, m, 0, n)       # Factorization.tol: rank(J W) relative to the stack
+    V = np.empty((m, n))
+    tau = np.empty(m)
+    R = np.zeros((m, m))
+    xf = np.empty(n)
+    yf = np.empty(n)
+    c = np.empty(m)
+    while True:
+        iterations += 1
+        if nsat:                                       # x = s a + b, a = (J W)# F_W xd, b = xN - (J W)# F_W J xN
+            for i in range(m):
+                s = 0.0
+                for t in range(nsat):
+                    s += J[i, order[t]] * xN[order[t]]
+                c[i] = s
+            nf = n - nsat
+            if not extended:
+                Vf = V[:, :nf]
+                _q_rinv_t(Vf, tau, R, xd, xf[:nf])
+                _q_rinv_t(Vf, tau, R, c, yf[:nf])
+            elif _compiled._past_rank(Jf, c, sizes, nf, lambda_max, eps, unit, margin, cond,
+                                      yf[:nf]) != _compiled.SOLVED:
+                return DECLINED, 0.0, 0, 0, False
+            f = 0
+            for j in range(n):
+                if free[j]:
+                    a[j] = xf[f]
+                    b[j] = xN[j] - yf[f]
+                    f += 1
+                else:
+                    a[j] = 0.0
+                    b[j] = xN[j]
+                x[j] = a[j] + b[j]
+        anyv = False
+        for j in range(n):
+            viol[j] = x[j] < wlo[j] or x[j] > wup[j]
+            anyv = anyv or viol[j]
+        if not anyv:
+            for j in range(n):
+                x[j] = min(max(x[j], lo[j]), up[j])
+            return DONE, 1.0, nsat, iterations, True
+        factor, j = _pick(a, b, lo, up, wlo, wup, free, viol, smax)
+        if factor >= 0.0 and (not found or factor > best_s):
+            best_s, best_nsat, found = factor, nsat, True
+            best_a[:] = a
+            best_b[:] = b
+        stop = j < 0
+        if j >= 0:
+            free[j] = False
+            xN[j] = up[j] if x[j] > up[j] else lo[j]
+            order[nsat] = j
+            nsat += 1
+            nf = n - nsat
+            if not extended:
+                rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R)
+                if rank < 0:
+                    return DECLINED, 0.0, 0, 0, False
+                stop = rank == 0                       # rank(J W) < m
+            elif nf == 0:
+                stop = True
+            else:
+                Jf = np.empty((m, nf))                 # J W on its free columns, in order
+                f = 0
+                for t in range(n):
+                    if free[t]:
+                        for i in range(m):
+                            Jf[i, f] = J[i, t]
+                        f += 1
+                if _compiled._past_rank(Jf, xd, sizes, nf, lambda_max, eps, unit, margin, cond,
+                                        xf[:nf]) != _compiled.SOLVED:
+                    return DECLINED, 0.0, 0, 0, False
+                stop = k_fit and sizes[0] > nf         # the first level crosses rank nf: J_1 W loses rank
+        if stop:
+            if not found:                              # no factor kept the box: the box-point shift
+                return SHIFT, 0.0, 0, 0, False
+            feasible = True
+            for t in range(n):
+                x[t] = best_s * best_a[t] + best_b[t]
+                if x[t] < lo[t] - 2.0 * tlo[t] or x[t] > up[t] + 2.0 * tup[t]:
+                    feasible = False
+                x[t] = min(max(x[t], lo[t]), up[t])
+            return DONE, best_s, best_nsat, iterations, feasible
+
+
+def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin, cond):
+    """``(x, saturated, scale, iterations, feasible)`` of SNS-TPM (:func:`_sns_loop`), or the status
+    (an int: handed back, the numpy path solves)."""
+    global _READY
+    if not _READY:
+        if _compiled._sizes(sizes) is None:        # numba not importable after all
+            return DECLINED
+        _compile()
+    s = _compiled._sizes(sizes)
+    n = lo.shape[0]
+    x = np.empty(n)
+    order = np.empty(n, dtype=np.int64)
+    status, scale, nsat, iterations, feasible = _sns_loop(
+        J, xd, s, lo, up, float(lambda_max), float(eps), _compiled._UNIT, margin, cond, x, order)
+    if status != DONE:
+        return status
+    return x, tuple(order[:nsat].tolist()), scale, iterations, feasible

@@ -1,0 +1,264 @@
+"""The compiled SNS-TPM loop (hqp_tpm.solvers._compiled_sns) equals the numpy fast path and Algorithm 1.
+
+Every draw is solved four ways: the compiled loop (``sns_tpm``, kernels on), the numpy loop on the same compiled
+TPM kernels (the loop handed back), everything numpy (``_compiled.ENABLED = False``, as
+``HQP_TPM_COMPILED=0``) and ``sns_tpm_reference`` (papers/002 Algorithm 1 as written). They take the same
+decisions (saturated joints in the same order, iteration count, feasibility) and give the same command and
+scale factor: 1e-12 relative between the fast paths, 1e-9 against the reference (its ``n x n`` SVDs, as
+tests/test_sns.py). Draws: the suite's SNS draws as they are (mostly ``m <= n``) and with a posture level (more
+rows than joints), boxes with and without 0, Romeo-sized whole-body stacks (38 x 27 with a posture level on the
+21 actuated joints, and without it), ill-conditioned stacks (cond up to 1e10) and units from 1e-6 to 1e6. The
+kernel's hand-overs (a declined shortcut or damped pivot, the box-point shift, an invalid box) are counted: each
+is exercised.
+"""
+
+import numpy as np
+import pytest
+from conftest import rel_diff
+from test_fullrank import ill_conditioned_past_rank
+from threadpoolctl import threadpool_limits
+
+from hqp_tpm.errors import BoxError
+from hqp_tpm.solvers import _compiled, _compiled_sns
+from hqp_tpm.solvers.levels import stacked
+from hqp_tpm.solvers.sns import sns_tpm, sns_tpm_reference, sns_tpm_stacked
+from hqp_tpm.testing.stacks import (
+    box_without_zero,
+    dependent_stack,
+    nearly_dependent_stack,
+    random_problem,
+    random_stack,
+)
+
+pytestmark = pytest.mark.skipif(not _compiled.AVAILABLE, reason="numba is not installed")
+
+TOL = 1e-12
+REF_TOL = 1e-9
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _one_blas_thread():
+    with threadpool_limits(1):
+        yield
+
+
+@pytest.fixture
+def outcomes(monkeypatch):
+    """The compiled loop's outcomes (DONE or the hand-over status), counted; ``ENABLED`` restored after."""
+    counts = {_compiled_sns.DONE: 0, _compiled_sns.BAD_BOX: 0, _compiled_sns.DECLINED: 0, _compiled_sns.SHIFT: 0}
+    run = _compiled_sns.sns_tpm_loop
+    monkeypatch.setattr(_compiled_sns, "sns_tpm_loop", outcomes_wrapper(counts, run))
+    monkeypatch.setattr(_compiled, "ENABLED", True)
+    counts["run"] = run
+    return counts
+
+
+def same_decisions(info, other, scale_tol):
+    assert info.saturated == other.saturated, (info, other)
+    assert info.iterations == other.iterations, (info, other)
+    assert info.feasible == other.feasible, (info, other)
+    assert abs(info.scale - other.scale) <= scale_tol, (info, other)
+
+
+def check(levels, lo, up, outcomes, damping=None, tol=TOL, ref_tol=REF_TOL, reference=True):
+    """The four solutions agree (module doc); returns the compiled one's info. With ``m <= n`` the compiled loop
+    solves with its own QR, LAPACK's on the numpy path: there the bound is ``max(tol, 100 eps cond(J W))``,
+    ``W`` the returned saturation (the round-off ``(J W)#`` amplifies)."""
+    damping = damping or {}
+    x, info = sns_tpm(levels, lo, up, return_info=True, **damping)
+    n = lo.shape[0]
+    _, J, b, sizes, _ = stacked(levels, n)
+    if J.shape[0] <= n and info.saturated:
+        free = np.ones(n, dtype=bool)
+        free[list(info.saturated)] = False
+        tol = max(tol, 100 * np.finfo(float).eps * np.linalg.cond(J[:, free]))
+    xs, info_s = sns_tpm_stacked(J, b, sizes, lo, up, return_info=True, **damping)
+    np.testing.assert_array_equal(xs, x)                          # the stacked entry: the same call
+    assert info_s == info
+    run = outcomes["run"]
+    _compiled_sns.sns_tpm_loop = lambda *a: _compiled_sns.DECLINED  # the numpy loop on the compiled TPM kernels
+    try:
+        x_py, info_py = sns_tpm(levels, lo, up, return_info=True, **damping)
+    finally:
+        _compiled_sns.sns_tpm_loop = outcomes_wrapper(outcomes, run)
+    same_decisions(info, info_py, tol)
+    assert rel_diff(x, x_py) <= tol, rel_diff(x, x_py)
+    _compiled.ENABLED = False                                     # all numpy (HQP_TPM_COMPILED=0)
+    try:
+        x_np, info_np = sns_tpm(levels, lo, up, return_info=True, **damping)
+    finally:
+        _compiled.ENABLED = True
+    same_decisions(info, info_np, tol)
+    assert rel_diff(x, x_np) <= tol, rel_diff(x, x_np)
+    if reference:
+        xr, info_r = sns_tpm_reference(levels, lo, up, return_info=True, **damping)
+        same_decisions(info, info_r, ref_tol)
+        assert rel_diff(x, xr) <= ref_tol, rel_diff(x, xr)
+    return info
+
+
+def outcomes_wrapper(counts, run):
+    """``run`` counting its outcomes into ``counts``."""
+    def counted(*args):
+        out = run(*args)
+        counts[_compiled_sns.DONE if type(out) is tuple else out] += 1
+        return out
+    return counted
+
+
+def with_posture(levels, n, rng, scale=1.0):
+    return list(levels) + [(np.eye(n), scale * rng.standard_normal(n))]
+
+
+def cutting_box(rng, levels, n, damping=None):
+    """A box containing 0 that cuts the TPM solution (random_problem's law)."""
+    x = sns_tpm(levels, np.full(n, -np.inf), np.full(n, np.inf), **(damping or {}))
+    c = np.abs(x).max() + 1e-300
+    return -rng.uniform(0.0, 1.2, n) * c, rng.uniform(0.0, 1.2, n) * c
+
+
+@pytest.mark.parametrize("kind", ["full_rank", "any", "damped"])
+def test_suite_sns_draws_with_a_posture_level(kind, outcomes):
+    """The SNS draws of tests/test_sns.py (their box: 5 % infinite sides, 3 % locked joints), a posture level
+    appended: the extension's loop (m > n) on the compiled path."""
+    rng = np.random.default_rng({"full_rank": 1, "any": 2, "damped": 3}[kind])
+    saturated = 0
+    for _ in range(150):
+        levels, lo, up, damping = random_problem(rng, kind)
+        n = lo.shape[0]
+        info = check(with_posture(levels, n, rng), lo, up, outcomes, damping)
+        saturated += len(info.saturated)
+        check(levels, lo, up, outcomes, damping)                  # the draw itself (m > n for some of kind any)
+    assert outcomes[_compiled_sns.DONE] >= 150 and saturated >= 100, (outcomes, saturated)
+
+
+@pytest.mark.parametrize("kind", ["full_rank", "any", "damped"])
+def test_suite_sns_draws_with_fewer_rows_than_joints(kind, outcomes):
+    """The SNS draws with ``m <= n`` (the paper's algorithm): the compiled loop when every pivot is regular and
+    undamped, handed back otherwise; boxes with and without 0."""
+    rng = np.random.default_rng({"full_rank": 21, "any": 22, "damped": 23}[kind])
+    saturated = small = 0
+    for _ in range(300):
+        levels, lo, up, damping = random_problem(rng, kind)
+        if stacked(levels, lo.shape[0])[1].shape[0] > lo.shape[0]:
+            continue
+        small += 1
+        saturated += len(check(levels, lo, up, outcomes, damping).saturated)
+        check(levels, *box_without_zero(rng, lo, up), outcomes, damping)
+    assert outcomes[_compiled_sns.DONE] >= small and saturated >= 50, (outcomes, small, saturated)
+
+
+@pytest.mark.parametrize("sizes", [(6, 2, 3, 3, 3), (6, 2, 3), (6, 3, 6, 6)])
+def test_whole_body_stacks_without_posture(sizes, outcomes):
+    """Romeo's obstacle scenario's shape (sole > CoM > foot > hands, no posture: 17 rows on 27 joints), damped
+    and not, velocity boxes that cut the command."""
+    n = 27
+    rng = np.random.default_rng(sum(sizes) + 1)
+    iterations = []
+    for damping in ({}, {"lambda_max": 0.05, "eps": 0.1}):
+        for _ in range(15):
+            levels = random_stack(rng, n, sizes)
+            lo, up = cutting_box(rng, levels, n, damping)
+            iterations.append(check(levels, lo, up, outcomes, damping).iterations)
+    assert outcomes[_compiled_sns.DONE] >= 25 and max(iterations) >= 5, (outcomes, iterations)
+
+
+@pytest.mark.parametrize("kind", ["full_rank", "any", "damped"])
+def test_boxes_without_zero(kind, outcomes):
+    """30 % of the joints' boxes shifted (0 may leave the box): the box-point shift is handed back."""
+    rng = np.random.default_rng({"full_rank": 11, "any": 12, "damped": 13}[kind])
+    for _ in range(150):
+        levels, lo, up, damping = random_problem(rng, kind)
+        n = lo.shape[0]
+        lo, up = box_without_zero(rng, lo, up)
+        check(with_posture(levels, n, rng), lo, up, outcomes, damping)
+    assert outcomes[_compiled_sns.SHIFT] >= 2 and outcomes[_compiled_sns.DONE] >= 50, outcomes
+
+
+@pytest.mark.parametrize("sizes", [(6, 2, 3, 6), (6, 3, 6, 12), (6, 3)])
+def test_whole_body_sized_stacks(sizes, outcomes):
+    """Romeo's shape: sole 6 > CoM > foot > hands, then a posture on the 21 actuated joints (38 x 27 for the
+    first), velocity boxes that cut the command: up to ~20 saturations per solve."""
+    n = 27
+    rng = np.random.default_rng(sum(sizes))
+    iterations = []
+    for damping in ({}, {"lambda_max": 0.05, "eps": 0.1}):
+        for _ in range(15):
+            posture = np.hstack([np.zeros((21, 6)), np.eye(21)])
+            levels = random_stack(rng, n, sizes) + [(posture, rng.standard_normal(21))]
+            lo, up = cutting_box(rng, levels, n, damping)
+            iterations.append(check(levels, lo, up, outcomes, damping).iterations)
+    assert outcomes[_compiled_sns.DONE] >= 20 and max(iterations) >= 8, (outcomes, iterations)
+
+
+@pytest.mark.parametrize("units", [(1e-6, 1.0), (1.0, 1e-6), (1e6, 1.0), (1.0, 1e6), (1e-3, 1e3), (1e6, 1e-6)])
+def test_badly_scaled(units, outcomes):
+    """Jacobian and targets in units from 1e-6 to 1e6 (the box scales with the command)."""
+    sj, sb = units
+    rng = np.random.default_rng(int(np.log10(sj) * 10 + np.log10(sb)) + 100)
+    for _ in range(40):
+        n = int(rng.integers(3, 15))
+        sizes = [int(rng.integers(1, 4)) for _ in range(int(rng.integers(1, 4)))]
+        while sum(sizes) > n - 1 and len(sizes) > 1:
+            sizes.pop()
+        levels = with_posture(random_stack(rng, n, sizes), n, rng)
+        levels = [(sj * J, sb * b) for J, b in levels]
+        lo, up = cutting_box(rng, levels, n)
+        check(levels, lo, up, outcomes)
+    assert outcomes[_compiled_sns.DONE] >= 30, outcomes
+
+
+def test_ill_conditioned(outcomes):
+    """Nearly dependent levels (cond up to 1e10) with a posture level: where the shortcut declines the kernel
+    hands back, elsewhere the same decisions as numpy and Algorithm 1."""
+    rng = np.random.default_rng(1010)
+    conds = []
+    for _ in range(80):
+        levels, n = ill_conditioned_past_rank(rng)
+        lo, up = cutting_box(rng, levels, n)
+        check(levels, lo, up, outcomes, tol=1e-9, reference=False)
+        levels, cond = nearly_dependent_stack(rng, 1e10)
+        n = levels[0][0].shape[1]
+        levels = with_posture(levels, n, rng)
+        lo, up = cutting_box(rng, levels, n)
+        check(levels, lo, up, outcomes, tol=max(TOL, 1e3 * np.finfo(float).eps * cond), reference=False)
+        conds.append(cond)
+    assert max(conds) > 1e8 and outcomes[_compiled_sns.DONE] >= 40, (outcomes, max(conds))
+    assert outcomes[_compiled_sns.DECLINED] >= 5, outcomes
+
+
+def test_dependent_stacks_hand_back(outcomes):
+    """Repeated and dependent tasks above a posture level: the shortcut declines, the numpy path solves."""
+    rng = np.random.default_rng(31)
+    for within in (False, True):
+        for _ in range(10):
+            levels = with_posture(dependent_stack(rng, 12, within), 12, rng)
+            lo, up = cutting_box(rng, levels, 12)
+            check(levels, lo, up, outcomes)
+    assert outcomes[_compiled_sns.DECLINED] >= 10, outcomes
+
+
+def test_invalid_box_is_handed_back(outcomes):
+    """An empty or NaN box through the stacked entry: the typed error of sns_tpm (the kernel hands back)."""
+    rng = np.random.default_rng(5)
+    J, b = rng.standard_normal((10, 7)), rng.standard_normal(10)
+    for lo, up in ((np.full(7, -1.0), np.r_[np.ones(6), -2.0]), (np.r_[np.nan, -np.ones(6)], np.ones(7))):
+        with pytest.raises(BoxError):
+            sns_tpm_stacked(J, b, (6, 4), lo, up)
+        with pytest.raises(BoxError):
+            sns_tpm([(J[:6], b[:6]), (J[6:], b[6:])], lo, up)
+    assert outcomes[_compiled_sns.BAD_BOX] == 2, outcomes   # (sns_tpm checks the box before stacking)
+
+
+def test_cache_stamp_includes_the_callees_file():
+    """The loop's cached code contains the TPM kernels' (hqp_tpm/solvers/_compiled.py): a change there must
+    invalidate it (numba alone checks the kernel's own file)."""
+    import os
+
+    rng = np.random.default_rng(0)
+    sns_tpm_stacked(rng.standard_normal((10, 7)), rng.standard_normal(10), (6, 4), -np.ones(7), np.ones(7))
+    cache_file = getattr(getattr(_compiled_sns._sns_loop, "_cache", None), "_cache_file", None)
+    if cache_file is None:
+        pytest.skip("numba caches nothing here")
+    st = os.stat(_compiled.__file__)
+    assert cache_file._source_stamp[1:] == (st.st_mtime, st.st_size)
