@@ -339,3 +339,171 @@ def test_compiled_integration_equals_numpy(monkeypatch):
         want = st.integrate(q, v, a, 1e-3, 2)
         np.testing.assert_array_equal(got[0], want[0])
         np.testing.assert_array_equal(got[1], want[1])
+
+
+# -- the fused tpm step (hqp_tpm.solvers._compiled_step) -------------------------------------------------
+def _flags(monkeypatch, rows: bool, solve: bool) -> None:
+    """The two compiled switches: the lean step's arithmetic (robot) and the solvers' kernels."""
+    from hqp_tpm.robot import _compiled
+    from hqp_tpm.solvers import _compiled as _solvers_compiled
+
+    if (rows or solve) and not _compiled.AVAILABLE:
+        pytest.skip("numba is not installed")
+    monkeypatch.setattr(_compiled, "ENABLED", rows)
+    monkeypatch.setattr(_solvers_compiled, "ENABLED", solve)
+
+
+@pytest.mark.parametrize(("rows", "solve"), [(True, True), (True, False), (False, True), (False, False)])
+@pytest.mark.parametrize("kind", ["iiwa_vel", "iiwa_acc", "romeo_vel"])
+def test_fused_tpm_step_under_every_switch(kind, rows, solve, monkeypatch):
+    """The fused step (row programs, finiteness and TPM in one kernel) runs when both switches are on, and every
+    combination gives the readable step's bits; so does switching them while a controller runs."""
+    from benchmarks.peers import problems as P
+
+    _flags(monkeypatch, rows, solve)
+    robot = P.load_robot(P.ROMEO if kind.startswith("romeo") else P.IIWA)
+    prob = P.romeo_problem(robot, n=1) if kind.startswith("romeo") else \
+        P.iiwa_problem(robot, order=1 if kind == "iiwa_vel" else 2, n=2)
+    for cfg in prob.configs:
+        _, fast = assert_same_steps(lambda cfg=cfg: P.hqp_controller(robot, prob, cfg, "tpm"), 15)
+        lean = LeanStep.of(fast)
+        assert (lean._kernel is not None) == solve
+        if solve:  # every task of these stacks has a row program but Romeo's CoM (its row writer runs)
+            assert lean._program.ints[5] == len(lean.tasks) - kind.startswith("romeo")
+    from hqp_tpm.robot import _compiled
+    from hqp_tpm.solvers import _compiled as _solvers_compiled
+
+    ref, fast = (P.hqp_controller(robot, prob, prob.configs[0], "tpm") for _ in range(2))
+    lean = LeanStep.of(fast)
+    for i in range(24):  # the switches flipped between steps, on one lean step
+        monkeypatch.setattr(_compiled, "ENABLED", rows and i % 2 == 0)
+        monkeypatch.setattr(_solvers_compiled, "ENABLED", solve and i % 3 != 0)
+        np.testing.assert_array_equal(lean.step(), ref.step().command)
+        np.testing.assert_array_equal(fast.q, ref.q)
+
+
+@pytest.mark.parametrize("solver", ["sns_tpm", "sns"])
+@pytest.mark.parametrize("kind", ["iiwa_vel", "iiwa_acc"])
+def test_fused_rows_for_other_solvers(kind, solver, monkeypatch):
+    """With another solver the fused kernel writes the programs' rows and tests them, without solving (WRITTEN);
+    the solver then runs on J and b: the readable step's bits."""
+    from benchmarks.peers import problems as P
+
+    _flags(monkeypatch, True, True)
+    robot = P.load_robot(P.IIWA)
+    prob = P.iiwa_problem(robot, order=1 if kind == "iiwa_vel" else 2, n=2)
+    for cfg in prob.configs:
+        _, fast = assert_same_steps(lambda cfg=cfg: P.hqp_controller(robot, prob, cfg, solver), 15)
+        lean = LeanStep.of(fast)
+        assert lean._kernel is not None and lean._program.ints[6] == 0 and lean._program.ints[5] == 2
+
+
+def _program_stacks(robot):
+    """Stacks whose every kind of row program (and a row writer beside them) meets the fused kernel."""
+    from hqp_tpm import CenterOfMass, FrameOrientation, FramePose, FramePosition, Gains, Harmonic, Posture, Stack
+
+    g = Gains(7.0, 3.0)
+    circle = Harmonic(center=np.array([0.4, 0.1, 0.5]), cos_amplitude=np.array([0.0, 0.1, 0.0]),
+                      sin_amplitude=np.array([0.0, 0.0, 0.1]), omega=2.0)
+    two = ["iiwa_joint_2", "iiwa_joint_5"]
+    return [
+        Stack.of(FramePose(robot, "iiwa_ee", None, g), Posture(robot, None, g, joints=two)),
+        Stack.of((FramePosition(robot, "iiwa_link_4", [0.1, 0.3], g, axes="zx"),
+                  FrameOrientation(robot, "iiwa_ee", None, g)),
+                 CenterOfMass(robot, [0.0, 0.1], g, axes="xy"), Posture(robot, np.linspace(-1, 1, 7), g)),
+        Stack.of((FramePosition(robot, "iiwa_ee", circle, g), FrameOrientation(robot, "iiwa_ee", None, g))),
+    ]
+
+
+@pytest.mark.parametrize("which", [0, 1, 2])
+@pytest.mark.parametrize("order", [1, 2])
+def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(order, which, monkeypatch):
+    """Every row program (frame pose, position on selected axes, orientation, posture) gives the readable step's
+    bits, also after its target placement, gains or trajectory are replaced while the controller runs (a moving
+    reference is copied every step, a constant one once)."""
+    import pinocchio as pin
+
+    from hqp_tpm import Constant, Controller, FramePose, FramePosition, Gains, Harmonic, Posture
+    from hqp_tpm.robot.model import Robot
+
+    _flags(monkeypatch, True, True)
+    robot = Robot.load("iiwa7")
+    q0 = np.linspace(-0.6, 0.8, 7)
+
+    def make():
+        return Controller(robot, _program_stacks(robot)[which], order=order, dt=1e-3, q0=q0,
+                          v0=np.full(7, 0.3) if order == 2 else None)
+
+    ref, fast = make(), make()
+    lean = LeanStep.of(fast)
+    assert lean._kernel is not None and lean._program.ints[5] >= 2
+    target = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.3, 0.2, 0.7]))
+    wave = Harmonic(center=np.array([0.2, 0.3]), cos_amplitude=np.array([0.1, 0.0]),
+                    sin_amplitude=np.array([0.0, 0.1]), omega=3.0)
+    for i in range(40):
+        for ctrl in (ref, fast):
+            for task in ctrl.policy.stack.tasks():
+                if i == 10 and type(task) is FramePose:
+                    task._M_target = target.copy()
+                if i == 20:
+                    task.gains = Gains(2.0, 5.0)
+                if i == 30 and type(task) is Posture:
+                    task.trajectory = Constant(value=np.full(task.dim, 0.2))
+                if i == 30 and type(task) is FramePosition and task.dim == 2:
+                    task.trajectory = wave
+        np.testing.assert_array_equal(lean.step(), ref.step().command)
+        np.testing.assert_array_equal(fast.q, ref.q)
+        np.testing.assert_array_equal(fast.v, ref.v)
+
+
+def test_positions_only_state_update_equals_the_partial_update():
+    """State.update_positions (the lean step's update at velocity level) leaves pinocchio's data as
+    ``update(..., velocities=False)`` does, to the bit, and the state completes on demand."""
+    from benchmarks.peers import problems as P
+    from hqp_tpm.robot.state import State
+
+    robot = P.load_robot(P.ROMEO)
+    rng = np.random.default_rng(3)
+    q, v = P.romeo_q0(robot), rng.normal(0.0, 0.5, robot.nv)
+    fid, other = robot.frame_id("r_sole"), robot.frame_id("l_gripper")
+    a, b, full = State(robot), State(robot), State(robot).update(q, v)
+    a.update(q, v, 0.5, validate=False, frames=(fid,), velocities=False)
+    b.update_positions(q, v, 0.5, (fid,))
+    assert b.t == a.t and b.updates == a.updates == 1 and b._partial
+    for i in range(robot.model.njoints):
+        np.testing.assert_array_equal(b.data.oMi[i].homogeneous, a.data.oMi[i].homogeneous)
+        np.testing.assert_array_equal(b.data.oMi[i].homogeneous, full.data.oMi[i].homogeneous)
+    np.testing.assert_array_equal(b.data.J, a.data.J)
+    np.testing.assert_array_equal(b.data.J, full.data.J)
+    np.testing.assert_array_equal(b.data.oMf[fid].homogeneous, full.data.oMf[fid].homogeneous)
+    np.testing.assert_array_equal(b.jdot_qdot(other), full.jdot_qdot(other))
+
+
+@pytest.mark.parametrize("robot_name", ["iiwa7", "lwr4", "romeo21"])
+def test_euclidean_integration_equals_pinocchio(robot_name, monkeypatch):
+    """State.integrate on a Euclidean configuration space (one compiled call) gives pin.integrate's bits at both
+    orders; a robot with a free flyer is not Euclidean (pinocchio integrates it)."""
+    import pinocchio as pin
+
+    from hqp_tpm.robot import _compiled
+    from hqp_tpm.robot.model import Robot
+    from hqp_tpm.robot.state import State
+
+    if not _compiled.AVAILABLE:
+        pytest.skip("numba is not installed")
+    robot = Robot.load(robot_name)
+    st, rng = State(robot), np.random.default_rng(5)
+    assert st.euclidean == (robot_name != "romeo21")
+    for _ in range(100):
+        q = pin.randomConfiguration(robot.model, -np.ones(robot.nq), np.ones(robot.nq)) if robot_name != "romeo21" \
+            else robot.neutral()
+        v, a = rng.normal(0.0, 2.0, robot.nv), rng.normal(0.0, 50.0, robot.nv)
+        for order in (1, 2):
+            monkeypatch.setattr(_compiled, "ENABLED", True)
+            got = st.integrate(q, v, a, 1e-3, order)
+            monkeypatch.setattr(_compiled, "ENABLED", False)
+            want = st.integrate(q, v, a, 1e-3, order)
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
+            dq = a * 1e-3 if order == 1 else v * 1e-3 + 0.5 * a * 1e-3 * 1e-3
+            np.testing.assert_array_equal(got[0], pin.integrate(robot.model, q, dq))

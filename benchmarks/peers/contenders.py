@@ -53,7 +53,7 @@ class Hqp:
         st = self.ctrl.state
         self.box = self.ctrl.box(st, self.ctrl.t) if self.ctrl.box is not None else None
         if self.lean:  # the lean step (hqp_tpm.control.lean): one preallocated J, b; no Level objects
-            from hqp_tpm.solvers.sns import sns_tpm
+            from hqp_tpm.solvers.sns import sns_tpm, sns_tpm_stacked
             from hqp_tpm.solvers.tpm import tpm_stacked
 
             self.fast = f = self.ctrl.lean()
@@ -64,7 +64,9 @@ class Hqp:
                 self._lean_solve = lambda: tpm_stacked(f.J, f.b, f.sizes, f.n, f.lambda_max, f.eps)
             elif self.solver == "sns_tpm":
                 lo, up = (a.copy() for a in f._box(st, self.ctrl.t))
-                self._lean_solve = lambda: sns_tpm(f.levels, lo, up, lambda_max=f.lambda_max, eps=f.eps)
+                self._lean_solve = (lambda: sns_tpm_stacked(f.J, f.b, f.sizes, lo, up, lambda_max=f.lambda_max,
+                                                            eps=f.eps)) if f.x0 is None else \
+                    (lambda: sns_tpm(f.levels, lo, up, lambda_max=f.lambda_max, eps=f.eps))
             else:
                 self._lean_solve = None
 

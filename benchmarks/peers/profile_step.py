@@ -3,8 +3,10 @@
     python benchmarks/peers/profile_step.py [--problem iiwa_vel|romeo_vel|iiwa_acc] [--solver tpm] [--steps N] [--lean]
 
 ``--lean`` profiles the lean step (:mod:`hqp_tpm.control.lean`) instead of ``Controller.compute``; its phases are
-the partial state update, each task's row writer, the joint box, the finiteness test and the solver call, and
-the readable step is timed beside it (interleaved, same configurations) for the ratio.
+the partial state update, each task's row writer, the joint box, the finiteness test and the solver call (with
+numba: each task's row-program gather or row writer and the fused kernel call, which also solves with ``tpm``),
+and the readable
+step is timed beside it (interleaved, same configurations) for the ratio.
 
 1. Phases of one step timed apart in tight loops (median µs of ``--reps`` calls at one configuration,
    no profiler overhead): pinocchio's kinematics alone, ``State.update``, each task's ``level``,
@@ -21,6 +23,7 @@ from __future__ import annotations
 
 import argparse
 import cProfile
+import math
 import pstats
 import sys
 import time
@@ -151,18 +154,46 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
            ("  state update (partial: the writers' frames; no velocity pass at order 1)", _median_us(
                lambda: st.update(ctrl.q, ctrl.v, t, validate=False, frames=fast.frames, velocities=ctrl.order == 2),
                reps))]
+    if fast._kernel is not None:  # the fused rows (hqp_tpm.solvers._compiled_step): gathers, one kernel call
+        if ctrl.order == 1:
+            out[-1] = ("  state update (State.update_positions: the writers' frames, no velocity pass)", _median_us(
+                lambda: st.update_positions(ctrl.q, ctrl.v, t, fast.frames), reps))
+        prog = fast._program
+        for task, write, own in zip(fast.tasks, fast._fused, fast.writers, strict=True):
+            what = "row writer" if write is own else "row program's gather (pinocchio's outputs, references)"
+            out.append((f"  {type(task).__name__}({task.name}) {what}", _median_us(lambda w=write: w(t), reps)))
+        what = "TPM, finiteness of x" if ctrl.solver == "tpm" else "no solve"
+        out.append((f"  fused kernel: program rows, finiteness of J and b, {what}", _median_us(
+            lambda: fast._kernel(fast._buf, prog.ints, prog.floats, ctrl.q, ctrl.v, tuple(prog.mats),
+                                 tuple(prog.vecs)), reps)))
+        if ctrl.solver == "tpm":
+            out.append(("  (for comparison) tpm_stacked alone", _median_us(
+                lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))
+        if fast.box is not None:
+            out.append((f"  box ({type(fast.box).__name__})", _median_us(lambda: fast._box(st, t), reps)))
+        if ctrl.solver == "sns_tpm" and fast.x0 is None:
+            lo, up = (a.copy() for a in fast._box(st, t))
+            out.append(("  sns_tpm_stacked on J, b (solve)", _median_us(lambda: lean_mod.sns_tpm_stacked(
+                fast.J, fast.b, fast.sizes, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
+        out.append(("  integration (State.integrate)", _median_us(
+            lambda: st.integrate(ctrl.q, ctrl.v, ctrl.v, ctrl.dt, ctrl.order), reps)))
+        out.append((f"stacked J: {fast.J.shape[0]} x {fast.J.shape[1]}, levels {list(fast.sizes)}", float("nan")))
+        return out
     for task, write in zip(fast.tasks, fast.writers, strict=True):
         out.append((f"  {type(task).__name__}({task.name}) row writer", _median_us(lambda w=write: w(t), reps)))
     if fast.box is not None:
         out.append((f"  box ({type(fast.box).__name__})", _median_us(lambda: fast._box(st, t), reps)))
-    out.append(("  finiteness test of J and b", _median_us(lambda: lean_mod._finite(fast._flat), reps)))
+    flat = fast._flat
+    out.append(("  finiteness test of J and b (as in LeanStep.compute)",
+                _median_us(lambda: math.isfinite(flat @ flat) or np.isfinite(flat).all(), reps)))
     if ctrl.solver == "tpm":
         out.append(("  tpm_stacked (solve)", _median_us(
             lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))
     elif ctrl.solver == "sns_tpm":
         lo, up = (a.copy() for a in fast._box(st, t))
-        out.append(("  sns_tpm on the prebuilt levels (solve)", _median_us(
-            lambda: lean_mod.sns_tpm(fast.levels, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
+        if fast.x0 is None:
+            out.append(("  sns_tpm_stacked on J, b (solve)", _median_us(lambda: lean_mod.sns_tpm_stacked(
+                fast.J, fast.b, fast.sizes, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
     out.append(("  integration (State.integrate)", _median_us(
         lambda: st.integrate(ctrl.q, ctrl.v, ctrl.v, ctrl.dt, ctrl.order), reps)))
     out.append((f"stacked J: {fast.J.shape[0]} x {fast.J.shape[1]}, levels {list(fast.sizes)}", float("nan")))

@@ -15,9 +15,18 @@ once, at construction, and per step does only:
    :class:`~hqp_tpm.robot.limits.JointLimits`, one compiled call; any other box function is called as the
    controller does);
 4. one finiteness check of ``J`` and ``b`` and one solver call: ``tpm`` through the TPM kernel
-   (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), ``sns_tpm`` through :func:`hqp_tpm.solvers.sns.sns_tpm` on
-   levels built once as views of ``J`` and ``b``, any other solver through the registry on those levels;
+   (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), ``sns_tpm`` through :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` on
+   ``J`` and ``b`` (its loop compiled for ``m > n``), any other solver through the registry on levels built once
+   as views of ``J`` and ``b``;
 5. one integration (:meth:`hqp_tpm.robot.state.State.integrate`).
+
+With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.solvers._compiled_step`): the tasks that have a row program
+(:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, posture of revolute/prismatic
+joints) only gather pinocchio's outputs (the frame Jacobian, ``log3``, at order 2 ``J qd`` and ``Jdot qd``) and
+their changed references, the others write their rows, and one compiled call writes the programs' rows, tests
+``J`` and ``b`` for finiteness and, with ``tpm``, runs the TPM kernel and tests ``x`` (other solvers then run
+on ``J`` and ``b`` as above). At velocity level
+the state update is :meth:`hqp_tpm.robot.state.State.update_positions` (one pinocchio pass).
 
 Same numbers as the readable path, step by step (``tests/test_lean.py``: the row writers repeat the
 operations of ``jacobian`` and ``command``, the box those of :mod:`hqp_tpm.robot.joint_boxes`, and the
@@ -40,9 +49,11 @@ from hqp_tpm.control.stack import FixedStack
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
+from hqp_tpm.solvers import _compiled as _solvers_compiled
+from hqp_tpm.solvers import _compiled_step
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.solvers.registry import solve
-from hqp_tpm.solvers.sns import sns_tpm
+from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.base import Task
 
@@ -186,7 +197,8 @@ class LeanStep:
     """
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
-                 "writers", "levels", "box", "x0", "solver", "frames", "_flat", "info")
+                 "writers", "levels", "box", "x0", "solver", "frames", "_flat", "info", "_program", "_buf", "_out",
+                 "_velocities", "_kernel", "_fused")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -232,15 +244,18 @@ class LeanStep:
                 spans.append((slice(a, a + m), "+".join(task.name for task in level)))
             a += m
         self.tasks, self.rows, self.sizes = tuple(tasks), tuple(rows), tuple(sizes)
-        self._flat = np.zeros(a * n + a)  # J and b in one buffer: one finiteness test per step
+        # J, b, x0 and the fused kernel's x in one buffer (J and b: one finiteness test per step)
+        self._buf = np.zeros(a * n + a + 2 * n)
+        self._flat = self._buf[: a * n + a]
         self.J = self._flat[: a * n].reshape(a, n)
         self.b = self._flat[a * n:]
+        self._out = self._buf[a * n + a + n:]
         st = ctrl.state
         self.writers = tuple(task.row_writer(st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
                                                                                                       strict=True))
         # the solver's levels, built once: views of J and b (their rows change in place every step)
         levels = [Level(self.J[r], self.b[r], name=name, defer_finite=True) for r, name in spans]
-        self.x0 = np.zeros(n) if self.damping else None
+        self.x0 = self._buf[a * n + a: a * n + a + n] if self.damping else None
         if self.x0 is not None and self.solver == "sns_tpm":  # as the registry does: one more level
             levels.append(Level(np.eye(n), self.x0, name="x0", defer_finite=True))
         self.levels = tuple(levels)
@@ -250,6 +265,20 @@ class LeanStep:
         box = ctrl.box
         self.box = JointBox(box) if type(box) is JointLimits and box.order == self.order else box
         self.info = {}
+        self._velocities = self.order == 2
+        # the fused step (hqp_tpm.solvers._compiled_step): the rows of the tasks that have a row program,
+        # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
+        self._kernel = self._program = self._fused = None
+        if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
+            program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
+                                             self.x0 is not None, solve=self.solver == "tpm")
+            fused = []
+            for task, r, write in zip(tasks, rows, self.writers, strict=True):
+                gather = task.row_program(st, self.order, program, r.start)
+                fused.append(write if gather is None else gather)
+            self._fused = tuple(fused)
+            self._program = program.build()
+            self._kernel = _compiled_step.kernel()
         return self
 
     def _box(self, st, t):
@@ -266,15 +295,38 @@ class LeanStep:
         if not ctrl._started:
             ctrl.start()
         t = ctrl.t
-        st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames, velocities=self.order == 2)
-        for write in self.writers:
-            write(t)
-        J, b, flat = self.J, self.b, self._flat
-        if not math.isfinite(flat @ flat) and not np.isfinite(flat).all():  # (an overflow: the exact test)
-            return ctrl._compute().command      # the readable path raises the typed error naming the task
-        x0 = self.x0
-        if x0 is not None:
-            np.multiply(ctrl._v, -self.damping, out=x0)
+        if self._velocities:
+            st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames)
+        else:
+            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
+        kernel = self._kernel
+        if kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED:
+            for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
+                write(t)
+            x0 = self.x0
+            if x0 is not None:
+                np.multiply(ctrl._v, -self.damping, out=x0)
+            program = self._program
+            status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v, tuple(program.mats),
+                            tuple(program.vecs))
+            if status == 0:  # SOLVED
+                self.info = {}
+                return self._out.copy()
+            if status == _compiled_step.NONFINITE_ROWS:
+                return ctrl._compute().command  # the readable path raises the typed error naming the task
+            if status == _compiled_step.NONFINITE_X:
+                raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
+            # WRITTEN (another solver's turn) or DECLINED/UNDECIDED (tpm_stacked's numpy reference decides): below
+        else:
+            for write in self.writers:
+                write(t)
+            flat = self._flat
+            if not math.isfinite(flat @ flat) and not np.isfinite(flat).all():  # (an overflow: the exact test)
+                return ctrl._compute().command      # the readable path raises the typed error naming the task
+            x0 = self.x0
+            if x0 is not None:
+                np.multiply(ctrl._v, -self.damping, out=x0)
+        J, b = self.J, self.b
         solver = self.solver
         info = {}
         if solver == "tpm":
@@ -284,7 +336,11 @@ class LeanStep:
                 x = np.zeros(self.n) if x0 is None else x0.copy()
         elif solver == "sns_tpm":
             lo, up = self._box(st, t) or (np.full(self.n, -np.inf), np.full(self.n, np.inf))
-            x, sinfo = sns_tpm(self.levels, lo, up, lambda_max=self.lambda_max, eps=self.eps, return_info=True)
+            sizes = self.sizes
+            if x0 is not None:  # the x0 damping level appended as the registry does (LeanStep.of)
+                J, b, sizes = np.vstack((J, np.eye(self.n))), np.concatenate((b, x0)), sizes + (self.n,)
+            x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
+                                       return_info=True)
             info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         else:
             x, info = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,

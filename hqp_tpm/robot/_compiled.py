@@ -110,6 +110,19 @@ def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
 
 
 @_njit
+def euclidean_step(q, v, a, dt, order, q_next, v_next):  # pragma: no cover - compiled
+    """:meth:`State.integrate` on a Euclidean configuration space (``pin.integrate`` is ``q + dq`` there), entry by
+    entry: order 1 ``q + a dt`` and ``a``; order 2 ``q + (v dt + a dt^2 / 2)`` and ``v + a dt``."""
+    for i in range(q.shape[0]):
+        if order == 1:
+            q_next[i] = q[i] + a[i] * dt
+            v_next[i] = a[i]
+        else:
+            q_next[i] = q[i] + (v[i] * dt + 0.5 * a[i] * dt * dt)
+            v_next[i] = v[i] + a[i] * dt
+
+
+@_njit
 def copy_rows(J, Jsrc, rows):  # pragma: no cover - compiled
     """``J[i] = Jsrc[rows[i]]`` for every row of ``J``."""
     for i in range(J.shape[0]):

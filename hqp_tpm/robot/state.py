@@ -16,6 +16,10 @@ from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+#: joint models whose configuration is a vector their velocity is added to (pinocchio's VectorSpace Lie group:
+#: bounded revolute and prismatic joints); continuous joints (SO(2)), free flyers, spherical joints are not
+_EUCLIDEAN = frozenset(f"JointModel{k}" for k in ("RX", "RY", "RZ", "PX", "PY", "PZ", "RevoluteUnaligned",
+                                                  "PrismaticUnaligned"))
 
 
 class State:
@@ -32,6 +36,9 @@ class State:
         self._cache: dict = {}
         self._partial = False
         self.updates = 0
+        #: every joint adds its velocity to its configuration (``pin.integrate`` is ``q + dq``): see :meth:`integrate`
+        self.euclidean = self.model.nq == self.model.nv and all(j.shortname() in _EUCLIDEAN
+                                                                for j in self.model.joints[1:])
 
     def __repr__(self) -> str:
         return (f"State({self.robot.name!r}, t={self.t:.4f}, q={_short(self.q)}, v={_short(self.v)}, "
@@ -66,15 +73,28 @@ class State:
         model, data = self.model, self.data
         if velocities:
             pin.forwardKinematics(model, data, q, v, self._zero)
-        else:
-            pin.forwardKinematics(model, data, q)
-        pin.computeJointJacobians(model, data)  # from the placements computed just above
+            pin.computeJointJacobians(model, data)  # from the placements computed just above
+        else:  # the placements and the joint Jacobians in one pass (the same operations)
+            pin.computeJointJacobians(model, data, q)
         if frames is None:
             pin.updateFramePlacements(model, data)
         else:
             for fid in frames:
                 pin.updateFramePlacement(model, data, fid)
         self._partial = frames is not None or not velocities
+        self._cache.clear()
+        self.updates += 1
+        return self
+
+    def update_positions(self, q, v, t: float, frames) -> State:
+        """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations (the
+        lean step's update at velocity level, every step)."""
+        self.q, self.v, self.t = q, v, float(t)
+        model, data = self.model, self.data
+        pin.computeJointJacobians(model, data, q)
+        for fid in frames:
+            pin.updateFramePlacement(model, data, fid)
+        self._partial = True
         self._cache.clear()
         self.updates += 1
         return self
@@ -178,6 +198,11 @@ class State:
     def integrate(self, q, v, a, dt: float, order: int) -> tuple[np.ndarray, np.ndarray]:
         """Next ``(q, v)``: velocity level ``q + v dt``; acceleration level
         ``q + v dt + a dt^2 / 2`` and ``v + a dt`` (docs/setups.md, 'Initial state and run')."""
+        if self.euclidean and _compiled.ENABLED:  # pin.integrate is q + dq here: one compiled call, same operations
+            n = q.shape[0]
+            q_next, v_next = np.empty(n), np.empty(n)
+            _compiled.euclidean_step(q, v, a, dt, order, q_next, v_next)
+            return q_next, v_next
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
         if _compiled.ENABLED:  # one compiled call, the same operations

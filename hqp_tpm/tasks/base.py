@@ -113,6 +113,14 @@ class Task(ABC):
             b[...] = self.command(state, t, order, None, Jt)
         return write
 
+    def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
+        """For the lean step's fused kernel (:mod:`hqp_tpm.solvers._compiled_step`): register this task's rows
+        (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which puts the step's
+        pinocchio outputs into the program's slots (``program.mats``, ``program.vecs``) and changed references
+        into ``program.floats``; the kernel then writes the numbers of :meth:`row_writer`. None (this default):
+        the task's row writer runs instead."""
+        return None
+
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
         """The task as a solver level (equality ``J x = b``)."""
         J = self.jacobian(state)
@@ -143,6 +151,33 @@ def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: 
     np.add(b, e, out=b)
     if jdq is not None:
         np.subtract(b, jdq, out=b)
+
+
+class ReferenceSlots:
+    """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused
+    program's floats (:meth:`Task.row_program`) when they changed: a constant reference is one read-only tuple
+    between starts (copied once); any other is copied every step."""
+
+    __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task")
+
+    def __init__(self, task: Task, program, gains_at: int, at: int, parts: tuple[tuple[int, int], ...]):
+        """``kp, kd`` at ``program.floats[gains_at:]``, the reference parts ``(index, entries)`` from ``at`` on."""
+        self.task, self.program, self.gains_at, self.at, self.parts = task, program, gains_at, at, parts
+        self.last, self.gains = None, task.gains
+
+    def refresh(self, t: float) -> None:
+        task = self.task
+        ref = task.trajectory.reference(t)
+        if ref is not self.last:
+            f, at = self.program.floats, self.at
+            for i, size in self.parts:  # (index into ref, entries), laid out one after the other
+                f[at: at + size] = ref[i]
+                at += size
+            frozen = not (ref[0].flags.writeable or ref[1].flags.writeable or ref[2].flags.writeable)
+            self.last = ref if frozen else None
+        if task.gains is not self.gains:
+            self.gains = g = task.gains
+            self.program.floats[self.gains_at: self.gains_at + 2] = g.kp, g.kd
 
 
 def select_axes(axes: str) -> np.ndarray:

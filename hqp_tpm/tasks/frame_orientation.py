@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Task, feedback
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback
 
 
 class FrameOrientation(Task):
@@ -74,3 +74,28 @@ class FrameOrientation(Task):
                 feedback(b, e, ref, self.gains, 2, rate,
                          pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:])
         return write
+
+    def row_program(self, state: State, order: int, program, row: int):
+        """:meth:`Task.row_program`: the frame Jacobian and ``w = log3(R_d R^T)`` (at order 2 also the angular
+        ``J qd`` and ``Jdot qd``) into the kernel's slots; the reference into its floats."""
+        views = state.frame_views(self.fid)
+        if views is None:
+            return None
+        model, data, fid = state.model, state.data, self.fid
+        R = views[1]
+        g = self.gains
+        at, mat, vec = program.add_frame(row, range(3, 6), (), g.kp, g.kd, x_d_vec=False)
+        refresh = ReferenceSlots(self, program, at - 2, at, ((1, 3), (2, 3))).refresh
+        rate = np.zeros(3)
+        mats, vecs = program.mats, program.vecs
+
+        def gather(t: float) -> None:
+            refresh(t)
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)
+            mats[mat] = Jt
+            vecs[vec] = pin.log3(self._R_target.dot(R.T))
+            if order == 2:
+                np.dot(Jt[3:], state.v, out=rate)
+                vecs[vec + 1] = rate
+                vecs[vec + 2] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
+        return gather

@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Task, feedback
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback
 
 
 class FramePose(Task):
@@ -87,3 +87,36 @@ class FramePose(Task):
                 jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
                 feedback(b, e, ref, self.gains, 2, rate, jdq)
         return write
+
+    def row_program(self, state: State, order: int, program, row: int):
+        """:meth:`Task.row_program`: the frame Jacobian, ``p``, ``w = log3(R_d R^T)`` and the target translation
+        (at order 2 also ``J qd`` and ``Jdot qd``) into the kernel's slots."""
+        views = state.frame_views(self.fid)
+        if views is None:
+            return None
+        model, data, fid = state.model, state.data, self.fid
+        p, R = views
+        g = self.gains
+        at, mat, vec = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True)
+        refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
+        rate = np.zeros(6)
+        target = [None, None, None]  # the target placement and views of its translation and rotation
+        xd_slot = vec + (4 if order == 2 else 2)
+        RT = R.T  # a view, as R
+        mats, vecs = program.mats, program.vecs
+        vecs[vec] = p  # pinocchio updates it in place
+
+        def gather(t: float) -> None:
+            refresh(t)
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)
+            M = self._M_target
+            if M is not target[0]:
+                target[:] = M, M.translation, M.rotation
+                vecs[xd_slot] = target[1]
+            mats[mat] = Jt
+            vecs[vec + 1] = pin.log3(target[2].dot(RT))
+            if order == 2:
+                np.dot(Jt, state.v, out=rate)
+                vecs[vec + 2] = rate
+                vecs[vec + 3] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+        return gather

@@ -8,7 +8,7 @@ import pinocchio as pin
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Task, feedback, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, row_selector, select_axes
 
 
 class FramePosition(Task):
@@ -66,3 +66,29 @@ class FramePosition(Task):
                 feedback(b, e, ref, self.gains, 2, rate,
                          pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel])
         return write
+
+    def row_program(self, state: State, order: int, program, row: int):
+        """:meth:`Task.row_program`: the frame Jacobian and ``p`` (at order 2 also the selected ``J qd`` and
+        ``Jdot qd``) into the kernel's slots; the reference into its floats."""
+        views = state.frame_views(self.fid)
+        if views is None:
+            return None
+        model, data, fid, sel, d = state.model, state.data, self.fid, self._sel, self.dim
+        p = views[0]
+        g = self.gains
+        at, mat, vec = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False)
+        refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
+        rate = np.zeros(d)
+        mats, vecs = program.mats, program.vecs
+        vecs[vec] = p  # pinocchio updates it in place
+
+        def gather(t: float) -> None:
+            refresh(t)
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)
+            mats[mat] = Jt
+            if order == 2:
+                np.dot(Jt[sel], state.v, out=rate)
+                vecs[vec + 1] = rate
+                vecs[vec + 2] = np.ascontiguousarray(pin.getFrameClassicalAcceleration(model, data, fid, LWA)
+                                                     .vector[sel])
+        return gather

@@ -11,7 +11,7 @@ import numpy as np
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task, feedback
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback
 from hqp_tpm.tasks.manipulability import JointAngles
 
 
@@ -64,3 +64,12 @@ class Posture(Task):
                 np.take(state.v, cols, out=rate)  # J qd of a selection matrix
                 feedback(b, e, ref, self.gains, 2, rate)
         return write
+
+    def row_program(self, state: State, order: int, program, row: int):
+        """:meth:`Task.row_program`: revolute/prismatic joints only (the kernel writes ``b`` from ``q``, ``v``)."""
+        if not self.angles._plain:
+            return None
+        g, d = self.gains, self.dim
+        at = program.add_selection(row, self.angles.idx, self.cols, g.kp, g.kd)
+        slots = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d)))
+        return slots.refresh

@@ -1,0 +1,211 @@
+"""The lean step's solve in one compiled call (private; :mod:`hqp_tpm.control.lean`).
+
+:func:`kernel` does what the lean step did in three: the finiteness test of the stacked ``J`` and ``b``, the
+TPM kernel of :mod:`hqp_tpm.solvers._compiled` that :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call
+(``_past_rank`` when ``m > n``, ``_general`` otherwise: the same kernels, so the same numbers to the last bit)
+and the finiteness test of ``x``. numba's dispatch cost grows with the argument count, so the arguments are
+packed once at construction: ``J``, ``b``, ``x0`` and ``x`` are one buffer (``J`` row-major, then ``b``), the integers
+``[m, n, use_x0, sizes...]`` one array, the floats ``[lambda_max, eps, unit, margin, cond]`` another
+(:class:`Program`). It also writes the right-hand side of the posture tasks (a selection of revolute or prismatic
+joints: :func:`hqp_tpm.robot._compiled.posture_rows`' operations) from ``q`` and ``v``, before the finiteness test.
+
+A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises
+the typed error naming the task), :data:`NONFINITE_X`, or the kernel's ``DECLINED``/``UNDECIDED`` (then
+``tpm_stacked`` decides with the numpy reference, as it always does).
+
+This kernel calls the other module's kernels, and numba's disk cache checks only the file of the function it
+caches: a cached kernel would keep an earlier version of the kernels it calls. So the cache's stamp also holds
+:mod:`hqp_tpm.solvers._compiled`'s (as :mod:`hqp_tpm.solvers._compiled_sns` does); where numba's cache object is
+laid out otherwise, the disk cache is used only when this file is newer than the callees' file, else the kernel
+is compiled in memory once per process (~2-4 s on first use; ~0.1-0.5 s from the cache).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers._fullrank import COND, MARGIN
+
+SOLVED, DECLINED, UNDECIDED = _compiled.SOLVED, _compiled.DECLINED, _compiled.UNDECIDED
+#: ``J`` or ``b`` holds a non-finite value (nothing was solved).
+NONFINITE_ROWS = 3
+#: the solution holds a non-finite value.
+NONFINITE_X = 4
+#: the rows are written and finite, nothing solved (a program built with ``solve=False``: another solver's turn).
+WRITTEN = 5
+#: The kinds of task rows the kernel writes (:class:`Program`).
+SELECTION, FRAME = 0, 1
+
+_KERNEL = None
+# the kernels _tpm_step calls, set by _build (globals: numba resolves them when it compiles _tpm_step)
+_past_rank = _general = None
+
+
+def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+    """The kernel of :func:`kernel` (plain Python until :func:`_build`)."""
+    m, n, use_x0, nlev, order, count, solve = ints[0], ints[1], ints[2], ints[3], ints[4], ints[5], ints[6]
+    mn = m * n
+    J = buf[:mn].reshape((m, n))
+    b = buf[mn: mn + m]
+    x0 = buf[mn + m: mn + m + n]
+    out = buf[mn + m + n: mn + m + 2 * n]
+    sizes = ints[7: 7 + nlev]
+    pi, pf = 7 + nlev, 5
+    for _ in range(count):  # the program's tasks: their rows of J and b
+        kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
+        kp, kd = floats[pf], floats[pf + 1]
+        if kind == SELECTION:  # hqp_tpm.robot._compiled.posture_rows
+            for i in range(dim):
+                e = floats[pf + 2 + i] - q[ints[pi + 3 + i]]
+                xd = floats[pf + 2 + dim + i]
+                if order == 1:
+                    b[r0 + i] = xd + kp * e
+                else:
+                    b[r0 + i] = floats[pf + 2 + 2 * dim + i] + kd * (xd - v[ints[pi + 3 + dim + i]]) + kp * e - 0.0
+            pi += 3 + 2 * dim
+            pf += 2 + 3 * dim
+        else:  # FRAME: hqp_tpm.robot._compiled.rows1 / rows2
+            k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
+            S = mats[jm]
+            fx, fxd = pf + 2, pf + 2 + k
+            for i in range(dim):
+                src = ints[pi + 7 + i]
+                for c in range(n):
+                    J[r0 + i, c] = S[src, c]
+                if i < k:
+                    x_d = vecs[ixd][i] if ixd >= 0 else floats[fx + i]
+                    e = x_d - vecs[iv][ints[pi + 7 + dim + i]]
+                else:
+                    e = vecs[iv + (1 if k else 0)][i - k]
+                xd = floats[fxd + i]
+                if order == 1:
+                    b[r0 + i] = xd + kp * e
+                else:
+                    w = iv + (1 if k else 0) + (1 if k < dim else 0)
+                    b[r0 + i] = floats[fxd + dim + i] + kd * (xd - vecs[w][i]) + kp * e - vecs[w + 1][i]
+            pi += 7 + dim + k
+            pf += 2 + k + 2 * dim
+    for i in range(mn + m):
+        if not math.isfinite(buf[i]):
+            return NONFINITE_ROWS
+    if not solve:
+        return WRITTEN
+    if m > n:
+        status = _past_rank(J, b, sizes, n, floats[0], floats[1], floats[2], floats[3], floats[4], out)
+    else:
+        status = _general(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], out)
+    if status != SOLVED:
+        return status
+    for i in range(n):
+        if not math.isfinite(out[i]):
+            return NONFINITE_X
+    return SOLVED
+
+
+def _build():
+    """Compile :func:`kernel` (after the kernels it calls); None if numba cannot be imported."""
+    global _KERNEL, _past_rank, _general
+    if _compiled._sizes(()) is None:  # compiles (or loads) hqp_tpm.solvers._compiled's kernels first
+        return None
+    import numba
+
+    _past_rank, _general = _compiled._past_rank, _compiled._general
+    try:
+        _KERNEL = numba.njit(nogil=True, cache=True)(_tpm_step)
+    except RuntimeError:  # pragma: no cover - no writable cache location: compile in memory
+        _KERNEL = numba.njit(nogil=True)(_tpm_step)
+        return _KERNEL
+    try:  # numba checks a cached kernel against its own file's stamp: add the callees' file's stamp
+        cache_file = _KERNEL._cache._cache_file
+        st = os.stat(_compiled.__file__)
+        cache_file._source_stamp = (cache_file._source_stamp, st.st_mtime, st.st_size)
+    except (AttributeError, OSError):  # pragma: no cover - another numba layout: the cache only when safe
+        if not _cache_is_safe():
+            _KERNEL = numba.njit(nogil=True)(_tpm_step)
+    return _KERNEL
+
+
+def _cache_is_safe() -> bool:
+    """May numba's own cache check do (this file newer than the callees' file: any cache entry numba accepts,
+    stamped with this file's version, was built after the callees' last change)?"""
+    try:
+        return os.stat(__file__).st_mtime_ns > os.stat(_compiled.__file__).st_mtime_ns
+    except OSError:  # pragma: no cover - no files (a frozen install): compile in memory
+        return False
+
+
+class Program:
+    """The packed arguments of :func:`kernel` for a stack of ``m`` rows in levels of ``sizes`` at ``order``, and the
+    tasks whose rows the kernel writes (:meth:`add_selection`, :meth:`add_frame`).
+
+    ``ints = [m, n, use_x0, len(sizes), order, count, solve, sizes..., tasks...]`` (``solve`` 0: the kernel
+    stops after the rows and their finiteness test, returning :data:`WRITTEN`), ``floats = [lambda_max, eps, unit,
+    margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices, and its gains
+    and reference values (see the methods). The per-step arrays (a frame's Jacobian and vectors) are passed to the
+    kernel as the tuples of :attr:`mats` and :attr:`vecs`: a task is given its slots there.
+    """
+
+    def __init__(self, m: int, n: int, sizes, order: int, lambda_max: float, eps: float, use_x0: bool,
+                 solve: bool = True):
+        self.order = order
+        self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), *sizes]
+        self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND]
+        #: the kernel's per-step arrays, ``mats`` and ``vecs`` as lists: a task owns its slots (it puts its arrays
+        #: there, once for an array pinocchio updates in place, else at every step); ``tuple()`` of them is passed
+        self.mats: list[np.ndarray] = []
+        self.vecs: list[np.ndarray] = []
+        self.ints = self.floats = None
+
+    def _gains(self, kp: float, kd: float, values: int) -> int:
+        self._ints[5] += 1
+        self._floats += [kp, kd]
+        at = len(self._floats)
+        self._floats += [0.0] * values
+        return at
+
+    def add_selection(self, row: int, qidx, vidx, kp: float, kd: float) -> int:
+        """Rows ``row...`` with ``b = xd_d + kp (x_d - q[qidx])`` (order 1) or ``xdd_d + kd (xd_d - v[vidx]) +
+        kp (x_d - q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns the offset of ``x_d, xd_d,
+        xdd_d`` in :attr:`floats` (its owner writes them there whenever they change)."""
+        dim = len(qidx)
+        self._ints += [SELECTION, row, dim, *qidx, *vidx]
+        return self._gains(kp, kd, 3 * dim)
+
+    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool) -> tuple[int, int, int]:
+        """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
+        and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when
+        ``len(xrows) == len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at
+        order 2 ``rate = J qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`.
+        Returns ``(at, mat, vec)``: ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`.
+        """
+        dim, k = len(rows), len(xrows)
+        mat, vec = len(self.mats), len(self.vecs)
+        used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
+        self.mats.append(np.zeros((6, self._ints[1])))
+        self.vecs += [np.zeros(6) for _ in range(used + (1 if x_d_vec else 0))]
+        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, *rows, *xrows]
+        return self._gains(kp, kd, k + 2 * dim), mat, vec
+
+    def build(self) -> Program:
+        """Freeze the arrays (and give ``mats``, ``vecs`` a placeholder if they are empty: a tuple of one type)."""
+        self.mats = self.mats or [np.zeros((6, self._ints[1]))]
+        self.vecs = self.vecs or [np.zeros(6)]
+        self.ints = np.array(self._ints, dtype=np.int64)
+        self.floats = np.array(self._floats, dtype=float)
+        return self
+
+
+def kernel():
+    """The compiled kernel (compiled or loaded on first use), or None if numba cannot be imported after all
+    (then :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
+
+    ``kernel(buf, ints, floats, q, v, mats, vecs) -> status``: ``buf = [J (row-major), b, x0, x]`` (``x0`` the
+    null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v``, ``mats``
+    and ``vecs``, finiteness of ``J`` and ``b``, ``x`` of the TPM kernel, finiteness of ``x``; ``ints``,
+    ``floats``, ``mats`` and ``vecs`` those of a :class:`Program`.
+    """
+    return _KERNEL or _build()
