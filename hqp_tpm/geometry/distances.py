@@ -43,10 +43,12 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ShapeError, unknown_name
+from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.obstacles import GeometryError, Obstacle
 from hqp_tpm.geometry.pairs import Elements, Partition, checked_obstacles, near_pairs, self_pair_indices
 from hqp_tpm.geometry.records import PairRecord, SelfPairRecord
 from hqp_tpm.geometry.witness import point_jacobian, point_jdot_qdot
+from hqp_tpm.robot import _compiled
 
 __all__ = ["ELEMENT_KINDS", "DistanceField", "Nearest", "point_jacobian", "point_jdot_qdot"]
 
@@ -57,6 +59,7 @@ ELEMENT_KINDS = ("geometry", "point")
 BATCH_MIN = 8
 
 _TINY = 1e-12
+_LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 _EZ = np.array([0.0, 0.0, 1.0])
 
 
@@ -144,6 +147,16 @@ class DistanceField:
         self._sph_views = isinstance(self._sph_grid, tuple) and all(isinstance(g, slice) for g in self._sph_grid)
         self._sph_diff = np.zeros((len(part.sph_e), len(part.sph_o), 3))
         self._sph_delta = np.zeros((len(part.sph_e), len(part.sph_o)))
+        # the compiled sphere block's arguments (views of the records: written in place)
+        self._sph_kernel_args = None
+        if self._sph_views and len(part.sph_e) and len(part.sph_o):
+            g = self._sph_grid
+            self._sph_kernel_args = (
+                np.asarray(part.sph_e, dtype=np.int64), np.asarray(part.sph_o, dtype=np.int64),
+                np.ascontiguousarray(part.sph_rsum, dtype=float), np.asarray(part.sph_re, dtype=float),
+                np.asarray(part.sph_ro, dtype=float), bool(part.sph_re_zero), bool(part.sph_ro_zero),
+                self.distance[g], self.normal[g], self._last_normal[g], self.p_robot[g], self.p_obstacle[g],
+                self.computed[g], self._sph_delta, _TINY)
         self._coal_e, self._coal_o = part.coal_e, part.coal_o
         self._point_shape = part.point_shape
         self._coal_e_list, self._coal_o_list = part.coal_e_list, part.coal_o_list
@@ -220,6 +233,11 @@ class DistanceField:
                     raise ShapeError("geom_data does not belong to the geometry model given at construction")
                 self._geom_refs = [geom_data.oMg[int(i)] for i in self._geom_source_index]
             self._frame_refs = [data.oMf[f] for f in self._frame_ids]
+            # the control points' positions as views pinocchio updates in place (None if it returns copies)
+            views = [M.translation for M in self._frame_refs]
+            again = [M.translation for M in self._frame_refs]
+            self._frame_views = views if all(np.shares_memory(x, y) for x, y in zip(views, again, strict=True)) \
+                else None
             self._elem_M[: self.n_geometries] = self._geom_refs
             self._refs_key = key
             self._refs_objects = (data, geom_data)  # keep the owners alive while we hold references
@@ -241,7 +259,8 @@ class DistanceField:
             c = self._elem_local_center[i]
             C[i] = Mg.translation if c is None else Mg.act(c)
         if self._frame_refs:
-            C[ng:] = [Mf.translation for Mf in self._frame_refs]
+            views = self._frame_views
+            C[ng:] = [Mf.translation for Mf in self._frame_refs] if views is None else views
         for j in self._obs_moving:
             o = self.obstacles[j]
             Mo = o.placement_at(t)
@@ -269,6 +288,10 @@ class DistanceField:
         if not self._sph_views:
             self._update_spheres_reference()
             return
+        if _compiled.ENABLED:  # one compiled call, the same operations (False: coinciding centres, below)
+            a = self._sph_kernel_args
+            if _kernels.sphere_block(self._elem_center, a[0], self._obs_center, a[1], *a[2:]):
+                return
         ce = self._elem_center[self._sph_erows]
         co = self._obs_center[self._sph_orows]
         diff = np.subtract(ce[:, None, :], co[None, :, :], out=self._sph_diff)
@@ -362,7 +385,12 @@ class DistanceField:
 
     def _update_coal(self):
         ce, co = self._coal_e, self._coal_o
-        if self.broad_phase:
+        if self.broad_phase and _compiled.ENABLED:  # one compiled call, the same operations
+            todo = _kernels.near_pairs(self._elem_center, ce, self._obs_center, co, self._elem_radius,
+                                       self._obs_radius, self.surveillance)
+            if todo.size == 0:
+                return
+        elif self.broad_phase:
             todo = near_pairs(self._elem_center[ce], self._obs_center[co], self._elem_radius[ce],
                                self._obs_radius[co], self.surveillance)
             if todo.size == 0:
@@ -425,7 +453,10 @@ class DistanceField:
     def _update_self(self):
         self.self_record.clear()
         a, b = self.self_pairs[:, 0], self.self_pairs[:, 1]
-        if self.broad_phase:
+        if self.broad_phase and _compiled.ENABLED:  # one compiled call, the same operations
+            todo = _kernels.near_pairs(self._elem_center, a, self._elem_center, b, self._elem_radius,
+                                       self._elem_radius, self.self_surveillance)
+        elif self.broad_phase:
             todo = near_pairs(self._elem_center[a], self._elem_center[b], self._elem_radius[a],
                                self._elem_radius[b], self.self_surveillance)
         else:
@@ -483,7 +514,31 @@ class DistanceField:
 
     def jdot_qdot(self, data: pin.Data, element: int, obstacle: int) -> np.ndarray:
         """``J̇_c q̇`` of the robot witness point of pair (element, obstacle); see :func:`point_jdot_qdot`."""
+        if _compiled.ENABLED:  # one compiled call, the same operations
+            jid = int(self.joint_ids[element])
+            M, out = data.oMi[jid], np.empty(3)
+            _kernels.point_jdot_qdot(M.rotation, M.translation, data.v[jid].vector, data.a[jid].vector,
+                                     self.p_robot[element, obstacle], out)
+            return out
         return point_jdot_qdot(self.model, data, self.joint_ids[element], self.p_robot[element, obstacle])
+
+    def avoidance_row(self, data: pin.Data, element: int, obstacle: int, normal: np.ndarray, magnitude: float,
+                      order: int, J: np.ndarray, b: np.ndarray) -> None:
+        """The 1-D avoidance row (29) of pair (element, obstacle) into ``J`` (1 x nv) and ``b`` (1) in one compiled
+        call: ``n^T J_c`` and ``r`` (order 1) or ``r - n^T J̇_c q̇`` (order 2), the numbers of
+        :class:`~hqp_tpm.tasks.avoidance.Avoidance` given :meth:`jacobian` and :meth:`jdot_qdot` (compiled kernels
+        on; else those readable calls)."""
+        if not _compiled.ENABLED:
+            Jc = self.jacobian(data, element, obstacle)
+            J[0] = normal.dot(Jc)
+            b[0] = magnitude * 1.0 if order == 1 else magnitude * 1.0 - normal.dot(self.jdot_qdot(data, element,
+                                                                                                  obstacle))
+            return
+        jid = int(self.joint_ids[element])
+        M = data.oMi[jid]
+        _kernels.avoidance_row(pin.getJointJacobian(self.model, data, jid, _LWA), M.rotation, M.translation,
+                               data.v[jid].vector, data.a[jid].vector, self.p_robot[element, obstacle], normal,
+                               magnitude, order, J, b)
 
     def snapshot(self) -> tuple:
         """The history an update carries over (the last normals, used where witness points coincide).

@@ -21,10 +21,12 @@ import numpy as np
 
 from hqp_tpm.control.policy import DistancePolicy, SceneItems
 from hqp_tpm.errors import ParameterError, unknown_name
+from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.geometry.repulsion import DIRECTIONS, Repulsion, nearest_element
 from hqp_tpm.policies.planned_step import PlanningPolicy
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import Pointing
 from hqp_tpm.tasks.avoidance import Avoidance
@@ -108,8 +110,7 @@ class Algorithm1(DistancePolicy, PlanningPolicy):
         levels: list[Task] = [self.ee_task]
         placed = False
         if critical:
-            self.avoid.assign(f.jacobian(state.data, k, j), f.jdot_qdot(state.data, k, j), r_hat,
-                              self.body_repulsion.magnitude(d_minimal), f.p_robot[k, j])
+            self.avoid.assign_pair(f, state.data, k, j, r_hat, self.body_repulsion.magnitude(d_minimal))
             if d_minimal <= th.eps1:
                 d_ee_eff = d_ee if d_ee <= th.eps_ee else th.d_ee_default
                 levels.insert(0 if d_minimal <= d_ee_eff else 1, self.avoid)
@@ -130,6 +131,11 @@ class Algorithm1(DistancePolicy, PlanningPolicy):
             j_ee, _, d_ee, n_ee = nearest_element(f.distance[self.ee], f.normal[self.ee], f.in_range[self.ee])
             k, j, d_minimal, r_hat = nearest_element(f.distance[self.body], f.normal[self.body],
                                                      f.in_range[self.body], self.direction, th.eps2)
+            return j_ee, d_ee, n_ee, k, j, d_minimal, r_hat
+        if _compiled.ENABLED:  # one compiled call, the same choices
+            j_ee, d_ee, k, j, d_minimal = _kernels.nearest_pairs(f.distance, f.in_range, self.ee_index, th.eps2)
+            n_ee = None if j_ee < 0 else f.normal[self.ee_index, j_ee].copy()
+            r_hat = None if k < 0 else f.normal[k, j].copy()
             return j_ee, d_ee, n_ee, k, j, d_minimal, r_hat
         H = f.distance.shape[1]
         Dm = np.where(f.in_range, f.distance, np.inf)

@@ -12,15 +12,17 @@ them, looks the solver up by name and wraps the result in a ``StepResult``. A :c
    level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its row writer (:meth:`Task.row_writer
    <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and no extra command is added) or its own
    ``jacobian`` and ``command``, an
-   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and an inequality :class:`~hqp_tpm.tasks.pointing.Pointing`
-   (its cone row while ``e > 0``, target = its command) likewise, as their ``level`` does; any other task through
+   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's
+   cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the numbers
+   of their ``level``); any other task through
    its level's analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes);
 3. one finiteness check and one call of :func:`~hqp_tpm.solvers.tpm.tpm_stacked` (the kernel :func:`tpm` calls),
    with ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000);
 4. one integration.
 
 The rows, their order and the kernel call are those of the readable step, so the commands and states are equal
-bit for bit (``tests/test_planned_step.py``: every step of ``lwr_relaxed``). A step whose rows are not finite is
+(``tests/test_planned_step.py``: every step of ``lwr_relaxed``, within 1e-12; bit for bit where numpy's BLAS
+sums the compiled row writers' 3-vector products in their order, which depends on the CPU). A step whose rows are not finite is
 handed to the readable path, which raises the same typed error naming the task. Transactional like
 :meth:`Controller.step`: on any error the controller and the policy keep their state.
 """
@@ -100,8 +102,16 @@ class PlannedStep:
             kind = type(task)
             if kind.level is Task.level and kind.row_writer is not Task.row_writer:
                 Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
-                self._writers[id(task)] = (task.row_writer(ctrl.state, self.order, Jt, bt), Jt, bt)
+                self._writers[id(task)] = (task.row_writer(ctrl.state, self.order, Jt, bt), Jt, bt, False)
         return self
+
+    def _writer(self, task: Pointing | Avoidance) -> tuple:
+        """The row writer of a pointing or avoidance task (built on first use; an inequality pointing task's
+        returns its error: its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
+        Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
+        cone = type(task) is Pointing and task.inequality
+        w = self._writers[id(task)] = (task.row_writer(self.ctrl.state, self.order, Jt, bt), Jt, bt, cone)
+        return w
 
     def label(self) -> str:
         """``"a > b"``: the last step's stack as text."""
@@ -118,8 +128,14 @@ class PlannedStep:
             extra = extras.get(task.name) if extras else None
             kind = type(task)
             writer = self._writers.get(id(task)) if extra is None else None
-            if writer is not None:        # an equality task's row writer
-                writer[0](t)
+            if writer is None and extra is None and (kind is Avoidance or kind is Pointing):
+                writer = self._writer(task)
+            if writer is not None:        # a row writer: an equality task's, the pointing's, the avoidance's
+                if writer[3]:             # the cone (21): its row while e > 0
+                    if not writer[0](t) > 0.0:
+                        continue
+                else:
+                    writer[0](t)
                 Jt, bt = writer[1], writer[2]
             elif kind.level is Task.level:  # an equality task: its own rows, no Level object
                 Jt = task.jacobian(st)

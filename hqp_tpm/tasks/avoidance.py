@@ -14,8 +14,10 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.errors import ParameterError, StateError
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
+from hqp_tpm.tasks import _compiled_rows
 from hqp_tpm.tasks.base import Task
 
 
@@ -29,6 +31,7 @@ class Avoidance(Task):
         super().__init__(name, np.zeros(dim))
         self._J_c = None
         self._jdqd_c = None
+        self._pair = None
         self.normal = np.zeros(3)
         self.magnitude = 0.0
         self.point = np.zeros(3)
@@ -36,15 +39,28 @@ class Avoidance(Task):
     def assign(self, J_c: np.ndarray, jdot_qdot_c: np.ndarray, normal: np.ndarray, magnitude: float,
                point: np.ndarray | None = None) -> None:
         """The pair of this step: point Jacobian (3 x n), its J-dot q-dot, unit direction, magnitude."""
-        self._J_c, self._jdqd_c = J_c, jdot_qdot_c
+        self._J_c, self._jdqd_c, self._pair = J_c, jdot_qdot_c, None
         self.normal = np.asarray(normal, dtype=float)
         self.magnitude = float(magnitude)
         if point is not None:
             self.point = np.asarray(point, dtype=float)
 
+    def assign_pair(self, field, data, element: int, obstacle: int, normal: np.ndarray, magnitude: float) -> None:
+        """:meth:`assign` of pair (element, obstacle) of a :class:`~hqp_tpm.geometry.distances.DistanceField`
+        updated on ``data``: ``J_c`` and ``J̇_c q̇`` are its :meth:`~DistanceField.jacobian` and
+        :meth:`~DistanceField.jdot_qdot`, computed on first use (the 1-D row writer reads the pair in one call)."""
+        self._pair = (field, data, element, obstacle)
+        self._J_c = self._jdqd_c = None
+        self.normal = np.asarray(normal, dtype=float)
+        self.magnitude = float(magnitude)
+        self.point = field.p_robot[element, obstacle]
+
     def _require(self):
         if self._J_c is None:
-            raise StateError(f"avoidance task {self.name!r} used before assign(): no pair for this step")
+            if self._pair is None:
+                raise StateError(f"avoidance task {self.name!r} used before assign(): no pair for this step")
+            field, data, k, j = self._pair
+            self._J_c, self._jdqd_c = field.jacobian(data, k, j), field.jdot_qdot(data, k, j)
 
     def value(self, state: State) -> np.ndarray:
         return self.point if self.dim == 3 else np.array([self.normal.dot(self.point)])
@@ -69,3 +85,20 @@ class Avoidance(Task):
 
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
         return Level(self.jacobian(state), self.command(state, t, order), name=self.name, defer_finite=True)
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """``write(t)``: the rows of :meth:`jacobian` and :meth:`command` for the pair assigned at call time,
+        written into ``J`` (dim x n) and ``b`` (dim), the same numbers (1-D: one compiled call). For the planned
+        step."""
+        def write(t: float) -> None:
+            pair = self._pair
+            if self.dim == 1 and _compiled.ENABLED and pair is not None and self._J_c is None:
+                pair[0].avoidance_row(pair[1], pair[2], pair[3], self.normal, self.magnitude, order, J, b)
+                return
+            self._require()
+            if self.dim == 1 and _compiled.ENABLED:
+                _compiled_rows.avoidance_row(J, b, self.normal, self._J_c, self._jdqd_c, self.magnitude, order)
+                return
+            J[...] = self.jacobian(state)
+            b[...] = self.command(state, t, order)
+        return write

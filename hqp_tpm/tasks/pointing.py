@@ -10,13 +10,16 @@ same command as lower bound (Algorithm 1 of papers/000).
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from hqp_tpm.errors import ParameterError
 from hqp_tpm.references.trajectories import Constant
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.spatial import cross, cross3
-from hqp_tpm.robot.state import State
+from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.solvers.levels import Level
+from hqp_tpm.tasks import _compiled_rows
 from hqp_tpm.tasks.base import Gains, Task
 
 #: The cone (21) as a one-row inequality level: no upper bound, active while the axis is outside.
@@ -43,6 +46,7 @@ class Pointing(Task):
             raise ParameterError(f"cone half-angle alpha_d = {alpha_d!r} must be in [0, pi) radians")
         self.z_d = z_d / norm
         self.alpha_d = float(alpha_d)
+        self._cos = np.cos(self.alpha_d)
         self.inequality = inequality
         super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
 
@@ -72,7 +76,8 @@ class Pointing(Task):
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
-        return float(np.cos(self.alpha_d) - self.value(state)[0])
+        # the numbers of cos(alpha_d) - value(state)[0], without the memo and the array (the policy asks every step)
+        return float(self._cos - self.z_d.dot(state.rotation(self.fid)[:, 2]))
 
     def is_active(self, state: State) -> bool:
         """Equality: always; inequality (21): while ``e > 0``."""
@@ -85,3 +90,35 @@ class Pointing(Task):
             return Level(J, b, name=self.name, defer_finite=True)
         active = _ACTIVE if self.pointing_error(state) > 0.0 else _INACTIVE
         return Level(J, lower=b, upper=_NO_UPPER, active=active, name=self.name, defer_finite=True)
+
+    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
+        """``write(t) -> e``: the row of :meth:`jacobian` and :meth:`command` (no extra command) written into ``J``
+        (1 x n) and ``b`` (1), the same numbers (one compiled call); returns the error :meth:`pointing_error`
+        (the inequality's row is in the stack only while it is positive). For the planned step."""
+        model, data, fid = state.model, state.data, self.fid
+        views = state.frame_views(fid)
+        none = np.zeros(6)
+
+        def readable(t: float) -> float:
+            Jt = self.jacobian(state)
+            J[...] = Jt
+            b[...] = self.command(state, t, order, None, Jt)
+            return self.pointing_error(state)
+
+        if views is None:
+            return readable
+        R = views[1]
+
+        def write(t: float) -> float:
+            if not _compiled.ENABLED:
+                return readable(t)
+            ref, g = self.trajectory.reference(t), self.gains
+            Jf = pin.getFrameJacobian(model, data, fid, LWA)
+            if order == 1:
+                vel = acc = none
+            else:
+                vel = pin.getFrameVelocity(model, data, fid, LWA).vector
+                acc = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+            return _compiled_rows.pointing_row(J, b, R, self.z_d, Jf, state.v, vel, acc, ref[0], ref[1], ref[2],
+                                               g.kp, g.kd, order)
+        return write

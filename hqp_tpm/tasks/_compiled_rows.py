@@ -1,0 +1,61 @@
+"""Compiled (numba) row writers of the pointing (19), (21) and 1-D avoidance (29) tasks (private; the planned step).
+
+Each kernel writes a task's row ``J`` and right-hand side ``b`` with the floating-point operations of the readable
+:meth:`Pointing.jacobian <hqp_tpm.tasks.pointing.Pointing.jacobian>` / :meth:`~hqp_tpm.tasks.base.Task.command`
+and :class:`~hqp_tpm.tasks.avoidance.Avoidance` in the same order: numpy's small dot products (3-vectors,
+``1 x 3`` by ``3 x n``, ``1 x n`` by ``n``) sum left to right here. Where the CPU's BLAS kernel sums in that order
+too the results are the same to the last bit; elsewhere they are a few ulps apart (``tests/test_planned_step.py``
+compares them with the readable tasks within 1e-12 on random states and every step of a run).
+
+Switched with the other kernels: :data:`hqp_tpm.robot._compiled.ENABLED` (``HQP_TPM_COMPILED=0``: off).
+"""
+
+from __future__ import annotations
+
+from hqp_tpm.robot._compiled import _njit
+
+
+@_njit
+def _cross(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
+    """:func:`hqp_tpm.robot.spatial.cross3` on scalars."""
+    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+
+
+@_njit
+def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order):  # pragma: no cover - compiled
+    """The pointing row (19) and its command into ``J`` (1 x n) and ``b`` (1); returns the error ``e`` (21).
+
+    ``R`` the frame's rotation (its z column is ``z_e``), ``Jf`` its 6 x n world-aligned Jacobian, ``vel`` and
+    ``acc`` its 6-vector velocity and ``J̇ q̇`` (linear, angular; order 2), ``(x_d, xd, xdd)`` the reference,
+    ``v`` the joint velocity: ``J = (z_e x z_d)^T J_O``, ``e = x_d - z_d^T z_e`` and :meth:`Task.command`.
+    """
+    z0, z1, z2 = R[0, 2], R[1, 2], R[2, 2]
+    c0, c1, c2 = _cross(z0, z1, z2, z_d[0], z_d[1], z_d[2])
+    n = J.shape[1]
+    for c in range(n):
+        J[0, c] = c0 * Jf[3, c] + c1 * Jf[4, c] + c2 * Jf[5, c]
+    e = x_d[0] - (z_d[0] * z0 + z_d[1] * z1 + z_d[2] * z2)
+    if order == 1:
+        b[0] = xd[0] + kp * e
+        return e
+    rate = 0.0
+    for c in range(n):
+        rate += J[0, c] * v[c]
+    a0, a1, a2 = _cross(acc[3], acc[4], acc[5], z0, z1, z2)
+    u0, u1, u2 = _cross(vel[3], vel[4], vel[5], z0, z1, z2)
+    w0, w1, w2 = _cross(vel[3], vel[4], vel[5], u0, u1, u2)
+    jdq = z_d[0] * (a0 + w0) + z_d[1] * (a1 + w1) + z_d[2] * (a2 + w2)
+    b[0] = xdd[0] + kd * (xd[0] - rate) + kp * e - jdq
+    return e
+
+
+@_njit
+def avoidance_row(J, b, normal, Jc, jdq, magnitude, order):  # pragma: no cover - compiled
+    """The 1-D avoidance row (29): ``J = n^T J_c``, ``b = r`` (order 1) or ``r - n^T J̇_c q̇`` (order 2)."""
+    for c in range(J.shape[1]):
+        J[0, c] = normal[0] * Jc[0, c] + normal[1] * Jc[1, c] + normal[2] * Jc[2, c]
+    r = magnitude * 1.0
+    if order == 1:
+        b[0] = r
+    else:
+        b[0] = r - (normal[0] * jdq[0] + normal[1] * jdq[1] + normal[2] * jdq[2])
