@@ -109,8 +109,8 @@ def test_unsupported_set_ups_say_why(change, why):
 @pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm", "romeo_sns_tpm", "romeo_sns"])
 def test_runner_lean_run_records_the_same_arrays(name):
     """``runner.run(..., lean=True)`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what the
-    readable run records (floats within 1e-12: close), probes and the SNS solvers' scale, iterations and saturated joints
-    included (the lean run once dropped them: notebook 03 plots ``scale``)."""
+    readable run records (floats within 1e-12: close), probes and the SNS solvers' scale, iterations and saturated
+    joints included (the lean run once dropped them: notebook 03 plots ``scale``)."""
     from hqp_tpm.app.build import build_run
     from hqp_tpm.app.runner import run
 

@@ -22,8 +22,8 @@ them, looks the solver up by name and wraps the result in a ``StepResult``. A :c
 
 The rows, their order and the kernel call are those of the readable step, so the commands and states are equal
 (``tests/test_planned_step.py``: every step of ``lwr_relaxed``, within 1e-12; bit for bit where numpy's BLAS
-sums the compiled row writers' 3-vector products in their order, which depends on the CPU). A step whose rows are not finite is
-handed to the readable path, which raises the same typed error naming the task. Transactional like
+sums the compiled row writers' 3-vector products in their order, which depends on the CPU). A step whose rows
+are not finite is handed to the readable path, which raises the same typed error naming the task. Transactional like
 :meth:`Controller.step`: on any error the controller and the policy keep their state.
 """
 
