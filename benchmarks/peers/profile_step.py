@@ -169,31 +169,22 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
         if ctrl.solver == "tpm":
             out.append(("  (for comparison) tpm_stacked alone", _median_us(
                 lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))
-        if fast.box is not None:
-            out.append((f"  box ({type(fast.box).__name__})", _median_us(lambda: fast._box(st, t), reps)))
-        if ctrl.solver == "sns_tpm" and fast.x0 is None:
-            lo, up = (a.copy() for a in fast._box(st, t))
-            out.append(("  sns_tpm_stacked on J, b (solve)", _median_us(lambda: lean_mod.sns_tpm_stacked(
-                fast.J, fast.b, fast.sizes, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
-        out.append(("  integration (State.integrate)", _median_us(
-            lambda: st.integrate(ctrl.q, ctrl.v, ctrl.v, ctrl.dt, ctrl.order), reps)))
-        out.append((f"stacked J: {fast.J.shape[0]} x {fast.J.shape[1]}, levels {list(fast.sizes)}", float("nan")))
-        return out
-    for task, write in zip(fast.tasks, fast.writers, strict=True):
-        out.append((f"  {type(task).__name__}({task.name}) row writer", _median_us(lambda w=write: w(t), reps)))
+    else:
+        for task, write in zip(fast.tasks, fast.writers, strict=True):
+            out.append((f"  {type(task).__name__}({task.name}) row writer", _median_us(lambda w=write: w(t), reps)))
+        flat = fast._flat
+        out.append(("  finiteness test of J and b (as in LeanStep.compute)",
+                    _median_us(lambda: math.isfinite(flat @ flat) or np.isfinite(flat).all(), reps)))
+        if ctrl.solver == "tpm":
+            out.append(("  tpm_stacked (solve)", _median_us(
+                lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))
+    # the phases both paths share: the box, the SNS solve (its own call either way), the integration
     if fast.box is not None:
         out.append((f"  box ({type(fast.box).__name__})", _median_us(lambda: fast._box(st, t), reps)))
-    flat = fast._flat
-    out.append(("  finiteness test of J and b (as in LeanStep.compute)",
-                _median_us(lambda: math.isfinite(flat @ flat) or np.isfinite(flat).all(), reps)))
-    if ctrl.solver == "tpm":
-        out.append(("  tpm_stacked (solve)", _median_us(
-            lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))
-    elif ctrl.solver == "sns_tpm":
+    if ctrl.solver == "sns_tpm" and fast.x0 is None:
         lo, up = (a.copy() for a in fast._box(st, t))
-        if fast.x0 is None:
-            out.append(("  sns_tpm_stacked on J, b (solve)", _median_us(lambda: lean_mod.sns_tpm_stacked(
-                fast.J, fast.b, fast.sizes, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
+        out.append(("  sns_tpm_stacked on J, b (solve)", _median_us(lambda: lean_mod.sns_tpm_stacked(
+            fast.J, fast.b, fast.sizes, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
     out.append(("  integration (State.integrate)", _median_us(
         lambda: st.integrate(ctrl.q, ctrl.v, ctrl.v, ctrl.dt, ctrl.order), reps)))
     out.append((f"stacked J: {fast.J.shape[0]} x {fast.J.shape[1]}, levels {list(fast.sizes)}", float("nan")))

@@ -75,87 +75,29 @@ def _with_callees_stamp(dispatcher):
     return dispatcher
 
 # ----------------------------------------------------------------------------------------
-# Building blocks (the arithmetic of hqp_tpm.solvers._compiled's, copied: its internals are free to change).
+# Building blocks: hqp_tpm.solvers._compiled's QR kernels (_householder_rows, _triangular_inverse, _fro_block,
+# _solve_upper_t, _apply_q), called from here.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _qr_rows(V, tau, R):
-    """QR of ``V^T`` (``V``: ``p x q``, ``q >= p``) in place on the rows of ``V``: LAPACK's ``dgeqr2``/``dlarfg``
-    convention, reflector ``i`` is ``I - tau_i v v^T`` with ``v = (0..0, 1, V[i, i+1:])``; ``R`` gets the
-    upper triangle."""
-    p, q = V.shape
-    for i in range(p):
-        alpha = V[i, i]
-        xn = 0.0
-        for t in range(i + 1, q):
-            xn += V[i, t] * V[i, t]
-        if xn == 0.0:
-            tau[i] = 0.0
-            beta = alpha
-        else:
-            beta = -math.copysign(math.sqrt(alpha * alpha + xn), alpha)
-            tau[i] = (beta - alpha) / beta
-            scal = 1.0 / (alpha - beta)
-            for t in range(i + 1, q):
-                V[i, t] *= scal
-        R[i, i] = beta
-        ti = tau[i]
-        for j in range(i + 1, p):
-            w = V[j, i]
-            for t in range(i + 1, q):
-                w += V[i, t] * V[j, t]
-            w *= ti
-            V[j, i] -= w
-            for t in range(i + 1, q):
-                V[j, t] -= w * V[i, t]
-            R[i, j] = V[j, i]
-
-
-@_kernel
-def _inverse_upper(R):
-    """``R^{-1}`` of an upper-triangular ``R`` with a nonzero diagonal (back substitution)."""
-    p = R.shape[0]
-    X = np.zeros((p, p))
-    for j in range(p):
-        X[j, j] = 1.0 / R[j, j]
-        for i in range(j - 1, -1, -1):
-            s = 0.0
-            for t in range(i + 1, j + 1):
-                s += R[i, t] * X[t, j]
-            X[i, j] = -s / R[i, i]
-    return X
-
-
-@_kernel
-def _fro(X, a, e, c0, c1):
-    s = 0.0
-    for i in range(a, e):
-        for j in range(c0, c1):
-            s += X[i, j] * X[i, j]
-    return math.sqrt(s)
-
-
-@_kernel
 def _q_rinv_t(V, tau, R, c, out):
-    """``out <- Q R^{-T} c`` (``(J W)# c`` when ``(J W)^T = Q R``, :func:`_qr_rows` on ``V = J W``)."""
-    p, q = V.shape
-    for i in range(p):
-        s = c[i]
-        for t in range(i):
-            s -= R[t, i] * out[t]
-        out[i] = s / R[i, i]
-    for i in range(p, q):
-        out[i] = 0.0
-    for i in range(p - 1, -1, -1):
-        ti = tau[i]
-        if ti == 0.0:
-            continue
-        w = out[i]
-        for t in range(i + 1, q):
-            w += V[i, t] * out[t]
-        w *= ti
-        out[i] -= w
-        for t in range(i + 1, q):
-            out[t] -= w * V[i, t]
+    """``out <- Q R^{-T} c`` (``(J W)# c`` when ``(J W)^T = Q R``, :func:`_compiled._householder_rows` on
+    ``V = J W``)."""
+    p = V.shape[0]
+    out[:p] = _compiled._solve_upper_t(R, c)
+    out[p:] = 0.0
+    _compiled._apply_q(out, V, tau, p)
+
+
+@_kernel
+def _gather_free(J, free, out):
+    """``out <- J W``: the columns of ``J`` whose ``free`` flag is set, in order."""
+    m, n = J.shape
+    f = 0
+    for t in range(n):
+        if free[t]:
+            for i in range(m):
+                out[i, f] = J[i, t]
+            f += 1
 
 
 @_kernel
@@ -163,23 +105,18 @@ def _free_columns(J, free, nf, tol, V, tau, R):
     """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(J W)^T`` into ``V`` (``m x nf``), ``tau``,
     ``R``. Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``), 0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an
     SVD decides: hand back)."""
-    m, n = J.shape
+    m = J.shape[0]
     if nf < m:
         return 0
-    f = 0
-    for t in range(n):
-        if free[t]:
-            for i in range(m):
-                V[i, f] = J[i, t]
-            f += 1
-    _qr_rows(V, tau, R)
+    _gather_free(J, free, V)
+    _compiled._householder_rows(V, tau, R)
     dmin = math.inf
     for i in range(m):
         dmin = min(dmin, abs(R[i, i]))
     if dmin <= tol:                                    # sigma_min <= min |r_jj|
         return 0
-    Rinv = _inverse_upper(R)
-    if 1.0 / _fro(Rinv, 0, m, 0, m) > tol:             # <= sigma_min
+    Rinv = _compiled._triangular_inverse(R)
+    if 1.0 / _compiled._fro_block(Rinv, 0, m, 0, m) > tol:  # <= sigma_min
         return 1
     return -1
 
@@ -196,16 +133,16 @@ def _regular_tpm(J, xd, sizes, lambda_max, eps, unit, x):
             V[i, t] = J[i, t]
     tau = np.zeros(m)
     R = np.zeros((m, m))
-    _qr_rows(V, tau, R)
+    _compiled._householder_rows(V, tau, R)
     for i in range(m):
         if R[i, i] == 0.0:
             return False
-    Rinv = _inverse_upper(R)
+    Rinv = _compiled._triangular_inverse(R)
     a = 0
     for lev in range(sizes.shape[0]):
         e = a + sizes[lev]
-        tol = unit * size * _fro(J, a, e, 0, n)
-        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro(Rinv, a, e, a, e)
+        tol = unit * size * _compiled._fro_block(J, a, e, 0, n)
+        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _compiled._fro_block(Rinv, a, e, a, e)
         if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
             return False
         a = e
@@ -322,7 +259,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     iterations = 0
     k_fit = not sizes[0] > n                           # the rank test watches the first level (module doc of sns)
     Jf = np.empty((m, 0))
-    tol = unit * max(m, n) * _fro(J, 0, m, 0, n)       # Factorization.tol: rank(J W) relative to the stack
+    tol = unit * max(m, n) * _compiled._fro_block(J, 0, m, 0, n)  # Factorization.tol: rank(J W) relative to the stack
     V = np.empty((m, n))
     tau = np.empty(m)
     R = np.zeros((m, m))
@@ -384,12 +321,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 stop = True
             else:
                 Jf = np.empty((m, nf))                 # J W on its free columns, in order
-                f = 0
-                for t in range(n):
-                    if free[t]:
-                        for i in range(m):
-                            Jf[i, f] = J[i, t]
-                        f += 1
+                _gather_free(J, free, Jf)
                 if _compiled._past_rank(Jf, xd, sizes, nf, lambda_max, eps, unit, margin, cond,
                                         xf[:nf]) != _compiled.SOLVED:
                     return DECLINED, 0.0, 0, 0, False
