@@ -11,6 +11,7 @@ null-space damping. The pieces are compared apart too: every task's row writer a
 on and beyond the limits), and the state's partial update against the full one.
 """
 
+import dataclasses
 import sys
 from pathlib import Path
 
@@ -19,6 +20,7 @@ import pytest
 
 from hqp_tpm.control.lean import LeanStep
 from hqp_tpm.errors import NonFiniteError
+from hqp_tpm.solvers import _compiled_step
 
 TOL = 1e-12
 
@@ -395,7 +397,71 @@ def test_fused_rows_for_other_solvers(kind, solver, monkeypatch):
     for cfg in prob.configs:
         _, fast = assert_same_steps(lambda cfg=cfg: P.hqp_controller(robot, prob, cfg, solver), 15)
         lean = LeanStep.of(fast)
-        assert lean._kernel is not None and lean._program.ints[6] == 0 and lean._program.ints[5] == 2
+        fused_sns = solver == "sns_tpm" and not lean.damping  # SNS-TPM without the x0 level: solved in the kernel
+        mode = _compiled_step.SNS if fused_sns else _compiled_step.ROWS
+        assert lean._kernel is not None and lean._program.ints[6] == mode and lean._program.ints[5] == 2
+
+
+def _sns_spy(monkeypatch):
+    """Counts the lean step's calls of sns_tpm_stacked (the path after the fused kernel hands back)."""
+    from hqp_tpm.control import lean as lean_mod
+
+    calls = []
+    real = lean_mod.sns_tpm_stacked
+    monkeypatch.setattr(lean_mod, "sns_tpm_stacked", lambda *a, **k: calls.append(1) or real(*a, **k))
+    return calls
+
+
+@pytest.mark.parametrize("kind", ["iiwa_vel", "romeo_vel"])
+def test_fused_sns_tpm_equals_the_readable_step(kind, monkeypatch):
+    """SNS-TPM inside the fused kernel (the joint limits' box written into its buffer, the compiled SNS loop):
+    the readable step's commands, states and solver info (scale, saturated joints, iterations) to the last bit,
+    with joints saturating; sns_tpm_stacked runs only on the steps the kernel hands back."""
+    from benchmarks.peers import problems as P
+    from hqp_tpm import JointLimits
+
+    _flags(monkeypatch, True, True)
+    calls = _sns_spy(monkeypatch)
+    robot = P.load_robot(P.ROMEO if kind == "romeo_vel" else P.IIWA)
+    prob = P.romeo_problem(robot, n=2) if kind == "romeo_vel" else P.iiwa_problem(robot, order=1, n=4)
+    steps = saturated = 0
+    for cfg in prob.configs:
+        ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
+        for c in (ref, fast):  # the iiwa's velocity limits at 5 % of the URDF's (Romeo's URDF limits bind already)
+            c.box = JointLimits(robot, order=1, dt=P.DT, velocity_scale=1.0 if kind == "romeo_vel" else 0.05)
+        lean = LeanStep.of(fast)
+        assert lean._program.solve == _compiled_step.SNS
+        for _ in range(12 if kind == "romeo_vel" else 30):
+            res = ref.step()
+            np.testing.assert_array_equal(lean.step(), res.command)
+            np.testing.assert_array_equal(fast.q, ref.q)
+            assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}, (lean.info, res.info)
+            steps += 1
+            saturated += bool(res.info["saturated"])
+    assert saturated >= 5, saturated                   # the box binds: the loop saturates joints
+    assert len(calls) < steps // 2, (len(calls), steps)  # the kernel solved most steps itself (the rest: SHIFT)
+
+
+def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
+    """A damped pivot (the arm stretched out, lambda_max > 0) is not the compiled loop's case: the kernel hands
+    back and sns_tpm_stacked's numpy path solves, with the readable step's numbers."""
+    from benchmarks.peers import problems as P
+
+    _flags(monkeypatch, True, True)
+    calls = _sns_spy(monkeypatch)
+    robot = P.load_robot(P.IIWA)
+    prob = P.iiwa_problem(robot, order=1, n=1)
+    cfg = dataclasses.replace(prob.configs[0], q=np.zeros(robot.nq))  # singular: the EE pose Jacobian loses rank
+    ctrls = [P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2)]
+    for c in ctrls:
+        c.lambda_max, c.eps = 0.05, 0.02
+    ref, fast = ctrls
+    lean = LeanStep.of(fast)
+    for _ in range(5):
+        res = ref.step()
+        np.testing.assert_array_equal(lean.step(), res.command)
+        assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}
+    assert len(calls) >= 1
 
 
 def _program_stacks(robot):

@@ -80,11 +80,13 @@ class JointBox:
     __slots__ = ("limits", "order", "lo", "up", "fast", "_qidx2", "_cols2", "_cols", "_sgn", "_B", "_two_a",
                  "_V", "_A", "_ad2", "_mad", "_n", "_g", "_r", "_t", "_ok", "_L", "_dt", "_lo_c", "_up_c", "_P", "_idx")
 
-    def __init__(self, limits: JointLimits):
+    def __init__(self, limits: JointLimits, out: tuple[np.ndarray, np.ndarray] | None = None):
+        """``out``: the two arrays to write the box into (default: new ones)."""
         L = limits.limits
         self.limits, self.order = limits, limits.order
         nv = limits.robot.nv
-        self.lo, self.up = np.full(nv, -np.inf), np.full(nv, np.inf)
+        self.lo, self.up = (np.empty(nv), np.empty(nv)) if out is None else out
+        self.lo[...], self.up[...] = -np.inf, np.inf
         n = self._n = limits.cols.size
         self._cols = _columns(limits.cols)
         self._lo_c = self.lo[self._cols] if isinstance(self._cols, slice) else None
@@ -244,12 +246,22 @@ class LeanStep:
                 spans.append((slice(a, a + m), "+".join(task.name for task in level)))
             a += m
         self.tasks, self.rows, self.sizes = tuple(tasks), tuple(rows), tuple(sizes)
-        # J, b, x0 and the fused kernel's x in one buffer (J and b: one finiteness test per step)
-        self._buf = np.zeros(a * n + a + 2 * n)
+        # what the fused kernel solves (hqp_tpm.solvers._compiled_step): TPM; SNS-TPM without the x0 level, in no
+        # box or the joint limits' box (written into the buffer); any other solver or box: the rows only
+        box = ctrl.box
+        joint_box = type(box) is JointLimits and box.order == self.order
+        if self.solver == "tpm":
+            mode = _compiled_step.TPM
+        elif self.solver == "sns_tpm" and not self.damping and (box is None or joint_box):
+            mode = _compiled_step.SNS
+        else:
+            mode = _compiled_step.ROWS
+        # J, b, x0, the fused kernel's x (and the SNS box) in one buffer (J and b: one finiteness test per step)
+        self._buf = np.zeros(_compiled_step.Program.buffer_size(a, n, mode))
         self._flat = self._buf[: a * n + a]
         self.J = self._flat[: a * n].reshape(a, n)
         self.b = self._flat[a * n:]
-        self._out = self._buf[a * n + a + n:]
+        self._out = self._buf[a * n + a + n: a * n + a + 2 * n]
         st = ctrl.state
         self.writers = tuple(task.row_writer(st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
                                                                                                       strict=True))
@@ -262,8 +274,10 @@ class LeanStep:
         # the frames the row writers read (the others are placed if a task asks the state for them)
         self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks
                                           if type(task).row_writer is not Task.row_writer and task.frame is not None))
-        box = ctrl.box
-        self.box = JointBox(box) if type(box) is JointLimits and box.order == self.order else box
+        lo_up = (self._buf[a * n + a + 2 * n: a * n + a + 3 * n], self._buf[a * n + a + 3 * n:])
+        if mode == _compiled_step.SNS:
+            lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)
+        self.box = JointBox(box, lo_up if mode == _compiled_step.SNS else None) if joint_box else box
         self.info = {}
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.solvers._compiled_step): the rows of the tasks that have a row program,
@@ -271,7 +285,7 @@ class LeanStep:
         self._kernel = self._program = self._fused = None
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
-                                             self.x0 is not None, solve=self.solver == "tpm")
+                                             self.x0 is not None, solve=mode)
             fused = []
             for task, r, write in zip(tasks, rows, self.writers, strict=True):
                 gather = task.row_program(st, self.order, program, r.start)
@@ -307,16 +321,20 @@ class LeanStep:
             if x0 is not None:
                 np.multiply(ctrl._v, -self.damping, out=x0)
             program = self._program
+            sns = program.solve == _compiled_step.SNS
+            if sns and self.box is not None:
+                self.box(st.q, st.v)  # the JointBox writes into the buffer's lo, up
             status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v, tuple(program.mats),
                             tuple(program.vecs))
             if status == 0:  # SOLVED
-                self.info = {}
+                self.info = program.sns_info() if sns else {}
                 return self._out.copy()
             if status == _compiled_step.NONFINITE_ROWS:
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
             if status == _compiled_step.NONFINITE_X:
-                raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
-            # WRITTEN (another solver's turn) or DECLINED/UNDECIDED (tpm_stacked's numpy reference decides): below
+                raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {t:.6f}")
+            # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides) or
+            # SNS_HANDED_BACK (sns_tpm_stacked's numpy path decides): below
         else:
             for write in self.writers:
                 write(t)

@@ -9,15 +9,24 @@ packed once at construction: ``J``, ``b``, ``x0`` and ``x`` are one buffer (``J`
 (:class:`Program`). It also writes the right-hand side of the posture tasks (a selection of revolute or prismatic
 joints: :func:`hqp_tpm.robot._compiled.posture_rows`' operations) from ``q`` and ``v``, before the finiteness test.
 
-A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises
-the typed error naming the task), :data:`NONFINITE_X`, or the kernel's ``DECLINED``/``UNDECIDED`` (then
-``tpm_stacked`` decides with the numpy reference, as it always does).
+With ``sns_tpm`` (a program built with ``solve=SNS``) the kernel runs the SNS-TPM loop of
+:mod:`hqp_tpm.solvers._compiled_sns` (``_sns_loop``, the kernel :func:`hqp_tpm.solvers.sns.sns_tpm_stacked`
+calls) on ``J``, ``b`` and the box ``lo``, ``up`` the caller wrote into ``buf`` after ``x``; it writes the saturated
+joints, their count, the iterations and feasibility into the tail of ``ints`` and the scale factor into the tail of
+``floats`` (:meth:`Program.sns_info`).
 
-This kernel calls the other module's kernels, and numba's disk cache checks only the file of the function it
+A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises
+the typed error naming the task), :data:`NONFINITE_X`, the TPM kernel's ``DECLINED``/``UNDECIDED`` (then
+``tpm_stacked`` decides with the numpy reference, as it always does) or :data:`SNS_HANDED_BACK` (the SNS loop
+handed back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
+:func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves).
+
+This kernel calls the other modules' kernels, and numba's disk cache checks only the file of the function it
 caches: a cached kernel would keep an earlier version of the kernels it calls. So the cache's stamp also holds
-:mod:`hqp_tpm.solvers._compiled`'s (as :mod:`hqp_tpm.solvers._compiled_sns` does); where numba's cache object is
-laid out otherwise, the disk cache is used only when this file is newer than the callees' file, else the kernel
-is compiled in memory once per process (~2-4 s on first use; ~0.1-0.5 s from the cache).
+:mod:`hqp_tpm.solvers._compiled`'s and :mod:`hqp_tpm.solvers._compiled_sns`' (as :mod:`hqp_tpm.solvers._compiled_sns`
+does for its callees); where numba's cache object is laid out otherwise, the disk cache is used only when this file is
+newer than the callees' files, else the kernel is compiled in memory once per process (~2-4 s on first use; ~0.1-0.5
+s from the cache).
 """
 
 from __future__ import annotations
@@ -27,7 +36,7 @@ import os
 
 import numpy as np
 
-from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers import _compiled, _compiled_sns
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 
 SOLVED, DECLINED, UNDECIDED = _compiled.SOLVED, _compiled.DECLINED, _compiled.UNDECIDED
@@ -35,14 +44,18 @@ SOLVED, DECLINED, UNDECIDED = _compiled.SOLVED, _compiled.DECLINED, _compiled.UN
 NONFINITE_ROWS = 3
 #: the solution holds a non-finite value.
 NONFINITE_X = 4
-#: the rows are written and finite, nothing solved (a program built with ``solve=False``: another solver's turn).
+#: the rows are written and finite, nothing solved (a program built with ``solve=ROWS``: another solver's turn).
 WRITTEN = 5
+#: the SNS-TPM loop handed back (its status codes ``BAD_BOX``, ``DECLINED``, ``SHIFT``): the numpy path solves.
+SNS_HANDED_BACK = 6
+#: What a program solves (:class:`Program`): nothing (the rows only), TPM, SNS-TPM in the box ``lo, up``.
+ROWS, TPM, SNS = 0, 1, 2
 #: The kinds of task rows the kernel writes (:class:`Program`).
 SELECTION, FRAME = 0, 1
 
 _KERNEL = None
 # the kernels _tpm_step calls, set by _build (globals: numba resolves them when it compiles _tpm_step)
-_past_rank = _general = None
+_past_rank = _general = _sns_loop = None
 
 
 def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
@@ -92,9 +105,18 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     for i in range(mn + m):
         if not math.isfinite(buf[i]):
             return NONFINITE_ROWS
-    if not solve:
+    if solve == ROWS:
         return WRITTEN
-    if m > n:
+    if solve == SNS:  # ints[pi:]: nsat, iterations, feasible, the saturated joints; floats[pf]: the scale
+        lo = buf[mn + m + 2 * n: mn + m + 3 * n]
+        up = buf[mn + m + 3 * n: mn + m + 4 * n]
+        status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
+                                                              floats[3], floats[4], out, ints[pi + 3: pi + 3 + n])
+        if status != _compiled_sns.DONE:
+            return SNS_HANDED_BACK
+        ints[pi], ints[pi + 1], ints[pi + 2] = nsat, iterations, 1 if feasible else 0
+        floats[pf] = scale
+    elif m > n:
         status = _past_rank(J, b, sizes, n, floats[0], floats[1], floats[2], floats[3], floats[4], out)
     else:
         status = _general(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], out)
@@ -108,32 +130,38 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
 
 def _build():
     """Compile :func:`kernel` (after the kernels it calls); None if numba cannot be imported."""
-    global _KERNEL, _past_rank, _general
+    global _KERNEL, _past_rank, _general, _sns_loop
     if _compiled._sizes(()) is None:  # compiles (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
     import numba
 
-    _past_rank, _general = _compiled._past_rank, _compiled._general
+    if not _compiled_sns._READY:
+        _compiled_sns._compile()
+    _past_rank, _general, _sns_loop = _compiled._past_rank, _compiled._general, _compiled_sns._sns_loop
     try:
         _KERNEL = numba.njit(nogil=True, cache=True)(_tpm_step)
     except RuntimeError:  # pragma: no cover - no writable cache location: compile in memory
         _KERNEL = numba.njit(nogil=True)(_tpm_step)
         return _KERNEL
-    try:  # numba checks a cached kernel against its own file's stamp: add the callees' file's stamp
+    try:  # numba checks a cached kernel against its own file's stamp: add the callees' files' stamps
         cache_file = _KERNEL._cache._cache_file
-        st = os.stat(_compiled.__file__)
-        cache_file._source_stamp = (cache_file._source_stamp, st.st_mtime, st.st_size)
+        stamps = [(st.st_mtime, st.st_size) for st in map(os.stat, _CALLEES)]
+        cache_file._source_stamp = (cache_file._source_stamp, *stamps)
     except (AttributeError, OSError):  # pragma: no cover - another numba layout: the cache only when safe
         if not _cache_is_safe():
             _KERNEL = numba.njit(nogil=True)(_tpm_step)
     return _KERNEL
 
 
+#: the files of the kernels :func:`_tpm_step` calls
+_CALLEES = (_compiled.__file__, _compiled_sns.__file__)
+
+
 def _cache_is_safe() -> bool:
-    """May numba's own cache check do (this file newer than the callees' file: any cache entry numba accepts,
+    """May numba's own cache check do (this file newer than the callees' files: any cache entry numba accepts,
     stamped with this file's version, was built after the callees' last change)?"""
     try:
-        return os.stat(__file__).st_mtime_ns > os.stat(_compiled.__file__).st_mtime_ns
+        return all(os.stat(__file__).st_mtime_ns > os.stat(f).st_mtime_ns for f in _CALLEES)
     except OSError:  # pragma: no cover - no files (a frozen install): compile in memory
         return False
 
@@ -142,16 +170,20 @@ class Program:
     """The packed arguments of :func:`kernel` for a stack of ``m`` rows in levels of ``sizes`` at ``order``, and the
     tasks whose rows the kernel writes (:meth:`add_selection`, :meth:`add_frame`).
 
-    ``ints = [m, n, use_x0, len(sizes), order, count, solve, sizes..., tasks...]`` (``solve`` 0: the kernel
-    stops after the rows and their finiteness test, returning :data:`WRITTEN`), ``floats = [lambda_max, eps, unit,
-    margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices, and its gains
-    and reference values (see the methods). The per-step arrays (a frame's Jacobian and vectors) are passed to the
-    kernel as the tuples of :attr:`mats` and :attr:`vecs`: a task is given its slots there.
+    ``ints = [m, n, use_x0, len(sizes), order, count, solve, sizes..., tasks...]`` (``solve``: :data:`ROWS`, the
+    kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`; :data:`SNS`,
+    then ``ints`` ends with ``n + 3`` entries and ``floats`` with one for :meth:`sns_info`), ``floats = [lambda_max,
+    eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices, and its
+    gains and reference values (see the methods). The per-step arrays (a frame's Jacobian and vectors) are passed to
+    the kernel as the tuples of :attr:`mats` and :attr:`vecs`: a task is given its slots there. :meth:`buffer_size`:
+    the length of the kernel's ``buf``.
     """
 
     def __init__(self, m: int, n: int, sizes, order: int, lambda_max: float, eps: float, use_x0: bool,
-                 solve: bool = True):
-        self.order = order
+                 solve: int = TPM):
+        if solve not in (ROWS, TPM, SNS) or (solve == SNS and use_x0):
+            raise ValueError(f"solve={solve!r}: ROWS, TPM or SNS (SNS without x0)")
+        self.order, self.solve = order, solve
         self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), *sizes]
         self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND]
         #: the kernel's per-step arrays, ``mats`` and ``vecs`` as lists: a task owns its slots (it puts its arrays
@@ -190,13 +222,32 @@ class Program:
         self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, *rows, *xrows]
         return self._gains(kp, kd, k + 2 * dim), mat, vec
 
+    @staticmethod
+    def buffer_size(m: int, n: int, solve: int) -> int:
+        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up``."""
+        return m * n + m + (4 if solve == SNS else 2) * n
+
     def build(self) -> Program:
         """Freeze the arrays (and give ``mats``, ``vecs`` a placeholder if they are empty: a tuple of one type)."""
-        self.mats = self.mats or [np.zeros((6, self._ints[1]))]
+        n = self._ints[1]
+        self.mats = self.mats or [np.zeros((6, n))]
         self.vecs = self.vecs or [np.zeros(6)]
+        self._sns_at = (len(self._ints), len(self._floats))
+        if self.solve == SNS:  # the SNS loop's outputs: nsat, iterations, feasible, the saturated joints; the scale
+            self._ints += [0] * (n + 3)
+            self._floats += [0.0]
         self.ints = np.array(self._ints, dtype=np.int64)
         self.floats = np.array(self._floats, dtype=float)
         return self
+
+    def sns_info(self) -> dict:
+        """The SNS solver's info of the last solve (``scale``, ``saturated``, ``iterations``), as the lean step
+        records it."""
+        i, f = self._sns_at
+        ints = self.ints
+        nsat = int(ints[i])
+        return {"scale": float(self.floats[f]), "saturated": ints[i + 3: i + 3 + nsat].tolist(),
+                "iterations": int(ints[i + 1])}
 
 
 def kernel():
