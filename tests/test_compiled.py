@@ -79,6 +79,36 @@ def test_random_shapes_past_rank():
     assert solved >= 300
 
 
+def test_two_right_hand_sides_equal_two_solves():
+    """_past_rank2 (one factorization, two right-hand sides: the SNS loop's a and b) gives the bits of two
+    _past_rank calls, and the same status, on random, badly scaled, damped and ill-conditioned stacks."""
+    if _compiled._sizes(()) is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(77)
+    statuses = set()
+    for trial in range(400):
+        n = int(rng.integers(2, 28))
+        sizes = [int(rng.integers(1, n + 3)) for _ in range(int(rng.integers(1, 5)))]
+        if sum(sizes) <= n:
+            sizes.append(n - sum(sizes) + int(rng.integers(1, 4)))
+        m = sum(sizes)
+        J = rng.normal(size=(m, n)) * 10.0 ** rng.uniform(-3, 3, (m, 1))
+        if trial % 4 == 0:
+            J[:n] = J[:n] @ np.diag(np.logspace(0, -rng.uniform(0, 12), n))
+        b1, b2 = rng.normal(size=m) * 1e3, rng.normal(size=m) * 1e-3
+        lam, eps = (0.05, 0.02) if trial % 3 == 0 else (0.0, 0.0)
+        s = _compiled._sizes(sizes)
+        x1, x2, y1, y2 = (np.zeros(n) for _ in range(4))
+        args = (s, n, lam, eps, _compiled._UNIT, MARGIN, COND)
+        status = _compiled._past_rank2(J, b1, b2, *args, y1, y2)
+        assert status == _compiled._past_rank(J, b1, *args, x1) == _compiled._past_rank(J, b2, *args, x2)
+        statuses.add(int(status))
+        if status == _compiled.SOLVED:
+            np.testing.assert_array_equal(y1, x1)
+            np.testing.assert_array_equal(y2, x2)
+    assert {_compiled.SOLVED, _compiled.DECLINED} <= statuses, statuses
+
+
 @pytest.mark.parametrize("shape", [([6, 7], 7), ([6, 2, 3, 3, 3, 21], 27), ([6, 27], 27), ([3, 3, 7], 7),
                                    ([6, 3, 6, 12, 27], 27), ([12, 40], 40)])
 def test_robot_shaped_stacks(shape):

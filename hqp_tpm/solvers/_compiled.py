@@ -336,13 +336,9 @@ def _damped_ls(RA, c, lam2):
 # solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
-    """``out <- x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`; returns :data:`SOLVED`, :data:`DECLINED`
-    or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the reference).
-
-    ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
-    reference's ``MARGIN`` and ``COND``.
-    """
+def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
+    """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
+    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA)``."""
     m = J.shape[0]
     size = max(m, n)
     m1 = 0
@@ -367,13 +363,16 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
             V[i, t] = J[i, t]
     tau = np.zeros(m1)
     R1 = np.zeros((m1, m1))
+    BT = np.empty((n, mk))
+    AT = np.empty((r, mk))                             # A^T: the columns of A as rows
+    tauA = np.empty(r)
+    RA = np.zeros((r, r))
     a_inv = 0.0
-    z = np.empty(m1)
     if m1:
         _householder_rows(V, tau, R1)
         for i in range(m1):
             if R1[i, i] == 0.0:                        # dtrtri's info > 0
-                return DECLINED
+                return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
         R1inv = _triangular_inverse(R1)
         a = 0
         for lev in range(k):
@@ -381,17 +380,44 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
             bound = 1.0 / _fro_block(R1inv, a, e, a, e)
             norm = math.sqrt(sq[lev])
             if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
-                return DECLINED
+                return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
             a = e
         a_inv = _fro_block(R1inv, 0, m1, 0, m1)
-        z = _solve_upper_t(R1, b[:m1])
     # (J_k Q)^T = [J_k Q1, A]^T: J_k x1 = (J_k Q1) z and A = J_k Z
-    BT = np.empty((n, mk))
     for i in range(mk):
         for t in range(n):
             BT[t, i] = J[m1 + i, t]
     norm_k = math.sqrt(sq[k])
     _apply_right_t(BT, V, tau, m1, w)
+    thr_k = max(margin * unit * size * norm_k, cond * norm_k)
+    norm = 0.0
+    for lev in range(nlev):
+        norm += sq[lev]
+    norm = math.sqrt(norm)
+    thr = max(margin * unit * size * norm, cond * norm)
+    for j in range(r):
+        for i in range(mk):
+            AT[j, i] = BT[m1 + j, i]
+    _householder_rows(AT, tauA, RA)
+    dmin = math.inf
+    for j in range(r):
+        dmin = min(dmin, abs(RA[j, j]))
+    if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
+        return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+    RAinv = _triangular_inverse(RA)
+    p = _fro_block(RAinv, 0, r, 0, r)                  # = ||A#||_F = sqrt(sum 1/sigma^2)
+    lower = 1.0 / p                                    # <= sigma_min(A)
+    if lower <= thr_k or (lambda_max > 0.0 and r == mk and lower < eps):
+        return UNDECIDED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA  # sigma_min itself: the reference's SVD decides
+    if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
+        return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+    return SOLVED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+
+
+@_kernel
+def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out):
+    """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors."""
+    z = _solve_upper_t(R1, b[:m1]) if m1 else np.empty(0)
     res = np.empty(mk)
     for i in range(mk):
         res[i] = b[m1 + i]
@@ -399,31 +425,6 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
         zt = z[t]
         for i in range(mk):
             res[i] -= BT[t, i] * zt
-    thr_k = max(margin * unit * size * norm_k, cond * norm_k)
-    norm = 0.0
-    for lev in range(nlev):
-        norm += sq[lev]
-    norm = math.sqrt(norm)
-    thr = max(margin * unit * size * norm, cond * norm)
-    AT = np.empty((r, mk))                             # A^T: the columns of A as rows
-    for j in range(r):
-        for i in range(mk):
-            AT[j, i] = BT[m1 + j, i]
-    tauA = np.empty(r)
-    RA = np.zeros((r, r))
-    _householder_rows(AT, tauA, RA)
-    dmin = math.inf
-    for j in range(r):
-        dmin = min(dmin, abs(RA[j, j]))
-    if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
-        return DECLINED
-    RAinv = _triangular_inverse(RA)
-    p = _fro_block(RAinv, 0, r, 0, r)                  # = ||A#||_F = sqrt(sum 1/sigma^2)
-    lower = 1.0 / p                                    # <= sigma_min(A)
-    if lower <= thr_k or (lambda_max > 0.0 and r == mk and lower < eps):
-        return UNDECIDED                               # sigma_min itself needed: the reference's SVD decides
-    if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
-        return DECLINED
     _apply_qt(res, AT, tauA, r)
     if lambda_max > 0.0 and r < mk and 0.0 < eps:     # R_kk has zero singular values: lambda = lambda_max
         y = _damped_ls(RA, res[:r], lambda_max * lambda_max)
@@ -432,7 +433,32 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
     out[:m1] = z                                       # x = Q [z; y]
     out[m1:] = y
     _apply_q(out, V, tau, m1)
-    return SOLVED
+
+
+@_kernel
+def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
+    """``out <- x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`; returns :data:`SOLVED`, :data:`DECLINED`
+    or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the reference).
+
+    ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
+    reference's ``MARGIN`` and ``COND``.
+    """
+    status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin,
+                                                                        cond)
+    if status == SOLVED:
+        _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out)
+    return status
+
+
+@_kernel
+def _past_rank2(J, b1, b2, sizes, n, lambda_max, eps, unit, margin, cond, out1, out2):
+    """:func:`_past_rank` for two right-hand sides with one factorization of ``J`` (the same numbers as two calls)."""
+    status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin,
+                                                                        cond)
+    if status == SOLVED:
+        _past_rank_rhs(b1, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out1)
+        _past_rank_rhs(b2, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out2)
+    return status
 
 
 # ----------------------------------------------------------------------------------------

@@ -101,6 +101,16 @@ def _gather_free(J, free, out):
 
 
 @_kernel
+def _saturated_rows(J, order, nsat, xN, c):
+    """``c <- J xN`` over the saturated joints ``order[:nsat]`` (in saturation order)."""
+    for i in range(J.shape[0]):
+        s = 0.0
+        for t in range(nsat):
+            s += J[i, order[t]] * xN[order[t]]
+        c[i] = s
+
+
+@_kernel
 def _free_columns(J, free, nf, tol, V, tau, R):
     """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(J W)^T`` into ``V`` (``m x nf``), ``tau``,
     ``R``. Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``), 0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an
@@ -269,19 +279,12 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     while True:
         iterations += 1
         if nsat:                                       # x = s a + b, a = (J W)# F_W xd, b = xN - (J W)# F_W J xN
-            for i in range(m):
-                s = 0.0
-                for t in range(nsat):
-                    s += J[i, order[t]] * xN[order[t]]
-                c[i] = s
             nf = n - nsat
-            if not extended:
+            if not extended:                           # (extended: xf and yf solved with J W's factorization)
+                _saturated_rows(J, order, nsat, xN, c)
                 Vf = V[:, :nf]
                 _q_rinv_t(Vf, tau, R, xd, xf[:nf])
                 _q_rinv_t(Vf, tau, R, c, yf[:nf])
-            elif _compiled._past_rank(Jf, c, sizes, nf, lambda_max, eps, unit, margin, cond,
-                                      yf[:nf]) != _compiled.SOLVED:
-                return DECLINED, 0.0, 0, 0, False
             f = 0
             for j in range(n):
                 if free[j]:
@@ -322,8 +325,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             else:
                 Jf = np.empty((m, nf))                 # J W on its free columns, in order
                 _gather_free(J, free, Jf)
-                if _compiled._past_rank(Jf, xd, sizes, nf, lambda_max, eps, unit, margin, cond,
-                                        xf[:nf]) != _compiled.SOLVED:
+                _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN: both right-hand sides at once
+                if _compiled._past_rank2(Jf, xd, c, sizes, nf, lambda_max, eps, unit, margin, cond,
+                                         xf[:nf], yf[:nf]) != _compiled.SOLVED:
                     return DECLINED, 0.0, 0, 0, False
                 stop = k_fit and sizes[0] > nf         # the first level crosses rank nf: J_1 W loses rank
         if stop:
