@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.lean import LeanStep
 from hqp_tpm.errors import NonFiniteError
-from hqp_tpm.solvers import _compiled_step
 
 TOL = 1e-12
 
@@ -343,7 +343,7 @@ def test_compiled_integration_equals_numpy(monkeypatch):
         np.testing.assert_array_equal(got[1], want[1])
 
 
-# -- the fused tpm step (hqp_tpm.solvers._compiled_step) -------------------------------------------------
+# -- the fused tpm step (hqp_tpm.control._compiled_step) -------------------------------------------------
 def _flags(monkeypatch, rows: bool, solve: bool) -> None:
     """The two compiled switches: the lean step's arithmetic (robot) and the solvers' kernels."""
     from hqp_tpm.robot import _compiled
@@ -440,6 +440,32 @@ def test_fused_sns_tpm_equals_the_readable_step(kind, monkeypatch):
             saturated += bool(res.info["saturated"])
     assert saturated >= 5, saturated                   # the box binds: the loop saturates joints
     assert len(calls) < steps // 2, (len(calls), steps)  # the kernel solved most steps itself (the rest: SHIFT)
+
+
+def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
+    """The kernel computes the joint limits' box; with a joint beyond its position limit (the box's recovery
+    rules) it hands back: the JointBox's BoxLimits path and sns_tpm_stacked give the readable step's numbers."""
+    from benchmarks.peers import problems as P
+    from hqp_tpm.robot import _compiled
+
+    _flags(monkeypatch, True, True)
+    calls = _sns_spy(monkeypatch)
+    robot = P.load_robot(P.IIWA)
+    prob = P.iiwa_problem(robot, order=1, n=1)
+    q = prob.configs[0].q.copy()
+    q[1] = robot.model.upperPositionLimit[1] + 0.5  # too far to stop inside: an empty position box
+    cfg = dataclasses.replace(prob.configs[0], q=q)
+    ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
+    lean = LeanStep.of(fast)
+    box = lean.box
+    assert not lean._program.box_given  # the kernel computes the box, and declines here
+    assert not _compiled.velocity_box(q, box._P, box._idx, box._dt, np.zeros(7), np.zeros(7))
+    for _ in range(5):
+        res = ref.step()
+        np.testing.assert_array_equal(lean.step(), res.command)
+        np.testing.assert_array_equal(fast.q, ref.q)
+        assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}
+    assert len(calls) >= 1
 
 
 def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):

@@ -154,7 +154,7 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
            ("  state update (partial: the writers' frames; no velocity pass at order 1)", _median_us(
                lambda: st.update(ctrl.q, ctrl.v, t, validate=False, frames=fast.frames, velocities=ctrl.order == 2),
                reps))]
-    if fast._kernel is not None:  # the fused rows (hqp_tpm.solvers._compiled_step): gathers, one kernel call
+    if fast._kernel is not None:  # the fused rows (hqp_tpm.control._compiled_step): gathers, one kernel call
         if ctrl.order == 1:
             out[-1] = ("  state update (State.update_positions: the writers' frames, no velocity pass)", _median_us(
                 lambda: st.update_positions(ctrl.q, ctrl.v, t, fast.frames), reps))

@@ -20,7 +20,7 @@ once, at construction, and per step does only:
    as views of ``J`` and ``b``;
 5. one integration (:meth:`hqp_tpm.robot.state.State.integrate`).
 
-With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.solvers._compiled_step`): the tasks that have a row program
+With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.control._compiled_step`): the tasks that have a row program
 (:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, posture of revolute/prismatic
 joints) only gather pinocchio's outputs (the frame Jacobian, ``log3``, at order 2 ``J qd`` and ``Jdot qd``) and
 their changed references, the others write their rows, and one compiled call writes the programs' rows, tests
@@ -44,13 +44,13 @@ import math
 
 import numpy as np
 
+from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled as _solvers_compiled
-from hqp_tpm.solvers import _compiled_step
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.solvers.registry import solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
@@ -246,7 +246,7 @@ class LeanStep:
                 spans.append((slice(a, a + m), "+".join(task.name for task in level)))
             a += m
         self.tasks, self.rows, self.sizes = tuple(tasks), tuple(rows), tuple(sizes)
-        # what the fused kernel solves (hqp_tpm.solvers._compiled_step): TPM; SNS-TPM without the x0 level, in no
+        # what the fused kernel solves (hqp_tpm.control._compiled_step): TPM; SNS-TPM without the x0 level, in no
         # box or the joint limits' box (written into the buffer); any other solver or box: the rows only
         box = ctrl.box
         joint_box = type(box) is JointLimits and box.order == self.order
@@ -280,7 +280,7 @@ class LeanStep:
         self.box = JointBox(box, lo_up if mode == _compiled_step.SNS else None) if joint_box else box
         self.info = {}
         self._velocities = self.order == 2
-        # the fused step (hqp_tpm.solvers._compiled_step): the rows of the tasks that have a row program,
+        # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
         self._kernel = self._program = self._fused = None
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
@@ -291,6 +291,9 @@ class LeanStep:
                 gather = task.row_program(st, self.order, program, r.start)
                 fused.append(write if gather is None else gather)
             self._fused = tuple(fused)
+            if mode == _compiled_step.SNS and type(self.box) is JointBox and self.box.fast:  # the box in the kernel
+                program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
+                                self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
             self._kernel = _compiled_step.kernel()
         return self
@@ -322,8 +325,8 @@ class LeanStep:
                 np.multiply(ctrl._v, -self.damping, out=x0)
             program = self._program
             sns = program.solve == _compiled_step.SNS
-            if sns and self.box is not None:
-                self.box(st.q, st.v)  # the JointBox writes into the buffer's lo, up
+            if sns and self.box is not None and program.box_given:
+                self.box(st.q, st.v)  # the JointBox writes into the buffer's lo, up (else the kernel does)
             status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v, tuple(program.mats),
                             tuple(program.vecs))
             if status == 0:  # SOLVED
@@ -333,8 +336,8 @@ class LeanStep:
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
             if status == _compiled_step.NONFINITE_X:
                 raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {t:.6f}")
-            # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides) or
-            # SNS_HANDED_BACK (sns_tpm_stacked's numpy path decides): below
+            # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
+            # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked's numpy path): below
         else:
             for write in self.writers:
                 write(t)

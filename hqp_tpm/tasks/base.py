@@ -114,7 +114,7 @@ class Task(ABC):
         return write
 
     def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
-        """For the lean step's fused kernel (:mod:`hqp_tpm.solvers._compiled_step`): register this task's rows
+        """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows
         (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which puts the step's
         pinocchio outputs into the program's slots (``program.mats``, ``program.vecs``) and changed references
         into ``program.floats``; the kernel then writes the numbers of :meth:`row_writer`. None (this default):

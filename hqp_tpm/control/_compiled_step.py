@@ -1,4 +1,4 @@
-"""The lean step's solve in one compiled call (private; :mod:`hqp_tpm.control.lean`).
+"""The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control.lean`).
 
 :func:`kernel` does what the lean step did in three: the finiteness test of the stacked ``J`` and ``b``, the
 TPM kernel of :mod:`hqp_tpm.solvers._compiled` that :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call
@@ -11,14 +11,17 @@ joints: :func:`hqp_tpm.robot._compiled.posture_rows`' operations) from ``q`` and
 
 With ``sns_tpm`` (a program built with ``solve=SNS``) the kernel runs the SNS-TPM loop of
 :mod:`hqp_tpm.solvers._compiled_sns` (``_sns_loop``, the kernel :func:`hqp_tpm.solvers.sns.sns_tpm_stacked`
-calls) on ``J``, ``b`` and the box ``lo``, ``up`` the caller wrote into ``buf`` after ``x``; it writes the saturated
+calls) on ``J``, ``b`` and the box ``lo``, ``up`` in ``buf`` after ``x`` (the joint limits' box computed here by the
+kernels of :class:`~hqp_tpm.control.lean.JointBox`, :func:`hqp_tpm.robot._compiled.velocity_box` and
+``acceleration_box``, given with :meth:`Program.set_box`; else written by the caller); it writes the saturated
 joints, their count, the iterations and feasibility into the tail of ``ints`` and the scale factor into the tail of
 ``floats`` (:meth:`Program.sns_info`).
 
 A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises
 the typed error naming the task), :data:`NONFINITE_X`, the TPM kernel's ``DECLINED``/``UNDECIDED`` (then
-``tpm_stacked`` decides with the numpy reference, as it always does) or :data:`SNS_HANDED_BACK` (the SNS loop
-handed back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
+``tpm_stacked`` decides with the numpy reference, as it always does), :data:`BOX_HANDED_BACK` (a joint outside
+its position limits: the box's recovery rules are the caller's) or :data:`SNS_HANDED_BACK` (the SNS loop handed
+back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
 :func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves).
 
 This kernel calls the other modules' kernels, and numba's disk cache checks only the file of the function it
@@ -36,6 +39,7 @@ import os
 
 import numpy as np
 
+from hqp_tpm.robot import _compiled as _robot_compiled
 from hqp_tpm.solvers import _compiled, _compiled_sns
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 
@@ -48,6 +52,10 @@ NONFINITE_X = 4
 WRITTEN = 5
 #: the SNS-TPM loop handed back (its status codes ``BAD_BOX``, ``DECLINED``, ``SHIFT``): the numpy path solves.
 SNS_HANDED_BACK = 6
+#: the joint box's kernel declined (an empty position box: the recovery rules); nothing solved.
+BOX_HANDED_BACK = 7
+#: Where the SNS box comes from (:meth:`Program.set_box`): the caller, the velocity box, the acceleration box.
+BOX_GIVEN, BOX_VELOCITY, BOX_ACCELERATION = 0, 1, 2
 #: What a program solves (:class:`Program`): nothing (the rows only), TPM, SNS-TPM in the box ``lo, up``.
 ROWS, TPM, SNS = 0, 1, 2
 #: The kinds of task rows the kernel writes (:class:`Program`).
@@ -55,7 +63,7 @@ SELECTION, FRAME = 0, 1
 
 _KERNEL = None
 # the kernels _tpm_step calls, set by _build (globals: numba resolves them when it compiles _tpm_step)
-_past_rank = _general = _sns_loop = None
+_past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
 
 
 def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
@@ -110,6 +118,17 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     if solve == SNS:  # ints[pi:]: nsat, iterations, feasible, the saturated joints; floats[pf]: the scale
         lo = buf[mn + m + 2 * n: mn + m + 3 * n]
         up = buf[mn + m + 3 * n: mn + m + 4 * n]
+        bi = pi + 3 + n  # the box: where from, the slot of its limits in mats, its joint count, its indices
+        box = ints[bi]
+        if box != BOX_GIVEN:
+            nc = ints[bi + 2]
+            idx = ints[bi + 3: bi + 3 + 2 * nc].reshape((2, nc))
+            if box == BOX_VELOCITY:
+                ok = _velocity_box(q, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
+            else:
+                ok = _acceleration_box(q, v, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
+            if not ok:
+                return BOX_HANDED_BACK
         status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
                                                               floats[3], floats[4], out, ints[pi + 3: pi + 3 + n])
         if status != _compiled_sns.DONE:
@@ -130,7 +149,7 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
 
 def _build():
     """Compile :func:`kernel` (after the kernels it calls); None if numba cannot be imported."""
-    global _KERNEL, _past_rank, _general, _sns_loop
+    global _KERNEL, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box
     if _compiled._sizes(()) is None:  # compiles (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
     import numba
@@ -138,6 +157,7 @@ def _build():
     if not _compiled_sns._READY:
         _compiled_sns._compile()
     _past_rank, _general, _sns_loop = _compiled._past_rank, _compiled._general, _compiled_sns._sns_loop
+    _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
     try:
         _KERNEL = numba.njit(nogil=True, cache=True)(_tpm_step)
     except RuntimeError:  # pragma: no cover - no writable cache location: compile in memory
@@ -154,7 +174,7 @@ def _build():
 
 
 #: the files of the kernels :func:`_tpm_step` calls
-_CALLEES = (_compiled.__file__, _compiled_sns.__file__)
+_CALLEES = (_compiled.__file__, _compiled_sns.__file__, _robot_compiled.__file__)
 
 
 def _cache_is_safe() -> bool:
@@ -184,6 +204,8 @@ class Program:
         if solve not in (ROWS, TPM, SNS) or (solve == SNS and use_x0):
             raise ValueError(f"solve={solve!r}: ROWS, TPM or SNS (SNS without x0)")
         self.order, self.solve = order, solve
+        self._box: list = [BOX_GIVEN, 0, 0]
+        self._dt = 0.0
         self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), *sizes]
         self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND]
         #: the kernel's per-step arrays, ``mats`` and ``vecs`` as lists: a task owns its slots (it puts its arrays
@@ -222,6 +244,16 @@ class Program:
         self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, *rows, *xrows]
         return self._gains(kp, kd, k + 2 * dim), mat, vec
 
+    def set_box(self, kind: int, limits: np.ndarray, idx: np.ndarray, dt: float) -> None:
+        """With :data:`SNS`: the kernel computes the box (:data:`BOX_VELOCITY` or :data:`BOX_ACCELERATION`) from
+        ``limits`` (the rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``) and ``idx`` (configuration and
+        velocity indices, 2 x joints), as :class:`~hqp_tpm.control.lean.JointBox`'s kernels."""
+        if self.solve != SNS or kind not in (BOX_VELOCITY, BOX_ACCELERATION) or limits.shape != (6, idx.shape[1]):
+            raise ValueError("set_box: an SNS program, BOX_VELOCITY or BOX_ACCELERATION, 6 x k limits, 2 x k indices")
+        self.mats.append(np.ascontiguousarray(limits, dtype=float))
+        self._box = [kind, len(self.mats) - 1, idx.shape[1], *np.asarray(idx, dtype=np.int64).ravel()]
+        self._dt = float(dt)
+
     @staticmethod
     def buffer_size(m: int, n: int, solve: int) -> int:
         """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up``."""
@@ -234,10 +266,12 @@ class Program:
         self.vecs = self.vecs or [np.zeros(6)]
         self._sns_at = (len(self._ints), len(self._floats))
         if self.solve == SNS:  # the SNS loop's outputs: nsat, iterations, feasible, the saturated joints; the scale
-            self._ints += [0] * (n + 3)
-            self._floats += [0.0]
+            self._ints += [0] * (n + 3) + self._box  # then the box's source, limits slot, joints, indices; dt
+            self._floats += [0.0, self._dt]
         self.ints = np.array(self._ints, dtype=np.int64)
         self.floats = np.array(self._floats, dtype=float)
+        #: the caller writes the SNS box into the buffer before each call (no :meth:`set_box`)
+        self.box_given = self._box[0] == BOX_GIVEN
         return self
 
     def sns_info(self) -> dict:
