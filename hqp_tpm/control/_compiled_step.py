@@ -278,10 +278,9 @@ class Program:
         """The SNS solver's info of the last solve (``scale``, ``saturated``, ``iterations``), as the lean step
         records it."""
         i, f = self._sns_at
-        ints = self.ints
-        nsat = int(ints[i])
-        return {"scale": float(self.floats[f]), "saturated": ints[i + 3: i + 3 + nsat].tolist(),
-                "iterations": int(ints[i + 1])}
+        nsat, iterations = self.ints[i: i + 2].tolist()
+        return {"scale": self.floats.item(f), "saturated": self.ints[i + 3: i + 3 + nsat].tolist(),
+                "iterations": iterations}
 
 
 def kernel():
