@@ -145,6 +145,7 @@ def phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
 
 def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
     """Median µs of the phases of one lean step (``LeanStep.compute``) and of the readable step beside it."""
+    from hqp_tpm.control import _compiled_step
     from hqp_tpm.control import lean as lean_mod
 
     fast = ctrl.lean()
@@ -162,7 +163,9 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
         for task, write, own in zip(fast.tasks, fast._fused, fast.writers, strict=True):
             what = "row writer" if write is own else "row program's gather (pinocchio's outputs, references)"
             out.append((f"  {type(task).__name__}({task.name}) {what}", _median_us(lambda w=write: w(t), reps)))
-        what = "TPM, finiteness of x" if ctrl.solver == "tpm" else "no solve"
+        what = {_compiled_step.TPM: "TPM, finiteness of x",
+                _compiled_step.SNS: f"box ({'given' if prog.box_given else 'in the kernel'}), SNS-TPM, finiteness of x",
+                }.get(prog.solve, "no solve")
         out.append((f"  fused kernel: program rows, finiteness of J and b, {what}", _median_us(
             lambda: fast._kernel(fast._buf, prog.ints, prog.floats, ctrl.q, ctrl.v, tuple(prog.mats),
                                  tuple(prog.vecs)), reps)))
@@ -181,7 +184,7 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
     # the phases both paths share: the box, the SNS solve (its own call either way), the integration
     if fast.box is not None:
         out.append((f"  box ({type(fast.box).__name__})", _median_us(lambda: fast._box(st, t), reps)))
-    if ctrl.solver == "sns_tpm" and fast.x0 is None:
+    if ctrl.solver == "sns_tpm" and fast.x0 is None:  # (the fused kernel's SNS on the same J, b, box: for comparison)
         lo, up = (a.copy() for a in fast._box(st, t))
         out.append(("  sns_tpm_stacked on J, b (solve)", _median_us(lambda: lean_mod.sns_tpm_stacked(
             fast.J, fast.b, fast.sizes, lo, up, lambda_max=fast.lambda_max, eps=fast.eps), reps)))
