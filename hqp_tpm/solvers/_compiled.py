@@ -159,6 +159,21 @@ def _householder_rows(V, tau, R):
 
 
 @_kernel
+def _rows_qr(J, p):
+    """``(V, tau, R)``: the QR of ``J[:p]^T`` by :func:`_householder_rows` on a copy of the first ``p`` rows."""
+    n = J.shape[1]
+    V = np.empty((p, n))
+    for i in range(p):
+        for t in range(n):
+            V[i, t] = J[i, t]
+    tau = np.zeros(p)
+    R = np.zeros((p, p))
+    if p:
+        _householder_rows(V, tau, R)
+    return V, tau, R
+
+
+@_kernel
 def _apply_right_t(BT, V, tau, p, w):
     """``B <- B H_0 H_1 ... H_{p-1}`` on ``BT = B^T`` (``q x rows``, row-major) with the reflectors of
     :func:`_householder_rows` (rows of ``V``); ``w``: scratch of length ``>= rows``. Each row's
@@ -357,19 +372,13 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
         sq[lev] = _sumsq_rows(J, a, e, w)
         a = e
     # levels < k: J_<k^T = Q1 R1 on the rows of J, pivots certified regular by 1/||R_ii^-1||_F
-    V = np.empty((m1, n))
-    for i in range(m1):
-        for t in range(n):
-            V[i, t] = J[i, t]
-    tau = np.zeros(m1)
-    R1 = np.zeros((m1, m1))
+    V, tau, R1 = _rows_qr(J, m1)
     BT = np.empty((n, mk))
     AT = np.empty((r, mk))                             # A^T: the columns of A as rows
     tauA = np.empty(r)
     RA = np.zeros((r, r))
     a_inv = 0.0
     if m1:
-        _householder_rows(V, tau, R1)
         for i in range(m1):
             if R1[i, i] == 0.0:                        # dtrtri's info > 0
                 return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA

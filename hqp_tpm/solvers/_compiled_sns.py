@@ -137,13 +137,7 @@ def _regular_tpm(J, xd, sizes, lambda_max, eps, unit, x):
     ``x = Q R^{-T} xd``): the certificates of :func:`hqp_tpm.solvers._compiled._general`. False otherwise."""
     m, n = J.shape
     size = max(m, n)
-    V = np.empty((m, n))
-    for i in range(m):
-        for t in range(n):
-            V[i, t] = J[i, t]
-    tau = np.zeros(m)
-    R = np.zeros((m, m))
-    _compiled._householder_rows(V, tau, R)
+    V, tau, R = _compiled._rows_qr(J, m)
     for i in range(m):
         if R[i, i] == 0.0:
             return False
