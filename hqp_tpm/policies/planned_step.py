@@ -10,7 +10,9 @@ them, looks the solver up by name and wraps the result in a ``StepResult``. A :c
 1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field);
 2. the plan, and each planned task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
    level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its row writer (:meth:`Task.row_writer
-   <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and no extra command is added) or its own
+   <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and either no extra command is added or the writer
+   takes it, as :meth:`FramePosition.row_writer <hqp_tpm.tasks.frame_position.FramePosition.row_writer>` does) or
+   its own
    ``jacobian`` and ``command``, an
    :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's
    cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the numbers
@@ -102,7 +104,8 @@ class PlannedStep:
             kind = type(task)
             if kind.level is Task.level and kind.row_writer is not Task.row_writer:
                 Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
-                self._writers[id(task)] = (task.row_writer(ctrl.state, self.order, Jt, bt), Jt, bt, False)
+                w = task.row_writer(ctrl.state, self.order, Jt, bt)
+                self._writers[id(task)] = (w, Jt, bt, False, getattr(w, "takes_extra", False))
         return self
 
     def _writer(self, task: Pointing | Avoidance) -> tuple:
@@ -110,7 +113,7 @@ class PlannedStep:
         returns its error: its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
         Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
         cone = type(task) is Pointing and task.inequality
-        w = self._writers[id(task)] = (task.row_writer(self.ctrl.state, self.order, Jt, bt), Jt, bt, cone)
+        w = self._writers[id(task)] = (task.row_writer(self.ctrl.state, self.order, Jt, bt), Jt, bt, cone, False)
         return w
 
     def label(self) -> str:
@@ -127,15 +130,19 @@ class PlannedStep:
         for task in tasks:
             extra = extras.get(task.name) if extras else None
             kind = type(task)
-            writer = self._writers.get(id(task)) if extra is None else None
+            writer = self._writers.get(id(task))
+            if extra is not None and writer is not None and not writer[4]:
+                writer = None             # a writer that takes no extra command
             if writer is None and extra is None and (kind is Avoidance or kind is Pointing):
                 writer = self._writer(task)
             if writer is not None:        # a row writer: an equality task's, the pointing's, the avoidance's
                 if writer[3]:             # the cone (21): its row while e > 0
                     if not writer[0](t) > 0.0:
                         continue
-                else:
+                elif extra is None:
                     writer[0](t)
+                else:                     # with the extra command (Algorithm 1's EE repulsion (30))
+                    writer[0](t, extra)
                 Jt, bt = writer[1], writer[2]
             elif kind.level is Task.level:  # an equality task: its own rows, no Level object
                 Jt = task.jacobian(st)

@@ -1,4 +1,5 @@
-"""Compiled (numba) row writers of the pointing (19), (21) and 1-D avoidance (29) tasks (private; the planned step).
+"""Compiled (numba) row writers of the pointing (19), (21), 1-D avoidance (29) and frame position tasks (private;
+the planned step).
 
 Each kernel writes a task's row ``J`` and right-hand side ``b`` with the floating-point operations of the readable
 :meth:`Pointing.jacobian <hqp_tpm.tasks.pointing.Pointing.jacobian>` / :meth:`~hqp_tpm.tasks.base.Task.command`
@@ -11,6 +12,8 @@ Switched with the other kernels: :data:`hqp_tpm.robot._compiled.ENABLED` (``HQP_
 """
 
 from __future__ import annotations
+
+import math
 
 from hqp_tpm.robot._compiled import _njit
 
@@ -59,3 +62,35 @@ def avoidance_row(J, b, normal, Jc, jdq, magnitude, order):  # pragma: no cover 
         b[0] = r
     else:
         b[0] = r - (normal[0] * jdq[0] + normal[1] * jdq[1] + normal[2] * jdq[2])
+
+
+@_njit
+def harmonic_position_rows(J, b, Jf, rows, p, rate, acc, h, t, kp, kd, extra, has_extra, order):  # pragma: no cover
+    """A frame position task's rows with a :class:`~hqp_tpm.references.trajectories.Harmonic` reference.
+
+    ``J[i] = Jf[rows[i]]``; the reference of ``Harmonic.reference(t)`` from ``h = [w, phase, (center, offset,
+    cos_amplitude, sin_amplitude) per row]`` (the same operations on floats); ``e = x_d - p[rows]``; ``b`` as
+    :meth:`Task.command` with the extra command (EE repulsion (30)) when ``has_extra``: ``xd + kp e (+ extra)`` at
+    order 1, ``(xdd (+ extra)) + kd (xd - rate) + kp e - acc[rows]`` at order 2 (``rate = J qd`` by the caller,
+    with numpy's dot as :meth:`Task.command`; ``acc`` the frame's ``J̇ q̇``). The same numbers to the last bit.
+    """
+    w = h[0]
+    arg = w * t + h[1]
+    c, s = math.cos(arg), math.sin(arg)
+    n = J.shape[1]
+    for i in range(rows.shape[0]):
+        r = rows[i]
+        for col in range(n):
+            J[i, col] = Jf[r, col]
+        ci, oi, ai, bi = h[2 + 4 * i], h[3 + 4 * i], h[4 + 4 * i], h[5 + 4 * i]
+        x_d = ci + oi + ai * c + bi * s
+        xd = w * (-ai * s + bi * c)
+        e = x_d - p[r]
+        if order == 1:
+            bb = xd + kp * e
+            b[i] = bb + extra[i] if has_extra else bb
+            continue
+        xdd = -w * w * (ai * c + bi * s)
+        if has_extra:
+            xdd = xdd + extra[i]
+        b[i] = xdd + kd * (xd - rate[i]) + kp * e - acc[r]

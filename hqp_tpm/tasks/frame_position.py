@@ -5,9 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.references.trajectories import Harmonic
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
+from hqp_tpm.tasks import _compiled_rows
 from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, row_selector, select_axes
 
 
@@ -33,11 +35,24 @@ class FramePosition(Task):
         return state.jdot_qdot(self.fid)[self._sel]
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: the selected linear rows of the frame Jacobian and ``b``, the same numbers."""
+        """:meth:`Task.row_writer`: the selected linear rows of the frame Jacobian and ``b``, the same numbers.
+
+        ``write(t, extra=None)`` also takes an extra command (added to the command as :meth:`Task.command` adds
+        it: Algorithm 1's EE repulsion (30)); with a :class:`~hqp_tpm.references.trajectories.Harmonic` reference
+        the reference and the rows are one compiled call (:func:`~hqp_tpm.tasks._compiled_rows.
+        harmonic_position_rows`)."""
         model, data, fid, sel = state.model, state.data, self.fid, self._sel
         views = state.frame_views(fid)
         if views is None:
-            return super().row_writer(state, order, J, b)
+            plain = super().row_writer(state, order, J, b)
+
+            def write_plain(t: float, extra=None) -> None:
+                if extra is None:
+                    plain(t)
+                else:
+                    self._write_readable(state, t, order, extra, J, b)
+            write_plain.takes_extra = True
+            return write_plain
         p = views[0]
         p_sel = p[sel] if isinstance(sel, slice) else None  # a view pinocchio updates (else indexed per step)
         e = np.zeros(self.dim)
@@ -45,8 +60,29 @@ class FramePosition(Task):
 
         rows, none = self.rows, np.zeros(0)
 
-        def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
+        harmonic = _HarmonicParams()
+        zero = np.zeros(self.dim)
+
+        def write(t: float, extra=None) -> None:
+            if extra is not None and (type(extra) is not np.ndarray or extra.shape != zero.shape
+                                      or extra.dtype != zero.dtype):
+                self._write_readable(state, t, order, extra, J, b)  # converted or refused as Task.command does
+                return
+            tr = self.trajectory
+            if _compiled.ENABLED and type(tr) is Harmonic:  # reference and rows in one compiled call
+                g, Jt = self.gains, pin.getFrameJacobian(model, data, fid, LWA)
+                if order == 2:
+                    np.dot(Jt[sel], state.v, out=rate)
+                    acc = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+                else:
+                    acc = zero
+                _compiled_rows.harmonic_position_rows(J, b, Jt, rows, p, rate, acc, harmonic.of(tr), t, g.kp, g.kd,
+                                                      zero if extra is None else extra, extra is not None, order)
+                return
+            if extra is not None:
+                self._write_readable(state, t, order, extra, J, b)
+                return
+            ref = tr.reference(t)
             if _compiled.ENABLED:  # one compiled call, the same operations
                 g, Jt = self.gains, pin.getFrameJacobian(model, data, fid, LWA)
                 if order == 1:
@@ -65,7 +101,14 @@ class FramePosition(Task):
                 np.dot(Jt, state.v, out=rate)
                 feedback(b, e, ref, self.gains, 2, rate,
                          pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel])
+        write.takes_extra = True
         return write
+
+    def _write_readable(self, state: State, t: float, order: int, extra, J: np.ndarray, b: np.ndarray) -> None:
+        """:meth:`jacobian` and :meth:`command` with the extra command into ``J``, ``b``."""
+        Jt = self.jacobian(state)
+        J[...] = Jt
+        b[...] = self.command(state, t, order, extra, Jt)
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: the frame Jacobian and ``p`` (at order 2 also the selected ``J qd`` and
@@ -92,3 +135,25 @@ class FramePosition(Task):
                 vecs[vec + 2] = np.ascontiguousarray(pin.getFrameClassicalAcceleration(model, data, fid, LWA)
                                                      .vector[sel])
         return gather
+
+
+class _HarmonicParams:
+    """A :class:`~hqp_tpm.references.trajectories.Harmonic`'s numbers packed for the compiled row writer, ``[omega,
+    phase, (center, offset, cos_amplitude, sin_amplitude) per entry]``: packed again whenever the trajectory or one
+    of its attributes is replaced (the offset is the origin of a relative trajectory, set by ``start``)."""
+
+    __slots__ = ("key", "h")
+
+    def __init__(self):
+        self.key, self.h = (), None
+
+    def of(self, tr: Harmonic) -> np.ndarray:
+        key = (tr, tr.origin, tr.center, tr.cos_amplitude, tr.sin_amplitude, tr.omega, tr.phase)
+        last = self.key
+        if len(last) != len(key) or any(a is not k for a, k in zip(key, last, strict=True)):
+            n = tr.center.size
+            offset = np.zeros(n) if tr.origin is None else np.asarray(tr.origin, dtype=float)
+            body = np.stack([tr.center, offset, tr.cos_amplitude, tr.sin_amplitude], axis=1).ravel()
+            self.h = np.concatenate([[float(tr.omega), float(tr.phase)], body])
+            self.key = key
+        return self.h
