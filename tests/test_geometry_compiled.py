@@ -155,17 +155,19 @@ def test_algorithm1_nearest_kernel_takes_the_readable_choices(monkeypatch):
 def test_avoidance_row_kernel_equals_the_readable_avoidance_rows(panda, order):
     """DistanceField.avoidance_row (one compiled call: J_c, J-dot q-dot and the 1-D row (29)) against the readable
     Avoidance rows from DistanceField.jacobian/jdot_qdot, at 400 random states, points and normals; the lazily
-    assigned pair (Avoidance.assign_pair) gives the readable rows too."""
+    assigned pair (Avoidance.assign_pair) gives the readable rows too. Two Data objects in turn: the joint views
+    the field keeps are those of the Data it is given."""
     from hqp_tpm.tasks.avoidance import Avoidance
 
     model = panda
     rng = np.random.default_rng(order + 20)
     frames = ["panda_link3", "panda_link5", "panda_hand"]
     field = DistanceField(model, None, frames, [Obstacle.sphere("o", [0.3, 0.0, 0.5])], surveillance=9.0)
-    data = model.createData()
+    datas = [model.createData(), model.createData()]
     ref, lazy = Avoidance("ref"), Avoidance("lazy")
     J, b = np.zeros((1, model.nv)), np.zeros(1)
-    for _ in range(400):
+    for i in range(400):
+        data = datas[int(rng.integers(2))] if i > 100 else datas[0]
         q = pin.randomConfiguration(model)
         v = rng.normal(size=model.nv) * rng.choice([1e-3, 1.0, 30.0])
         pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))

@@ -183,6 +183,7 @@ class DistanceField:
         self._point_M = [pin.SE3.Identity() for _ in range(npts)]
         self._elem_M: list[pin.SE3 | None] = [None] * ng + list(self._point_M)
         self._refs_key = None
+        self._joint_views: dict = {}  # (id(data), joint) -> views of its placement, velocity, acceleration
 
     # ------------------------------------------------------------------ lookup
     @property
@@ -535,10 +536,24 @@ class DistanceField:
                                                                                                   obstacle))
             return
         jid = int(self.joint_ids[element])
-        M = data.oMi[jid]
-        _kernels.avoidance_row(pin.getJointJacobian(self.model, data, jid, _LWA), M.rotation, M.translation,
-                               data.v[jid].vector, data.a[jid].vector, self.p_robot[element, obstacle], normal,
-                               magnitude, order, J, b)
+        views = self._joint_views.get((id(data), jid))
+        if views is None or views[4] is not data:
+            views = self._views_of_joint(data, jid)
+        _kernels.avoidance_row(pin.getJointJacobian(self.model, data, jid, _LWA), views[0], views[1], views[2],
+                               views[3], self.p_robot[element, obstacle], normal, magnitude, order, J, b)
+
+    def _views_of_joint(self, data: pin.Data, jid: int) -> tuple:
+        """Rotation, origin, velocity and acceleration vectors of joint ``jid`` in ``data``: views pinocchio updates
+        in place, kept for the next calls (copies, read every call, if this pinocchio returns copies)."""
+        def read():
+            M = data.oMi[jid]
+            return M.rotation, M.translation, data.v[jid].vector, data.a[jid].vector
+        views = read()
+        if all(np.shares_memory(x, y) for x, y in zip(views, read(), strict=True)):
+            if len(self._joint_views) > 64:  # other Data objects: forget them
+                self._joint_views.clear()
+            views = self._joint_views[(id(data), jid)] = (*views, data)  # keeps data alive: its id stays its own
+        return views
 
     def snapshot(self) -> tuple:
         """The history an update carries over (the last normals, used where witness points coincide).
