@@ -220,3 +220,17 @@ def test_frame_position_writer_with_harmonic_reference_and_extra_equals_the_read
             np.testing.assert_array_equal(b, task.command(st, t, order, extra, J_ref))
     with pytest.raises(Exception, match="extra command has shape"):
         writers[0](1.0, np.zeros(2))
+
+
+def test_planned_step_grows_its_stacked_rows_mid_step():
+    """The row writers write straight into the stacked rows; when the stack outgrows them mid-step the rows are
+    reallocated (the rows written so far kept) and the writers placed again: the readable numbers still."""
+    ref, fast = lwr(), lwr()
+    planned = PlannedStep.of(fast)
+    planned.J, planned.b = np.zeros((3, fast.robot.nv)), np.zeros(3)  # the EE task's rows only
+    for _ in range(400):
+        res = ref.step()
+        close(planned.step(), res.command)
+        assert planned.label() == res.stack.label()
+    assert planned.J.shape[0] > 3
+    close(fast.q, ref.q)

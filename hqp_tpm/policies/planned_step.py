@@ -65,7 +65,7 @@ class PlannedStep:
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_writers")
+                 "_own", "_placed")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -98,22 +98,27 @@ class PlannedStep:
         self.tasks: tuple[Task, ...] = ()
         self._labels: dict[tuple[str, ...], str] = {}
         # equality tasks with their own row writer (hqp_tpm.tasks.base.Task.row_writer: the numbers of jacobian and
-        # command in fewer calls) write into scratch rows, used on the steps without an extra command
-        self._writers = {}
-        for task in ctrl.policy.tasks():
-            kind = type(task)
-            if kind.level is Task.level and kind.row_writer is not Task.row_writer:
-                Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
-                w = task.row_writer(ctrl.state, self.order, Jt, bt)
-                self._writers[id(task)] = (w, Jt, bt, False, getattr(w, "takes_extra", False))
+        # command in fewer calls), the pointing and the avoidance tasks write straight into the stacked rows: one
+        # writer per (task, first row), built on first use (_place)
+        self._own = {id(task) for task in ctrl.policy.tasks()
+                     if type(task).level is Task.level and type(task).row_writer is not Task.row_writer}
+        self._placed: dict[tuple[int, int], tuple | bool] = {}
         return self
 
-    def _writer(self, task: Pointing | Avoidance) -> tuple:
-        """The row writer of a pointing or avoidance task (built on first use; an inequality pointing task's
-        returns its error: its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
-        Jt, bt = np.zeros((task.dim, self.n)), np.zeros(task.dim)
-        cone = type(task) is Pointing and task.inequality
-        w = self._writers[id(task)] = (task.row_writer(self.ctrl.state, self.order, Jt, bt), Jt, bt, cone, False)
+    def _place(self, task: Task, a: int) -> tuple | bool:
+        """The row writer of ``task`` writing rows ``a...`` of ``self.J``, ``self.b`` as ``(write, cone, takes_extra,
+        dim, task)``, or False for a task without one (an inequality pointing task's ``write`` returns its error:
+        its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
+        kind = type(task)
+        if id(task) in self._own or kind is Avoidance or kind is Pointing:
+            dim = task.dim
+            if a + dim > self.J.shape[0]:
+                self._grow(a + dim)
+            write = task.row_writer(self.ctrl.state, self.order, self.J[a:a + dim], self.b[a:a + dim])
+            w = (write, kind is Pointing and task.inequality, getattr(write, "takes_extra", False), dim, task)
+        else:
+            w = False
+        self._placed[(id(task), a)] = w
         return w
 
     def label(self) -> str:
@@ -126,25 +131,28 @@ class PlannedStep:
 
     def _rows(self, st, t: float, tasks, extras) -> tuple[int, tuple[int, ...]]:
         """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
-        order, a, sizes = self.order, 0, []
+        order, a, sizes, placed = self.order, 0, [], self._placed
         for task in tasks:
             extra = extras.get(task.name) if extras else None
-            kind = type(task)
-            writer = self._writers.get(id(task))
-            if extra is not None and writer is not None and not writer[4]:
-                writer = None             # a writer that takes no extra command
-            if writer is None and extra is None and (kind is Avoidance or kind is Pointing):
-                writer = self._writer(task)
-            if writer is not None:        # a row writer: an equality task's, the pointing's, the avoidance's
-                if writer[3]:             # the cone (21): its row while e > 0
-                    if not writer[0](t) > 0.0:
+            w = placed.get((id(task), a))
+            if w is None or (w is not False and w[4] is not task):
+                w = self._place(task, a)
+            if w is not False and (extra is None or w[2]):  # a row writer, writing in place
+                if w[1]:                  # the cone (21): its row while e > 0
+                    if not w[0](t) > 0.0:
                         continue
                 elif extra is None:
-                    writer[0](t)
+                    w[0](t)
                 else:                     # with the extra command (Algorithm 1's EE repulsion (30))
-                    writer[0](t, extra)
-                Jt, bt = writer[1], writer[2]
-            elif kind.level is Task.level:  # an equality task: its own rows, no Level object
+                    w[0](t, extra)
+                m = w[3]
+                if not m:
+                    continue
+                a += m
+                sizes.append(m)
+                continue
+            kind = type(task)
+            if kind.level is Task.level:  # an equality task: its own rows, no Level object
                 Jt = task.jacobian(st)
                 bt = task.command(st, t, order, extra, Jt)
             elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
@@ -172,6 +180,7 @@ class PlannedStep:
         J, b = np.zeros((2 * rows, self.n)), np.zeros(2 * rows)
         J[: self.J.shape[0]], b[: self.b.shape[0]] = self.J, self.b
         self.J, self.b = J, b
+        self._placed.clear()  # the writers wrote into the old arrays
 
     def compute(self) -> np.ndarray:
         """The command at the controller's current state (policy state advanced as in a step)."""
@@ -193,7 +202,7 @@ class PlannedStep:
             x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0)
         else:
             x = np.zeros(self.n) if x0 is None else x0.copy()
-        if not np.isfinite(x).all():
+        if not (math.isfinite(x @ x) or np.isfinite(x).all()):  # an overflow of x @ x only costs the exact test
             raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
         return x
 
