@@ -234,3 +234,23 @@ def test_planned_step_grows_its_stacked_rows_mid_step():
         assert planned.label() == res.stack.label()
     assert planned.J.shape[0] > 3
     close(fast.q, ref.q)
+
+
+def test_pointing_error_follows_the_state_through_its_kept_view():
+    """Pointing.pointing_error reads z_e through a kept view of the frame rotation: the readable number at every
+    update (full and partial, two states in turn), bit for bit."""
+    from hqp_tpm.robot.state import State
+
+    ctrl = lwr()
+    robot, task = ctrl.robot, ctrl.policy.pointing
+    states = [ctrl.state, State(robot)]
+    rng = np.random.default_rng(5)
+    for i in range(200):
+        st = states[i % 2] if i > 50 else states[0]
+        q = robot.neutral() + rng.uniform(-2, 2, robot.nq)
+        if i % 3:
+            st.update(q, rng.normal(size=robot.nv), 0.0)
+        else:
+            st.update_positions(q, np.zeros(robot.nv), 0.0, ())
+        e = task.pointing_error(st)  # a partial update (frames not placed): completed first, as State.rotation does
+        assert e == float(task._cos - task.z_d.dot(st.rotation(task.fid)[:, 2]))

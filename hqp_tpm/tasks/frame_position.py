@@ -145,15 +145,16 @@ class _HarmonicParams:
     __slots__ = ("key", "h")
 
     def __init__(self):
-        self.key, self.h = (), None
+        self.key, self.h = (None,) * 7, None
 
     def of(self, tr: Harmonic) -> np.ndarray:
-        key = (tr, tr.origin, tr.center, tr.cos_amplitude, tr.sin_amplitude, tr.omega, tr.phase)
-        last = self.key
-        if len(last) != len(key) or any(a is not k for a, k in zip(key, last, strict=True)):
-            n = tr.center.size
-            offset = np.zeros(n) if tr.origin is None else np.asarray(tr.origin, dtype=float)
-            body = np.stack([tr.center, offset, tr.cos_amplitude, tr.sin_amplitude], axis=1).ravel()
-            self.h = np.concatenate([[float(tr.omega), float(tr.phase)], body])
-            self.key = key
+        k = self.key
+        if (tr is k[0] and tr.origin is k[1] and tr.center is k[2] and tr.cos_amplitude is k[3]
+                and tr.sin_amplitude is k[4] and tr.omega is k[5] and tr.phase is k[6]):
+            return self.h
+        n = tr.center.size
+        offset = np.zeros(n) if tr.origin is None else np.asarray(tr.origin, dtype=float)
+        body = np.stack([tr.center, offset, tr.cos_amplitude, tr.sin_amplitude], axis=1).ravel()
+        self.h = np.concatenate([[float(tr.omega), float(tr.phase)], body])
+        self.key = (tr, tr.origin, tr.center, tr.cos_amplitude, tr.sin_amplitude, tr.omega, tr.phase)
         return self.h

@@ -47,6 +47,7 @@ class Pointing(Task):
         self.z_d = z_d / norm
         self.alpha_d = float(alpha_d)
         self._cos = np.cos(self.alpha_d)
+        self._column = None  # (state, view of its frame rotation's z column), see pointing_error
         self.inequality = inequality
         super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
 
@@ -76,8 +77,15 @@ class Pointing(Task):
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
-        # the numbers of cos(alpha_d) - value(state)[0], without the memo and the array (the policy asks every step)
-        return float(self._cos - self.z_d.dot(state.rotation(self.fid)[:, 2]))
+        # the numbers of cos(alpha_d) - value(state)[0], without the memo and the array (the policy asks every step);
+        # z_e read through a view of the rotation pinocchio updates in place, once the state is complete
+        c = self._column
+        if c is not None and c[0] is state and not state._partial:
+            return float(self._cos - self.z_d.dot(c[1]))
+        z_e = state.rotation(self.fid)[:, 2]
+        views = state.frame_views(self.fid)
+        self._column = None if views is None else (state, views[1][:, 2])
+        return float(self._cos - self.z_d.dot(z_e))
 
     def is_active(self, state: State) -> bool:
         """Equality: always; inequality (21): while ``e > 0``."""
