@@ -206,3 +206,26 @@ def test_near_pairs_kernel_equals_the_readable_broad_phase():
             ref = near_pairs(Ca[ia], Cb[ib], ra[ia], rb[ib], s)
             assert 0 in ref
         np.testing.assert_array_equal(kernels.near_pairs(Ca, ia, Cb, ib, ra, rb, s), ref)
+
+
+def test_points_only_short_update_equals_the_full_update():
+    """A field of control points and fixed sphere obstacles (lwr_relaxed's) takes DistanceField.update's short path
+    (frame positions, the compiled sphere block, in_range): the records of the full update bit for bit, at random
+    states, with two Data objects in turn (a new Data goes through the full update first)."""
+    ctrl = build(load("lwr_relaxed"))[1]
+    model, f = ctrl.robot.model, ctrl.policy.field
+    assert f._points_only
+    full = DistanceField(model, None, f.names, f.obstacles, surveillance=f.surveillance)
+    full._points_only = False
+    datas = [model.createData(), model.createData()]
+    rng = np.random.default_rng(8)
+    for i in range(300):
+        data = datas[int(rng.integers(2))] if i > 50 else datas[0]
+        q = pin.randomConfiguration(model) if i % 2 else rng.uniform(-3, 3, model.nq)
+        pin.forwardKinematics(model, data, q)
+        pin.updateFramePlacements(model, data)
+        f.update(data, None, 0.001 * i)
+        full.update(data, None, 0.001 * i)
+        for x, y in zip(_records(f), _records(full), strict=True):
+            np.testing.assert_array_equal(x, y)
+        assert f.t == full.t
