@@ -492,22 +492,26 @@ def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
 
 def _program_stacks(robot):
     """Stacks whose every kind of row program (and a row writer beside them) meets the fused kernel."""
-    from hqp_tpm import CenterOfMass, FrameOrientation, FramePose, FramePosition, Gains, Harmonic, Posture, Stack
+    from hqp_tpm import CenterOfMass, FrameOrientation, FramePose, FramePosition, Gains, Harmonic, Line, Posture, Stack
 
     g = Gains(7.0, 3.0)
     circle = Harmonic(center=np.array([0.4, 0.1, 0.5]), cos_amplitude=np.array([0.0, 0.1, 0.0]),
                       sin_amplitude=np.array([0.0, 0.0, 0.1]), omega=2.0)
+    line = Line(start_point=[0.4, 0.1, 0.5], end_point=[0.5, 0.2, 0.4], v_max=2.0, a_max=20.0)  # moves 0-0.2 s
     two = ["iiwa_joint_2", "iiwa_joint_5"]
     return [
         Stack.of(FramePose(robot, "iiwa_ee", None, g), Posture(robot, None, g, joints=two)),
         Stack.of((FramePosition(robot, "iiwa_link_4", [0.1, 0.3], g, axes="zx"),
                   FrameOrientation(robot, "iiwa_ee", None, g)),
                  CenterOfMass(robot, [0.0, 0.1], g, axes="xy"), Posture(robot, np.linspace(-1, 1, 7), g)),
-        Stack.of((FramePosition(robot, "iiwa_ee", circle, g), FrameOrientation(robot, "iiwa_ee", None, g))),
+        Stack.of((FramePosition(robot, "iiwa_ee", line, g), FrameOrientation(robot, "iiwa_ee", None, g))),
+        # a Harmonic reference: FramePosition's row writer (its one compiled call) instead of the program
+        Stack.of((FramePosition(robot, "iiwa_ee", circle, g), FrameOrientation(robot, "iiwa_ee", None, g)),
+                 Posture(robot, None, g)),
     ]
 
 
-@pytest.mark.parametrize("which", [0, 1, 2])
+@pytest.mark.parametrize("which", [0, 1, 2, 3])
 @pytest.mark.parametrize("order", [1, 2])
 def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(order, which, monkeypatch):
     """Every row program (frame pose, position on selected axes, orientation, posture) gives the readable step's
@@ -529,6 +533,10 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
     ref, fast = make(), make()
     lean = LeanStep.of(fast)
     assert lean._kernel is not None and lean._program.ints[5] >= 2
+    harmonic = [t for t in fast.policy.stack.tasks() if type(t) is FramePosition and type(t.trajectory) is Harmonic]
+    for task in harmonic:  # its row writer, not a program
+        i = lean.tasks.index(task)
+        assert lean._fused[i] is lean.writers[i]
     target = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.3, 0.2, 0.7]))
     wave = Harmonic(center=np.array([0.2, 0.3]), cos_amplitude=np.array([0.1, 0.0]),
                     sin_amplitude=np.array([0.0, 0.1]), omega=3.0)

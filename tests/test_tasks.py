@@ -134,6 +134,28 @@ def test_fast_task_paths_equal_their_literal_formulas(panda):
             np.testing.assert_array_equal(task.jdot_qdot(st), st.com_jdot_qdot()[task.rows])
 
 
+def test_trajectory_numbers_change_only_by_assignment():
+    """A trajectory's arrays are read-only copies: writing into one raises, the caller's array stays theirs, and
+    an assigned value is seen by the next reference (the constant references' cache is dropped; the compiled row
+    writers key on identity). Before, ``Constant.value = ...`` after a first reference kept the old target."""
+    from hqp_tpm.references.trajectories import Constant, Harmonic
+
+    c = Constant(value=[1.0, 2.0])
+    np.testing.assert_array_equal(c.reference(0.0)[0], [1.0, 2.0])
+    c.value = [3.0, 4.0]
+    np.testing.assert_array_equal(c.reference(0.0)[0], [3.0, 4.0])
+    mine = np.array([0.1, 0.2, 0.3])
+    h = Harmonic(center=mine, cos_amplitude=[0.0, 0.1, 0.0], sin_amplitude=[0.0, 0.0, 0.1], omega=2.0)
+    mine[0] = 9.0                                      # the caller's array: not the trajectory's
+    assert h.center[0] == 0.1
+    for name in ("center", "cos_amplitude", "sin_amplitude"):
+        with pytest.raises(ValueError, match="read-only"):
+            getattr(h, name)[0] = 1.0
+    h.start(np.zeros(3))
+    h.center = [1.0, 1.0, 1.0]
+    assert h.reference(0.0)[0][0] == 1.0 + 0.0 + 0.0
+
+
 def test_references_equal_their_numpy_formulas():
     """Harmonic on floats (math.cos/sin) equals the array expressions; constant references are computed once per
     start, read-only, and follow a new start."""

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import ClassVar
 
 import numpy as np
 
@@ -30,10 +31,27 @@ def _finite(x, what: str) -> np.ndarray:
 
 @dataclass
 class Trajectory:
-    """Base: a constant zero-dimensional placeholder; subclasses give ``reference``."""
+    """Base: a constant zero-dimensional placeholder; subclasses give ``reference``.
+
+    The numbers of the fields in ``FROZEN_FIELDS`` are stored as read-only copies: to change them, assign new
+    ones (``traj.center = [...]``; ``traj.center[0] = ...`` raises). A change is then a new object, which the
+    cached constant references and the compiled row writers (they key on identity) see; an assignment also drops
+    the cached reference.
+    """
+
+    #: the array fields kept as read-only copies (see the class doc)
+    FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin",)
 
     relative: bool = False
     origin: np.ndarray | None = field(default=None, repr=False)
+
+    def __setattr__(self, name: str, value) -> None:
+        if name in self.FROZEN_FIELDS:
+            if value is not None:
+                value = np.array(value, dtype=float)  # a copy: the caller's array stays theirs
+                value.flags.writeable = False
+            object.__setattr__(self, "_ref", None)
+        object.__setattr__(self, name, value)
 
     def start(self, x0: np.ndarray) -> None:
         """Called once with the task value at the start; fixes the offset of relative trajectories."""
@@ -49,6 +67,8 @@ class Trajectory:
 @dataclass
 class Constant(Trajectory):
     """``x_d = value`` (plus the start value when relative), zero derivatives."""
+
+    FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin", "value")
 
     value: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
@@ -99,6 +119,8 @@ class Harmonic(Trajectory):
     ``b = [0, .1, 0]``, ``w = 1``; a Romeo hand circle is relative with
     ``center = [0, 0, -r]``, ``a = [0, 0, r]``, ``b = [0, -+2r, 0]``, ``w = 2 pi / Tc``.
     """
+
+    FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin", "center", "cos_amplitude", "sin_amplitude")
 
     center: np.ndarray = field(default_factory=lambda: np.zeros(3))
     cos_amplitude: np.ndarray = field(default_factory=lambda: np.zeros(3))

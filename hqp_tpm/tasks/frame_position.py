@@ -112,9 +112,11 @@ class FramePosition(Task):
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: the frame Jacobian and ``p`` (at order 2 also the selected ``J qd`` and
-        ``Jdot qd``) into the kernel's slots; the reference into its floats."""
+        ``Jdot qd``) into the kernel's slots; the reference into its floats. None (the row writer runs) with a
+        :class:`~hqp_tpm.references.trajectories.Harmonic` reference: the writer computes it inside its one compiled
+        call, where the program would copy ``Harmonic.reference``'s three arrays every step."""
         views = state.frame_views(self.fid)
-        if views is None:
+        if views is None or (type(self.trajectory) is Harmonic and _compiled.ENABLED):
             return None
         model, data, fid, sel, d = state.model, state.data, self.fid, self._sel, self.dim
         p = views[0]
