@@ -328,10 +328,18 @@ def test_sns_tpm_saturations_past_rank_take_the_shortcut(on, compiled, monkeypat
 EPS = np.finfo(float).eps
 
 
-def check_general(levels, n, rng, compiled, tol=TOL):
+def check_general(levels, n, rng, compiled, tol=TOL, conditioned=False):
     """``tpm_stacked`` (and ``tpm``) with the kernel on and off, every damping, with and without ``x0``.
-    Returns how many of these the kernel solved itself (the others: ``Factorization`` decided)."""
+    Returns how many of these the kernel solved itself (the others: ``Factorization`` decided).
+
+    ``conditioned``: the tolerance is ``max(tol, 10 eps cond(J))`` (``J`` the stacked Jacobian, full rank): two
+    backward-stable QR solves differ by about ``eps cond(J)``. Over 12,000 solves of the property tests' draws
+    (``full_rank_stacks``, units 1e-6..1e6, every damping) the largest difference was 3.8 ``eps cond(J)``; the
+    largest above 1e-12 was 2.3e-12, at ``cond(J) = 2.7e4``."""
     _, J, b, sizes, n = stacked(levels, n)
+    if conditioned:
+        s = np.linalg.svd(J, compute_uv=False)
+        tol = max(tol, 10 * np.finfo(float).eps * s[0] / s[-1])
     x0 = rng.standard_normal(n)
     solved = 0
     for lam, eps in DAMPING:
@@ -362,7 +370,7 @@ def test_general_path_on_the_suite_full_rank_stacks(case, scale):
     levels = [(scale * J, scale * b) for J, b in levels]
     before = _compiled.ENABLED
     try:
-        check_general(levels, n, rng, _switch)
+        check_general(levels, n, rng, _switch, conditioned=True)
     finally:
         _switch(before)
 

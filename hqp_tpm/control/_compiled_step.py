@@ -1,13 +1,15 @@
 """The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control.lean`).
 
-:func:`kernel` does what the lean step did in three: the finiteness test of the stacked ``J`` and ``b``, the
-TPM kernel of :mod:`hqp_tpm.solvers._compiled` that :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call
-(``_past_rank`` when ``m > n``, ``_general`` otherwise: the same kernels, so the same numbers to the last bit)
-and the finiteness test of ``x``. numba's dispatch cost grows with the argument count, so the arguments are
-packed once at construction: ``J``, ``b``, ``x0`` and ``x`` are one buffer (``J`` row-major, then ``b``), the integers
-``[m, n, use_x0, sizes...]`` one array, the floats ``[lambda_max, eps, unit, margin, cond]`` another
-(:class:`Program`). It also writes the right-hand side of the posture tasks (a selection of revolute or prismatic
-joints: :func:`hqp_tpm.robot._compiled.posture_rows`' operations) from ``q`` and ``v``, before the finiteness test.
+:func:`kernel` does what the lean step did in several calls, one kernel per thing solved (:data:`ROWS`,
+:data:`TPM`, :data:`SNS`: each compiles only what it calls). All three write the program's rows (the right-hand
+side of the posture tasks, a selection of revolute or prismatic joints, as
+:func:`hqp_tpm.robot._compiled.posture_rows`; the frame tasks' rows from pinocchio's outputs) and test ``J`` and
+``b`` for finiteness; :data:`TPM` then runs the TPM kernel of :mod:`hqp_tpm.solvers._compiled` that
+:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (``_past_rank`` when ``m > n``, ``_general`` otherwise: the
+same kernels, so the same numbers to the last bit) and tests ``x``. numba's dispatch cost grows with the argument
+count, so the arguments are packed once at construction: ``J``, ``b``, ``x0`` and ``x`` are one buffer (``J``
+row-major, then ``b``), the integers ``[m, n, use_x0, sizes...]`` one array, the floats ``[lambda_max, eps, unit,
+margin, cond]`` another (:class:`Program`).
 
 With ``sns_tpm`` (a program built with ``solve=SNS``) the kernel runs the SNS-TPM loop of
 :mod:`hqp_tpm.solvers._compiled_sns` (``_sns_loop``, the kernel :func:`hqp_tpm.solvers.sns.sns_tpm_stacked`
@@ -24,12 +26,13 @@ its position limits: the box's recovery rules are the caller's) or :data:`SNS_HA
 back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
 :func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves).
 
-This kernel calls the other modules' kernels, and numba's disk cache checks only the file of the function it
+These kernels call the other modules' kernels, and numba's disk cache checks only the file of the function it
 caches: a cached kernel would keep an earlier version of the kernels it calls. So the cache's stamp also holds
-:mod:`hqp_tpm.solvers._compiled`'s and :mod:`hqp_tpm.solvers._compiled_sns`' (as :mod:`hqp_tpm.solvers._compiled_sns`
-does for its callees); where numba's cache object is laid out otherwise, the disk cache is used only when this file is
-newer than the callees' files, else the kernel is compiled in memory once per process (~2-4 s on first use; ~0.1-0.5
-s from the cache).
+:mod:`hqp_tpm.solvers._compiled`'s, :mod:`hqp_tpm.solvers._compiled_sns`' and :mod:`hqp_tpm.robot._compiled`'s
+(as :mod:`hqp_tpm.solvers._compiled_sns` does for its callees); where numba's cache object is laid out otherwise,
+the disk cache is used only when this file is newer than the callees' files, else the kernel is compiled in memory
+once per process. First use on a machine compiles, later processes load the cache
+(``benchmarks/first_call.py`` measures both).
 """
 
 from __future__ import annotations
@@ -61,20 +64,20 @@ ROWS, TPM, SNS = 0, 1, 2
 #: The kinds of task rows the kernel writes (:class:`Program`).
 SELECTION, FRAME = 0, 1
 
-_KERNEL = None
-# the kernels _tpm_step calls, set by _build (globals: numba resolves them when it compiles _tpm_step)
-_past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
+#: the compiled kernels by what they solve (:func:`kernel`), compiled or loaded on first use
+_KERNELS: dict = {}
+# the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
+_write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
 
 
-def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
-    """The kernel of :func:`kernel` (plain Python until :func:`_build`)."""
-    m, n, use_x0, nlev, order, count, solve = ints[0], ints[1], ints[2], ints[3], ints[4], ints[5], ints[6]
+def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+    """The program's rows of ``J`` and ``b`` and their finiteness: ``(status, pi, pf)``, ``status``
+    :data:`WRITTEN` or :data:`NONFINITE_ROWS`, ``pi``, ``pf`` the ends of the tasks' entries in ``ints``, ``floats``
+    (where the SNS entries start). Plain Python until :func:`_build`, as the three steps."""
+    m, n, nlev, order, count = ints[0], ints[1], ints[3], ints[4], ints[5]
     mn = m * n
     J = buf[:mn].reshape((m, n))
     b = buf[mn: mn + m]
-    x0 = buf[mn + m: mn + m + n]
-    out = buf[mn + m + n: mn + m + 2 * n]
-    sizes = ints[7: 7 + nlev]
     pi, pf = 7 + nlev, 5
     for _ in range(count):  # the program's tasks: their rows of J and b
         kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
@@ -112,30 +115,29 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
             pf += 2 + k + 2 * dim
     for i in range(mn + m):
         if not math.isfinite(buf[i]):
-            return NONFINITE_ROWS
-    if solve == ROWS:
-        return WRITTEN
-    if solve == SNS:  # ints[pi:]: nsat, iterations, feasible, the saturated joints; floats[pf]: the scale
-        lo = buf[mn + m + 2 * n: mn + m + 3 * n]
-        up = buf[mn + m + 3 * n: mn + m + 4 * n]
-        bi = pi + 3 + n  # the box: where from, the slot of its limits in mats, its joint count, its indices
-        box = ints[bi]
-        if box != BOX_GIVEN:
-            nc = ints[bi + 2]
-            idx = ints[bi + 3: bi + 3 + 2 * nc].reshape((2, nc))
-            if box == BOX_VELOCITY:
-                ok = _velocity_box(q, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
-            else:
-                ok = _acceleration_box(q, v, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
-            if not ok:
-                return BOX_HANDED_BACK
-        status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
-                                                              floats[3], floats[4], out, ints[pi + 3: pi + 3 + n])
-        if status != _compiled_sns.DONE:
-            return SNS_HANDED_BACK
-        ints[pi], ints[pi + 1], ints[pi + 2] = nsat, iterations, 1 if feasible else 0
-        floats[pf] = scale
-    elif m > n:
+            return NONFINITE_ROWS, pi, pf
+    return WRITTEN, pi, pf
+
+
+def _rows_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+    """:data:`ROWS`: the rows and their finiteness only."""
+    return _write_rows(buf, ints, floats, q, v, mats, vecs)[0]
+
+
+def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+    """:data:`TPM`: the rows, the TPM kernel (``_past_rank`` when ``m > n``, ``_general`` otherwise), ``x``'s
+    finiteness."""
+    status, pi, pf = _write_rows(buf, ints, floats, q, v, mats, vecs)
+    if status != WRITTEN:
+        return status
+    m, n, use_x0, nlev = ints[0], ints[1], ints[2], ints[3]
+    mn = m * n
+    J = buf[:mn].reshape((m, n))
+    b = buf[mn: mn + m]
+    x0 = buf[mn + m: mn + m + n]
+    out = buf[mn + m + n: mn + m + 2 * n]
+    sizes = ints[7: 7 + nlev]
+    if m > n:
         status = _past_rank(J, b, sizes, n, floats[0], floats[1], floats[2], floats[3], floats[4], out)
     else:
         status = _general(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], out)
@@ -147,30 +149,75 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     return SOLVED
 
 
-def _build():
-    """Compile :func:`kernel` (after the kernels it calls); None if numba cannot be imported."""
-    global _KERNEL, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box
-    if _compiled._sizes(()) is None:  # compiles (or loads) hqp_tpm.solvers._compiled's kernels first
-        return None
-    import numba
+def _sns_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+    """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; ``ints[pi:]``
+    gets nsat, iterations, feasible and the saturated joints, ``floats[pf]`` the scale."""
+    status, pi, pf = _write_rows(buf, ints, floats, q, v, mats, vecs)
+    if status != WRITTEN:
+        return status
+    m, n, nlev = ints[0], ints[1], ints[3]
+    mn = m * n
+    J = buf[:mn].reshape((m, n))
+    b = buf[mn: mn + m]
+    out = buf[mn + m + n: mn + m + 2 * n]
+    sizes = ints[7: 7 + nlev]
+    lo = buf[mn + m + 2 * n: mn + m + 3 * n]
+    up = buf[mn + m + 3 * n: mn + m + 4 * n]
+    bi = pi + 3 + n  # the box: where from, the slot of its limits in mats, its joint count, its indices
+    box = ints[bi]
+    if box != BOX_GIVEN:
+        nc = ints[bi + 2]
+        idx = ints[bi + 3: bi + 3 + 2 * nc].reshape((2, nc))
+        if box == BOX_VELOCITY:
+            ok = _velocity_box(q, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
+        else:
+            ok = _acceleration_box(q, v, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
+        if not ok:
+            return BOX_HANDED_BACK
+    status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
+                                                          floats[3], floats[4], out, ints[pi + 3: pi + 3 + n])
+    if status != _compiled_sns.DONE:
+        return SNS_HANDED_BACK
+    ints[pi], ints[pi + 1], ints[pi + 2] = nsat, iterations, 1 if feasible else 0
+    floats[pf] = scale
+    for i in range(n):
+        if not math.isfinite(out[i]):
+            return NONFINITE_X
+    return SOLVED
 
-    if not _compiled_sns._READY:
+
+def _build(solve: int):
+    """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user
+    does not compile the SNS loop); None if numba cannot be imported."""
+    global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box
+    if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
+        return None
+    if _write_rows is None:
+        _write_rows = _jit(_rows)
+    if solve == SNS and not _compiled_sns._READY:
         _compiled_sns._compile()
     _past_rank, _general, _sns_loop = _compiled._past_rank, _compiled._general, _compiled_sns._sns_loop
     _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
+    _KERNELS[solve] = _jit({ROWS: _rows_step, TPM: _tpm_step, SNS: _sns_step}[solve])
+    return _KERNELS[solve]
+
+
+def _jit(fn):
+    """``fn`` compiled by numba with its disk cache, its stamp also holding the callees' files (below)."""
+    import numba
+
     try:
-        _KERNEL = numba.njit(nogil=True, cache=True)(_tpm_step)
+        kernel = numba.njit(nogil=True, cache=True)(fn)
     except RuntimeError:  # pragma: no cover - no writable cache location: compile in memory
-        _KERNEL = numba.njit(nogil=True)(_tpm_step)
-        return _KERNEL
+        return numba.njit(nogil=True)(fn)
     try:  # numba checks a cached kernel against its own file's stamp: add the callees' files' stamps
-        cache_file = _KERNEL._cache._cache_file
+        cache_file = kernel._cache._cache_file
         stamps = [(st.st_mtime, st.st_size) for st in map(os.stat, _CALLEES)]
         cache_file._source_stamp = (cache_file._source_stamp, *stamps)
     except (AttributeError, OSError):  # pragma: no cover - another numba layout: the cache only when safe
         if not _cache_is_safe():
-            _KERNEL = numba.njit(nogil=True)(_tpm_step)
-    return _KERNEL
+            kernel = numba.njit(nogil=True)(fn)
+    return kernel
 
 
 #: the files of the kernels :func:`_tpm_step` calls
@@ -283,13 +330,15 @@ class Program:
                 "iterations": iterations}
 
 
-def kernel():
-    """The compiled kernel (compiled or loaded on first use), or None if numba cannot be imported after all
-    (then :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
+def kernel(solve: int = TPM):
+    """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; compiled or
+    loaded on first use), or None if numba cannot be imported after all (then
+    :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
 
-    ``kernel(buf, ints, floats, q, v, mats, vecs) -> status``: ``buf = [J (row-major), b, x0, x]`` (``x0`` the
-    null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v``, ``mats``
-    and ``vecs``, finiteness of ``J`` and ``b``, ``x`` of the TPM kernel, finiteness of ``x``; ``ints``,
-    ``floats``, ``mats`` and ``vecs`` those of a :class:`Program`.
+    ``kernel(buf, ints, floats, q, v, mats, vecs) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]``
+    (``x0`` the null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``,
+    ``v``, ``mats`` and ``vecs``, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box
+    and ``x`` of the SNS loop, and finiteness of ``x``; ``ints``, ``floats``, ``mats`` and ``vecs`` those of a
+    :class:`Program`.
     """
-    return _KERNEL or _build()
+    return _KERNELS.get(solve) or _build(solve)

@@ -295,7 +295,7 @@ class LeanStep:
                 program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
-            self._kernel = _compiled_step.kernel()
+            self._kernel = _compiled_step.kernel(mode)
         return self
 
     def _box(self, st, t):
