@@ -254,3 +254,45 @@ def test_pointing_error_follows_the_state_through_its_kept_view():
             st.update_positions(q, np.zeros(robot.nv), 0.0, ())
         e = task.pointing_error(st)  # a partial update (frames not placed): completed first, as State.rotation does
         assert e == float(task._cos - task.z_d.dot(st.rotation(task.fid)[:, 2]))
+
+
+def test_planned_solve_kernel_equals_tpm_stacked():
+    """The planned step's compiled solve (finiteness, x0 = -D qd, the TPM kernel, x's finiteness in one call) gives
+    tpm_stacked's bits on random stacks with m <= n and m > n, damped and not, with and without x0; it reports
+    non-finite rows and a non-finite x, and declines where tpm_stacked's numpy reference decides."""
+    from hqp_tpm.control import _compiled_step
+    from hqp_tpm.solvers import _compiled
+    from hqp_tpm.solvers._fullrank import COND, MARGIN
+    from hqp_tpm.solvers.tpm import tpm_stacked
+
+    kernel = _compiled_step.stacked_kernel()
+    if kernel is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(5)
+    seen = set()
+    for trial in range(600):
+        n = int(rng.integers(2, 9))
+        sizes = tuple(int(k) for k in rng.integers(1, 4, int(rng.integers(1, 4))))
+        if trial % 3 == 0:
+            sizes = sizes + (n,)  # past rank n (the posture-like last level)
+        m = sum(sizes)
+        J = rng.normal(size=(m, n)) * 10.0 ** rng.uniform(-2, 2)
+        if trial % 5 == 0:
+            J[-1] = J[0]  # a repeated row: damped or declined
+        b = rng.normal(size=m)
+        v = rng.normal(size=n)
+        damping = float(rng.choice([0.0, 3.0]))
+        lam, eps = (0.05, 0.1) if trial % 2 else (0.0, 0.0)
+        x, x0 = np.empty(n), np.empty(n)
+        status = kernel(J, b, _compiled._sizes(sizes), v, damping, lam, eps, _compiled._UNIT, MARGIN, COND, x0, x)
+        seen.add(int(status))
+        if status == _compiled_step.SOLVED:
+            ref = tpm_stacked(J, b, sizes, n, lam, eps, -damping * v if damping else None)
+            np.testing.assert_array_equal(x, ref)
+    assert {_compiled_step.SOLVED, _compiled.DECLINED} <= seen, seen
+    J, b, v = np.eye(3), np.ones(3), np.zeros(3)
+    args = (_compiled._sizes((3,)), v, 0.0, 0.0, 0.0, _compiled._UNIT, MARGIN, COND, np.empty(3), np.empty(3))
+    b[1] = np.nan
+    assert kernel(J, b, *args) == _compiled_step.NONFINITE_ROWS
+    J, b = 1e-100 * np.eye(3), np.full(3, 1e300)  # well conditioned, x = 1e400 overflows
+    assert kernel(J, b, *args) == _compiled_step.NONFINITE_X

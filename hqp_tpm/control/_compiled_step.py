@@ -186,6 +186,47 @@ def _sns_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     return SOLVED
 
 
+def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
+    """The planned step's solve (:mod:`hqp_tpm.policies.planned_step`) on its stacked ``J`` (``m x n``), ``b``:
+    their finiteness, ``x0 = -damping v`` when ``damping`` (eq. (15) of papers/000), the TPM kernel
+    ``tpm_stacked`` would call, ``x``'s finiteness; the statuses of :func:`kernel`."""
+    m, n = J.shape
+    for i in range(m):
+        if not math.isfinite(b[i]):
+            return NONFINITE_ROWS
+        for j in range(n):
+            if not math.isfinite(J[i, j]):
+                return NONFINITE_ROWS
+    use_x0 = damping != 0.0
+    if use_x0:
+        for i in range(n):
+            x0[i] = -damping * v[i]
+    if m > n:
+        status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
+    else:
+        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+    if status != SOLVED:
+        return status
+    for i in range(n):
+        if not math.isfinite(out[i]):
+            return NONFINITE_X
+    return SOLVED
+
+
+def stacked_kernel():
+    """The compiled :func:`_stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out)
+    -> status`` (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; compiled or loaded on first use), or
+    None if numba cannot be imported after all."""
+    global _past_rank, _general
+    kernel = _KERNELS.get("stacked")
+    if kernel is None:
+        if _compiled._sizes(()) is None:
+            return None
+        _past_rank, _general = _compiled._past_rank, _compiled._general
+        kernel = _KERNELS["stacked"] = _jit(_stacked_tpm)
+    return kernel
+
+
 def _build(solve: int):
     """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user
     does not compile the SNS loop); None if numba cannot be imported."""

@@ -18,8 +18,10 @@ them, looks the solver up by name and wraps the result in a ``StepResult``. A :c
    cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the numbers
    of their ``level``); any other task through
    its level's analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes);
-3. one finiteness check and one call of :func:`~hqp_tpm.solvers.tpm.tpm_stacked` (the kernel :func:`tpm` calls),
-   with ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000);
+3. one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
+   ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000), the TPM kernel :func:`tpm` calls and the
+   finiteness of ``x`` (without numba, or where that kernel declines: the same checks in numpy and
+   :func:`~hqp_tpm.solvers.tpm.tpm_stacked`);
 4. one integration.
 
 The rows, their order and the kernel call are those of the readable step, so the commands and states are equal
@@ -36,9 +38,12 @@ from abc import abstractmethod
 
 import numpy as np
 
+from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import SolverFailedError
+from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task
@@ -65,7 +70,7 @@ class PlannedStep:
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_own", "_placed")
+                 "_own", "_placed", "_kernel", "_x0")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -103,6 +108,7 @@ class PlannedStep:
         self._own = {id(task) for task in ctrl.policy.tasks()
                      if type(task).level is Task.level and type(task).row_writer is not Task.row_writer}
         self._placed: dict[tuple[int, int], tuple | bool] = {}
+        self._kernel, self._x0 = None, np.zeros(self.n)
         return self
 
     def _place(self, task: Task, a: int) -> tuple | bool:
@@ -194,6 +200,19 @@ class PlannedStep:
         self.tasks = tasks
         m, sizes = self._rows(st, t, tasks, extras)
         J, b = self.J[:m], self.b[:m]
+        if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
+            kernel = self._kernel or self._load_kernel()
+            if kernel is not None:
+                x, x0 = np.empty(self.n), self._x0
+                status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
+                                _compiled._UNIT, MARGIN, COND, x0, x)
+                if status == _compiled_step.SOLVED:
+                    return x
+                if status == _compiled_step.NONFINITE_ROWS:
+                    return ctrl._compute().command  # the readable path raises the typed error naming the task
+                if status == _compiled_step.NONFINITE_X:
+                    raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
+                # DECLINED / UNDECIDED: tpm_stacked's numpy reference decides, below
         Jf = J.ravel()
         if not math.isfinite(Jf @ Jf + b @ b):      # NaN or inf anywhere (an overflow only costs the slow path)
             return ctrl._compute().command          # the readable path raises the typed error naming the task
@@ -205,6 +224,11 @@ class PlannedStep:
         if not (math.isfinite(x @ x) or np.isfinite(x).all()):  # an overflow of x @ x only costs the exact test
             raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
         return x
+
+    def _load_kernel(self):
+        """The compiled solve of :meth:`compute` (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
+        self._kernel = _compiled_step.stacked_kernel()
+        return self._kernel
 
     def step(self) -> np.ndarray:
         """One control step (as :meth:`Controller.step`, transactional); returns the command."""
