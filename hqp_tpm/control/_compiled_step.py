@@ -67,7 +67,7 @@ SELECTION, FRAME = 0, 1
 #: the compiled kernels by what they solve (:func:`kernel`), compiled or loaded on first use
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
-_write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
+_write_rows = _solve = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
 
 
 def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
@@ -119,6 +119,22 @@ def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
     return WRITTEN, pi, pf
 
 
+def _tpm_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out):  # pragma: no cover - compiled
+    """``out <- x`` of the TPM kernel ``tpm_stacked`` calls (``_past_rank`` when ``m > n``, ``_general`` with ``x0``
+    otherwise), then ``x``'s finiteness: :data:`SOLVED`, :data:`NONFINITE_X` or the kernel's status."""
+    m, n = J.shape
+    if m > n:
+        status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
+    else:
+        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+    if status != SOLVED:
+        return status
+    for i in range(n):
+        if not math.isfinite(out[i]):
+            return NONFINITE_X
+    return SOLVED
+
+
 def _rows_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
     """:data:`ROWS`: the rows and their finiteness only."""
     return _write_rows(buf, ints, floats, q, v, mats, vecs)[0]
@@ -137,16 +153,7 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     x0 = buf[mn + m: mn + m + n]
     out = buf[mn + m + n: mn + m + 2 * n]
     sizes = ints[7: 7 + nlev]
-    if m > n:
-        status = _past_rank(J, b, sizes, n, floats[0], floats[1], floats[2], floats[3], floats[4], out)
-    else:
-        status = _general(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], out)
-    if status != SOLVED:
-        return status
-    for i in range(n):
-        if not math.isfinite(out[i]):
-            return NONFINITE_X
-    return SOLVED
+    return _solve(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
 
 
 def _sns_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
@@ -201,30 +208,28 @@ def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x
     if use_x0:
         for i in range(n):
             x0[i] = -damping * v[i]
-    if m > n:
-        status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
-    else:
-        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
-    if status != SOLVED:
-        return status
-    for i in range(n):
-        if not math.isfinite(out[i]):
-            return NONFINITE_X
-    return SOLVED
+    return _solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out)
 
 
 def stacked_kernel():
     """The compiled :func:`_stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out)
     -> status`` (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; compiled or loaded on first use), or
     None if numba cannot be imported after all."""
-    global _past_rank, _general
     kernel = _KERNELS.get("stacked")
     if kernel is None:
         if _compiled._sizes(()) is None:
             return None
-        _past_rank, _general = _compiled._past_rank, _compiled._general
+        _tpm_solve_kernel()
         kernel = _KERNELS["stacked"] = _jit(_stacked_tpm)
     return kernel
+
+
+def _tpm_solve_kernel() -> None:
+    """Compile (or load) :func:`_tpm_solve` after the TPM kernels it calls (the solvers' kernels prepared)."""
+    global _solve, _past_rank, _general
+    if _solve is None:
+        _past_rank, _general = _compiled._past_rank, _compiled._general
+        _solve = _jit(_tpm_solve)
 
 
 def _build(solve: int):
@@ -235,6 +240,7 @@ def _build(solve: int):
         return None
     if _write_rows is None:
         _write_rows = _jit(_rows)
+    _tpm_solve_kernel()
     if solve == SNS and not _compiled_sns._READY:
         _compiled_sns._compile()
     _past_rank, _general, _sns_loop = _compiled._past_rank, _compiled._general, _compiled_sns._sns_loop

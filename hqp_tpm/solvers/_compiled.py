@@ -484,13 +484,7 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
-    V = np.empty((m, n))
-    for i in range(m):
-        for t in range(n):
-            V[i, t] = J[i, t]
-    tau = np.zeros(m)
-    R = np.zeros((m, m))
-    _householder_rows(V, tau, R)
+    V, tau, R = _rows_qr(J, m)
     for i in range(m):
         if R[i, i] == 0.0:
             return UNDECIDED
