@@ -470,11 +470,16 @@ def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
 
 def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
     """A damped pivot (the arm stretched out, lambda_max > 0) is not the compiled loop's case: the kernel hands
-    back and sns_tpm_stacked's numpy path solves, with the readable step's numbers."""
+    back and sns_tpm_stacked's numpy path solves, with the readable step's numbers, without running the compiled
+    loop again (it ran it twice more per step before: in sns_tpm_stacked and in the path it hands over to)."""
     from benchmarks.peers import problems as P
+    from hqp_tpm.solvers import _compiled_sns
 
     _flags(monkeypatch, True, True)
     calls = _sns_spy(monkeypatch)
+    loops = []
+    real_loop = _compiled_sns.sns_tpm_loop
+    monkeypatch.setattr(_compiled_sns, "sns_tpm_loop", lambda *a: loops.append(1) or real_loop(*a))
     robot = P.load_robot(P.IIWA)
     prob = P.iiwa_problem(robot, order=1, n=1)
     cfg = dataclasses.replace(prob.configs[0], q=np.zeros(robot.nq))  # singular: the EE pose Jacobian loses rank
@@ -485,7 +490,9 @@ def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
     lean = LeanStep.of(fast)
     for _ in range(5):
         res = ref.step()
+        loops.clear()
         np.testing.assert_array_equal(lean.step(), res.command)
+        assert not loops, len(loops)  # the fused kernel's loop handed back; numpy only from there
         assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}
     assert len(calls) >= 1
 

@@ -316,7 +316,7 @@ class LeanStep:
             st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames)
         else:
             st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
-        kernel = self._kernel
+        kernel, status = self._kernel, None
         if kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED:
             for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
                 write(t)
@@ -361,7 +361,7 @@ class LeanStep:
             if x0 is not None:  # the x0 damping level appended as the registry does (LeanStep.of)
                 J, b, sizes = np.vstack((J, np.eye(self.n))), np.concatenate((b, x0)), sizes + (self.n,)
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True)
+                                       return_info=True, compiled=status != _compiled_step.SNS_HANDED_BACK)
             info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         else:
             x, info = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,

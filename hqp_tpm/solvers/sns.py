@@ -482,27 +482,31 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
 
 
 def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambda_max: float = 0.0,
-                    eps: float = 0.0, return_info: bool = False):
+                    eps: float = 0.0, return_info: bool = False, compiled: bool = True):
     """:func:`sns_tpm` of a stack already stacked: ``J`` (m x n) and ``xd`` finite floats, ``sizes`` the row
     counts of the levels (a tuple, summing to m). The box is checked as by :func:`sns_tpm`, the stack is not
-    (the lean step, :mod:`hqp_tpm.control.lean`, checks it once per step). Same result as :func:`sns_tpm`."""
+    (the lean step, :mod:`hqp_tpm.control.lean`, checks it once per step). Same result as :func:`sns_tpm`.
+    ``compiled=False``: the numpy loop only (the caller's compiled loop has just handed this stack back)."""
     n = J.shape[1]
-    if (_compiled.ENABLED and sizes and type(lower) is np.ndarray and type(upper) is np.ndarray
+    tried = False
+    if (compiled and _compiled.ENABLED and sizes and type(lower) is np.ndarray and type(upper) is np.ndarray
             and lower.dtype == np.float64 and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
+        tried = True
         out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lower, upper, lambda_max, eps, MARGIN, COND)
         if type(out) is tuple:                   # else handed back (a status code): numpy solves
             x, sat, s, iterations, feasible = out
             return (x, SNSInfo(s, sat, iterations, feasible)) if return_info else x
     lo, up = _box(lower, upper, n)
-    return _sns_tpm(J, xd, sizes, lo, up, None, lambda_max, eps, return_info)
+    return _sns_tpm(J, xd, sizes, lo, up, None, lambda_max, eps, return_info, compiled and not tried)
 
 
-def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info):
+def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=True):
     """The fast path of :func:`sns_tpm` on the stacked active rows (``lv``: the levels, or None: built from
     ``J``, ``xd``, ``sizes`` when the box-point shift needs them). The compiled loop
-    (:mod:`hqp_tpm.solvers._compiled_sns`) when enabled, else (or when it hands back) numpy."""
+    (:mod:`hqp_tpm.solvers._compiled_sns`) when enabled and ``compiled`` (False: it has handed this stack back
+    already), else (or when it hands back) numpy."""
     n = lo.shape[0]
-    if _compiled.ENABLED and sizes:
+    if compiled and _compiled.ENABLED and sizes:
         out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, MARGIN, COND)
         if type(out) is tuple:                   # else handed back (a status code): numpy solves
             x, sat, s, iterations, feasible = out
