@@ -2,7 +2,9 @@
 
 Two controllers built alike from the same state, one stepped by ``Controller.step()``, the other by
 ``LeanStep.step()``: commands, ``q`` and ``v`` compared at every step (1e-12; they are in fact equal to
-the last bit, which is asserted where the solver is deterministic), on every set-up the lean step supports:
+the last bit where the solver is deterministic, except the fused kernel's rotation error ``log3(R_d R^T)``,
+which rounds within a few ulps of pinocchio's: those steps agree to ``ROUNDING``), on every set-up the lean step
+supports:
 every bundled scenario that qualifies (``romeo_tpm``, ``romeo_sns_tpm``, ``romeo_sns``, ``romeo_qp``), the
 side-by-side benchmark's problems (EE pose > posture on the iiwa at velocity and acceleration level,
 Romeo's five levels) with every solver and the joint box, and its closed loops (a moving reference), with
@@ -44,19 +46,44 @@ def rel_diff(a, b) -> float:
     return float(np.linalg.norm(a - b) / max(1.0, np.linalg.norm(b)))
 
 
+#: How far the fused kernel's steps may be from the readable step's (relative): it computes a frame's rotation error
+#: ``log3(R_d R^T)`` itself (:func:`hqp_tpm.robot._compiled.rotation_error`), a few ulps from pinocchio's (the
+#: matrix product and ``log3`` round otherwise); every other operation is the readable path's, to the bit
+#: (``test_rows_without_rotation_error_are_bit_identical``).
+ROUNDING = 1e-12
+
+
+def assert_equal_steps(a, b):
+    """``a`` equals ``b`` to :data:`ROUNDING` (relative to ``max(1, |b|)``)."""
+    assert rel_diff(a, b) <= ROUNDING, (rel_diff(a, b), a, b)
+
+
+def assert_same_info(info, want):
+    """The SNS info of a lean step equals the readable step's: the same saturated joints and iterations, the scale
+    to :data:`ROUNDING`."""
+    assert info["saturated"] == want["saturated"] and info["iterations"] == want["iterations"], (info, want)
+    assert abs(info["scale"] - want["scale"]) <= ROUNDING, (info, want)
+
+
+#: The cascaded QP is iterative: its answer moves with its input's last bits (the rotation error's rounding) by more
+#: than the analytic solvers' (README, known problems).
+QP_TOL = 1e-9
+
+
 def assert_same_steps(make, steps, exact=True):
     ref, fast = make(), make()
     lean = LeanStep.of(fast)
     assert lean is not None, LeanStep.why_not(fast)
+    tol = TOL if exact else QP_TOL
     for _ in range(steps):
         x_ref = ref.step().command
         x = lean.step()
-        assert rel_diff(x, x_ref) <= TOL
-        assert rel_diff(fast.q, ref.q) <= TOL and rel_diff(fast.v, ref.v) <= TOL
+        assert rel_diff(x, x_ref) <= tol
+        assert rel_diff(fast.q, ref.q) <= tol and rel_diff(fast.v, ref.v) <= tol
         assert fast.t == ref.t and fast.steps == ref.steps
-        if exact:  # the same operations in the same order: the same bits
-            np.testing.assert_array_equal(x, x_ref)
-            np.testing.assert_array_equal(fast.q, ref.q)
+        if exact:  # the same operations in the same order (but the rotation error): ROUNDING
+            assert_equal_steps(x, x_ref)
+            assert_equal_steps(fast.q, ref.q)
     return ref, fast
 
 
@@ -380,8 +407,8 @@ def test_fused_tpm_step_under_every_switch(kind, rows, solve, monkeypatch):
     for i in range(24):  # the switches flipped between steps, on one lean step
         monkeypatch.setattr(_compiled, "ENABLED", rows and i % 2 == 0)
         monkeypatch.setattr(_solvers_compiled, "ENABLED", solve and i % 3 != 0)
-        np.testing.assert_array_equal(lean.step(), ref.step().command)
-        np.testing.assert_array_equal(fast.q, ref.q)
+        assert_equal_steps(lean.step(), ref.step().command)
+        assert_equal_steps(fast.q, ref.q)
 
 
 @pytest.mark.parametrize("solver", ["sns_tpm", "sns"])
@@ -433,9 +460,9 @@ def test_fused_sns_tpm_equals_the_readable_step(kind, monkeypatch):
         assert lean._program.solve == _compiled_step.SNS
         for _ in range(12 if kind == "romeo_vel" else 30):
             res = ref.step()
-            np.testing.assert_array_equal(lean.step(), res.command)
-            np.testing.assert_array_equal(fast.q, ref.q)
-            assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}, (lean.info, res.info)
+            assert_equal_steps(lean.step(), res.command)
+            assert_equal_steps(fast.q, ref.q)
+            assert_same_info(lean.info, res.info)
             steps += 1
             saturated += bool(res.info["saturated"])
     assert saturated >= 5, saturated                   # the box binds: the loop saturates joints
@@ -462,9 +489,9 @@ def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     assert not _compiled.velocity_box(q, box._P, box._idx, box._dt, np.zeros(7), np.zeros(7))
     for _ in range(5):
         res = ref.step()
-        np.testing.assert_array_equal(lean.step(), res.command)
-        np.testing.assert_array_equal(fast.q, ref.q)
-        assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}
+        assert_equal_steps(lean.step(), res.command)
+        assert_equal_steps(fast.q, ref.q)
+        assert_same_info(lean.info, res.info)
     assert len(calls) >= 1
 
 
@@ -491,9 +518,9 @@ def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
     for _ in range(5):
         res = ref.step()
         loops.clear()
-        np.testing.assert_array_equal(lean.step(), res.command)
+        assert_equal_steps(lean.step(), res.command)
         assert not loops, len(loops)  # the fused kernel's loop handed back; numpy only from there
-        assert lean.info == {k: res.info[k] for k in ("scale", "saturated", "iterations")}
+        assert_same_info(lean.info, res.info)
     assert len(calls) >= 1
 
 
@@ -558,9 +585,43 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
                     task.trajectory = Constant(value=np.full(task.dim, 0.2))
                 if i == 30 and type(task) is FramePosition and task.dim == 2:
                     task.trajectory = wave
-        np.testing.assert_array_equal(lean.step(), ref.step().command)
-        np.testing.assert_array_equal(fast.q, ref.q)
-        np.testing.assert_array_equal(fast.v, ref.v)
+        assert_equal_steps(lean.step(), ref.step().command)
+        assert_equal_steps(fast.q, ref.q)
+        assert_equal_steps(fast.v, ref.v)
+
+
+@pytest.mark.parametrize("solver", ["tpm", "sns_tpm"])
+@pytest.mark.parametrize("order", [1, 2])
+def test_rows_without_rotation_error_are_bit_identical(order, solver, monkeypatch):
+    """Frame positions (on all and on selected axes) and a posture, no orientation: the fused kernel writes the frame
+    Jacobians from pinocchio's joint Jacobians with pinocchio's operations, so at velocity level the steps are the
+    readable step's to the last bit (with a rotation error they agree to ROUNDING; so at acceleration level, where
+    the kernel sums J qd in its own order where the readable step calls numpy's dot)."""
+    from hqp_tpm import Controller, FramePosition, Gains, JointLimits, Posture, Stack
+    from hqp_tpm.robot.model import Robot
+
+    _flags(monkeypatch, True, True)
+    robot = Robot.load("iiwa7")
+    g = Gains(7.0, 3.0)
+    stack = Stack.of(FramePosition(robot, "iiwa_ee", [0.5, 0.1, 0.6], g),
+                     FramePosition(robot, "iiwa_link_4", [0.1, 0.3], g, axes="zx"), Posture(robot, None, g))
+
+    def make():
+        return Controller(robot, stack, order=order, dt=1e-3, q0=np.linspace(-0.6, 0.8, 7), solver=solver,
+                          v0=np.full(7, 0.3) if order == 2 else None,
+                          box=JointLimits(robot, order=order, dt=1e-3, velocity_scale=0.1) if solver != "tpm" else None)
+
+    ref, fast = make(), make()
+    lean = LeanStep.of(fast)
+    assert lean._kernel is not None and lean._program.ints[5] == 3
+    same = np.testing.assert_array_equal if order == 1 else assert_equal_steps
+    for _ in range(40):
+        res = ref.step()
+        same(lean.step(), res.command)
+        same(fast.q, ref.q)
+        same(fast.v, ref.v)
+        if solver == "sns_tpm":
+            assert_same_info(lean.info, res.info)
 
 
 def test_positions_only_state_update_equals_the_partial_update():

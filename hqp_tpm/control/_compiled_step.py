@@ -68,6 +68,7 @@ SELECTION, FRAME = 0, 1
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
 _write_rows = _solve = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
+_frame_jacobian = _rotation_error = None
 
 
 def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
@@ -94,15 +95,30 @@ def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
             pf += 2 + 3 * dim
         else:  # FRAME: hqp_tpm.robot._compiled.rows1 / rows2
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
+            jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
+            at = pi + 11                               # the rows, xrows, then the Jacobian's columns
             S = mats[jm]
+            if jsrc >= 0:  # the frame Jacobian from the joint Jacobians (else the caller put it in mats[jm])
+                _frame_jacobian(mats[jsrc], ints[at + dim + k: at + dim + k + nc], vecs[ip], S)
+            ws = iv + (1 if k else 0)                  # w's slot (then J qd's, Jdot qd's at order 2)
+            if rot >= 0:  # w = log3(R_d R^T) (else the caller put it in vecs[ws])
+                _rotation_error(mats[rot + 1], mats[rot], vecs[ws])
+            if jsrc >= 0 and order == 2:  # J qd of the task's rows
+                rate = vecs[ws + (1 if k < dim else 0)]
+                for i in range(dim):
+                    src = ints[at + i]
+                    acc = 0.0
+                    for c in range(n):
+                        acc += S[src, c] * v[c]
+                    rate[i] = acc
             fx, fxd = pf + 2, pf + 2 + k
             for i in range(dim):
-                src = ints[pi + 7 + i]
+                src = ints[at + i]
                 for c in range(n):
                     J[r0 + i, c] = S[src, c]
                 if i < k:
                     x_d = vecs[ixd][i] if ixd >= 0 else floats[fx + i]
-                    e = x_d - vecs[iv][ints[pi + 7 + dim + i]]
+                    e = x_d - vecs[iv][ints[at + dim + i]]
                 else:
                     e = vecs[iv + (1 if k else 0)][i - k]
                 xd = floats[fxd + i]
@@ -111,7 +127,7 @@ def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
                 else:
                     w = iv + (1 if k else 0) + (1 if k < dim else 0)
                     b[r0 + i] = floats[fxd + dim + i] + kd * (xd - vecs[w][i]) + kp * e - vecs[w + 1][i]
-            pi += 7 + dim + k
+            pi += 11 + dim + k + nc
             pf += 2 + k + 2 * dim
     for i in range(mn + m):
         if not math.isfinite(buf[i]):
@@ -236,9 +252,11 @@ def _build(solve: int):
     """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user
     does not compile the SNS loop); None if numba cannot be imported."""
     global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box
+    global _frame_jacobian, _rotation_error
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
     if _write_rows is None:
+        _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
         _write_rows = _jit(_rows)
     _tpm_solve_kernel()
     if solve == SNS and not _compiled_sns._READY:
@@ -323,20 +341,49 @@ class Program:
         self._ints += [SELECTION, row, dim, *qidx, *vidx]
         return self._gains(kp, kd, 3 * dim)
 
-    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool) -> tuple[int, int, int]:
+    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, jacobian=None,
+                  rotation=None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when
         ``len(xrows) == len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at
         order 2 ``rate = J qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`.
-        Returns ``(at, mat, vec)``: ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`.
+
+        ``jacobian = (JT, cols, p)`` (:meth:`hqp_tpm.robot.state.State.frame_jacobian_source` and the frame's
+        position, views pinocchio updates): the kernel writes ``S`` itself
+        (:func:`hqp_tpm.robot._compiled.frame_jacobian`) and, at order 2, ``rate``; else the caller puts ``S`` and
+        ``rate`` in their slots every step. ``rotation = (RT, RdT)`` (the frame's and the target's rotations
+        transposed: row-major views): the kernel writes ``w = log3(R_d R^T)``
+        (:func:`hqp_tpm.robot._compiled.rotation_error`); the caller replaces ``mats[rot + 1]`` when the target
+        changes. Returns ``(at, mat, vec, rot)``: ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in
+        :attr:`floats`, ``rot`` the slot of ``RT`` (-1 without ``rotation``).
         """
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
         self.mats.append(np.zeros((6, self._ints[1])))
         self.vecs += [np.zeros(6) for _ in range(used + (1 if x_d_vec else 0))]
-        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, *rows, *xrows]
-        return self._gains(kp, kd, k + 2 * dim), mat, vec
+        jsrc = ip = rot = -1
+        cols: list[int] = []
+        if jacobian is not None:
+            JT, cols, p = jacobian
+            jsrc = self._slot(self.mats, JT)
+            ip = self._slot(self.vecs, p)
+            cols = [int(c) for c in cols]
+        if rotation is not None:
+            rot = len(self.mats)
+            self.mats += [rotation[0], rotation[1]]
+        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), *rows,
+                       *xrows, *cols]
+        return self._gains(kp, kd, k + 2 * dim), mat, vec, rot
+
+    @staticmethod
+    def _slot(arrays: list, a: np.ndarray) -> int:
+        """The slot of ``a`` in ``arrays`` (added once: tasks share pinocchio's joint Jacobians)."""
+        for i, b in enumerate(arrays):
+            if b is a:
+                return i
+        arrays.append(a)
+        return len(arrays) - 1
 
     def set_box(self, kind: int, limits: np.ndarray, idx: np.ndarray, dt: float) -> None:
         """With :data:`SNS`: the kernel computes the box (:data:`BOX_VELOCITY` or :data:`BOX_ACCELERATION`) from

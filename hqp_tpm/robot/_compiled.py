@@ -17,6 +17,8 @@ from __future__ import annotations
 import math
 import os
 
+import numpy as np
+
 try:  # pragma: no cover - depends on the environment
     import numba
 except ImportError:  # pragma: no cover
@@ -154,3 +156,89 @@ def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pr
     for i in range(m):
         e = x_d[i] - x[xrows[i]] if i < k else w[i - k]
         b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e - jdq[i]
+
+
+@_njit
+def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
+    """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into ``S`` (6 x nv), from the joint
+    Jacobians ``JT = data.J.T`` (nv x 6, world frame) on the columns ``cols`` that support the frame, as pinocchio's
+    ``translateJointJacobian``: ``linear = v - p x omega``, ``angular = omega`` (Eigen's cross product, term by
+    term); the other columns of ``S`` are not written (zero)."""
+    p0, p1, p2 = p[0], p[1], p[2]
+    for c in cols:
+        a0, a1, a2 = JT[c, 3], JT[c, 4], JT[c, 5]
+        S[0, c] = JT[c, 0] - (p1 * a2 - p2 * a1)
+        S[1, c] = JT[c, 1] - (p2 * a0 - p0 * a2)
+        S[2, c] = JT[c, 2] - (p0 * a1 - p1 * a0)
+        S[3, c] = a0
+        S[4, c] = a1
+        S[5, c] = a2
+
+
+_EPS = 2.220446049250313e-16        # numpy.finfo(float).eps, Eigen's NumTraits<double>::epsilon()
+_PREC = _EPS ** (1.0 / 3.0)         # pinocchio's TaylorSeriesExpansion<double>::precision<2>()
+
+
+@_njit
+def _theta_axis(i0, val, R, axis):  # pragma: no cover - compiled
+    """pinocchio's ``internal::compute_theta_axis<i0>`` (``log3`` near ``pi``): the angle; ``axis`` normalized."""
+    i1, i2 = (i0 + 1) % 3, (i0 + 2) % 3
+    s = math.sqrt(val + _EPS + _EPS * _EPS) * (1.0 if R[i2, i1] >= R[i1, i2] else -1.0)
+    axis[i0] = s / 2.0
+    axis[i1] = 1.0 / (2.0 * s) * (R[i1, i0] + R[i0, i1])
+    axis[i2] = 1.0 / (2.0 * s) * (R[i2, i0] + R[i0, i2])
+    w = 1.0 / (2.0 * s) * (R[i2, i1] - R[i1, i2])
+    norm = math.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])
+    for k in range(3):
+        axis[k] /= norm
+    return 2.0 * math.atan2(norm, w)
+
+
+@_njit
+def log3(M, w):  # pragma: no cover - compiled
+    """``w <- pin.log3(M)`` for a rotation matrix ``M`` (3 x 3): pinocchio's ``log3_impl`` (3.x) step by step
+    (renormalized columns, ``acos`` of the trace, its expansions near 0 and pi, at pi the axis of the largest
+    ``2 R_ii - tr + 1``). Not bit-identical to pinocchio (its sums may round otherwise): equal to ~1e-15 away from
+    pi (``tests/test_frame_kernels.py``)."""
+    R = np.empty((3, 3))
+    n0 = math.sqrt(M[0, 0] * M[0, 0] + M[1, 0] * M[1, 0] + M[2, 0] * M[2, 0])
+    n1 = math.sqrt(M[0, 1] * M[0, 1] + M[1, 1] * M[1, 1] + M[2, 1] * M[2, 1])
+    for i in range(3):          # renormalize_rotation_matrix: c0, c1 normalized, c2 = c0 x c1, c0 = c1 x c2
+        R[i, 0] = M[i, 0] / n0
+        R[i, 1] = M[i, 1] / n1
+    R[0, 2] = R[1, 0] * R[2, 1] - R[2, 0] * R[1, 1]
+    R[1, 2] = R[2, 0] * R[0, 1] - R[0, 0] * R[2, 1]
+    R[2, 2] = R[0, 0] * R[1, 1] - R[1, 0] * R[0, 1]
+    R[0, 0] = R[1, 1] * R[2, 2] - R[2, 1] * R[1, 2]
+    R[1, 0] = R[2, 1] * R[0, 2] - R[0, 1] * R[2, 2]
+    R[2, 0] = R[0, 1] * R[1, 2] - R[1, 1] * R[0, 2]
+    tr = R[0, 0] + R[1, 1] + R[2, 2]
+    cos_value = (tr - 1.0) / 2.0
+    if cos_value < -1.0 + _PREC:  # theta near pi: the axis from the largest 2 R_ii - tr + 1
+        v0, v1, v2 = 2.0 * R[0, 0] - tr + 1.0, 2.0 * R[1, 1] - tr + 1.0, 2.0 * R[2, 2] - tr + 1.0
+        i0 = (0 if v0 >= v2 else 2) if v0 >= v1 else (1 if v1 >= v2 else 2)
+        axis = np.empty(3)
+        theta = _theta_axis(i0, v0 if i0 == 0 else (v1 if i0 == 1 else v2), R, axis)
+        for k in range(3):
+            w[k] = theta * axis[k]
+        return
+    acos_expansion = math.sqrt(2.0 * (1.0 - cos_value) + _EPS * _EPS)
+    if tr <= 3.0 - _PREC:
+        theta = math.acos(cos_value) if tr >= -1.0 + _PREC else math.pi - acos_expansion
+    else:
+        theta = acos_expansion
+    a0, a1, a2 = 0.5 * (R[2, 1] - R[1, 2]), 0.5 * (R[0, 2] - R[2, 0]), 0.5 * (R[1, 0] - R[0, 1])  # unSkew
+    n2 = a0 * a0 + a1 * a1 + a2 * a2
+    t = theta / math.sin(theta) if theta >= _PREC else 1.0 + n2 / 6.0 + n2 * n2 * 3.0 / 40.0
+    w[0], w[1], w[2] = t * a0, t * a1, t * a2
+
+
+@_njit
+def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
+    """``w <- log3(R_d R^T)`` (a frame's rotation error, as the frame tasks' ``pin.log3(R_d.dot(R.T))``) from the
+    transposed rotations ``RdT = R_d^T``, ``RT = R^T`` (row-major views of pinocchio's column-major matrices)."""
+    E = np.empty((3, 3))
+    for i in range(3):
+        for j in range(3):
+            E[i, j] = RdT[0, i] * RT[0, j] + RdT[1, i] * RT[1, j] + RdT[2, i] * RT[2, j]
+    log3(E, w)

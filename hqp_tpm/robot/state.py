@@ -35,6 +35,7 @@ class State:
         self._zero = np.zeros(robot.nv)
         self._cache: dict = {}
         self._partial = False
+        self._joint_jacobians_T = None  # data.J.T (frame_jacobian_source)
         self.updates = 0
         #: every joint adds its velocity to its configuration (``pin.integrate`` is ``q + dq``): see :meth:`integrate`
         self.euclidean = self.model.nq == self.model.nv and all(j.shortname() in _EUCLIDEAN
@@ -157,6 +158,24 @@ class State:
         views = M.translation, M.rotation
         again = self.data.oMf[fid]
         return views if _same_memory(views, (again.translation, again.rotation)) else None
+
+    def frame_jacobian_source(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(JT, cols)``: the joint Jacobians ``data.J`` transposed (a view, ``nv x 6``, world frame, refreshed by
+        every :meth:`update`) and the columns that support frame ``fid``, from which the lean step's kernel writes
+        the frame Jacobian (:func:`hqp_tpm.robot._compiled.frame_jacobian`); None if this pinocchio returns a copy
+        of ``data.J`` or the model has mimic joints (then ``getFrameJacobian`` is called)."""
+        model, data = self.model, self.data
+        if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
+            return None
+        JT = self._joint_jacobians_T  # (one array object for every task)
+        if JT is None:
+            JT = data.J.T
+            if not (JT.flags.c_contiguous and JT.flags.writeable and _same_memory((JT,), (data.J.T,))):
+                return None
+            self._joint_jacobians_T = JT
+        joint = model.frames[fid].parentJoint
+        cols = [c for j in model.supports[joint] for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])]
+        return JT, np.array(cols, dtype=np.int64)
 
     # -- centre of mass --------------------------------------------------------------------------
     def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:

@@ -82,15 +82,28 @@ class FrameOrientation(Task):
         if views is None:
             return None
         model, data, fid = state.model, state.data, self.fid
-        R = views[1]
+        p, R = views
         g = self.gains
-        at, mat, vec = program.add_frame(row, range(3, 6), (), g.kp, g.kd, x_d_vec=False)
+        source = state.frame_jacobian_source(fid)
+        inside = source is not None  # the frame Jacobian, w = log3(R_d R^T) (and J qd) computed in the kernel
+        at, mat, vec, rot = program.add_frame(row, range(3, 6), (), g.kp, g.kd, x_d_vec=False,
+                                              jacobian=(*source, p) if inside else None,
+                                              rotation=(R.T, np.eye(3)) if inside else None)  # (the target's: below)
         refresh = ReferenceSlots(self, program, at - 2, at, ((1, 3), (2, 3))).refresh
         rate = np.zeros(3)
         mats, vecs = program.mats, program.vecs
+        target = [None]  # the target rotation whose transpose the kernel has
 
         def gather(t: float) -> None:
             refresh(t)
+            if inside:
+                Rd = self._R_target
+                if Rd is not target[0]:
+                    target[0] = Rd
+                    mats[rot + 1] = np.ascontiguousarray(Rd.T)  # (a view if Rd is column-major)
+                if order == 2:
+                    vecs[vec + 2] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
+                return
             Jt = pin.getFrameJacobian(model, data, fid, LWA)
             mats[mat] = Jt
             vecs[vec] = pin.log3(self._R_target.dot(R.T))

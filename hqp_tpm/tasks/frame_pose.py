@@ -89,30 +89,41 @@ class FramePose(Task):
         return write
 
     def row_program(self, state: State, order: int, program, row: int):
-        """:meth:`Task.row_program`: the frame Jacobian, ``p``, ``w = log3(R_d R^T)`` and the target translation
-        (at order 2 also ``J qd`` and ``Jdot qd``) into the kernel's slots."""
+        """:meth:`Task.row_program`: ``p`` and the target translation (at order 2 also ``Jdot qd``) into the kernel's
+        slots; the kernel computes the frame Jacobian from the joint Jacobians and ``w = log3(R_d R^T)`` where the
+        state gives views of them (:meth:`State.frame_jacobian_source`), else they are gathered here."""
         views = state.frame_views(self.fid)
         if views is None:
             return None
         model, data, fid = state.model, state.data, self.fid
         p, R = views
         g = self.gains
-        at, mat, vec = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True)
+        RT = R.T  # a view, as R
+        source = state.frame_jacobian_source(fid)
+        inside = source is not None  # the frame Jacobian and the rotation error computed in the kernel
+        at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True,
+                                              jacobian=(*source, p) if inside else None,
+                                              rotation=(RT, np.eye(3)) if inside else None)  # (the target's: below)
         refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
         rate = np.zeros(6)
         target = [None, None, None]  # the target placement and views of its translation and rotation
         xd_slot = vec + (4 if order == 2 else 2)
-        RT = R.T  # a view, as R
         mats, vecs = program.mats, program.vecs
         vecs[vec] = p  # pinocchio updates it in place
 
         def gather(t: float) -> None:
             refresh(t)
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)
             M = self._M_target
             if M is not target[0]:
                 target[:] = M, M.translation, M.rotation
                 vecs[xd_slot] = target[1]
+                if inside:
+                    mats[rot + 1] = target[2].T
+            if inside:
+                if order == 2:
+                    vecs[vec + 3] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+                return
+            Jt = pin.getFrameJacobian(model, data, fid, LWA)
             mats[mat] = Jt
             vecs[vec + 1] = pin.log3(target[2].dot(RT))
             if order == 2:

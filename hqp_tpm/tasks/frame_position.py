@@ -121,7 +121,10 @@ class FramePosition(Task):
         model, data, fid, sel, d = state.model, state.data, self.fid, self._sel, self.dim
         p = views[0]
         g = self.gains
-        at, mat, vec = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False)
+        source = state.frame_jacobian_source(fid)
+        inside = source is not None  # the frame Jacobian (and J qd) computed in the kernel
+        at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False,
+                                            jacobian=(*source, p) if inside else None)
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
         rate = np.zeros(d)
         mats, vecs = program.mats, program.vecs
@@ -129,6 +132,11 @@ class FramePosition(Task):
 
         def gather(t: float) -> None:
             refresh(t)
+            if inside:
+                if order == 2:
+                    vecs[vec + 2] = np.ascontiguousarray(pin.getFrameClassicalAcceleration(model, data, fid, LWA)
+                                                         .vector[sel])
+                return
             Jt = pin.getFrameJacobian(model, data, fid, LWA)
             mats[mat] = Jt
             if order == 2:
