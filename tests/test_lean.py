@@ -675,3 +675,48 @@ def test_euclidean_integration_equals_pinocchio(robot_name, monkeypatch):
             np.testing.assert_array_equal(got[1], want[1])
             dq = a * 1e-3 if order == 1 else v * 1e-3 + 0.5 * a * 1e-3 * 1e-3
             np.testing.assert_array_equal(got[0], pin.integrate(robot.model, q, dq))
+
+
+@pytest.mark.parametrize("which", [0, 1, 2])
+@pytest.mark.parametrize("order", [1, 2])
+def test_row_programs_without_pinocchio_views(order, which, monkeypatch):
+    """Where the state cannot give the joint Jacobians as a view (a pinocchio that returns copies, mimic joints), the
+    frame tasks gather getFrameJacobian, log3 and J qd into the program's arrays themselves: the readable step's
+    bits."""
+    from hqp_tpm import Controller
+    from hqp_tpm.robot.model import Robot
+    from hqp_tpm.robot.state import State
+
+    _flags(monkeypatch, True, True)
+    monkeypatch.setattr(State, "frame_jacobian_source", lambda self, fid: None)
+    robot = Robot.load("iiwa7")
+
+    def make():
+        return Controller(robot, _program_stacks(robot)[which], order=order, dt=1e-3, q0=np.linspace(-0.6, 0.8, 7),
+                          v0=np.full(7, 0.3) if order == 2 else None)
+
+    ref, fast = make(), make()
+    lean = LeanStep.of(fast)
+    assert lean._kernel is not None and lean._program.ints[5] >= 2
+    for _ in range(20):
+        np.testing.assert_array_equal(lean.step(), ref.step().command)
+        np.testing.assert_array_equal(fast.q, ref.q)
+        np.testing.assert_array_equal(fast.v, ref.v)
+
+
+def test_program_slots_take_c_contiguous_float_arrays():
+    """The kernel reads a slot's array by its address: a slot refuses what it could not read as such."""
+    program = _compiled_step.Program(6, 7, (6,), 1, 0.0, 0.0, False)
+    program.add_frame(0, range(6), range(3), 1.0, 0.0, x_d_vec=True)
+    program.build()
+    program.bind_mat(0, np.zeros((6, 7)))
+    for bad in (np.zeros((7, 6)).T, np.zeros((6, 7), dtype=np.float32), np.zeros(42)):
+        with pytest.raises(ValueError, match="C-contiguous float64"):
+            program.bind_mat(0, bad)
+    with pytest.raises(ValueError, match="C-contiguous float64"):
+        program.bind_vec(0, np.zeros(12)[::2])
+    at = program.ints[7]
+    a = np.ones((6, 7))
+    program.bind_mat(0, a)
+    assert program.mats[0] is a and program.ints[at + 1: at + 3].tolist() == [6, 7]
+    assert program.ints[at] == a.__array_interface__["data"][0]

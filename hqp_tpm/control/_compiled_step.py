@@ -3,13 +3,16 @@
 :func:`kernel` does what the lean step did in several calls, one kernel per thing solved (:data:`ROWS`,
 :data:`TPM`, :data:`SNS`: each compiles only what it calls). All three write the program's rows (the right-hand
 side of the posture tasks, a selection of revolute or prismatic joints, as
-:func:`hqp_tpm.robot._compiled.posture_rows`; the frame tasks' rows from pinocchio's outputs) and test ``J`` and
-``b`` for finiteness; :data:`TPM` then runs the TPM kernel of :mod:`hqp_tpm.solvers._compiled` that
-:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (``_past_rank`` when ``m > n``, ``_general`` otherwise: the
-same kernels, so the same numbers to the last bit) and tests ``x``. numba's dispatch cost grows with the argument
-count, so the arguments are packed once at construction: ``J``, ``b``, ``x0`` and ``x`` are one buffer (``J``
-row-major, then ``b``), the integers ``[m, n, use_x0, sizes...]`` one array, the floats ``[lambda_max, eps, unit,
-margin, cond]`` another (:class:`Program`).
+:func:`hqp_tpm.robot._compiled.posture_rows`; the frame tasks' rows from pinocchio's outputs: the frame Jacobian
+from the joint Jacobians ``data.J`` with pinocchio's operations, :func:`hqp_tpm.robot._compiled.frame_jacobian`, and
+the rotation error ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`, within a few ulps of
+pinocchio's) and test ``J`` and ``b`` for finiteness; :data:`TPM` then runs the TPM kernel of
+:mod:`hqp_tpm.solvers._compiled` that :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (``_past_rank`` when
+``m > n``, ``_general`` otherwise: the same kernels, so the same numbers to the last bit) and tests ``x``. numba's
+dispatch cost grows with each argument it types, so the kernel takes five: ``J``, ``b``, ``x0`` and ``x`` in one
+buffer (``J`` row-major, then ``b``), the integers (sizes, tasks, and the address table of the arrays the tasks
+read) in one array, the floats ``[lambda_max, eps, unit, margin, cond, ...]`` in another (:class:`Program`), and
+``q``, ``v``.
 
 With ``sns_tpm`` (a program built with ``solve=SNS``) the kernel runs the SNS-TPM loop of
 :mod:`hqp_tpm.solvers._compiled_sns` (``_sns_loop``, the kernel :func:`hqp_tpm.solvers.sns.sns_tpm_stacked`
@@ -63,15 +66,17 @@ BOX_GIVEN, BOX_VELOCITY, BOX_ACCELERATION = 0, 1, 2
 ROWS, TPM, SNS = 0, 1, 2
 #: The kinds of task rows the kernel writes (:class:`Program`).
 SELECTION, FRAME = 0, 1
+#: ``ints[:HEAD]``: m, n, use_x0, the level count, order, the task count, solve, the address tables' offsets.
+HEAD = 9
 
 #: the compiled kernels by what they solve (:func:`kernel`), compiled or loaded on first use
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
 _write_rows = _solve = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
-_frame_jacobian = _rotation_error = None
+_frame_jacobian = _rotation_error = _mat = _vec = None
 
 
-def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """The program's rows of ``J`` and ``b`` and their finiteness: ``(status, pi, pf)``, ``status``
     :data:`WRITTEN` or :data:`NONFINITE_ROWS`, ``pi``, ``pf`` the ends of the tasks' entries in ``ints``, ``floats``
     (where the SNS entries start). Plain Python until :func:`_build`, as the three steps."""
@@ -79,7 +84,7 @@ def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
     mn = m * n
     J = buf[:mn].reshape((m, n))
     b = buf[mn: mn + m]
-    pi, pf = 7 + nlev, 5
+    pi, pf = HEAD + nlev, 5
     for _ in range(count):  # the program's tasks: their rows of J and b
         kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
         kp, kd = floats[pf], floats[pf + 1]
@@ -97,14 +102,14 @@ def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
             at = pi + 11                               # the rows, xrows, then the Jacobian's columns
-            S = mats[jm]
+            S = _mat(ints, jm)
             if jsrc >= 0:  # the frame Jacobian from the joint Jacobians (else the caller put it in mats[jm])
-                _frame_jacobian(mats[jsrc], ints[at + dim + k: at + dim + k + nc], vecs[ip], S)
+                _frame_jacobian(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc], _vec(ints, ip), S)
             ws = iv + (1 if k else 0)                  # w's slot (then J qd's, Jdot qd's at order 2)
             if rot >= 0:  # w = log3(R_d R^T) (else the caller put it in vecs[ws])
-                _rotation_error(mats[rot + 1], mats[rot], vecs[ws])
+                _rotation_error(_mat(ints, rot + 1), _mat(ints, rot), _vec(ints, ws))
             if jsrc >= 0 and order == 2:  # J qd of the task's rows
-                rate = vecs[ws + (1 if k < dim else 0)]
+                rate = _vec(ints, ws + (1 if k < dim else 0))
                 for i in range(dim):
                     src = ints[at + i]
                     acc = 0.0
@@ -117,16 +122,16 @@ def _rows(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
                 for c in range(n):
                     J[r0 + i, c] = S[src, c]
                 if i < k:
-                    x_d = vecs[ixd][i] if ixd >= 0 else floats[fx + i]
-                    e = x_d - vecs[iv][ints[at + dim + i]]
+                    x_d = _vec(ints, ixd)[i] if ixd >= 0 else floats[fx + i]
+                    e = x_d - _vec(ints, iv)[ints[at + dim + i]]
                 else:
-                    e = vecs[iv + (1 if k else 0)][i - k]
+                    e = _vec(ints, iv + (1 if k else 0))[i - k]
                 xd = floats[fxd + i]
                 if order == 1:
                     b[r0 + i] = xd + kp * e
                 else:
                     w = iv + (1 if k else 0) + (1 if k < dim else 0)
-                    b[r0 + i] = floats[fxd + dim + i] + kd * (xd - vecs[w][i]) + kp * e - vecs[w + 1][i]
+                    b[r0 + i] = floats[fxd + dim + i] + kd * (xd - _vec(ints, w)[i]) + kp * e - _vec(ints, w + 1)[i]
             pi += 11 + dim + k + nc
             pf += 2 + k + 2 * dim
     for i in range(mn + m):
@@ -151,15 +156,15 @@ def _tpm_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out
     return SOLVED
 
 
-def _rows_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+def _rows_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """:data:`ROWS`: the rows and their finiteness only."""
-    return _write_rows(buf, ints, floats, q, v, mats, vecs)[0]
+    return _write_rows(buf, ints, floats, q, v)[0]
 
 
-def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+def _tpm_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """:data:`TPM`: the rows, the TPM kernel (``_past_rank`` when ``m > n``, ``_general`` otherwise), ``x``'s
     finiteness."""
-    status, pi, pf = _write_rows(buf, ints, floats, q, v, mats, vecs)
+    status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
     m, n, use_x0, nlev = ints[0], ints[1], ints[2], ints[3]
@@ -168,14 +173,14 @@ def _tpm_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     b = buf[mn: mn + m]
     x0 = buf[mn + m: mn + m + n]
     out = buf[mn + m + n: mn + m + 2 * n]
-    sizes = ints[7: 7 + nlev]
+    sizes = ints[HEAD: HEAD + nlev]
     return _solve(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
 
 
-def _sns_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compiled
+def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; ``ints[pi:]``
     gets nsat, iterations, feasible and the saturated joints, ``floats[pf]`` the scale."""
-    status, pi, pf = _write_rows(buf, ints, floats, q, v, mats, vecs)
+    status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
     m, n, nlev = ints[0], ints[1], ints[3]
@@ -183,7 +188,7 @@ def _sns_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
     J = buf[:mn].reshape((m, n))
     b = buf[mn: mn + m]
     out = buf[mn + m + n: mn + m + 2 * n]
-    sizes = ints[7: 7 + nlev]
+    sizes = ints[HEAD: HEAD + nlev]
     lo = buf[mn + m + 2 * n: mn + m + 3 * n]
     up = buf[mn + m + 3 * n: mn + m + 4 * n]
     bi = pi + 3 + n  # the box: where from, the slot of its limits in mats, its joint count, its indices
@@ -192,9 +197,9 @@ def _sns_step(buf, ints, floats, q, v, mats, vecs):  # pragma: no cover - compil
         nc = ints[bi + 2]
         idx = ints[bi + 3: bi + 3 + 2 * nc].reshape((2, nc))
         if box == BOX_VELOCITY:
-            ok = _velocity_box(q, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
+            ok = _velocity_box(q, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
         else:
-            ok = _acceleration_box(q, v, mats[ints[bi + 1]], idx, floats[pf + 1], lo, up)
+            ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
         if not ok:
             return BOX_HANDED_BACK
     status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
@@ -252,11 +257,12 @@ def _build(solve: int):
     """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user
     does not compile the SNS loop); None if numba cannot be imported."""
     global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box
-    global _frame_jacobian, _rotation_error
+    global _frame_jacobian, _rotation_error, _mat, _vec
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
+        _mat, _vec = _robot_compiled.table_matrix, _robot_compiled.table_vector
         _write_rows = _jit(_rows)
     _tpm_solve_kernel()
     if solve == SNS and not _compiled_sns._READY:
@@ -298,17 +304,29 @@ def _cache_is_safe() -> bool:
         return False
 
 
+def _checked(a: np.ndarray, ndim: int) -> np.ndarray:
+    """``a`` if the kernel can read it by address: float64, ``ndim`` dimensions, C-contiguous."""
+    if a.dtype != np.float64 or a.ndim != ndim or not a.flags.c_contiguous:
+        raise ValueError(f"a program slot takes a C-contiguous float64 array of {ndim} dimensions, not {a.dtype} "
+                         f"{a.shape} (C-contiguous: {a.flags.c_contiguous})")
+    return a
+
+
 class Program:
     """The packed arguments of :func:`kernel` for a stack of ``m`` rows in levels of ``sizes`` at ``order``, and the
     tasks whose rows the kernel writes (:meth:`add_selection`, :meth:`add_frame`).
 
-    ``ints = [m, n, use_x0, len(sizes), order, count, solve, sizes..., tasks...]`` (``solve``: :data:`ROWS`, the
-    kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`; :data:`SNS`,
-    then ``ints`` ends with ``n + 3`` entries and ``floats`` with one for :meth:`sns_info`), ``floats = [lambda_max,
-    eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices, and its
-    gains and reference values (see the methods). The per-step arrays (a frame's Jacobian and vectors) are passed to
-    the kernel as the tuples of :attr:`mats` and :attr:`vecs`: a task is given its slots there. :meth:`buffer_size`:
-    the length of the kernel's ``buf``.
+    ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (``solve``:
+    :data:`ROWS`, the kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`;
+    :data:`SNS`, then ``ints`` has ``n + 3`` more entries and ``floats`` one for :meth:`sns_info`), ``floats =
+    [lambda_max, eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices,
+    and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's
+    Jacobian and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an
+    address table at the end of ``ints`` (from ``mats_at``: address, rows, columns per matrix; from ``vecs_at``:
+    address, length per vector), so that the kernel takes five arguments whatever the stack (numba's dispatch cost
+    grows with each array it types). A task is given its slots (the program's own arrays, or views it puts there
+    before :meth:`build`); after it, :meth:`bind_mat` and :meth:`bind_vec` point a slot at another array (the
+    program keeps it alive). :meth:`buffer_size`: the length of the kernel's ``buf``.
     """
 
     def __init__(self, m: int, n: int, sizes, order: int, lambda_max: float, eps: float, use_x0: bool,
@@ -318,10 +336,10 @@ class Program:
         self.order, self.solve = order, solve
         self._box: list = [BOX_GIVEN, 0, 0]
         self._dt = 0.0
-        self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), *sizes]
+        self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), 0, 0, *sizes]
         self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND]
-        #: the kernel's per-step arrays, ``mats`` and ``vecs`` as lists: a task owns its slots (it puts its arrays
-        #: there, once for an array pinocchio updates in place, else at every step); ``tuple()`` of them is passed
+        #: the arrays the kernel reads (2-D, 1-D; float64, C-contiguous) by slot: a task owns its slots (it puts its
+        #: arrays there before :meth:`build`; after it, :meth:`bind_mat` and :meth:`bind_vec` replace one)
         self.mats: list[np.ndarray] = []
         self.vecs: list[np.ndarray] = []
         self.ints = self.floats = None
@@ -401,19 +419,37 @@ class Program:
         return m * n + m + (4 if solve == SNS else 2) * n
 
     def build(self) -> Program:
-        """Freeze the arrays (and give ``mats``, ``vecs`` a placeholder if they are empty: a tuple of one type)."""
+        """Pack the entries and the address table (after it, slots change only through :meth:`bind`)."""
         n = self._ints[1]
-        self.mats = self.mats or [np.zeros((6, n))]
-        self.vecs = self.vecs or [np.zeros(6)]
         self._sns_at = (len(self._ints), len(self._floats))
         if self.solve == SNS:  # the SNS loop's outputs: nsat, iterations, feasible, the saturated joints; the scale
             self._ints += [0] * (n + 3) + self._box  # then the box's source, limits slot, joints, indices; dt
             self._floats += [0.0, self._dt]
+        self._ints[7] = len(self._ints)
+        self._ints += [0] * (3 * len(self.mats))
+        self._ints[8] = len(self._ints)
+        self._ints += [0] * (2 * len(self.vecs))
         self.ints = np.array(self._ints, dtype=np.int64)
+        for i, a in enumerate(self.mats):
+            self.bind_mat(i, a)
+        for i, a in enumerate(self.vecs):
+            self.bind_vec(i, a)
         self.floats = np.array(self._floats, dtype=float)
         #: the caller writes the SNS box into the buffer before each call (no :meth:`set_box`)
         self.box_given = self._box[0] == BOX_GIVEN
         return self
+
+    def bind_mat(self, slot: int, a: np.ndarray) -> None:
+        """Point slot ``slot`` of :attr:`mats` at ``a`` (a float64, C-contiguous matrix; the program keeps it alive)."""
+        self.mats[slot] = _checked(a, 2)
+        at = self.ints[7] + 3 * slot
+        self.ints[at: at + 3] = a.__array_interface__["data"][0], a.shape[0], a.shape[1]
+
+    def bind_vec(self, slot: int, a: np.ndarray) -> None:
+        """Point slot ``slot`` of :attr:`vecs` at ``a`` (a float64, C-contiguous vector; kept alive)."""
+        self.vecs[slot] = _checked(a, 1)
+        at = self.ints[8] + 2 * slot
+        self.ints[at: at + 2] = a.__array_interface__["data"][0], a.shape[0]
 
     def sns_info(self) -> dict:
         """The SNS solver's info of the last solve (``scale``, ``saturated``, ``iterations``), as the lean step
@@ -429,10 +465,9 @@ def kernel(solve: int = TPM):
     loaded on first use), or None if numba cannot be imported after all (then
     :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
 
-    ``kernel(buf, ints, floats, q, v, mats, vecs) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]``
-    (``x0`` the null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``,
-    ``v``, ``mats`` and ``vecs``, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box
-    and ``x`` of the SNS loop, and finiteness of ``x``; ``ints``, ``floats``, ``mats`` and ``vecs`` those of a
-    :class:`Program`.
+    ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the
+    null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the
+    arrays of the program's slots, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box
+    and ``x`` of the SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`.
     """
     return _KERNELS.get(solve) or _build(solve)

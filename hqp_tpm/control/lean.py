@@ -327,8 +327,7 @@ class LeanStep:
             sns = program.solve == _compiled_step.SNS
             if sns and self.box is not None and program.box_given:
                 self.box(st.q, st.v)  # the JointBox writes into the buffer's lo, up (else the kernel does)
-            status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v, tuple(program.mats),
-                            tuple(program.vecs))
+            status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v)
             if status == 0:  # SOLVED
                 self.info = program.sns_info() if sns else {}
                 return self._out.copy()

@@ -34,6 +34,33 @@ def _njit(fn):
     return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
 
 
+if AVAILABLE:  # pragma: no branch
+    from numba import types
+    from numba.extending import intrinsic
+
+    @intrinsic
+    def _float_pointer(typingctx, address):
+        """The int64 ``address`` as a ``float64*`` (for :func:`table_matrix`, :func:`table_vector`)."""
+        def codegen(context, builder, signature, args):
+            return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+        return types.CPointer(types.float64)(types.int64), codegen
+
+
+@_njit
+def table_matrix(ints, slot):  # pragma: no cover - compiled
+    """The matrix of slot ``slot`` of an address table in ``ints`` (from ``ints[7]``: address, rows, columns per slot;
+    :class:`hqp_tpm.control._compiled_step.Program`, which keeps the arrays alive), a view of that memory."""
+    at = ints[7] + 3 * slot
+    return numba.carray(_float_pointer(ints[at]), (ints[at + 1], ints[at + 2]))
+
+
+@_njit
+def table_vector(ints, slot):  # pragma: no cover - compiled
+    """The vector of slot ``slot`` of the address table from ``ints[8]`` (address, length per slot)."""
+    at = ints[8] + 2 * slot
+    return numba.carray(_float_pointer(ints[at]), (ints[at + 1],))
+
+
 @_njit
 def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
     """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a joint's

@@ -115,9 +115,10 @@ class Task(ABC):
 
     def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
         """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows
-        (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which puts the step's
-        pinocchio outputs into the program's slots (``program.mats``, ``program.vecs``) and changed references
-        into ``program.floats``; the kernel then writes the numbers of :meth:`row_writer`. None (this default):
+        (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the step's
+        pinocchio outputs into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array is
+        bound with ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel then
+        writes the numbers of :meth:`row_writer`. None (this default):
         the task's row writer runs instead."""
         return None
 

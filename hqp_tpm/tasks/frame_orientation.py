@@ -90,9 +90,9 @@ class FrameOrientation(Task):
                                               jacobian=(*source, p) if inside else None,
                                               rotation=(R.T, np.eye(3)) if inside else None)  # (the target's: below)
         refresh = ReferenceSlots(self, program, at - 2, at, ((1, 3), (2, 3))).refresh
-        rate = np.zeros(3)
-        mats, vecs = program.mats, program.vecs
-        target = [None]  # the target rotation whose transpose the kernel has
+        target = [None]  # the target rotation whose transpose the kernel reads
+        S, w = program.mats[mat], program.vecs[vec]  # the program's arrays (written here if not inside)
+        rate, jdq = (program.vecs[vec + 1][:3], program.vecs[vec + 2][:3]) if order == 2 else (None, None)
 
         def gather(t: float) -> None:
             refresh(t)
@@ -100,15 +100,12 @@ class FrameOrientation(Task):
                 Rd = self._R_target
                 if Rd is not target[0]:
                     target[0] = Rd
-                    mats[rot + 1] = np.ascontiguousarray(Rd.T)  # (a view if Rd is column-major)
+                    program.bind_mat(rot + 1, np.ascontiguousarray(Rd.T))  # (a view if Rd is column-major)
+            else:
+                S[...] = pin.getFrameJacobian(model, data, fid, LWA)
+                w[:3] = pin.log3(self._R_target.dot(R.T))
                 if order == 2:
-                    vecs[vec + 2] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
-                return
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)
-            mats[mat] = Jt
-            vecs[vec] = pin.log3(self._R_target.dot(R.T))
+                    np.dot(S[3:], state.v, out=rate)
             if order == 2:
-                np.dot(Jt[3:], state.v, out=rate)
-                vecs[vec + 1] = rate
-                vecs[vec + 2] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
+                jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
         return gather

@@ -105,29 +105,25 @@ class FramePose(Task):
                                               jacobian=(*source, p) if inside else None,
                                               rotation=(RT, np.eye(3)) if inside else None)  # (the target's: below)
         refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
-        rate = np.zeros(6)
         target = [None, None, None]  # the target placement and views of its translation and rotation
         xd_slot = vec + (4 if order == 2 else 2)
-        mats, vecs = program.mats, program.vecs
-        vecs[vec] = p  # pinocchio updates it in place
+        program.vecs[vec] = p  # pinocchio updates it in place
+        S, w = program.mats[mat], program.vecs[vec + 1]  # the program's arrays (written here if not inside)
+        rate, jdq = (program.vecs[vec + 2], program.vecs[vec + 3]) if order == 2 else (None, None)
 
         def gather(t: float) -> None:
             refresh(t)
             M = self._M_target
             if M is not target[0]:
                 target[:] = M, M.translation, M.rotation
-                vecs[xd_slot] = target[1]
+                program.bind_vec(xd_slot, target[1])
                 if inside:
-                    mats[rot + 1] = target[2].T
-            if inside:
+                    program.bind_mat(rot + 1, target[2].T)
+            if not inside:
+                S[...] = pin.getFrameJacobian(model, data, fid, LWA)
+                w[:3] = pin.log3(target[2].dot(RT))
                 if order == 2:
-                    vecs[vec + 3] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-                return
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)
-            mats[mat] = Jt
-            vecs[vec + 1] = pin.log3(target[2].dot(RT))
+                    np.dot(S, state.v, out=rate)
             if order == 2:
-                np.dot(Jt, state.v, out=rate)
-                vecs[vec + 2] = rate
-                vecs[vec + 3] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+                jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
         return gather

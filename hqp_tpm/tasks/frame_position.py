@@ -126,24 +126,18 @@ class FramePosition(Task):
         at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False,
                                             jacobian=(*source, p) if inside else None)
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
-        rate = np.zeros(d)
-        mats, vecs = program.mats, program.vecs
-        vecs[vec] = p  # pinocchio updates it in place
+        program.vecs[vec] = p  # pinocchio updates it in place
+        S = program.mats[mat]  # the program's arrays (written here if not inside)
+        rate, jdq = (program.vecs[vec + 1][:d], program.vecs[vec + 2][:d]) if order == 2 else (None, None)
 
         def gather(t: float) -> None:
             refresh(t)
-            if inside:
+            if not inside:
+                S[...] = pin.getFrameJacobian(model, data, fid, LWA)
                 if order == 2:
-                    vecs[vec + 2] = np.ascontiguousarray(pin.getFrameClassicalAcceleration(model, data, fid, LWA)
-                                                         .vector[sel])
-                return
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)
-            mats[mat] = Jt
+                    np.dot(S[sel], state.v, out=rate)
             if order == 2:
-                np.dot(Jt[sel], state.v, out=rate)
-                vecs[vec + 1] = rate
-                vecs[vec + 2] = np.ascontiguousarray(pin.getFrameClassicalAcceleration(model, data, fid, LWA)
-                                                     .vector[sel])
+                jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
         return gather
 
 
