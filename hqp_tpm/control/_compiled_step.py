@@ -191,7 +191,7 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     sizes = ints[HEAD: HEAD + nlev]
     lo = buf[mn + m + 2 * n: mn + m + 3 * n]
     up = buf[mn + m + 3 * n: mn + m + 4 * n]
-    bi = pi + 3 + n  # the box: where from, the slot of its limits in mats, its joint count, its indices
+    bi = pi + 3 + 2 * n  # the box: where from, the slot of its limits in mats, its joint count, its indices
     box = ints[bi]
     if box != BOX_GIVEN:
         nc = ints[bi + 2]
@@ -203,14 +203,16 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
         if not ok:
             return BOX_HANDED_BACK
     status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
-                                                          floats[3], floats[4], out, ints[pi + 3: pi + 3 + n])
+                                                          floats[3], floats[4], out, ints[pi + 3 + n: bi])
     if status != _compiled_sns.DONE:
         return SNS_HANDED_BACK
-    ints[pi], ints[pi + 1], ints[pi + 2] = nsat, iterations, 1 if feasible else 0
-    floats[pf] = scale
     for i in range(n):
         if not math.isfinite(out[i]):
             return NONFINITE_X
+    ints[pi], ints[pi + 1], ints[pi + 2] = nsat, iterations, 1 if feasible else 0  # (a solved step's info only)
+    for i in range(nsat):  # the saturated joints, from the loop's scratch
+        ints[pi + 3 + i] = ints[pi + 3 + n + i]
+    floats[pf] = scale
     return SOLVED
 
 
@@ -318,7 +320,7 @@ class Program:
 
     ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (``solve``:
     :data:`ROWS`, the kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`;
-    :data:`SNS`, then ``ints`` has ``n + 3`` more entries and ``floats`` one for :meth:`sns_info`), ``floats =
+    :data:`SNS`, then ``ints`` has ``2 n + 3`` more entries and ``floats`` one for :meth:`sns_info`), ``floats =
     [lambda_max, eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices,
     and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's
     Jacobian and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an
@@ -419,11 +421,11 @@ class Program:
         return m * n + m + (4 if solve == SNS else 2) * n
 
     def build(self) -> Program:
-        """Pack the entries and the address table (after it, slots change only through :meth:`bind`)."""
+        """Pack the entries and the address table (then slots change only by :meth:`bind_mat`, :meth:`bind_vec`)."""
         n = self._ints[1]
         self._sns_at = (len(self._ints), len(self._floats))
         if self.solve == SNS:  # the SNS loop's outputs: nsat, iterations, feasible, the saturated joints; the scale
-            self._ints += [0] * (n + 3) + self._box  # then the box's source, limits slot, joints, indices; dt
+            self._ints += [0] * (2 * n + 3) + self._box  # (the joints' scratch), the box: source, slot, joints, indices
             self._floats += [0.0, self._dt]
         self._ints[7] = len(self._ints)
         self._ints += [0] * (3 * len(self.mats))

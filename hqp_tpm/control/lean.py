@@ -199,7 +199,7 @@ class LeanStep:
     """
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
-                 "writers", "levels", "box", "x0", "solver", "frames", "_flat", "info", "_program", "_buf", "_out",
+                 "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
                  "_velocities", "_kernel", "_fused")
 
     @staticmethod
@@ -278,7 +278,7 @@ class LeanStep:
         if mode == _compiled_step.SNS:
             lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)
         self.box = JointBox(box, lo_up if mode == _compiled_step.SNS else None) if joint_box else box
-        self.info = {}
+        self._info = {}
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
@@ -297,6 +297,14 @@ class LeanStep:
             self._program = program.build()
             self._kernel = _compiled_step.kernel(mode)
         return self
+
+    @property
+    def info(self) -> dict:
+        """The solver's info of the last command, as the readable step's ``StepResult.info`` (SNS-TPM: ``scale``,
+        ``saturated``, ``iterations``; read from the fused kernel's outputs when asked for)."""
+        if self._info is None:
+            self._info = self._program.sns_info()
+        return self._info
 
     def _box(self, st, t):
         box = self.box
@@ -329,7 +337,7 @@ class LeanStep:
                 self.box(st.q, st.v)  # the JointBox writes into the buffer's lo, up (else the kernel does)
             status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v)
             if status == 0:  # SOLVED
-                self.info = program.sns_info() if sns else {}
+                self._info = None if sns else {}  # (None: the program's, read by the info property)
                 return self._out.copy()
             if status == _compiled_step.NONFINITE_ROWS:
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
@@ -367,7 +375,7 @@ class LeanStep:
                             eps=self.eps)
         if not math.isfinite(x @ x) and not np.isfinite(x).all():
             raise SolverFailedError(f"solver {solver!r} returned a non-finite command at t = {t:.6f}")
-        self.info = info  # the solver's info of this command, as the readable step's StepResult.info
+        self._info = info  # the solver's info of this command, as the readable step's StepResult.info
         return x
 
     def step(self) -> np.ndarray:
