@@ -397,8 +397,8 @@ def test_fused_tpm_step_under_every_switch(kind, rows, solve, monkeypatch):
         _, fast = assert_same_steps(lambda cfg=cfg: P.hqp_controller(robot, prob, cfg, "tpm"), 15)
         lean = LeanStep.of(fast)
         assert (lean._kernel is not None) == solve
-        if solve:  # every task of these stacks has a row program but Romeo's CoM (its row writer runs)
-            assert lean._program.ints[5] == len(lean.tasks) - kind.startswith("romeo")
+        if solve:  # every task of these stacks has a row program (the CoM's at velocity level)
+            assert lean._program.ints[5] == len(lean.tasks)
     from hqp_tpm.robot import _compiled
     from hqp_tpm.solvers import _compiled as _solvers_compiled
 
@@ -593,18 +593,20 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
 @pytest.mark.parametrize("solver", ["tpm", "sns_tpm"])
 @pytest.mark.parametrize("order", [1, 2])
 def test_rows_without_rotation_error_are_bit_identical(order, solver, monkeypatch):
-    """Frame positions (on all and on selected axes) and a posture, no orientation: the fused kernel writes the frame
-    Jacobians from pinocchio's joint Jacobians with pinocchio's operations, so at velocity level the steps are the
-    readable step's to the last bit (with a rotation error they agree to ROUNDING; so at acceleration level, where
-    the kernel sums J qd in its own order where the readable step calls numpy's dot)."""
-    from hqp_tpm import Controller, FramePosition, Gains, JointLimits, Posture, Stack
+    """Frame positions (on all and on selected axes), the CoM and a posture, no orientation: the fused kernel writes
+    the frame Jacobians from pinocchio's joint Jacobians with pinocchio's operations (the CoM's: pinocchio's, read in
+    place), so at velocity level the steps are the readable step's to the last bit (with a rotation error they agree
+    to ROUNDING; so at acceleration level, where the kernel sums J qd in its own order where the readable step calls
+    numpy's dot)."""
+    from hqp_tpm import CenterOfMass, Controller, FramePosition, Gains, JointLimits, Posture, Stack
     from hqp_tpm.robot.model import Robot
 
     _flags(monkeypatch, True, True)
     robot = Robot.load("iiwa7")
     g = Gains(7.0, 3.0)
     stack = Stack.of(FramePosition(robot, "iiwa_ee", [0.5, 0.1, 0.6], g),
-                     FramePosition(robot, "iiwa_link_4", [0.1, 0.3], g, axes="zx"), Posture(robot, None, g))
+                     (FramePosition(robot, "iiwa_link_4", [0.1, 0.3], g, axes="zx"),
+                      CenterOfMass(robot, [0.0, 0.05], g, axes="yx")), Posture(robot, None, g))
 
     def make():
         return Controller(robot, stack, order=order, dt=1e-3, q0=np.linspace(-0.6, 0.8, 7), solver=solver,
@@ -613,7 +615,7 @@ def test_rows_without_rotation_error_are_bit_identical(order, solver, monkeypatc
 
     ref, fast = make(), make()
     lean = LeanStep.of(fast)
-    assert lean._kernel is not None and lean._program.ints[5] == 3
+    assert lean._kernel is not None and lean._program.ints[5] == (4 if order == 1 else 3)  # (the CoM: order 1)
     same = np.testing.assert_array_equal if order == 1 else assert_equal_steps
     for _ in range(40):
         res = ref.step()

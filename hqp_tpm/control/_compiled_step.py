@@ -66,6 +66,8 @@ BOX_GIVEN, BOX_VELOCITY, BOX_ACCELERATION = 0, 1, 2
 ROWS, TPM, SNS = 0, 1, 2
 #: The kinds of task rows the kernel writes (:class:`Program`).
 SELECTION, FRAME = 0, 1
+#: ``jsrc`` of a frame entry whose Jacobian slot holds the Jacobian transposed (:meth:`Program.add_frame`).
+TRANSPOSED = -2
 #: ``ints[:HEAD]``: m, n, use_x0, the level count, order, the task count, solve, the address tables' offsets.
 HEAD = 9
 
@@ -119,8 +121,12 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
             fx, fxd = pf + 2, pf + 2 + k
             for i in range(dim):
                 src = ints[at + i]
-                for c in range(n):
-                    J[r0 + i, c] = S[src, c]
+                if jsrc == TRANSPOSED:  # S given as S^T (n x rows: pinocchio's CoM Jacobian transposed)
+                    for c in range(n):
+                        J[r0 + i, c] = S[c, src]
+                else:
+                    for c in range(n):
+                        J[r0 + i, c] = S[src, c]
                 if i < k:
                     x_d = _vec(ints, ixd)[i] if ixd >= 0 else floats[fx + i]
                     e = x_d - _vec(ints, iv)[ints[at + dim + i]]
@@ -362,7 +368,7 @@ class Program:
         return self._gains(kp, kd, 3 * dim)
 
     def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, jacobian=None,
-                  rotation=None) -> tuple[int, int, int, int]:
+                  rotation=None, transposed: np.ndarray | None = None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when
         ``len(xrows) == len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at
@@ -374,8 +380,10 @@ class Program:
         ``rate`` in their slots every step. ``rotation = (RT, RdT)`` (the frame's and the target's rotations
         transposed: row-major views): the kernel writes ``w = log3(R_d R^T)``
         (:func:`hqp_tpm.robot._compiled.rotation_error`); the caller replaces ``mats[rot + 1]`` when the target
-        changes. Returns ``(at, mat, vec, rot)``: ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in
-        :attr:`floats`, ``rot`` the slot of ``RT`` (-1 without ``rotation``).
+        changes. ``transposed`` (``n x q``, a view pinocchio updates, e.g. the CoM Jacobian transposed): ``S^T``, put
+        in slot ``mat`` (order 1 only: the kernel does not compute ``rate`` from it). Returns ``(at, mat, vec, rot)``:
+        ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1
+        without ``rotation``).
         """
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
@@ -384,6 +392,10 @@ class Program:
         self.vecs += [np.zeros(6) for _ in range(used + (1 if x_d_vec else 0))]
         jsrc = ip = rot = -1
         cols: list[int] = []
+        if transposed is not None:
+            if self.order != 1 or jacobian is not None:
+                raise ValueError("a transposed Jacobian: order 1, and no joint-Jacobian source")
+            jsrc, self.mats[mat] = TRANSPOSED, transposed
         if jacobian is not None:
             JT, cols, p = jacobian
             jsrc = self._slot(self.mats, JT)

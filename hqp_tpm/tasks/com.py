@@ -7,7 +7,7 @@ import numpy as np
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task, feedback, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, row_selector, select_axes
 
 
 class CenterOfMass(Task):
@@ -65,3 +65,22 @@ class CenterOfMass(Task):
                 np.dot(J, state.v, out=rate)
                 feedback(b, e, ref, self.gains, 2, rate, acom[sel])
         return write
+
+    def row_program(self, state: State, order: int, program, row: int):
+        """:meth:`Task.row_program` at velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the
+        kernel's slots, filled by ``jacobianCenterOfMass`` every step (:meth:`State.com_kinematics`), and the reference
+        into its floats; the kernel then writes :meth:`row_writer`'s numbers. At acceleration level: None (the row
+        writer runs)."""
+        views = state.com_views()
+        if views is None or order != 1:
+            return None
+        com, Jcom, _ = views
+        d, g = self.dim, self.gains
+        at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, transposed=Jcom.T)
+        program.vecs[vec] = com  # pinocchio updates both in place
+        refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
+
+        def gather(t: float) -> None:
+            refresh(t)
+            state.com_kinematics(1)
+        return gather
