@@ -121,7 +121,7 @@ class PlannedStep:
             if a + dim > self.J.shape[0]:
                 self._grow(a + dim)
             write = task.row_writer(self.ctrl.state, self.order, self.J[a:a + dim], self.b[a:a + dim])
-            w = (write, kind is Pointing and task.inequality, getattr(write, "takes_extra", False), dim, task)
+            w = (write, kind is Pointing and task.inequality, kind.row_writer_takes_extra, dim, task)
         else:
             w = False
         self._placed[(id(task), a)] = w

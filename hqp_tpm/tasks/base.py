@@ -99,6 +99,10 @@ class Task(ABC):
         rate = (self.jacobian(state) if J is None else J).dot(state.v)
         return xdd + self.gains.kd * (xd_d - rate) + self.gains.kp * e - self.jdot_qdot(state)
 
+    #: Whether :meth:`row_writer`'s ``write`` also takes an extra command, ``write(t, extra)`` (added to the command
+    #: as :meth:`command` adds it; Algorithm 1's planned step passes its EE repulsion so).
+    row_writer_takes_extra: bool = False
+
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
         """``write(t)`` for the lean step (:mod:`hqp_tpm.control.lean`): this task's rows at ``state``'s current
         kinematics written in place into ``J`` (``dim x n``) and ``b`` (``dim``), views of the stacked arrays.

@@ -34,6 +34,8 @@ class FramePosition(Task):
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)[self._sel]
 
+    row_writer_takes_extra = True
+
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
         """:meth:`Task.row_writer`: the selected linear rows of the frame Jacobian and ``b``, the same numbers.
 
@@ -51,7 +53,6 @@ class FramePosition(Task):
                     plain(t)
                 else:
                     self._write_readable(state, t, order, extra, J, b)
-            write_plain.takes_extra = True
             return write_plain
         p = views[0]
         p_sel = p[sel] if isinstance(sel, slice) else None  # a view pinocchio updates (else indexed per step)
@@ -101,7 +102,6 @@ class FramePosition(Task):
                 np.dot(Jt, state.v, out=rate)
                 feedback(b, e, ref, self.gains, 2, rate,
                          pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel])
-        write.takes_extra = True
         return write
 
     def _write_readable(self, state: State, t: float, order: int, extra, J: np.ndarray, b: np.ndarray) -> None:
