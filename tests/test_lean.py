@@ -722,3 +722,36 @@ def test_program_slots_take_c_contiguous_float_arrays():
     program.bind_mat(0, a)
     assert program.mats[0] is a and program.ints[at + 1: at + 3].tolist() == [6, 7]
     assert program.ints[at] == a.__array_interface__["data"][0]
+
+
+def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch):
+    """Where the fused kernel's TPM declines (a singular EE pose, damped pivots), tpm_stacked goes straight to the
+    numpy factorization with the kernel's answer (kernel_status) instead of running the same kernel again: the
+    readable step's numbers."""
+    from benchmarks.peers import problems as P
+    import importlib
+
+    from hqp_tpm.solvers import _compiled as _solvers_compiled
+
+    tpm_mod = importlib.import_module("hqp_tpm.solvers.tpm")  # (the package exports the function tpm)
+    _flags(monkeypatch, True, True)
+    again, factorizations = [], []
+    for name in ("past_rank", "general"):
+        real = getattr(_solvers_compiled, name)
+        monkeypatch.setattr(_solvers_compiled, name, lambda *a, real=real, **k: again.append(1) or real(*a, **k))
+    real_f = tpm_mod.Factorization
+    monkeypatch.setattr(tpm_mod, "Factorization", lambda *a, **k: factorizations.append(1) or real_f(*a, **k))
+    robot = P.load_robot(P.IIWA)
+    prob = P.iiwa_problem(robot, order=1, n=1)
+    cfg = dataclasses.replace(prob.configs[0], q=np.zeros(robot.nq))  # singular: the EE pose Jacobian loses rank
+    ctrls = [P.hqp_controller(robot, prob, cfg, "tpm") for _ in range(2)]
+    for c in ctrls:
+        c.lambda_max, c.eps = 0.05, 0.02
+    ref, fast = ctrls
+    lean = LeanStep.of(fast)
+    for _ in range(5):
+        want = ref.step().command
+        again.clear()
+        factorizations.clear()
+        assert_equal_steps(lean.step(), want)
+        assert not again and factorizations, (len(again), len(factorizations))

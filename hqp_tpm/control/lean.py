@@ -358,8 +358,10 @@ class LeanStep:
         solver = self.solver
         info = {}
         if solver == "tpm":
-            if self.sizes:
-                x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0)
+            if self.sizes:  # (after the fused kernel declined, its answer: tpm_stacked does not run it again)
+                declined = status in (_compiled_step.DECLINED, _compiled_step.UNDECIDED)
+                x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0,
+                                kernel_status=status if declined else None)
             else:
                 x = np.zeros(self.n) if x0 is None else x0.copy()
         elif solver == "sns_tpm":

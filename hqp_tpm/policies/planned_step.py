@@ -200,6 +200,7 @@ class PlannedStep:
         self.tasks = tasks
         m, sizes = self._rows(st, t, tasks, extras)
         J, b = self.J[:m], self.b[:m]
+        status = None  # (the compiled kernel's answer, if it ran and declined)
         if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
             kernel = self._kernel or self._load_kernel()
             if kernel is not None:
@@ -218,7 +219,7 @@ class PlannedStep:
             return ctrl._compute().command          # the readable path raises the typed error naming the task
         x0 = -self.damping * ctrl._v if self.damping else None
         if sizes:
-            x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0)
+            x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0, kernel_status=status)
         else:
             x = np.zeros(self.n) if x0 is None else x0.copy()
         if not (math.isfinite(x @ x) or np.isfinite(x).all()):  # an overflow of x @ x only costs the exact test

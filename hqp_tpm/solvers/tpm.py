@@ -161,16 +161,22 @@ def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
 
 
 def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float = 0.0, eps: float = 0.0,
-                x0: np.ndarray | None = None) -> np.ndarray:
+                x0: np.ndarray | None = None, kernel_status: int | None = None) -> np.ndarray:
     """:func:`tpm` of a stack already stacked and checked: ``J`` (m x n, m >= 1) and ``b`` finite floats,
     ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
-    :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step)."""
+    :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step).
+
+    ``kernel_status``: what the compiled TPM kernel (:mod:`hqp_tpm.solvers._compiled`) already answered on these
+    arrays (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with other work): it is not run again."""
     if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
-        x = _compiled.past_rank(J, b, sizes, n, lambda_max, eps, MARGIN, COND) if _compiled.ENABLED else \
-            solve_past_rank(J, b, sizes, n, lambda_max, eps)
+        if kernel_status is None:
+            x = _compiled.past_rank(J, b, sizes, n, lambda_max, eps, MARGIN, COND) if _compiled.ENABLED else \
+                solve_past_rank(J, b, sizes, n, lambda_max, eps)
+        else:  # the kernel declined (the reference declines too) or left sigma_min to the reference
+            x = None if kernel_status == _compiled.DECLINED else solve_past_rank(J, b, sizes, n, lambda_max, eps)
         if x is not None:
             return x
-    elif _compiled.ENABLED:  # m <= n: x = Q R^-T F b in one compiled call (regular or damped 1 x 1 pivots)
+    elif _compiled.ENABLED and kernel_status is None:  # m <= n: x = Q R^-T F b in one compiled call
         x = _compiled.general(J, b, sizes, n, lambda_max, eps, x0)
         if x is not None:
             return x
