@@ -728,9 +728,9 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
     """Where the fused kernel's TPM declines (a singular EE pose, damped pivots), tpm_stacked goes straight to the
     numpy factorization with the kernel's answer (kernel_status) instead of running the same kernel again: the
     readable step's numbers."""
-    from benchmarks.peers import problems as P
     import importlib
 
+    from benchmarks.peers import problems as P
     from hqp_tpm.solvers import _compiled as _solvers_compiled
 
     tpm_mod = importlib.import_module("hqp_tpm.solvers.tpm")  # (the package exports the function tpm)
