@@ -55,6 +55,7 @@ ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip().lower() 
 SOLVED, DECLINED, UNDECIDED = 0, 1, 2
 
 _KERNELS: list[str] = []  # compiled on first use, callees first
+_INLINED: set[str] = set()  # kernels numba inlines into their callers (its IR, before LLVM)
 _READY = False
 
 
@@ -62,6 +63,14 @@ def _kernel(fn):
     """Mark ``fn`` (plain Python until :func:`_compile`) as a kernel."""
     _KERNELS.append(fn.__name__)
     return fn
+
+
+def _inlined(fn):
+    """Mark ``fn`` as a kernel that numba inlines where compiled code calls it (``inline="always"``): no call,
+    no array tuple handed back, fewer reference counts; the same operations in the same order (numba's IR is
+    inlined, LLVM does not reorder floating-point operations)."""
+    _INLINED.add(fn.__name__)
+    return _kernel(fn)
 
 
 def _compile() -> None:
@@ -72,10 +81,11 @@ def _compile() -> None:
 
     g = globals()
     for name in _KERNELS:
+        inline = "always" if name in _INLINED else "never"
         try:
-            g[name] = numba.njit(cache=True, nogil=True)(g[name])
+            g[name] = numba.njit(cache=True, nogil=True, inline=inline)(g[name])
         except RuntimeError:  # pragma: no cover - no writable cache location at all: compile per process
-            g[name] = numba.njit(nogil=True)(g[name])
+            g[name] = numba.njit(nogil=True, inline=inline)(g[name])
     _READY = True
 
 
@@ -216,7 +226,7 @@ def _apply_right_t(BT, V, tau, p, w):
             t += 1
 
 
-@_kernel
+@_inlined
 def _reflect(x, V, tau, i):
     """``x <- H_i x`` with ``H_i = I - tau_i v_i v_i^T``, ``v_i = (1, V[i, i+1:])`` on rows ``i:``."""
     ti = tau[i]
@@ -247,7 +257,7 @@ def _apply_qt(x, V, tau, p):
         _reflect(x, V, tau, i)
 
 
-@_kernel
+@_inlined
 def _sumsq_rows(J, a, e, acc):
     """``||J[a:e]||_F^2``: squares accumulated per column along the contiguous rows (``acc``: scratch of
     length ``>= n``), then the columns' sums added in order."""
@@ -319,7 +329,7 @@ def _solve_upper_t(R, c):
     return y
 
 
-@_kernel
+@_inlined
 def _fro_block(X, a, e, c0, c1):
     s = 0.0
     for i in range(a, e):
@@ -350,7 +360,7 @@ def _damped_ls(RA, c, lam2):
 # ----------------------------------------------------------------------------------------
 # solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
 # ----------------------------------------------------------------------------------------
-@_kernel
+@_inlined
 def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
     factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA)``."""
@@ -423,7 +433,7 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     return SOLVED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
 
 
-@_kernel
+@_inlined
 def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out):
     """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors."""
     z = _solve_upper_t(R1, b[:m1]) if m1 else np.empty(0)
