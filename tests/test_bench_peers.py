@@ -93,3 +93,16 @@ def test_reduced_urdf(tmp_path):
     model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
     assert model.nv == 27
     assert sorted(model.names[2:]) == sorted(ROMEO21_JOINTS)
+
+
+@pytest.mark.parametrize(("problem", "solver"),
+                         [("iiwa_vel", "tpm"), ("iiwa_acc", "sns_tpm"), ("romeo_vel", "sns_tpm")])
+def test_profile_step_runs_on_the_lean_step(problem, solver, tmp_path, capsys):
+    """``benchmarks/peers/profile_step.py --lean`` calls the lean step's pieces as the step does (the fused kernel
+    with its five arguments): it runs and names every phase."""
+    from benchmarks.peers import profile_step
+
+    assert profile_step.main(["--lean", "--problem", problem, "--solver", solver, "--steps", "20", "--reps", "20",
+                              "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    assert "fused kernel" in out and "LeanStep.compute" in out and "integration" in out

@@ -161,14 +161,13 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
                 lambda: st.update_positions(ctrl.q, ctrl.v, t, fast.frames), reps))
         prog = fast._program
         for task, write, own in zip(fast.tasks, fast._fused, fast.writers, strict=True):
-            what = "row writer" if write is own else "row program's gather (pinocchio's outputs, references)"
+            what = "row writer" if write is own else "row program's gather"
             out.append((f"  {type(task).__name__}({task.name}) {what}", _median_us(lambda w=write: w(t), reps)))
         what = {_compiled_step.TPM: "TPM, finiteness of x",
                 _compiled_step.SNS: f"box ({'given' if prog.box_given else 'in the kernel'}), SNS-TPM, finiteness of x",
                 }.get(prog.solve, "no solve")
         out.append((f"  fused kernel: program rows, finiteness of J and b, {what}", _median_us(
-            lambda: fast._kernel(fast._buf, prog.ints, prog.floats, ctrl.q, ctrl.v, tuple(prog.mats),
-                                 tuple(prog.vecs)), reps)))
+            lambda: fast._kernel(fast._buf, prog.ints, prog.floats, ctrl.q, ctrl.v), reps)))
         if ctrl.solver == "tpm":
             out.append(("  (for comparison) tpm_stacked alone", _median_us(
                 lambda: lean_mod.tpm_stacked(fast.J, fast.b, fast.sizes, fast.n, fast.lambda_max, fast.eps), reps)))

@@ -21,16 +21,19 @@ once, at construction, and per step does only:
 5. one integration (:meth:`hqp_tpm.robot.state.State.integrate`).
 
 With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.control._compiled_step`): the tasks that have a row program
-(:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, posture of revolute/prismatic
-joints) only gather pinocchio's outputs (the frame Jacobian, ``log3``, at order 2 ``J qd`` and ``Jdot qd``) and
-their changed references, the others write their rows, and one compiled call writes the programs' rows, tests
-``J`` and ``b`` for finiteness and, with ``tpm``, runs the TPM kernel and tests ``x`` (other solvers then run
-on ``J`` and ``b`` as above). At velocity level
-the state update is :meth:`hqp_tpm.robot.state.State.update_positions` (one pinocchio pass).
+(:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture
+of revolute/prismatic joints) only refresh their changed references (and at order 2 gather ``Jdot qd``); the
+kernel reads pinocchio's data in place (the joint Jacobians, frame placements, the CoM Jacobian) and computes the
+frame Jacobians (pinocchio's operations) and rotation errors ``log3(R_d R^T)`` itself; the other tasks write their
+rows; one compiled call writes the programs' rows, tests ``J`` and ``b`` for finiteness and, with ``tpm`` or
+``sns_tpm`` (in the joint limits' box), solves and tests ``x`` (other solvers then run on ``J`` and ``b`` as
+above). At velocity level the state update is :meth:`hqp_tpm.robot.state.State.update_positions` (one pinocchio
+pass).
 
 Same numbers as the readable path, step by step (``tests/test_lean.py``: the row writers repeat the
 operations of ``jacobian`` and ``command``, the box those of :mod:`hqp_tpm.robot.joint_boxes`, and the
-solvers are the readable path's own).
+solvers are the readable path's own): to the last bit, except where the fused kernel computes a rotation error
+(its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd``: there to 1e-12.
 
 Supported (else :meth:`LeanStep.of` returns ``None`` and :meth:`LeanStep.why_not` says why): a
 :class:`~hqp_tpm.control.stack.FixedStack` without extra commands whose tasks are equality tasks (their

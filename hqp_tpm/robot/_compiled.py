@@ -3,9 +3,12 @@
 One call each instead of 10-30 small numpy calls: the joint box of
 :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (velocity and acceleration level, the common case of a state
 inside its limits; the recovery cases return False and the caller computes them with ``BoxLimits``), and the
-tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the error (order 2, and the posture rows).
-Every kernel does the readable code's floating-point operations in the same order (no fast-math, no
-contraction), so the results are the same to the last bit (``tests/test_lean.py`` compares both paths).
+tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the error (order 2, and the posture rows); for the
+fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's Jacobian from the joint Jacobians, its rotation
+error ``log3(R_d R^T)``, and the reading of arrays by address (:func:`table_matrix`). Every kernel does the readable
+code's (or pinocchio's) floating-point operations in the same order (no fast-math, no contraction), so the results
+are the same to the last bit (``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3`: it
+follows pinocchio's steps, but its sums round within a few ulps of pinocchio's.
 
 Used when numba is importable and ``HQP_TPM_COMPILED`` is not ``0`` (the switch of the solvers' compiled
 kernels too); :data:`ENABLED` may be set to False in a running process. Compiled code is cached on disk
