@@ -755,3 +755,34 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
         factorizations.clear()
         assert_equal_steps(lean.step(), want)
         assert not again and factorizations, (len(again), len(factorizations))
+
+
+def test_copied_and_pickled_lean_steps_step_their_own_controller():
+    """A lean step's fused program reads its controller's arrays (pinocchio's data) by address: a deep copy or an
+    unpickled lean step is built again for the copied controller, so it steps that controller with the readable
+    step's numbers, and the original goes on with its own; the program itself refuses to be copied."""
+    import copy
+    import pickle
+
+    from benchmarks.peers import problems as P
+
+    robot = P.load_robot(P.IIWA)
+    prob = P.iiwa_problem(robot, order=1, n=1)
+    ref, fast = (P.hqp_controller(robot, prob, prob.configs[0], "sns_tpm") for _ in range(2))
+    lean = LeanStep.of(fast)
+    for _ in range(5):
+        assert_equal_steps(lean.step(), ref.step().command)
+    for twin in (copy.deepcopy(lean), pickle.loads(pickle.dumps(lean))):
+        assert type(twin) is LeanStep and twin.ctrl is not fast and twin._program is not lean._program
+        ref2 = copy.deepcopy(ref)
+        for _ in range(10):
+            assert_equal_steps(twin.step(), ref2.step().command)
+            assert_equal_steps(twin.ctrl.q, ref2.q)
+    for _ in range(5):  # the original, untouched by its copies' steps
+        assert_equal_steps(lean.step(), ref.step().command)
+        assert_equal_steps(fast.q, ref.q)
+    if lean._program is not None:
+        with pytest.raises(TypeError, match="addresses"):
+            copy.deepcopy(lean._program)
+        with pytest.raises(TypeError, match="addresses"):
+            pickle.dumps(lean._program)

@@ -453,6 +453,14 @@ class Program:
         self.box_given = self._box[0] == BOX_GIVEN
         return self
 
+    def __deepcopy__(self, memo):
+        raise TypeError("a fused-step program holds the addresses of its arrays: build it again for the copy "
+                        "(LeanStep does: copy.deepcopy(lean_step) builds the copied controller's lean step)")
+
+    def __reduce_ex__(self, protocol):
+        raise TypeError("a fused-step program holds the addresses of its arrays: it cannot be pickled (a LeanStep "
+                        "pickles as its controller)")
+
     def bind_mat(self, slot: int, a: np.ndarray) -> None:
         """Point slot ``slot`` of :attr:`mats` at ``a`` (a float64, C-contiguous matrix; the program keeps it alive)."""
         self.mats[slot] = _checked(a, 2)

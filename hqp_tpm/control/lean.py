@@ -43,6 +43,7 @@ rows are not finite is handed to the readable path, which raises the same typed 
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -300,6 +301,15 @@ class LeanStep:
             self._program = program.build()
             self._kernel = _compiled_step.kernel(mode)
         return self
+
+    def __deepcopy__(self, memo) -> LeanStep:
+        """The lean step of a copy of the controller, built again: its fused program reads its own controller's
+        arrays by address, which a copied program would still point at."""
+        return LeanStep.of(copy.deepcopy(self.ctrl, memo))
+
+    def __reduce__(self):
+        """Pickled as its controller: unpickling builds the lean step again (:meth:`__deepcopy__`)."""
+        return LeanStep.of, (self.ctrl,)
 
     @property
     def info(self) -> dict:

@@ -167,8 +167,8 @@ class State:
         model, data = self.model, self.data
         if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
             return None
-        JT = self._joint_jacobians_T  # (one array object for every task)
-        if JT is None:
+        JT = self._joint_jacobians_T  # (one array object for every task; a copied state's is a copy: made again)
+        if JT is None or not _same_memory((JT,), (data.J.T,)):
             JT = data.J.T
             if not (JT.flags.c_contiguous and JT.flags.writeable and _same_memory((JT,), (data.J.T,))):
                 return None
