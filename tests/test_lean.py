@@ -495,11 +495,24 @@ def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     assert len(calls) >= 1
 
 
+def _singular_damped_pair(solver: str):
+    """Two iiwa controllers (readable and lean) at the stretched-out configuration q = 0, where the EE pose Jacobian
+    loses rank, with damped pivots (lambda_max > 0): the compiled kernels decline there."""
+    from benchmarks.peers import problems as P
+
+    robot = P.load_robot(P.IIWA)
+    prob = P.iiwa_problem(robot, order=1, n=1)
+    cfg = dataclasses.replace(prob.configs[0], q=np.zeros(robot.nq))
+    ctrls = [P.hqp_controller(robot, prob, cfg, solver) for _ in range(2)]
+    for c in ctrls:
+        c.lambda_max, c.eps = 0.05, 0.02
+    return ctrls[0], ctrls[1]
+
+
 def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
     """A damped pivot (the arm stretched out, lambda_max > 0) is not the compiled loop's case: the kernel hands
     back and sns_tpm_stacked's numpy path solves, with the readable step's numbers, without running the compiled
     loop again (it ran it twice more per step before: in sns_tpm_stacked and in the path it hands over to)."""
-    from benchmarks.peers import problems as P
     from hqp_tpm.solvers import _compiled_sns
 
     _flags(monkeypatch, True, True)
@@ -507,13 +520,7 @@ def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
     loops = []
     real_loop = _compiled_sns.sns_tpm_loop
     monkeypatch.setattr(_compiled_sns, "sns_tpm_loop", lambda *a: loops.append(1) or real_loop(*a))
-    robot = P.load_robot(P.IIWA)
-    prob = P.iiwa_problem(robot, order=1, n=1)
-    cfg = dataclasses.replace(prob.configs[0], q=np.zeros(robot.nq))  # singular: the EE pose Jacobian loses rank
-    ctrls = [P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2)]
-    for c in ctrls:
-        c.lambda_max, c.eps = 0.05, 0.02
-    ref, fast = ctrls
+    ref, fast = _singular_damped_pair("sns_tpm")
     lean = LeanStep.of(fast)
     for _ in range(5):
         res = ref.step()
@@ -730,7 +737,6 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
     readable step's numbers."""
     import importlib
 
-    from benchmarks.peers import problems as P
     from hqp_tpm.solvers import _compiled as _solvers_compiled
 
     tpm_mod = importlib.import_module("hqp_tpm.solvers.tpm")  # (the package exports the function tpm)
@@ -741,13 +747,7 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
         monkeypatch.setattr(_solvers_compiled, name, lambda *a, real=real, **k: again.append(1) or real(*a, **k))
     real_f = tpm_mod.Factorization
     monkeypatch.setattr(tpm_mod, "Factorization", lambda *a, **k: factorizations.append(1) or real_f(*a, **k))
-    robot = P.load_robot(P.IIWA)
-    prob = P.iiwa_problem(robot, order=1, n=1)
-    cfg = dataclasses.replace(prob.configs[0], q=np.zeros(robot.nq))  # singular: the EE pose Jacobian loses rank
-    ctrls = [P.hqp_controller(robot, prob, cfg, "tpm") for _ in range(2)]
-    for c in ctrls:
-        c.lambda_max, c.eps = 0.05, 0.02
-    ref, fast = ctrls
+    ref, fast = _singular_damped_pair("tpm")
     lean = LeanStep.of(fast)
     for _ in range(5):
         want = ref.step().command
