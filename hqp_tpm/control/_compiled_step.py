@@ -107,11 +107,13 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
             S = _mat(ints, jm)
             if jsrc >= 0:  # the frame Jacobian from the joint Jacobians (else the caller put it in mats[jm])
                 _frame_jacobian(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc], _vec(ints, ip), S)
-            ws = iv + (1 if k else 0)                  # w's slot (then J qd's, Jdot qd's at order 2)
+            ws = iv + (1 if k else 0)                  # w's slot, then at order 2 J qd's and Jdot qd's
+            rs = ws + (1 if k < dim else 0)
             if rot >= 0:  # w = log3(R_d R^T) (else the caller put it in vecs[ws])
                 _rotation_error(_mat(ints, rot + 1), _mat(ints, rot), _vec(ints, ws))
+            if order == 2:
+                rate, jdq = _vec(ints, rs), _vec(ints, rs + 1)
             if jsrc >= 0 and order == 2:  # J qd of the task's rows
-                rate = _vec(ints, ws + (1 if k < dim else 0))
                 for i in range(dim):
                     src = ints[at + i]
                     acc = 0.0
@@ -119,6 +121,12 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                         acc += S[src, c] * v[c]
                     rate[i] = acc
             fx, fxd = pf + 2, pf + 2 + k
+            if k:
+                x = _vec(ints, iv)
+                if ixd >= 0:
+                    x_dv = _vec(ints, ixd)
+            if k < dim:
+                w = _vec(ints, ws)
             for i in range(dim):
                 src = ints[at + i]
                 if jsrc == TRANSPOSED:  # S given as S^T (n x rows: pinocchio's CoM Jacobian transposed)
@@ -128,16 +136,15 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     for c in range(n):
                         J[r0 + i, c] = S[src, c]
                 if i < k:
-                    x_d = _vec(ints, ixd)[i] if ixd >= 0 else floats[fx + i]
-                    e = x_d - _vec(ints, iv)[ints[at + dim + i]]
+                    x_d = x_dv[i] if ixd >= 0 else floats[fx + i]
+                    e = x_d - x[ints[at + dim + i]]
                 else:
-                    e = _vec(ints, iv + (1 if k else 0))[i - k]
+                    e = w[i - k]
                 xd = floats[fxd + i]
                 if order == 1:
                     b[r0 + i] = xd + kp * e
                 else:
-                    w = iv + (1 if k else 0) + (1 if k < dim else 0)
-                    b[r0 + i] = floats[fxd + dim + i] + kd * (xd - _vec(ints, w)[i]) + kp * e - _vec(ints, w + 1)[i]
+                    b[r0 + i] = floats[fxd + dim + i] + kd * (xd - rate[i]) + kp * e - jdq[i]
             pi += 11 + dim + k + nc
             pf += 2 + k + 2 * dim
     for i in range(mn + m):
@@ -367,12 +374,13 @@ class Program:
         self._ints += [SELECTION, row, dim, *qidx, *vidx]
         return self._gains(kp, kd, 3 * dim)
 
-    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, jacobian=None,
-                  rotation=None, transposed: np.ndarray | None = None) -> tuple[int, int, int, int]:
+    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, x: np.ndarray | None = None,
+                  jacobian=None, rotation=None, transposed: np.ndarray | None = None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when
         ``len(xrows) == len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at
         order 2 ``rate = J qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`.
+        ``x``: the array of ``x``'s slot (a view pinocchio updates; with ``xrows``).
 
         ``jacobian = (JT, cols, p)`` (:meth:`hqp_tpm.robot.state.State.frame_jacobian_source` and the frame's
         position, views pinocchio updates): the kernel writes ``S`` itself
@@ -390,6 +398,8 @@ class Program:
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
         self.mats.append(np.zeros((6, self._ints[1])))
         self.vecs += [np.zeros(6) for _ in range(used + (1 if x_d_vec else 0))]
+        if x is not None:
+            self.vecs[vec] = x
         jsrc = ip = rot = -1
         cols: list[int] = []
         if transposed is not None:
@@ -410,7 +420,8 @@ class Program:
 
     @staticmethod
     def _slot(arrays: list, a: np.ndarray) -> int:
-        """The slot of ``a`` in ``arrays`` (added once: tasks share pinocchio's joint Jacobians)."""
+        """The slot of ``a`` in ``arrays`` (added once: tasks share pinocchio's joint Jacobians, a frame task's
+        position is its ``x``)."""
         for i, b in enumerate(arrays):
             if b is a:
                 return i

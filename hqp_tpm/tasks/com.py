@@ -76,8 +76,8 @@ class CenterOfMass(Task):
             return None
         com, Jcom, _ = views
         d, g = self.dim, self.gains
-        at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, transposed=Jcom.T)
-        program.vecs[vec] = com  # pinocchio updates both in place
+        at, _, _, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, x=com,
+                                        transposed=Jcom.T)  # (pinocchio updates both in place)
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
 
         def gather(t: float) -> None:

@@ -101,13 +101,12 @@ class FramePose(Task):
         RT = R.T  # a view, as R
         source = state.frame_jacobian_source(fid)
         inside = source is not None  # the frame Jacobian and the rotation error computed in the kernel
-        at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True,
+        at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True, x=p,
                                               jacobian=(*source, p) if inside else None,
                                               rotation=(RT, np.eye(3)) if inside else None)  # (the target's: below)
         refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
         target = [None, None, None]  # the target placement and views of its translation and rotation
         xd_slot = vec + (4 if order == 2 else 2)
-        program.vecs[vec] = p  # pinocchio updates it in place
         S, w = program.mats[mat], program.vecs[vec + 1]  # the program's arrays (written here if not inside)
         rate, jdq = (program.vecs[vec + 2], program.vecs[vec + 3]) if order == 2 else (None, None)
 

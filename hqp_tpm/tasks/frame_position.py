@@ -123,10 +123,9 @@ class FramePosition(Task):
         g = self.gains
         source = state.frame_jacobian_source(fid)
         inside = source is not None  # the frame Jacobian (and J qd) computed in the kernel
-        at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False,
-                                            jacobian=(*source, p) if inside else None)
+        at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, x=p,
+                                            jacobian=(*source, p) if inside else None)  # (p: pinocchio's view)
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
-        program.vecs[vec] = p  # pinocchio updates it in place
         S = program.mats[mat]  # the program's arrays (written here if not inside)
         rate, jdq = (program.vecs[vec + 1][:d], program.vecs[vec + 2][:d]) if order == 2 else (None, None)
 
