@@ -213,11 +213,15 @@ class PlannedStep:
                     return ctrl._compute().command  # the readable path raises the typed error naming the task
                 if status == _compiled_step.NONFINITE_X:
                     raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
-                # DECLINED / UNDECIDED: tpm_stacked's numpy reference decides, below
-        Jf = J.ravel()
-        if not math.isfinite(Jf @ Jf + b @ b):      # NaN or inf anywhere (an overflow only costs the slow path)
-            return ctrl._compute().command          # the readable path raises the typed error naming the task
-        x0 = -self.damping * ctrl._v if self.damping else None
+                # DECLINED / UNDECIDED: tpm_stacked's numpy reference decides, below, on the rows the kernel found
+                # finite, with the x0 it wrote
+        if status is None:
+            Jf = J.ravel()
+            if not math.isfinite(Jf @ Jf + b @ b):  # NaN or inf anywhere (an overflow only costs the slow path)
+                return ctrl._compute().command      # the readable path raises the typed error naming the task
+            x0 = -self.damping * ctrl._v if self.damping else None
+        else:
+            x0 = self._x0 if self.damping else None
         if sizes:
             x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0, kernel_status=status)
         else:
