@@ -323,7 +323,7 @@ def test_sns_tpm_saturations_past_rank_take_the_shortcut(on, compiled, monkeypat
 
 
 # ----------------------------------------------------------------------------------------
-# The general path's kernel (m <= n: regular or damped 1 x 1 pivots): tpm_stacked on == off.
+# The general path's kernel (m <= n: regular or damped pivots; singular ones go to Factorization): tpm_stacked on == off.
 # ----------------------------------------------------------------------------------------
 EPS = np.finfo(float).eps
 
@@ -478,15 +478,46 @@ def test_general_path_damped_one_row_pivots_between_regular_levels(compiled):
         sizes = [int(rng.integers(1, 4)) for _ in range(int(rng.integers(3, 7)))]
         while sum(sizes) > n:
             sizes.pop()
-        levels = random_stack(rng, n, sizes)
-        for k in range(1, len(levels)):
-            if sizes[k] == 1 and rng.random() < 0.7:
-                above = np.vstack([J for J, _ in levels[:k]])
-                row = rng.standard_normal(above.shape[0]) @ above
-                row += 10.0 ** rng.uniform(-2.5, -1.3) * np.linalg.norm(row) * rng.standard_normal(n) / np.sqrt(n)
-                levels[k] = (row[None, :], levels[k][1])
+        levels = nearly_spanned_levels(rng, random_stack(rng, n, sizes), rows=(1,))
         solved += check_general(levels, n, rng, compiled)
     assert solved >= 400
+
+
+def nearly_spanned_levels(rng, levels, share=0.7, rows=(1, 2, 3)):
+    """``levels`` with some later levels (of ``rows`` rows, with probability ``share``) replaced by rows nearly in
+    the span of the levels above (relative residual 3e-3..5e-2): their pivots are small and, with ``eps`` in
+    ``DAMPING``, damped."""
+    levels = list(levels)
+    n = levels[0][0].shape[1]
+    for k in range(1, len(levels)):
+        r = levels[k][0].shape[0]
+        if r in rows and rng.random() < share:
+            above = np.vstack([J for J, _ in levels[:k]])
+            block = rng.standard_normal((r, above.shape[0])) @ above
+            scale = 10.0 ** rng.uniform(-2.5, -1.3, (r, 1)) * np.linalg.norm(block, axis=1, keepdims=True)
+            levels[k] = (block + scale * rng.standard_normal((r, n)) / np.sqrt(n), levels[k][1])
+    return levels
+
+
+def test_general_path_damped_pivots_of_several_rows(compiled):
+    """Levels of 2 and 3 rows nearly in the span of the levels above (damped pivots of several rows, decided by
+    the SVD of the block in the kernel as ``pivot`` does), between regular levels: the kernel solves them itself
+    and equals ``Factorization``. (Before, the kernel handed every damped pivot of more than one row back.)"""
+    from hqp_tpm.solvers._kernels import Factorization
+
+    rng = np.random.default_rng(2024)
+    solved = damped_blocks = 0
+    for _ in range(200):
+        n = int(rng.integers(8, 24))
+        sizes = [int(rng.integers(1, 4)) for _ in range(int(rng.integers(3, 7)))]
+        while sum(sizes) > n:
+            sizes.pop()
+        levels = nearly_spanned_levels(rng, random_stack(rng, n, sizes), rows=(2, 3))
+        _, J, _, sizes_, _ = stacked(levels, n)
+        damped_blocks += sum(not p.regular and not p.singular and k > 1
+                             for p, k in zip(Factorization(J, sizes_, n, 0.05, 0.1).pivots, sizes_, strict=True))
+        solved += check_general(levels, n, rng, compiled, conditioned=True)  # undamped: cond(J) up to ~1e4
+    assert damped_blocks >= 200 and solved >= 1500, (damped_blocks, solved)  # (the old kernel: 828 of 1600)
 
 
 READ_ONLY_SCRIPT = """

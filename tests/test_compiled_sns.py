@@ -163,6 +163,64 @@ def test_whole_body_stacks_without_posture(sizes, outcomes):
     assert outcomes[_compiled_sns.DONE] >= 25 and max(iterations) >= 5, (outcomes, iterations)
 
 
+@pytest.mark.parametrize("sizes", [(6, 2, 2, 3, 3, 3), (6, 1, 2, 3, 3, 3), (4, 3, 2)])
+def test_damped_pivots_of_several_rows(sizes, outcomes):
+    """``m <= n`` stacks whose later levels are nearly in the span of the levels above (the obstacle scenario's
+    hand and foot levels near a singularity): damped pivots of several rows, so ``F != I``. The compiled loop
+    solves them (``F xd`` and ``F J xN`` in each pass) with the numpy loop's decisions; before, it handed every
+    such stack back."""
+    from test_compiled import nearly_spanned_levels
+
+    from hqp_tpm.solvers._kernels import Factorization
+
+    n = 27 if sum(sizes) > 10 else 12
+    rng = np.random.default_rng(sum(sizes) + 7)
+    damping = {"lambda_max": 0.05, "eps": 0.1}
+    damped = 0
+    for _ in range(30):
+        levels = nearly_spanned_levels(rng, random_stack(rng, n, sizes), share=0.8, rows=(2, 3))
+        _, J, _, sizes_, _ = stacked(levels, n)
+        damped += any(not p.regular and k > 1 for p, k in zip(Factorization(J, sizes_, n, **damping).pivots, sizes_,
+                                                                    strict=True))
+        lo, up = cutting_box(rng, levels, n, damping)
+        check(levels, lo, up, outcomes, damping)
+    assert damped >= 15 and outcomes[_compiled_sns.DONE] >= 60, (damped, outcomes)
+
+
+def test_obstacle_scenario_stacks(outcomes):
+    """``romeo_obstacles_sns_tpm``'s own solves (17-19 rows on 27 joints, hand and foot pivots damped near the
+    obstacles): the compiled loop answers every step of the first 0.9 s, and on every 6th step's stack it takes
+    the numpy loop's and Algorithm 1's decisions (``check``). Before, it handed 94 % of the run's steps back."""
+    from hqp_tpm.app.build import build
+    from hqp_tpm.app.scenario import load
+
+    captured = []
+    counted = _compiled_sns.sns_tpm_loop
+
+    def capture(J, xd, sizes, lo, up, lambda_max, eps, *rest):
+        if len(captured) % 6 == 0 or not captured:
+            captured.append((J.copy(), xd.copy(), tuple(sizes), lo.copy(), up.copy(), lambda_max, eps))
+        else:
+            captured.append(None)
+        return counted(J, xd, sizes, lo, up, lambda_max, eps, *rest)
+
+    _compiled_sns.sns_tpm_loop = capture
+    try:
+        ctrl = build(load("romeo_obstacles_sns_tpm"))[1]
+        for _ in range(900):
+            ctrl.step()
+    finally:
+        _compiled_sns.sns_tpm_loop = counted
+    assert outcomes[_compiled_sns.DONE] == len(captured) == 900, outcomes
+    saturated = 0
+    for J, xd, sizes, lo, up, lambda_max, eps in filter(None, captured):
+        off = np.cumsum((0, *sizes))
+        levels = [(J[a:e], xd[a:e]) for a, e in zip(off, off[1:], strict=False)]
+        info = check(levels, lo, up, outcomes, {"lambda_max": lambda_max, "eps": eps})
+        saturated += bool(info.saturated)
+    assert saturated >= 50, saturated
+
+
 @pytest.mark.parametrize("kind", ["full_rank", "any", "damped"])
 def test_boxes_without_zero(kind, outcomes):
     """30 % of the joints' boxes shifted (0 may leave the box): the box-point shift is handed back."""

@@ -6,9 +6,10 @@ rank tolerances of :mod:`hqp_tpm.solvers.damping` and damping law) in one call i
 
 * :func:`past_rank`: :func:`hqp_tpm.solvers._fullrank.solve_past_rank` (stacks with ``m > n`` that reach rank
   ``n`` before their last level), used by ``tpm``/``tpm_stacked`` and SNS-TPM (its free-column stacks too);
-* :func:`general`: :meth:`hqp_tpm.solvers._kernels.Factorization.solve` for ``m <= n`` when every pivot is
-  certified regular or is a damped 1 x 1 block (the Householder QR, Steps 2-4 on the pivot blocks,
-  ``x = Q R^{-T} F b``, ``x0`` term); larger damped or singular pivots: ``Factorization`` (SVDs).
+* :func:`general`: :meth:`hqp_tpm.solvers._kernels.Factorization.solve` for ``m <= n`` when no pivot is
+  singular (the Householder QR; each pivot certified regular or, when the certificate cannot tell, decided and
+  damped by the SVD of its block as ``pivot``; Steps 2-4 on the pivot blocks, ``x = Q R^{-T} F b``, ``x0``
+  term); a singular pivot: ``Factorization`` (the SVD of ``R``).
 
 ``tests/test_compiled.py`` proves kernels and references equal (1e-12; on ill-conditioned draws both against a
 50-digit reference).
@@ -484,67 +485,138 @@ def _past_rank2(J, b1, b2, sizes, n, lambda_max, eps, unit, margin, cond, out1, 
 # The general TPM path (hqp_tpm.solvers._kernels.Factorization.solve) when m <= n.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
-    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
-    :meth:`hqp_tpm.solvers._kernels.Factorization.solve` when every pivot is either certified regular
-    (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or a damped, nonsingular 1 x 1 block (Steps 2-4 on the
-    pivot blocks then give ``F``). Returns :data:`SOLVED`, or :data:`UNDECIDED` for anything else (a larger
-    block the certificate does not decide, a singular pivot): the caller runs ``Factorization``.
-    """
+def _damped_block(R, a, e, tol, lambda_max, eps, D):
+    """:func:`hqp_tpm.solvers._kernels.pivot` of the pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its
+    certificate did not decide, by the SVD of the block (LAPACK's ``gesdd``, as ``pivot``): 0 regular, 1 damped
+    (``D[a:e, a:e]`` gets the damped inverse ``V diag(s / (s^2 + lambda^2)) U^T``), -1 singular."""
+    k = e - a
+    B = np.zeros((k, k))
+    for i in range(k):
+        for j in range(i, k):
+            B[i, j] = R[a + i, a + j]
+    U, sv, Vt = np.linalg.svd(B)
+    smin = sv[k - 1]
+    if smin <= tol:
+        return -1
+    if not (lambda_max > 0.0 and smin < eps):
+        return 0
+    lam2 = (1.0 - (smin / eps) ** 2) * lambda_max**2    # damping.inverted_singular_values
+    for i in range(k):
+        for j in range(k):
+            s = 0.0
+            for t in range(k):
+                s += Vt[t, i] * (sv[t] / (sv[t] * sv[t] + lam2)) * U[j, t]
+            D[a + i, a + j] = s
+    return 1
+
+
+@_kernel
+def _general_factors(J, sizes, lambda_max, eps, unit, Fb):
+    """The factorization of :class:`hqp_tpm.solvers._kernels.Factorization` for ``m <= n`` (eq. (8) of
+    papers/000): ``(status, damped, V, tau, R)``, the Householder QR of ``J^T`` and, when some pivot is damped
+    (``damped``), ``Fb`` (``m x m``) <- ``Fbar`` of Steps 1-4 (``F = Fbar^T``); otherwise ``F = I`` and ``Fb``
+    is not touched. Each pivot is certified regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or
+    decided by the SVD of its block (:func:`_damped_block`). :data:`UNDECIDED` for a singular pivot (``J#``
+    then needs the SVD of ``R``: the caller runs ``Factorization``)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
     V, tau, R = _rows_qr(J, m)
     for i in range(m):
         if R[i, i] == 0.0:
-            return UNDECIDED
+            return UNDECIDED, False, V, tau, R
     Rinv = _triangular_inverse(R)
-    damp = np.zeros(nlev)                              # 0: regular; else the damped inverse of a 1 x 1 pivot
+    kind = np.zeros(nlev, dtype=np.int64)             # 0: regular (solved with R_ii), 1: damped (D_ii applied)
+    D = np.zeros((m, m))                               # block diagonal: the damped inverses of the damped pivots
+    damped = False
     a = 0
     for lev in range(nlev):
         e = a + sizes[lev]
         tol = unit * size * _fro_block(J, a, e, 0, n)
         bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro_block(Rinv, a, e, a, e)
         if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
-            if e - a > 1 or bound <= tol:              # a larger block to decide by SVD, or a singular pivot
-                return UNDECIDED
-            inv = bound / (bound * bound + (1.0 - (bound / eps) ** 2) * lambda_max**2)
-            damp[lev] = inv if R[a, a] >= 0.0 else -inv
-        a = e
-    c = b.copy()
-    if np.any(damp != 0.0):                            # Steps 1-4 on the pivot blocks: c = F b = Fbar^T b
-        Fb = np.zeros((m, m))
-        for i in range(m):
-            for j in range(i, m):
-                Fb[i, j] = R[i, j]
-        a = 0
-        for lev in range(nlev):
-            e = a + sizes[lev]
-            if damp[lev] == 0.0:                       # Step 2: R_ii^{-1} Fbar_i (back substitution)
-                for col in range(a, m):
-                    for i in range(e - 1, a - 1, -1):
-                        s = Fb[i, col]
-                        for t in range(i + 1, e):
-                            s -= R[i, t] * Fb[t, col]
-                        Fb[i, col] = s / R[i, i]
+            if e - a == 1:
+                if bound <= tol:                       # a singular pivot
+                    return UNDECIDED, False, V, tau, R
+                inv = bound / (bound * bound + (1.0 - (bound / eps) ** 2) * lambda_max**2)
+                D[a, a] = inv if R[a, a] >= 0.0 else -inv
+                kind[lev] = 1
             else:
-                for col in range(a, m):
-                    Fb[a, col] *= damp[lev]
-            mult = np.empty(e - a)
-            for i in range(a):                         # Step 3: Fbar[:a, a:] -= Fbar[:a, a:e] Fbar[a:e, a:]
-                for t in range(a, e):
-                    mult[t - a] = Fb[i, t]             # (the row's old values: the update overwrites them)
-                for col in range(a, m):
+                k = _damped_block(R, a, e, tol, lambda_max, eps, D)
+                if k < 0:
+                    return UNDECIDED, False, V, tau, R
+                kind[lev] = k
+            damped = damped or kind[lev] == 1
+        a = e
+    if not damped:
+        return SOLVED, False, V, tau, R
+    for i in range(m):                                 # Step 1: Fbar = R
+        for j in range(m):
+            Fb[i, j] = R[i, j] if j >= i else 0.0
+    col_tmp = np.empty(m)
+    a = 0
+    for lev in range(nlev):
+        e = a + sizes[lev]
+        if kind[lev] == 0:                             # Step 2: R_ii^{-1} Fbar_i (back substitution)
+            for col in range(a, m):
+                for i in range(e - 1, a - 1, -1):
+                    s = Fb[i, col]
+                    for t in range(i + 1, e):
+                        s -= R[i, t] * Fb[t, col]
+                    Fb[i, col] = s / R[i, i]
+        elif e - a == 1:                               # D_ii Fbar_i, a 1 x 1 block
+            for col in range(a, m):
+                Fb[a, col] *= D[a, a]
+        else:                                          # D_ii Fbar_i
+            for col in range(a, m):
+                for i in range(a, e):
                     s = 0.0
                     for t in range(a, e):
-                        s += mult[t - a] * Fb[t, col]
-                    Fb[i, col] -= s
-            a = e
-        for col in range(m):
-            s = 0.0
-            for i in range(m):
-                s += Fb[i, col] * b[i]
-            c[col] = s
+                        s += D[i, t] * Fb[t, col]
+                    col_tmp[i] = s
+                for i in range(a, e):
+                    Fb[i, col] = col_tmp[i]
+        mult = np.empty(e - a)
+        for i in range(a):                             # Step 3: Fbar[:a, a:] -= Fbar[:a, a:e] Fbar[a:e, a:]
+            for t in range(a, e):
+                mult[t - a] = Fb[i, t]                 # (the row's old values: the update overwrites them)
+            for col in range(a, m):
+                s = 0.0
+                for t in range(a, e):
+                    s += mult[t - a] * Fb[t, col]
+                Fb[i, col] -= s
+        a = e
+    return SOLVED, True, V, tau, R
+
+
+@_kernel
+def _f_times(Fb, b, out):
+    """``out <- F b = Fbar^T b`` (Steps 1-4 of papers/000, eq. (10))."""
+    m = Fb.shape[0]
+    for col in range(m):
+        s = 0.0
+        for i in range(m):
+            s += Fb[i, col] * b[i]
+        out[col] = s
+
+
+@_kernel
+def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
+    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
+    :meth:`hqp_tpm.solvers._kernels.Factorization.solve` when no pivot is singular (:func:`_general_factors`:
+    each pivot certified regular or decided, and damped, by the SVD of its block). Returns :data:`SOLVED`, or
+    :data:`UNDECIDED` for a singular pivot: the caller runs ``Factorization``.
+    """
+    m, n = J.shape
+    Fb = np.empty((m, m))
+    status, damped, V, tau, R = _general_factors(J, sizes, lambda_max, eps, unit, Fb)
+    if status != SOLVED:
+        return status
+    c = np.empty(m)
+    if damped:
+        _f_times(Fb, b, c)
+    else:
+        c[:] = b
     if use_x0:
         for i in range(m):
             s = 0.0

@@ -7,14 +7,15 @@ the best scaled solution and the clip into the exact box as ``_result``:
 * ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack and of each free-column stack
   ``J W`` by the full-rank shortcut kernel :func:`hqp_tpm.solvers._compiled._past_rank` (called inside compiled
   code; its own certificates), the rank test on the first level;
-* ``m <= n`` when every pivot of the stack is certified regular and undamped (``F = I``, the certificates of
-  :func:`hqp_tpm.solvers._compiled._general`): ``(J W)#`` by the QR of ``(J W)^T`` and the rank test
-  ``rank(J W) < m`` of ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol`` keeps it).
+* ``m <= n`` when no pivot of the stack is singular: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is
+  damped) by :func:`hqp_tpm.solvers._compiled._general_factors`, ``(J W)#`` by the QR of ``(J W)^T`` and the
+  rank test ``rank(J W) < m`` of ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol``
+  keeps it).
 
 It takes the same decisions on the same numbers as the numpy path; whatever it does not implement it hands
 back before returning anything (a status code says why), and the numpy path then solves from the start:
 
-* a stack or free-column stack the certificates do not decide, or a damped/singular pivot (``Factorization``,
+* a stack or free-column stack the certificates do not decide, or a singular pivot (``Factorization``,
   SVDs);
 * no scale factor in ``[0, 1]`` keeps the box (the box-point shift ``_around_box_point``);
 * a box that is not valid (``_box`` raises the typed error).
@@ -132,29 +133,6 @@ def _free_columns(J, free, nf, tol, V, tau, R):
 
 
 @_kernel
-def _regular_tpm(J, xd, sizes, lambda_max, eps, unit, x):
-    """TPM of a stack with ``m <= n`` whose pivots are all certified regular and undamped (then ``F = I``,
-    ``x = Q R^{-T} xd``): the certificates of :func:`hqp_tpm.solvers._compiled._general`. False otherwise."""
-    m, n = J.shape
-    size = max(m, n)
-    V, tau, R = _compiled._rows_qr(J, m)
-    for i in range(m):
-        if R[i, i] == 0.0:
-            return False
-    Rinv = _compiled._triangular_inverse(R)
-    a = 0
-    for lev in range(sizes.shape[0]):
-        e = a + sizes[lev]
-        tol = unit * size * _compiled._fro_block(J, a, e, 0, n)
-        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _compiled._fro_block(Rinv, a, e, a, e)
-        if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
-            return False
-        a = e
-    _q_rinv_t(V, tau, R, xd, x)
-    return True
-
-
-@_kernel
 def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
     """``_scale_and_pick`` of :mod:`hqp_tpm.solvers.sns` (the same operations): ``(factor, j)``."""
     n = a.shape[0]
@@ -209,8 +187,9 @@ def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
 @_kernel
 def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, order):
     """SNS-TPM of a stack ``J`` under ``lo <= x <= up``: ``x``, ``order[:nsat]`` the saturated joints. ``m > n``:
-    the extension, each ``J W`` by the full-rank shortcut; ``m <= n``: the paper's loop when every pivot of the
-    stack is regular and undamped (``F = I``), ``(J W)#`` by the QR of ``(J W)^T`` (``FreeColumns``).
+    the extension, each ``J W`` by the full-rank shortcut; ``m <= n``: the paper's loop when no pivot of the
+    stack is singular (``F`` of the damped pivots applied to ``xd`` and ``J xN``), ``(J W)#`` by the QR of
+    ``(J W)^T`` (``FreeColumns``).
 
     Returns ``(status, scale, nsat, iterations, feasible)``; ``status`` :data:`DONE` or why it hands back.
     """
@@ -222,8 +201,19 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     if extended:
         if _compiled._past_rank(J, xd, sizes, n, lambda_max, eps, unit, margin, cond, x) != _compiled.SOLVED:
             return DECLINED, 0.0, 0, 0, False
-    elif not _regular_tpm(J, xd, sizes, lambda_max, eps, unit, x):
-        return DECLINED, 0.0, 0, 0, False
+    fm = 0 if extended else m
+    Fb = np.empty((fm, fm))                            # m <= n: Fbar (F = Fbar^T) when a pivot is damped
+    Fxd = np.empty(fm)                                 # F xd
+    damped = False
+    if not extended:                                   # the general path's factorization (no singular pivot)
+        status, damped, V0, tau0, R0 = _compiled._general_factors(J, sizes, lambda_max, eps, unit, Fb)
+        if status != _compiled.SOLVED:
+            return DECLINED, 0.0, 0, 0, False
+        if damped:
+            _compiled._f_times(Fb, xd, Fxd)
+        else:
+            Fxd[:] = xd
+        _q_rinv_t(V0, tau0, R0, Fxd, x)                # x = J# F xd
     inside = True
     for j in range(n):
         if not (x[j] >= lo[j] and x[j] <= up[j]):
@@ -270,14 +260,18 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     xf = np.empty(n)
     yf = np.empty(n)
     c = np.empty(m)
+    Fc = np.empty(m)
     while True:
         iterations += 1
         if nsat:                                       # x = s a + b, a = (J W)# F_W xd, b = xN - (J W)# F_W J xN
             nf = n - nsat
             if not extended:                           # (extended: xf and yf solved with J W's factorization)
                 _saturated_rows(J, order, nsat, xN, c)
+                if damped:                             # (J W)# F (J xN)
+                    _compiled._f_times(Fb, c, Fc)
+                    c[:] = Fc
                 Vf = V[:, :nf]
-                _q_rinv_t(Vf, tau, R, xd, xf[:nf])
+                _q_rinv_t(Vf, tau, R, Fxd, xf[:nf])
                 _q_rinv_t(Vf, tau, R, c, yf[:nf])
             f = 0
             for j in range(n):
