@@ -510,7 +510,7 @@ def _damped_block(R, a, e, tol, lambda_max, eps, D):
     return 1
 
 
-@_kernel
+@_inlined
 def _general_factors(J, sizes, lambda_max, eps, unit, Fb):
     """The factorization of :class:`hqp_tpm.solvers._kernels.Factorization` for ``m <= n`` (eq. (8) of
     papers/000): ``(status, damped, V, tau, R)``, the Householder QR of ``J^T`` and, when some pivot is damped
