@@ -511,23 +511,24 @@ def _damped_block(R, a, e, tol, lambda_max, eps, D):
 
 
 @_inlined
-def _general_factors(J, sizes, lambda_max, eps, unit, Fb):
+def _general_factors(J, sizes, lambda_max, eps, unit):
     """The factorization of :class:`hqp_tpm.solvers._kernels.Factorization` for ``m <= n`` (eq. (8) of
-    papers/000): ``(status, damped, V, tau, R)``, the Householder QR of ``J^T`` and, when some pivot is damped
-    (``damped``), ``Fb`` (``m x m``) <- ``Fbar`` of Steps 1-4 (``F = Fbar^T``); otherwise ``F = I`` and ``Fb``
-    is not touched. Each pivot is certified regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or
+    papers/000): ``(status, damped, V, tau, R, Fb)``, the Householder QR of ``J^T`` and, when some pivot is
+    damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4 (``F = Fbar^T``); otherwise ``F = I`` and
+    ``Fb`` is empty (nothing allocated for it). Each pivot is certified regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or
     decided by the SVD of its block (:func:`_damped_block`). :data:`UNDECIDED` for a singular pivot (``J#``
     then needs the SVD of ``R``: the caller runs ``Factorization``)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
     V, tau, R = _rows_qr(J, m)
+    Fb = np.empty((0, 0))
     for i in range(m):
         if R[i, i] == 0.0:
-            return UNDECIDED, False, V, tau, R
+            return UNDECIDED, False, V, tau, R, Fb
     Rinv = _triangular_inverse(R)
-    kind = np.zeros(nlev, dtype=np.int64)             # 0: regular (solved with R_ii), 1: damped (D_ii applied)
-    D = np.zeros((m, m))                               # block diagonal: the damped inverses of the damped pivots
+    kind = np.empty(0, dtype=np.int64)                 # 0: regular (solved with R_ii), 1: damped (D_ii applied)
+    D = np.empty((0, 0))                               # block diagonal: the damped inverses of the damped pivots
     damped = False
     a = 0
     for lev in range(nlev):
@@ -535,21 +536,25 @@ def _general_factors(J, sizes, lambda_max, eps, unit, Fb):
         tol = unit * size * _fro_block(J, a, e, 0, n)
         bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro_block(Rinv, a, e, a, e)
         if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
+            if kind.shape[0] == 0:                     # the first pivot not certified: allocated now
+                kind = np.zeros(nlev, dtype=np.int64)
+                D = np.zeros((m, m))
             if e - a == 1:
                 if bound <= tol:                       # a singular pivot
-                    return UNDECIDED, False, V, tau, R
+                    return UNDECIDED, False, V, tau, R, Fb
                 inv = bound / (bound * bound + (1.0 - (bound / eps) ** 2) * lambda_max**2)
                 D[a, a] = inv if R[a, a] >= 0.0 else -inv
                 kind[lev] = 1
             else:
                 k = _damped_block(R, a, e, tol, lambda_max, eps, D)
                 if k < 0:
-                    return UNDECIDED, False, V, tau, R
+                    return UNDECIDED, False, V, tau, R, Fb
                 kind[lev] = k
             damped = damped or kind[lev] == 1
         a = e
     if not damped:
-        return SOLVED, False, V, tau, R
+        return SOLVED, False, V, tau, R, Fb
+    Fb = np.empty((m, m))
     for i in range(m):                                 # Step 1: Fbar = R
         for j in range(m):
             Fb[i, j] = R[i, j] if j >= i else 0.0
@@ -586,7 +591,7 @@ def _general_factors(J, sizes, lambda_max, eps, unit, Fb):
                     s += mult[t - a] * Fb[t, col]
                 Fb[i, col] -= s
         a = e
-    return SOLVED, True, V, tau, R
+    return SOLVED, True, V, tau, R, Fb
 
 
 @_kernel
@@ -608,8 +613,7 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     :data:`UNDECIDED` for a singular pivot: the caller runs ``Factorization``.
     """
     m, n = J.shape
-    Fb = np.empty((m, m))
-    status, damped, V, tau, R = _general_factors(J, sizes, lambda_max, eps, unit, Fb)
+    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit)
     if status != SOLVED:
         return status
     c = np.empty(m)

@@ -201,12 +201,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     if extended:
         if _compiled._past_rank(J, xd, sizes, n, lambda_max, eps, unit, margin, cond, x) != _compiled.SOLVED:
             return DECLINED, 0.0, 0, 0, False
-    fm = 0 if extended else m
-    Fb = np.empty((fm, fm))                            # m <= n: Fbar (F = Fbar^T) when a pivot is damped
-    Fxd = np.empty(fm)                                 # F xd
+    Fb = np.empty((0, 0))                              # m <= n: Fbar (F = Fbar^T) when a pivot is damped
+    Fxd = np.empty(0 if extended else m)               # F xd
     damped = False
     if not extended:                                   # the general path's factorization (no singular pivot)
-        status, damped, V0, tau0, R0 = _compiled._general_factors(J, sizes, lambda_max, eps, unit, Fb)
+        status, damped, V0, tau0, R0, Fb = _compiled._general_factors(J, sizes, lambda_max, eps, unit)
         if status != _compiled.SOLVED:
             return DECLINED, 0.0, 0, 0, False
         if damped:
