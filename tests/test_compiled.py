@@ -323,7 +323,7 @@ def test_sns_tpm_saturations_past_rank_take_the_shortcut(on, compiled, monkeypat
 
 
 # ----------------------------------------------------------------------------------------
-# The general path's kernel (m <= n: regular or damped pivots; singular ones go to Factorization): tpm_stacked on == off.
+# The general path's kernel (m <= n: regular or damped pivots; singular: Factorization): tpm_stacked on == off.
 # ----------------------------------------------------------------------------------------
 EPS = np.finfo(float).eps
 

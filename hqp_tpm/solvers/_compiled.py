@@ -515,9 +515,9 @@ def _general_factors(J, sizes, lambda_max, eps, unit):
     """The factorization of :class:`hqp_tpm.solvers._kernels.Factorization` for ``m <= n`` (eq. (8) of
     papers/000): ``(status, damped, V, tau, R, Fb)``, the Householder QR of ``J^T`` and, when some pivot is
     damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4 (``F = Fbar^T``); otherwise ``F = I`` and
-    ``Fb`` is empty (nothing allocated for it). Each pivot is certified regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or
-    decided by the SVD of its block (:func:`_damped_block`). :data:`UNDECIDED` for a singular pivot (``J#``
-    then needs the SVD of ``R``: the caller runs ``Factorization``)."""
+    ``Fb`` is empty (nothing allocated for it). Each pivot is certified regular (``1/||R_ii^{-1}||_F``,
+    ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block (:func:`_damped_block`). :data:`UNDECIDED`
+    for a singular pivot (``J#`` then needs the SVD of ``R``: the caller runs ``Factorization``)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
