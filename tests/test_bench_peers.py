@@ -106,3 +106,22 @@ def test_profile_step_runs_on_the_lean_step(problem, solver, tmp_path, capsys):
                               "--out", str(tmp_path)]) == 0
     out = capsys.readouterr().out
     assert "fused kernel" in out and "LeanStep.compute" in out and "integration" in out
+
+
+def test_quick_lean_groups_the_lean_sns_step_by_passes(capsys, monkeypatch):
+    """``benchmarks/peers/quick_lean.py --by-passes`` (the README's per-saturation cost on Romeo): every configuration
+    is counted once, in its pass count or among those handed to the numpy loop, and the counter it installs on the
+    numpy loop is removed after each step."""
+    import importlib
+    import re
+
+    from benchmarks.peers import quick_lean
+
+    sns = importlib.import_module("hqp_tpm.solvers.sns")
+    numpy_loop = sns._sns_tpm
+    assert quick_lean.main(["--configs", "6", "--repeats", "3", "--problems", "romeo_vel", "--by-passes"]) == 0
+    assert sns._sns_tpm is numpy_loop
+    out = capsys.readouterr().out
+    counts = [int(n) for n in re.findall(r"passes\s+(\d+)\s", out)]
+    counts += [int(n) for n in re.findall(r"numpy loop\s+(\d+)\s", out)]
+    assert sum(counts) == 6, out
