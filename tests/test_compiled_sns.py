@@ -320,3 +320,36 @@ def test_cache_stamp_includes_the_callees_file():
         pytest.skip("numba caches nothing here")
     st = os.stat(_compiled.__file__)
     assert cache_file._source_stamp[1:] == (st.st_mtime, st.st_size)
+
+
+def test_downdated_factorization_equals_the_free_columns():
+    """The QR downdate of the SNS loop (m > n): after each saturation, ``Q~[free rows, s:]`` is orthonormal, with
+    ``R1`` it factors the upper levels' free columns ``J_<k W^T``, ``C~[:, s:]`` is ``J_k W Q~[free rows, s:]``,
+    and the saturated joints' rows are decoupled (the refactorization's factors, up to the columns' signs)."""
+    from hqp_tpm.solvers._fullrank import COND, MARGIN
+
+    rng = np.random.default_rng(8)
+    n, sizes = 27, (6, 2, 3, 6, 21)
+    J = np.vstack([rng.standard_normal((17, n)), np.hstack([np.zeros((21, 6)), np.eye(21)])])
+    _compiled._sizes(sizes)                                     # compiles the kernels
+    status, m1, mk, r, V, tau, R1, BT, *_ = _compiled._past_rank_factor(
+        J, np.array(sizes), n, 0.0, 0.0, _compiled._UNIT, MARGIN, COND)
+    assert status == _compiled.SOLVED and (m1, mk) == (17, 21)
+    CT, Rt = BT.copy(), np.zeros((n, m1))
+    Rt[:m1] = R1
+    cs, sn, w = np.zeros((n, n)), np.zeros((n, n)), np.empty(n)
+    free = np.ones(n, dtype=bool)
+    for s, j in enumerate(rng.permutation(n)[:9]):
+        free[j] = False
+        _compiled_sns._q_row(j, V, tau, m1, cs, sn, s, w)
+        _compiled_sns._downdate(w, CT, Rt, s, m1, cs, sn)
+        Q = np.eye(n)
+        for i in range(n):
+            _compiled_sns._q_times(Q[:, i], V, tau, m1, cs, sn, s + 1)
+        Qf = Q[free][:, s + 1:]
+        R1s = Rt[s + 1:s + 1 + m1]
+        assert np.abs(np.tril(R1s, -1)).max() == 0.0                          # still triangular
+        assert np.abs(Qf.T @ Qf - np.eye(n - s - 1)).max() < 1e-13
+        assert np.abs(Qf[:, :m1] @ R1s - J[:m1, free].T).max() < 1e-13 * np.abs(J).max()
+        assert np.abs(J[m1:, free] @ Qf - CT[s + 1:].T).max() < 1e-13
+        assert np.abs(Q[~free][:, s + 1:]).max() < 1e-14                      # saturated joints: no coupling

@@ -362,37 +362,39 @@ def _damped_ls(RA, c, lam2):
 # solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
 # ----------------------------------------------------------------------------------------
 @_inlined
-def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
-    """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
-    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA)``."""
-    m = J.shape[0]
-    size = max(m, n)
+def _crossing_level(sizes, n):
+    """``(k, m1, mk, r)``: the level ``k`` whose rows take a stack of ``n`` columns to rank ``n`` (the levels above
+    it have ``m1 < n`` rows together), its row count ``mk`` and ``r = n - m1``."""
     m1 = 0
     k = 0
     while m1 + sizes[k] < n:
         m1 += sizes[k]
         k += 1
-    mk = sizes[k]
-    r = n - m1
+    return k, m1, sizes[k], n - m1
+
+
+@_inlined
+def _level_sumsq(J, sizes, w):
+    """``||J_lev||_F^2`` of every level (``w``: scratch of length ``>= n``)."""
     nlev = sizes.shape[0]
-    w = np.empty(max(n, mk))                           # scratch of the Householder updates and row norms
-    sq = np.empty(nlev)                                # ||J_lev||_F^2
+    sq = np.empty(nlev)
     a = 0
     for lev in range(nlev):
         e = a + sizes[lev]
         sq[lev] = _sumsq_rows(J, a, e, w)
         a = e
-    # levels < k: J_<k^T = Q1 R1 on the rows of J, pivots certified regular by 1/||R_ii^-1||_F
-    V, tau, R1 = _rows_qr(J, m1)
-    BT = np.empty((n, mk))
+    return sq
+
+
+@_inlined
+def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, unit, margin, cond):
+    """The certificates of :func:`_past_rank` and the QR of ``A = J_k Z``, given ``R1`` (``J_<k^T = Q1 R1``, its
+    diagonal nonzero) and ``BT = (J_k Q)^T``: ``(status, AT, tauA, RA)``."""
     AT = np.empty((r, mk))                             # A^T: the columns of A as rows
     tauA = np.empty(r)
     RA = np.zeros((r, r))
     a_inv = 0.0
-    if m1:
-        for i in range(m1):
-            if R1[i, i] == 0.0:                        # dtrtri's info > 0
-                return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+    if m1:                                             # levels < k: pivots certified regular by 1/||R_ii^-1||_F
         R1inv = _triangular_inverse(R1)
         a = 0
         for lev in range(k):
@@ -400,18 +402,13 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
             bound = 1.0 / _fro_block(R1inv, a, e, a, e)
             norm = math.sqrt(sq[lev])
             if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
-                return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+                return DECLINED, AT, tauA, RA
             a = e
         a_inv = _fro_block(R1inv, 0, m1, 0, m1)
-    # (J_k Q)^T = [J_k Q1, A]^T: J_k x1 = (J_k Q1) z and A = J_k Z
-    for i in range(mk):
-        for t in range(n):
-            BT[t, i] = J[m1 + i, t]
     norm_k = math.sqrt(sq[k])
-    _apply_right_t(BT, V, tau, m1, w)
     thr_k = max(margin * unit * size * norm_k, cond * norm_k)
     norm = 0.0
-    for lev in range(nlev):
+    for lev in range(sq.shape[0]):
         norm += sq[lev]
     norm = math.sqrt(norm)
     thr = max(margin * unit * size * norm, cond * norm)
@@ -423,20 +420,44 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     for j in range(r):
         dmin = min(dmin, abs(RA[j, j]))
     if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
-        return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+        return DECLINED, AT, tauA, RA
     RAinv = _triangular_inverse(RA)
     p = _fro_block(RAinv, 0, r, 0, r)                  # = ||A#||_F = sqrt(sum 1/sigma^2)
     lower = 1.0 / p                                    # <= sigma_min(A)
     if lower <= thr_k or (lambda_max > 0.0 and r == mk and lower < eps):
-        return UNDECIDED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA  # sigma_min itself: the reference's SVD decides
+        return UNDECIDED, AT, tauA, RA                 # sigma_min itself: the reference's SVD decides
     if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
-        return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
-    return SOLVED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+        return DECLINED, AT, tauA, RA
+    return SOLVED, AT, tauA, RA
 
 
 @_inlined
-def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out):
-    """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors."""
+def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
+    """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
+    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA)``."""
+    m = J.shape[0]
+    k, m1, mk, r = _crossing_level(sizes, n)
+    w = np.empty(max(n, mk))                           # scratch of the Householder updates and row norms
+    sq = _level_sumsq(J, sizes, w)
+    V, tau, R1 = _rows_qr(J, m1)                       # levels < k: J_<k^T = Q1 R1 on the rows of J
+    BT = np.empty((n, mk))
+    for i in range(m1):
+        if R1[i, i] == 0.0:                            # dtrtri's info > 0
+            AT, tauA, RA = np.empty((r, mk)), np.empty(r), np.zeros((r, r))
+            return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+    for i in range(mk):                                # (J_k Q)^T = [J_k Q1, A]^T: J_k x1 = (J_k Q1) z, A = J_k Z
+        for t in range(n):
+            BT[t, i] = J[m1 + i, t]
+    _apply_right_t(BT, V, tau, m1, w)
+    status, AT, tauA, RA = _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, n), lambda_max, eps, unit,
+                                              margin, cond)
+    return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+
+
+@_inlined
+def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, out):
+    """``out[:m1] <- z``, ``out[m1:m1 + r] <- y`` of :func:`_past_rank` for the right-hand side ``b``
+    (``x = Q [z; y]``)."""
     z = _solve_upper_t(R1, b[:m1]) if m1 else np.empty(0)
     res = np.empty(mk)
     for i in range(mk):
@@ -450,9 +471,15 @@ def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, 
         y = _damped_ls(RA, res[:r], lambda_max * lambda_max)
     else:
         y = _solve_upper(RA, res[:r])
-    out[:m1] = z                                       # x = Q [z; y]
-    out[m1:] = y
-    _apply_q(out, V, tau, m1)
+    out[:m1] = z
+    out[m1:m1 + r] = y
+
+
+@_inlined
+def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out):
+    """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors."""
+    _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, out)
+    _apply_q(out, V, tau, m1)                          # x = Q [z; y]
 
 
 @_kernel

@@ -132,6 +132,135 @@ def _free_columns(J, free, nf, tol, V, tau, R):
     return -1
 
 
+# ----------------------------------------------------------------------------------------
+# m > n: the upper levels' QR downdated when a joint saturates (instead of refactorizing J W).
+#
+# After s saturations the factorization is kept in "extended" coordinates: Q~ = H D_0 ... D_{s-1} (n x n; H the
+# Householder reflectors of the first pass's J_<k^T, D_t the Givens rotations of saturation t), R~ (n x m1, its
+# rows s .. s + m1 - 1 hold R1) and C~^T = (J_k Q~)^T (n x mk). The factorization of J_<k W^T is
+# Q~[free rows, s:] R1 and J_k W Q~[free rows, s:] = C~[:, s:]. Saturating joint j: rotate coordinates
+# (i, i + 1), i = n - 2 .. s, so that row j of Q~ becomes (.., +-1, 0, ..) at coordinate s; then coordinate s
+# (and row j) drop out: R~'s row s and C~'s column s belong to joint j alone (Golub & Van Loan, deleting a row
+# of a QR factorization). Orthogonal rotations: backward stable, as the refactorization.
+# ----------------------------------------------------------------------------------------
+@_kernel
+def _q_row(j, V, tau, p, cs, sn, s, w):
+    """``w <- e_j^T Q~`` after ``s`` saturations (``Q~ = H D_0 ... D_{s-1}``, ``H`` the ``p`` reflectors of ``V``)."""
+    n = w.shape[0]
+    for i in range(n):
+        w[i] = 0.0
+    w[j] = 1.0
+    _compiled._apply_qt(w, V, tau, p)                 # (e_j^T H)^T = H^T e_j
+    for t in range(s):                                 # w^T D_t: saturation t's rotations in their order
+        for i in range(n - 2, t - 1, -1):
+            sv = sn[t, i]
+            if sv != 0.0:
+                c = cs[t, i]
+                w0 = w[i]
+                w1 = w[i + 1]
+                w[i] = c * w0 + sv * w1
+                w[i + 1] = c * w1 - sv * w0
+
+
+@_kernel
+def _downdate(w, CT, Rt, s, p, cs, sn):
+    """Saturation ``s``: the rotations ``(cs[s, i], sn[s, i])`` of coordinates ``(i, i + 1)``, ``i = n - 2 .. s``, that
+    turn ``w`` (the saturated joint's row of ``Q~``) into ``+-e_s``, applied to the rows of ``CT = (J_k Q~)^T`` and of
+    ``Rt = R~`` (``p`` rows of ``R1`` from row ``s``)."""
+    n = w.shape[0]
+    mk = CT.shape[1]
+    for i in range(n - 2, s - 1, -1):
+        w0 = w[i]
+        w1 = w[i + 1]
+        if w1 == 0.0:
+            cs[s, i] = 1.0
+            sn[s, i] = 0.0
+            continue
+        h = math.hypot(w0, w1)
+        c = w0 / h
+        sv = w1 / h
+        cs[s, i] = c
+        sn[s, i] = sv
+        w[i] = h
+        w[i + 1] = 0.0
+        for t in range(mk):
+            x0 = CT[i, t]
+            x1 = CT[i + 1, t]
+            CT[i, t] = c * x0 + sv * x1
+            CT[i + 1, t] = c * x1 - sv * x0
+        if i < s + p:                                  # rows of R~ below s + p are zero
+            for t in range(p):
+                x0 = Rt[i, t]
+                x1 = Rt[i + 1, t]
+                Rt[i, t] = c * x0 + sv * x1
+                Rt[i + 1, t] = c * x1 - sv * x0
+
+
+@_kernel
+def _q_times(v, V, tau, p, cs, sn, s):
+    """``v <- Q~ v`` after ``s`` saturations."""
+    n = v.shape[0]
+    for t in range(s - 1, -1, -1):                     # D_t v: its rotations in reverse order
+        for i in range(t, n - 1):
+            sv = sn[t, i]
+            if sv != 0.0:
+                c = cs[t, i]
+                v0 = v[i]
+                v1 = v[i + 1]
+                v[i] = c * v0 - sv * v1
+                v[i + 1] = sv * v0 + c * v1
+    _compiled._apply_q(v, V, tau, p)
+
+
+@_kernel
+def _downdated_solve(J, xd, c, sizes, free, nsat, k, m1, mk, V, tau, cs, sn, CT, Rt, lambda_max, eps, unit,
+                     margin, cond, xf, yf):
+    """``xf``, ``yf`` <- the TPM of ``J W`` (its free columns, in order) for ``xd`` and ``c`` from the downdated
+    factorization (``_past_rank``'s certificates on it); returns ``_past_rank``'s status."""
+    m, n = J.shape
+    nf = n - nsat
+    r = nf - m1
+    R1 = Rt[nsat:nsat + m1]
+    for i in range(m1):
+        if R1[i, i] == 0.0:
+            return _compiled.DECLINED
+    BT = CT[nsat:]
+    nlev = sizes.shape[0]
+    sq = np.empty(nlev)                                # ||J_lev W||_F^2: per column along the rows, then the
+    acc = np.empty(n)                                  # free columns' sums in order (the saturated add 0)
+    a = 0
+    for lev in range(nlev):
+        e = a + sizes[lev]
+        for t in range(n):
+            acc[t] = 0.0
+        for i in range(a, e):
+            for t in range(n):
+                acc[t] += J[i, t] * J[i, t]
+        total = 0.0
+        for t in range(n):
+            if free[t]:
+                total += acc[t]
+        sq[lev] = total
+        a = e
+    status, AT, tauA, RA = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf), lambda_max,
+                                                        eps, unit, margin, cond)
+    if status != _compiled.SOLVED:
+        return status
+    v = np.zeros(n)
+    for rhs in range(2):
+        for i in range(nsat):
+            v[i] = 0.0
+        _compiled._crossing_rhs(xd if rhs == 0 else c, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, v[nsat:])
+        _q_times(v, V, tau, m1, cs, sn, nsat)
+        out = xf if rhs == 0 else yf
+        f = 0
+        for t in range(n):
+            if free[t]:
+                out[f] = v[t]
+                f += 1
+    return status
+
+
 @_kernel
 def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
     """``_scale_and_pick`` of :mod:`hqp_tpm.solvers.sns` (the same operations): ``(factor, j)``."""
@@ -198,9 +327,16 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
         if not (lo[j] <= up[j] and lo[j] < math.inf and up[j] > -math.inf):
             return BAD_BOX, 0.0, 0, 0, False
     extended = m > n
-    if extended:
-        if _compiled._past_rank(J, xd, sizes, n, lambda_max, eps, unit, margin, cond, x) != _compiled.SOLVED:
+    if extended:                                       # _past_rank, its factors kept for the downdates
+        status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA = _compiled._past_rank_factor(
+            J, sizes, n, lambda_max, eps, unit, margin, cond)
+        if status != _compiled.SOLVED:
             return DECLINED, 0.0, 0, 0, False
+        _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, lambda_max, eps, x)
+        k0 = _compiled._crossing_level(sizes, n)[0]
+    else:
+        m1, mk, k0 = 0, 0, 0
+        PV, Ptau, PR1, PBT = np.empty((0, n)), np.empty(0), np.empty((0, 0)), np.empty((n, 0))
     Fb = np.empty((0, 0))                              # m <= n: Fbar (F = Fbar^T) when a pivot is damped
     Fxd = np.empty(0 if extended else m)               # F xd
     damped = False
@@ -260,6 +396,12 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     yf = np.empty(n)
     c = np.empty(m)
     Fc = np.empty(m)
+    w = np.empty(n)                                    # m > n: the saturated joint's row of Q~
+    downdating = extended
+    CT = np.empty((0, 0))
+    Rt = np.empty((0, 0))
+    cs = np.empty((0, 0))
+    sn = np.empty((0, 0))
     while True:
         iterations += 1
         if nsat:                                       # x = s a + b, a = (J W)# F_W xd, b = xN - (J W)# F_W J xN
@@ -310,11 +452,26 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif nf == 0:
                 stop = True
             else:
-                Jf = np.empty((m, nf))                 # J W on its free columns, in order
-                _gather_free(J, free, Jf)
                 _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN: both right-hand sides at once
-                if _compiled._past_rank2(Jf, xd, c, sizes, nf, lambda_max, eps, unit, margin, cond,
-                                         xf[:nf], yf[:nf]) != _compiled.SOLVED:
+                if downdating and _compiled._crossing_level(sizes, nf)[0] != k0:
+                    downdating = False                 # another level crosses rank nf: refactorize from here on
+                if downdating:                         # the upper levels' QR downdated (saturation nsat - 1)
+                    if nsat == 1:
+                        CT = PBT.copy()
+                        Rt = np.zeros((n, m1))
+                        Rt[:m1] = PR1
+                        cs = np.empty((n, n))  # (each entry read is written first: _downdate, then _q_row)
+                        sn = np.empty((n, n))
+                    _q_row(j, PV, Ptau, m1, cs, sn, nsat - 1, w)
+                    _downdate(w, CT, Rt, nsat - 1, m1, cs, sn)
+                    status = _downdated_solve(J, xd, c, sizes, free, nsat, k0, m1, mk, PV, Ptau, cs, sn, CT, Rt,
+                                              lambda_max, eps, unit, margin, cond, xf, yf)
+                else:
+                    Jf = np.empty((m, nf))             # J W on its free columns, in order
+                    _gather_free(J, free, Jf)
+                    status = _compiled._past_rank2(Jf, xd, c, sizes, nf, lambda_max, eps, unit, margin, cond,
+                                                   xf[:nf], yf[:nf])
+                if status != _compiled.SOLVED:
                     return DECLINED, 0.0, 0, 0, False
                 stop = k_fit and sizes[0] > nf         # the first level crosses rank nf: J_1 W loses rank
         if stop:
