@@ -4,16 +4,19 @@
 one call, with the scale factor and the most critical joint computed joint by joint as ``_scale_and_pick``,
 the best scaled solution and the clip into the exact box as ``_result``:
 
-* ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack and of each free-column stack
-  ``J W`` by the full-rank shortcut kernel :func:`hqp_tpm.solvers._compiled._past_rank` (called inside compiled
-  code; its own certificates), the rank test on the first level;
+* ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack by the full-rank shortcut kernel
+  :func:`hqp_tpm.solvers._compiled._past_rank` (called inside compiled code; its own certificates) and of each
+  free-column stack ``J W`` by the same shortcut on the upper levels' QR *downdated* when a joint saturates
+  (Givens rotations, below; the certificates of ``_past_rank`` on the downdated factors), or refactorized when
+  another level crosses rank; the rank test on the first level;
 * ``m <= n`` when no pivot of the stack is singular: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is
   damped) by :func:`hqp_tpm.solvers._compiled._general_factors`, ``(J W)#`` by the QR of ``(J W)^T`` and the
   rank test ``rank(J W) < m`` of ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol``
   keeps it).
 
-It takes the same decisions on the same numbers as the numpy path; whatever it does not implement it hands
-back before returning anything (a status code says why), and the numpy path then solves from the start:
+It takes the numpy path's decisions on numbers equal to it up to rounding (its own QR, the downdates); whatever
+it does not implement it hands back before returning anything (a status code says why), and the numpy path then
+solves from the start:
 
 * a stack or free-column stack the certificates do not decide, or a singular pivot (``Factorization``,
   SVDs);
