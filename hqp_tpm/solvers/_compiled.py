@@ -260,8 +260,8 @@ def _apply_qt(x, V, tau, p):
 
 @_inlined
 def _sumsq_rows(J, a, e, acc):
-    """``||J[a:e]||_F^2``: squares accumulated per column along the contiguous rows (``acc``: scratch of
-    length ``>= n``), then the columns' sums added in order."""
+    """``||J[a:e]||_F^2``: squares accumulated per column along the contiguous rows (``acc``, length ``>= n``,
+    holds each column's sum afterwards), then the columns' sums added in order."""
     n = J.shape[1]
     for t in range(n):
         acc[t] = 0.0

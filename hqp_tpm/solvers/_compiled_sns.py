@@ -229,16 +229,12 @@ def _downdated_solve(J, xd, c, sizes, free, nsat, k, m1, mk, V, tau, cs, sn, CT,
             return _compiled.DECLINED
     BT = CT[nsat:]
     nlev = sizes.shape[0]
-    sq = np.empty(nlev)                                # ||J_lev W||_F^2: per column along the rows, then the
-    acc = np.empty(n)                                  # free columns' sums in order (the saturated add 0)
+    sq = np.empty(nlev)                                # ||J_lev W||_F^2: the free columns' sums of squares
+    acc = np.empty(n)                                  # (_sumsq_rows leaves each column's in acc), in order
     a = 0
     for lev in range(nlev):
         e = a + sizes[lev]
-        for t in range(n):
-            acc[t] = 0.0
-        for i in range(a, e):
-            for t in range(n):
-                acc[t] += J[i, t] * J[i, t]
+        _compiled._sumsq_rows(J, a, e, acc)
         total = 0.0
         for t in range(n):
             if free[t]:
