@@ -596,9 +596,6 @@ def _general_factors(J, sizes, lambda_max, eps, unit):
                     for t in range(i + 1, e):
                         s -= R[i, t] * Fb[t, col]
                     Fb[i, col] = s / R[i, i]
-        elif e - a == 1:                               # D_ii Fbar_i, a 1 x 1 block
-            for col in range(a, m):
-                Fb[a, col] *= D[a, a]
         else:                                          # D_ii Fbar_i
             for col in range(a, m):
                 for i in range(a, e):

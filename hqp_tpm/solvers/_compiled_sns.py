@@ -166,12 +166,22 @@ def _q_row(j, V, tau, p, cs, sn, s, w):
 
 
 @_kernel
+def _rotate_rows(X, i, c, sv):
+    """Rows ``i``, ``i + 1`` of ``X`` <- ``(c X_i + s X_{i+1}, c X_{i+1} - s X_i)`` (a rotation of coordinates
+    ``(i, i + 1)`` applied to the rows of ``C~^T`` or ``R~``)."""
+    for t in range(X.shape[1]):
+        x0 = X[i, t]
+        x1 = X[i + 1, t]
+        X[i, t] = c * x0 + sv * x1
+        X[i + 1, t] = c * x1 - sv * x0
+
+
+@_kernel
 def _downdate(w, CT, Rt, s, p, cs, sn):
     """Saturation ``s``: the rotations ``(cs[s, i], sn[s, i])`` of coordinates ``(i, i + 1)``, ``i = n - 2 .. s``, that
     turn ``w`` (the saturated joint's row of ``Q~``) into ``+-e_s``, applied to the rows of ``CT = (J_k Q~)^T`` and of
     ``Rt = R~`` (``p`` rows of ``R1`` from row ``s``)."""
     n = w.shape[0]
-    mk = CT.shape[1]
     for i in range(n - 2, s - 1, -1):
         w0 = w[i]
         w1 = w[i + 1]
@@ -186,17 +196,9 @@ def _downdate(w, CT, Rt, s, p, cs, sn):
         sn[s, i] = sv
         w[i] = h
         w[i + 1] = 0.0
-        for t in range(mk):
-            x0 = CT[i, t]
-            x1 = CT[i + 1, t]
-            CT[i, t] = c * x0 + sv * x1
-            CT[i + 1, t] = c * x1 - sv * x0
+        _rotate_rows(CT, i, c, sv)
         if i < s + p:                                  # rows of R~ below s + p are zero
-            for t in range(p):
-                x0 = Rt[i, t]
-                x1 = Rt[i + 1, t]
-                Rt[i, t] = c * x0 + sv * x1
-                Rt[i + 1, t] = c * x1 - sv * x0
+            _rotate_rows(Rt, i, c, sv)
 
 
 @_kernel
@@ -409,10 +411,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 _saturated_rows(J, order, nsat, xN, c)
                 if damped:                             # (J W)# F (J xN)
                     _compiled._f_times(Fb, c, Fc)
-                    c[:] = Fc
                 Vf = V[:, :nf]
                 _q_rinv_t(Vf, tau, R, Fxd, xf[:nf])
-                _q_rinv_t(Vf, tau, R, c, yf[:nf])
+                _q_rinv_t(Vf, tau, R, Fc if damped else c, yf[:nf])
             f = 0
             for j in range(n):
                 if free[j]:
