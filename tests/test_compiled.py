@@ -578,8 +578,10 @@ def test_building_blocks_against_lapack():
     """The kernels' Householder QR (four columns at a time, then one by one), the reflectors applied from the
     right to ``B^T`` (four terms of each sum per pass, then one), ``Q x``, ``Q^T x``, the row-by-row ``R^{-1}``
     and the row norms equal LAPACK's ``dgeqrf``/``dorgqr``/``dtrtri`` and numpy to 1e-12 on every shape with
-    up to 13 columns and 16 rows (all the loops' block and remainder lengths), including columns already
-    zero below the diagonal (``tau = 0``, a reflector skipped)."""
+    up to 13 columns and 16 rows (all the loops' block and remainder lengths, ``_dot``'s four partial sums
+    among them), including columns already zero below the diagonal (``tau = 0``, a reflector skipped).
+    ``Q`` applied to several vectors at once (``_apply_q_rows``) gives each one's ``_apply_q`` exactly, and
+    the norm of a triangle (``_fro_upper``) is that of its block."""
     from scipy.linalg import lapack
 
     _compiled._sizes((1,))                             # compile the kernels
@@ -606,13 +608,23 @@ def test_building_blocks_against_lapack():
             y = x.copy()
             _compiled._apply_qt(y, V, tau, p)
             assert rel_diff(y, Q.T @ x) <= TOL
+            X = rng.standard_normal((3, q))                # several vectors at once: each as _apply_q alone
+            Y = X.copy()
+            _compiled._apply_q_rows(Y, V, tau, p)
+            for r in range(3):
+                y = X[r].copy()
+                _compiled._apply_q(y, V, tau, p)
+                np.testing.assert_array_equal(Y[r], y)
             for rows in (1, 3, 7):
                 B = rng.standard_normal((rows, q))
                 BT = B.T.copy()
                 _compiled._apply_right_t(BT, V, tau, p, np.empty(rows))
                 assert rel_diff(BT.T, B @ Q) <= TOL, (p, q, rows)
             Rr = np.triu(qr[:p]) / scale + 3.0 * np.eye(p) * np.sign(np.diag(qr[:p]) + 0.5)
-            assert rel_diff(_compiled._triangular_inverse(Rr), lapack.dtrtri(Rr, lower=0)[0]) <= TOL
+            Rinv = _compiled._triangular_inverse(Rr)
+            assert rel_diff(Rinv, lapack.dtrtri(Rr, lower=0)[0]) <= TOL
+            for a, e in ((0, p), (0, (p + 1) // 2), (p // 2, p)):  # the triangle's norm: the block's, exactly
+                assert _compiled._fro_upper(Rinv, a, e) == _compiled._fro_block(Rinv, a, e, a, e)
             a, e = sorted(int(v) for v in rng.integers(0, q + 1, 2))
             ref = float(np.sum(M[a:e] ** 2))
             got = _compiled._sumsq_rows(np.ascontiguousarray(M), a, e, np.empty(p))

@@ -343,9 +343,9 @@ def test_downdated_factorization_equals_the_free_columns():
         free[j] = False
         _compiled_sns._q_row(j, V, tau, m1, cs, sn, s, w)
         _compiled_sns._downdate(w, CT, Rt, s, m1, cs, sn)
-        Q = np.eye(n)
-        for i in range(n):
-            _compiled_sns._q_times(Q[:, i], V, tau, m1, cs, sn, s + 1)
+        QT = np.eye(n)                                          # rows e_i -> Q~ e_i: Q~ = QT^T
+        _compiled_sns._q_times_rows(QT, V, tau, m1, cs, sn, s + 1)
+        Q = QT.T
         Qf = Q[free][:, s + 1:]
         R1s = Rt[s + 1:s + 1 + m1]
         assert np.abs(np.tril(R1s, -1)).max() == 0.0                          # still triangular

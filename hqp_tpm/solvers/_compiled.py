@@ -92,8 +92,28 @@ def _compile() -> None:
 
 # ----------------------------------------------------------------------------------------
 # Small dense building blocks (row-major; loops over a contiguous row run innermost and from 0, so that
-# numba drops the negative-index check and LLVM vectorizes them; no sum is reordered).
+# numba drops the negative-index check and LLVM vectorizes them). Sums keep their term order, except the dot
+# products of a Householder reflection and a reflector's norm (:func:`_dot`: four interleaved partial sums).
 # ----------------------------------------------------------------------------------------
+@_inlined
+def _dot(u, v, t0, c):
+    """``sum_{tt < c} u[t0 + tt] v[t0 + tt]`` in four partial sums (every fourth term; then ``(s0 + s1) + (s2 + s3)``):
+    four independent chains of additions instead of one latency-bound chain."""
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    c4 = c - c % 4
+    for tt in range(0, c4, 4):
+        s0 += u[t0 + tt] * v[t0 + tt]
+        s1 += u[t0 + tt + 1] * v[t0 + tt + 1]
+        s2 += u[t0 + tt + 2] * v[t0 + tt + 2]
+        s3 += u[t0 + tt + 3] * v[t0 + tt + 3]
+    for tt in range(c4, c):
+        s0 += u[t0 + tt] * v[t0 + tt]
+    return (s0 + s1) + (s2 + s3)
+
+
 @_kernel
 def _householder_rows(V, tau, R):
     """QR of ``M = V^T`` (``q x p``, ``q >= p``), in place on the rows of ``V`` (``p x q``, row-major).
@@ -103,16 +123,14 @@ def _householder_rows(V, tau, R):
 
     Each column's ``w_j = V[j, i] + sum_t v_t V[j, t]`` is one sum in ``t`` order; four columns run at once
     (four independent chains instead of one latency-bound chain), and the updates ``V[j, t] -= w_j v_t`` run
-    along contiguous rows from 0 (LLVM vectorizes them; no sum is reordered).
+    along contiguous rows from 0 (LLVM vectorizes them); the reflector's norm by :func:`_dot`.
     """
     p, q = V.shape
     for i in range(p):
         alpha = V[i, i]
         t0 = i + 1                                     # entries t0 + tt of a row (loops from 0: numba then
         c = q - t0                                     # drops its negative-index check and LLVM vectorizes)
-        xn = 0.0
-        for tt in range(c):
-            xn += V[i, t0 + tt] * V[i, t0 + tt]
+        xn = _dot(V[i], V[i], t0, c)
         if xn == 0.0:
             tau[i] = 0.0
             beta = alpha
@@ -235,9 +253,7 @@ def _reflect(x, V, tau, i):
         return
     t0 = i + 1
     c = x.shape[0] - t0
-    w = x[i]
-    for tt in range(c):
-        w += V[i, t0 + tt] * x[t0 + tt]
+    w = x[i] + _dot(V[i], x, t0, c)
     w *= ti
     x[i] -= w
     for tt in range(c):
@@ -249,6 +265,15 @@ def _apply_q(x, V, tau, p):
     """``x <- H_0 H_1 ... H_{p-1} x`` (``Q x``)."""
     for i in range(p - 1, -1, -1):
         _reflect(x, V, tau, i)
+
+
+@_kernel
+def _apply_q_rows(X, V, tau, p):
+    """``X[r] <- Q X[r]`` for every row ``r`` of ``X`` (:func:`_apply_q` on each row, the rows interleaved
+    reflector by reflector: independent chains the processor overlaps)."""
+    for i in range(p - 1, -1, -1):
+        for r in range(X.shape[0]):
+            _reflect(X[r], V, tau, i)
 
 
 @_kernel
@@ -339,6 +364,16 @@ def _fro_block(X, a, e, c0, c1):
     return math.sqrt(s)
 
 
+@_inlined
+def _fro_upper(X, a, e):
+    """``_fro_block(X, a, e, a, e)`` of an upper-triangular ``X``: the same sum without its zero terms."""
+    s = 0.0
+    for i in range(a, e):
+        for j in range(i, e):
+            s += X[i, j] * X[i, j]
+    return math.sqrt(s)
+
+
 @_kernel
 def _damped_ls(RA, c, lam2):
     """``argmin ||R_A y - c||^2 + lam2 ||y||^2`` by the QR of ``[R_A; sqrt(lam2) I]`` (``r x r`` each)."""
@@ -399,12 +434,12 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
         a = 0
         for lev in range(k):
             e = a + sizes[lev]
-            bound = 1.0 / _fro_block(R1inv, a, e, a, e)
+            bound = 1.0 / _fro_upper(R1inv, a, e)
             norm = math.sqrt(sq[lev])
             if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
                 return DECLINED, AT, tauA, RA
             a = e
-        a_inv = _fro_block(R1inv, 0, m1, 0, m1)
+        a_inv = _fro_upper(R1inv, 0, m1)
     norm_k = math.sqrt(sq[k])
     thr_k = max(margin * unit * size * norm_k, cond * norm_k)
     norm = 0.0
@@ -422,7 +457,7 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
     if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
         return DECLINED, AT, tauA, RA
     RAinv = _triangular_inverse(RA)
-    p = _fro_block(RAinv, 0, r, 0, r)                  # = ||A#||_F = sqrt(sum 1/sigma^2)
+    p = _fro_upper(RAinv, 0, r)                        # = ||A#||_F = sqrt(sum 1/sigma^2)
     lower = 1.0 / p                                    # <= sigma_min(A)
     if lower <= thr_k or (lambda_max > 0.0 and r == mk and lower < eps):
         return UNDECIDED, AT, tauA, RA                 # sigma_min itself: the reference's SVD decides
@@ -561,7 +596,7 @@ def _general_factors(J, sizes, lambda_max, eps, unit):
     for lev in range(nlev):
         e = a + sizes[lev]
         tol = unit * size * _fro_block(J, a, e, 0, n)
-        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro_block(Rinv, a, e, a, e)
+        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro_upper(Rinv, a, e)
         if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
             if kind.shape[0] == 0:                     # the first pivot not certified: allocated now
                 kind = np.zeros(nlev, dtype=np.int64)

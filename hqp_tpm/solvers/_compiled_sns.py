@@ -41,6 +41,7 @@ from hqp_tpm.solvers import _compiled
 DONE, BAD_BOX, DECLINED, SHIFT = 0, 1, 2, 3
 
 _KERNELS: list[str] = []
+_INLINED: set[str] = set()
 _READY = False
 
 
@@ -48,6 +49,12 @@ def _kernel(fn):
     """Mark ``fn`` (plain Python until :func:`_compile`) as a kernel."""
     _KERNELS.append(fn.__name__)
     return fn
+
+
+def _inlined(fn):
+    """Mark ``fn`` as a kernel numba inlines where compiled code calls it (as :func:`_compiled._inlined`)."""
+    _INLINED.add(fn.__name__)
+    return _kernel(fn)
 
 
 def _compile() -> None:
@@ -59,10 +66,11 @@ def _compile() -> None:
         _compiled._compile()
     g = globals()
     for name in _KERNELS:
+        inline = "always" if name in _INLINED else "never"
         try:
-            g[name] = _with_callees_stamp(numba.njit(cache=True, nogil=True)(g[name]))
+            g[name] = _with_callees_stamp(numba.njit(cache=True, nogil=True, inline=inline)(g[name]))
         except RuntimeError:  # pragma: no cover - no writable cache location at all: compile per process
-            g[name] = numba.njit(nogil=True)(g[name])
+            g[name] = numba.njit(nogil=True, inline=inline)(g[name])
     _READY = True
 
 
@@ -130,7 +138,7 @@ def _free_columns(J, free, nf, tol, V, tau, R):
     if dmin <= tol:                                    # sigma_min <= min |r_jj|
         return 0
     Rinv = _compiled._triangular_inverse(R)
-    if 1.0 / _compiled._fro_block(Rinv, 0, m, 0, m) > tol:  # <= sigma_min
+    if 1.0 / _compiled._fro_upper(Rinv, 0, m) > tol:  # <= sigma_min
         return 1
     return -1
 
@@ -165,7 +173,7 @@ def _q_row(j, V, tau, p, cs, sn, s, w):
                 w[i + 1] = c * w1 - sv * w0
 
 
-@_kernel
+@_inlined
 def _rotate_rows(X, i, c, sv):
     """Rows ``i``, ``i + 1`` of ``X`` <- ``(c X_i + s X_{i+1}, c X_{i+1} - s X_i)`` (a rotation of coordinates
     ``(i, i + 1)`` applied to the rows of ``C~^T`` or ``R~``)."""
@@ -202,23 +210,39 @@ def _downdate(w, CT, Rt, s, p, cs, sn):
 
 
 @_kernel
-def _q_times(v, V, tau, p, cs, sn, s):
-    """``v <- Q~ v`` after ``s`` saturations."""
-    n = v.shape[0]
+def _level_colsq(J, sizes):
+    """``S[lev, t] = sum_i J[i, t]^2`` over the rows ``i`` of level ``lev`` (as :func:`_compiled._sumsq_rows` leaves
+    them in its ``acc``)."""
+    n = J.shape[1]
+    nlev = sizes.shape[0]
+    S = np.empty((nlev, n))
+    a = 0
+    for lev in range(nlev):
+        e = a + sizes[lev]
+        _compiled._sumsq_rows(J, a, e, S[lev])
+        a = e
+    return S
+
+
+@_kernel
+def _q_times_rows(X, V, tau, p, cs, sn, s):
+    """``X[r] <- Q~ X[r]`` after ``s`` saturations, for every row of ``X`` (the rows interleaved)."""
+    k, n = X.shape
     for t in range(s - 1, -1, -1):                     # D_t v: its rotations in reverse order
         for i in range(t, n - 1):
             sv = sn[t, i]
             if sv != 0.0:
                 c = cs[t, i]
-                v0 = v[i]
-                v1 = v[i + 1]
-                v[i] = c * v0 - sv * v1
-                v[i + 1] = sv * v0 + c * v1
-    _compiled._apply_q(v, V, tau, p)
+                for r in range(k):
+                    v0 = X[r, i]
+                    v1 = X[r, i + 1]
+                    X[r, i] = c * v0 - sv * v1
+                    X[r, i + 1] = sv * v0 + c * v1
+    _compiled._apply_q_rows(X, V, tau, p)
 
 
 @_kernel
-def _downdated_solve(J, xd, c, sizes, free, nsat, k, m1, mk, V, tau, cs, sn, CT, Rt, lambda_max, eps, unit,
+def _downdated_solve(J, xd, c, sizes, colsq, free, nsat, k, m1, mk, V, tau, cs, sn, CT, Rt, lambda_max, eps, unit,
                      margin, cond, xf, yf):
     """``xf``, ``yf`` <- the TPM of ``J W`` (its free columns, in order) for ``xd`` and ``c`` from the downdated
     factorization (``_past_rank``'s certificates on it); returns ``_past_rank``'s status."""
@@ -231,34 +255,28 @@ def _downdated_solve(J, xd, c, sizes, free, nsat, k, m1, mk, V, tau, cs, sn, CT,
             return _compiled.DECLINED
     BT = CT[nsat:]
     nlev = sizes.shape[0]
-    sq = np.empty(nlev)                                # ||J_lev W||_F^2: the free columns' sums of squares
-    acc = np.empty(n)                                  # (_sumsq_rows leaves each column's in acc), in order
-    a = 0
+    sq = np.empty(nlev)                                # ||J_lev W||_F^2: the free columns' sums of squares, in order
     for lev in range(nlev):
-        e = a + sizes[lev]
-        _compiled._sumsq_rows(J, a, e, acc)
         total = 0.0
         for t in range(n):
             if free[t]:
-                total += acc[t]
+                total += colsq[lev, t]
         sq[lev] = total
-        a = e
     status, AT, tauA, RA = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf), lambda_max,
                                                         eps, unit, margin, cond)
     if status != _compiled.SOLVED:
         return status
-    v = np.zeros(n)
+    v2 = np.zeros((2, n))
     for rhs in range(2):
-        for i in range(nsat):
-            v[i] = 0.0
-        _compiled._crossing_rhs(xd if rhs == 0 else c, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, v[nsat:])
-        _q_times(v, V, tau, m1, cs, sn, nsat)
-        out = xf if rhs == 0 else yf
-        f = 0
-        for t in range(n):
-            if free[t]:
-                out[f] = v[t]
-                f += 1
+        _compiled._crossing_rhs(xd if rhs == 0 else c, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps,
+                                v2[rhs, nsat:])
+    _q_times_rows(v2, V, tau, m1, cs, sn, nsat)
+    f = 0
+    for t in range(n):
+        if free[t]:
+            xf[f] = v2[0, t]
+            yf[f] = v2[1, t]
+            f += 1
     return status
 
 
@@ -365,10 +383,10 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             scale = max(scale, abs(up[j]))
     if not scale > 0.0:
         scale = 1.0
-    tlo = np.empty(n)
-    tup = np.empty(n)
-    wlo = np.empty(n)
-    wup = np.empty(n)
+    ws = np.empty((13, n))                             # the loop's vectors: one allocation, a row each
+    tlo, tup, wlo, wup, xN, a, b, smax, best_a, best_b, xf, yf, w = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5],
+                                                                     ws[6], ws[7], ws[8], ws[9], ws[10], ws[11],
+                                                                     ws[12])
     for j in range(n):
         tlo[j] = 1e-10 * (scale + abs(lo[j]))          # sns.VIOLATION_TOL
         tup[j] = 1e-10 * (scale + abs(up[j]))
@@ -376,12 +394,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
         wup[j] = up[j] + tup[j]
     free = np.ones(n, dtype=np.bool_)
     viol = np.zeros(n, dtype=np.bool_)
-    xN = np.zeros(n)
-    a = x.copy()
-    b = np.zeros(n)
-    smax = np.empty(n)
-    best_a = np.empty(n)
-    best_b = np.empty(n)
+    xN[:] = 0.0
+    a[:] = x
+    b[:] = 0.0
     best_s = 0.0
     best_nsat = 0
     found = False
@@ -389,20 +404,19 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     iterations = 0
     k_fit = not sizes[0] > n                           # the rank test watches the first level (module doc of sns)
     Jf = np.empty((m, 0))
-    tol = unit * max(m, n) * _compiled._fro_block(J, 0, m, 0, n)  # Factorization.tol: rank(J W) relative to the stack
-    V = np.empty((m, n))
-    tau = np.empty(m)
-    R = np.zeros((m, m))
-    xf = np.empty(n)
-    yf = np.empty(n)
+    mg = 0 if extended else m                          # (the general path's arrays: empty when extended)
+    tol = 0.0 if extended else unit * max(m, n) * _compiled._fro_block(J, 0, m, 0, n)  # Factorization.tol
+    V = np.empty((mg, n))
+    tau = np.empty(mg)
+    R = np.zeros((mg, mg))
     c = np.empty(m)
-    Fc = np.empty(m)
-    w = np.empty(n)                                    # m > n: the saturated joint's row of Q~
+    Fc = np.empty(mg)
     downdating = extended
     CT = np.empty((0, 0))
     Rt = np.empty((0, 0))
     cs = np.empty((0, 0))
     sn = np.empty((0, 0))
+    colsq = np.empty((0, 0))
     while True:
         iterations += 1
         if nsat:                                       # x = s a + b, a = (J W)# F_W xd, b = xN - (J W)# F_W J xN
@@ -462,10 +476,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                         Rt[:m1] = PR1
                         cs = np.empty((n, n))  # (each entry read is written first: _downdate, then _q_row)
                         sn = np.empty((n, n))
+                        colsq = _level_colsq(J, sizes)
                     _q_row(j, PV, Ptau, m1, cs, sn, nsat - 1, w)
                     _downdate(w, CT, Rt, nsat - 1, m1, cs, sn)
-                    status = _downdated_solve(J, xd, c, sizes, free, nsat, k0, m1, mk, PV, Ptau, cs, sn, CT, Rt,
-                                              lambda_max, eps, unit, margin, cond, xf, yf)
+                    status = _downdated_solve(J, xd, c, sizes, colsq, free, nsat, k0, m1, mk, PV, Ptau, cs, sn, CT,
+                                              Rt, lambda_max, eps, unit, margin, cond, xf, yf)
                 else:
                     Jf = np.empty((m, nf))             # J W on its free columns, in order
                     _gather_free(J, free, Jf)
