@@ -107,8 +107,33 @@ def environment() -> dict[str, str]:
     }
     env.update({pkg: _version(pkg) for pkg in PACKAGES})
     env["BLAS threads"] = f"{BLAS_THREADS} (threadpoolctl: {blas_threads()})"
+    env["host speed probe at start"] = host_probe()
     _START[id(env)] = (time.perf_counter(), time.process_time())
     return env
+
+
+def host_probe() -> str:
+    """How fast the host runs right now: the median time of a fixed workload (a Python loop and 20 numpy QRs of a
+    38 x 27 matrix), the same in every run. Not a benchmark of hqp-tpm: this shared machine's speed swings by
+    up to ~1.5x within minutes, and runs whose probes differ that much are not comparable in µs (ratios
+    measured within one run are)."""
+    A = np.random.default_rng(0).standard_normal((38, 27))
+
+    def work():
+        s = 0
+        for i in range(2000):
+            s += i * i
+        for _ in range(20):
+            np.linalg.qr(A)
+        return s
+
+    work()
+    ts = []
+    for _ in range(21):
+        t0 = time.perf_counter_ns()
+        work()
+        ts.append(time.perf_counter_ns() - t0)
+    return f"{sorted(ts)[10] / 1e3:.0f} µs (fixed workload, median of 21)"
 
 
 _START: dict[int, tuple[float, float]] = {}
@@ -123,6 +148,7 @@ def close_environment(env: dict[str, str]) -> None:
     wall0, cpu0 = _START.pop(id(env), (None, None))
     if hasattr(os, "getloadavg"):
         env["load average at end"] = " ".join(f"{x:.2f}" for x in os.getloadavg())
+    env["host speed probe at end"] = host_probe()
     if wall0 is not None:
         wall, cpu = time.perf_counter() - wall0, time.process_time() - cpu0
         env["CPU share of this process"] = f"{100 * cpu / wall:.0f} % of {wall:.0f} s wall"

@@ -125,3 +125,18 @@ def test_quick_lean_groups_the_lean_sns_step_by_passes(capsys, monkeypatch):
     counts = [int(n) for n in re.findall(r"passes\s+(\d+)\s", out)]
     counts += [int(n) for n in re.findall(r"numpy loop\s+(\d+)\s", out)]
     assert sum(counts) == 6, out
+
+
+def test_the_environment_records_how_fast_the_host_ran(monkeypatch):
+    """Every benchmark's environment has the host speed probe at its start and end (the same fixed workload:
+    runs whose probes differ are not comparable in µs); the probe times its workload, in µs."""
+    from benchmarks import common
+
+    env = common.environment()
+    common.close_environment(env)
+    for key in ("host speed probe at start", "host speed probe at end"):
+        assert float(env[key].split()[0]) > 0.0, env[key]
+    clock = iter(range(0, 10**9, 7000))                 # a host where the workload takes exactly 7 µs
+    monkeypatch.setattr(common.time, "perf_counter_ns", lambda: next(clock))
+    assert common.host_probe().startswith("7 µs")
+

@@ -161,7 +161,8 @@ def main(argv=None) -> int:
               f(num(r, "p99_us"), 1)] for r in rows if r["problem"].startswith(("lwr", "romeo_obs"))]
     scen = common.md_table(shead, sbody)
 
-    keys = ["date", "cpu", "cores", "load average at start", "load average at end", "CPU share of this process",
+    keys = ["date", "cpu", "cores", "load average at start", "load average at end", "host speed probe at start",
+            "host speed probe at end", "CPU share of this process",
             "python", "hqp-tpm", "pin", "pin-pink", "placo", "tsid", "daqp", "qpsolvers", "numpy", "scipy",
             "eigenpy", "coal", "BLAS threads"]
     ehead = ["", *envs.keys()]
