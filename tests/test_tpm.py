@@ -8,6 +8,7 @@ from hypothesis import strategies as st
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.solvers import Level, nullspace, tpm, tpm_factors, tpm_reference
+from hqp_tpm.solvers.levels import stacked
 from hqp_tpm.testing.strategies import dependent_stack, full_rank_stacks
 
 DAMPING = {"lambda_max": 0.05, "eps": 0.1}
@@ -163,3 +164,31 @@ def test_row_targets_one_row_equals_the_array_rule(seed):
     one = row_targets(lo, up)
     two = row_targets(np.repeat(lo, 2), np.repeat(up, 2))  # the array path
     assert one.shape == (1,) and np.array_equal(one, two[:1])
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_deferred_levels_checked_once_stacked(bad):
+    """``defer_finite`` levels (the tasks' levels) are checked on the stacked rows: a sum of squares first,
+    the entries themselves when that sum is not finite. A NaN or inf is named with its level and entry;
+    huge finite rows (their squares overflow to inf, with numpy's overflow warning) are not an input error."""
+    rng = np.random.default_rng(3)
+    J1, J2 = rng.standard_normal((2, 5)), rng.standard_normal((3, 5))
+    b1, b2 = rng.standard_normal(2), rng.standard_normal(3)
+    for scale in (1.0, 1e150):                                 # solved as the same stack, scaled
+        levels = [Level(scale * J1, scale * b1, name="top", defer_finite=True),
+                  Level(scale * J2, scale * b2, name="low", defer_finite=True)]
+        np.testing.assert_allclose(tpm(levels), tpm([(J1, b1), (J2, b2)]), rtol=1e-10, atol=1e-12)
+    huge = [Level(1e160 * J1, b1, name="top", defer_finite=True), Level(J2, b2, name="low", defer_finite=True)]
+    with pytest.warns(RuntimeWarning, match="overflow"):       # (1e160)^2 overflows: the entries decide
+        _, J, b, sizes, n = stacked(huge)
+    assert sizes == (2, 3) and n == 5 and np.isfinite(J).all()
+    J2b = J2.copy()
+    J2b[2, 4] = bad
+    levels = [Level(J1, b1, name="top", defer_finite=True), Level(J2b, b2, name="low", defer_finite=True)]
+    with pytest.raises(NonFiniteError, match=r"level 'low': J holds NaN or inf at \[\[2, 4\]\]"):
+        tpm(levels)
+    b1b = b1.copy()
+    b1b[1] = bad
+    levels = [Level(J1, b1b, name="top", defer_finite=True), Level(J2, b2, name="low", defer_finite=True)]
+    with pytest.raises(NonFiniteError, match="level 'top'"):
+        tpm(levels)

@@ -217,24 +217,37 @@ def stacked(levels: Iterable, n: int | None = None):
     ``sizes`` the row count of each non-empty level. The ``defer_finite`` equality levels are
     checked here through the stacked arrays, once.
     """
-    lv = as_levels(levels, n, check_finite=False)
-    n = lv[0].n if lv else n
+    out = []                                     # as_levels(levels, n, check_finite=False), in fewer operations
+    for i, level in enumerate(levels):
+        out.append(level if type(level) is Level else as_level(level, i))
+    lv = tuple(out)
+    if not lv:
+        as_levels(lv, n)                         # raises: no n to tell the command's size
+        return lv, np.zeros((0, n)), np.zeros(0), (), n
+    n = lv[0].J.shape[1] if n is None else n
+    for level in lv:
+        if level.J.shape[1] != n:
+            as_levels(lv, n, check_finite=False)  # raises, naming the level
     Js, bs, sizes = [], [], []
     deferred = False
     for level in lv:
         if level.b is not None:
             J, b = level.J, level.b
-            deferred = deferred or not level.checked
+            if not level.checked:
+                deferred = True
         else:
             J, b = level.check_finite().as_equality()
-        if J.shape[0]:
+        m = J.shape[0]
+        if m:
             Js.append(J)
             bs.append(b)
-            sizes.append(J.shape[0])
+            sizes.append(m)
     if not sizes:
         return lv, np.zeros((0, n)), np.zeros(0), (), n
     J, b = (Js[0], bs[0]) if len(Js) == 1 else (np.concatenate(Js), np.concatenate(bs))
-    if deferred and not (np.isfinite(J).all() and np.isfinite(b).all()):
-        for level in lv:
-            level.check_finite()  # raises, naming the level
+    if deferred:                                 # a NaN or inf makes a sum of squares non-finite (so may a huge
+        f = J.ravel()                            # finite value: then the entries themselves are tested)
+        if not (math.isfinite(f @ f) and math.isfinite(b @ b)) and not (np.isfinite(J).all() and np.isfinite(b).all()):
+            for level in lv:
+                level.check_finite()             # raises, naming the level
     return lv, J, b, tuple(sizes), n
