@@ -190,14 +190,17 @@ def as_levels(levels: Iterable, n: int | None = None, *, check_finite: bool = Tr
 
     ``check_finite=False`` leaves the NaN/inf checks of ``defer_finite`` levels to the caller.
     """
-    out = tuple(as_level(lv, i) for i, lv in enumerate(levels))
+    out = []                                     # (a loop, not a generator: this runs on every solve)
+    for i, lv in enumerate(levels):
+        out.append(lv if type(lv) is Level else as_level(lv, i))
+    out = tuple(out)
     if not out:
         if n is None:
             raise ShapeError("the stack is empty and n is not given: cannot tell the command's size")
         return out
-    n0 = out[0].n if n is None else n
+    n0 = out[0].J.shape[1] if n is None else n
     for i, lv in enumerate(out):
-        if lv.n != n0:
+        if lv.J.shape[1] != n0:
             raise ShapeError(f"level {i} ({lv.name!r}) has {lv.n} columns, expected n = {n0}")
         if check_finite and not lv.checked:
             lv.check_finite()
@@ -217,17 +220,8 @@ def stacked(levels: Iterable, n: int | None = None):
     ``sizes`` the row count of each non-empty level. The ``defer_finite`` equality levels are
     checked here through the stacked arrays, once.
     """
-    out = []                                     # as_levels(levels, n, check_finite=False), in fewer operations
-    for i, level in enumerate(levels):
-        out.append(level if type(level) is Level else as_level(level, i))
-    lv = tuple(out)
-    if not lv:
-        as_levels(lv, n)                         # raises: no n to tell the command's size
-        return lv, np.zeros((0, n)), np.zeros(0), (), n
-    n = lv[0].J.shape[1] if n is None else n
-    for level in lv:
-        if level.J.shape[1] != n:
-            as_levels(lv, n, check_finite=False)  # raises, naming the level
+    lv = as_levels(levels, n, check_finite=False)
+    n = lv[0].J.shape[1] if lv else n
     Js, bs, sizes = [], [], []
     deferred = False
     for level in lv:
