@@ -154,6 +154,14 @@ def test_trajectory_numbers_change_only_by_assignment():
     h.start(np.zeros(3))
     h.center = [1.0, 1.0, 1.0]
     assert h.reference(0.0)[0][0] == 1.0 + 0.0 + 0.0
+    h.relative = True                                  # (its fields as floats are kept between references)
+    for change, x0, xd1 in ((lambda: setattr(h, "cos_amplitude", [2.0, 0.0, 0.0]), 3.0, 0.0),
+                            (lambda: setattr(h, "sin_amplitude", [0.0, 5.0, 0.0]), 3.0, 10.0),  # w = 2
+                            (lambda: h.start(np.array([1.0, 0.0, 0.0])), 4.0, 10.0),
+                            (lambda: setattr(h, "center", [0.0, 0.0, 0.0]), 3.0, 10.0)):
+        change()                                       # seen by the next reference, after a first one
+        x, xd, _ = h.reference(0.0)
+        assert (x[0], xd[1]) == (x0, xd1), (x, xd)
 
 
 def test_references_equal_their_numpy_formulas():

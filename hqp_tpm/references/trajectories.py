@@ -142,15 +142,19 @@ class Harmonic(Trajectory):
         c, s = math.cos(w * t + self.phase), math.sin(w * t + self.phase)  # equal to np.cos/np.sin (tested)
         # per entry on floats: the IEEE operations of the array expressions
         #   x = center + offset + a c + b s,  xd = w (-a s + b c),  xdd = -w^2 (a c + b s)
-        # without numpy's per-call overhead on 3-vectors
-        n = self.center.size
-        offset = [0.0] * n if self.origin is None else self.origin.tolist()
+        # without numpy's per-call overhead on 3-vectors; center + offset and the fields as floats are kept
+        # between calls (assigning a frozen field or starting again drops them)
+        fields = self._ref
+        if fields is None:
+            offset = [0.0] * self.center.size if self.origin is None else self.origin.tolist()
+            fields = self._ref = tuple(zip([ci + oi for ci, oi in zip(self.center.tolist(), offset, strict=True)],
+                                           self.cos_amplitude.tolist(), self.sin_amplitude.tolist(), strict=True))
+        ww = -w * w
         x, xd, xdd = [], [], []
-        for ci, oi, ai, bi in zip(self.center.tolist(), offset, self.cos_amplitude.tolist(),
-                                  self.sin_amplitude.tolist(), strict=True):
-            x.append(ci + oi + ai * c + bi * s)
+        for base, ai, bi in fields:
+            x.append(base + ai * c + bi * s)
             xd.append(w * (-ai * s + bi * c))
-            xdd.append(-w * w * (ai * c + bi * s))
+            xdd.append(ww * (ai * c + bi * s))
         return np.array(x), np.array(xd), np.array(xdd)
 
 
