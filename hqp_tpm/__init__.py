@@ -48,8 +48,9 @@ _EXPORTS = {
         "cascaded_qp", "pwdls", "pinv", "solve")},
     # errors
     **{name: "hqp_tpm.errors" for name in (
-        "HqpTpmError", "ShapeError", "NonFiniteError", "UnknownNameError", "UnknownFrameError", "RobotFileError",
-        "SolverNotAvailableError", "SolverFailedError", "BoxError", "GeometryError", "ScenarioError")},
+        "HqpTpmError", "ShapeError", "NonFiniteError", "MagnitudeError", "UnknownNameError", "UnknownFrameError",
+        "RobotFileError", "SolverNotAvailableError", "SolverFailedError", "BoxError", "GeometryError",
+        "ScenarioError")},
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

@@ -23,6 +23,11 @@ class NonFiniteError(HqpTpmError, ValueError):
     """An array holds NaN or inf where a finite value is required."""
 
 
+class MagnitudeError(NonFiniteError):
+    """Finite values too large for the solvers' arithmetic: the sum of squares of a level's rows (their norm, from
+    which the rank tolerances come) overflows float64 (entries beyond about 1e154)."""
+
+
 class UnknownNameError(HqpTpmError, LookupError):
     """A name (frame, joint, task type, solver, scenario) is not among the valid ones."""
 

@@ -20,6 +20,7 @@ from threadpoolctl import threadpool_limits
 
 from hqp_tpm.errors import BoxError
 from hqp_tpm.solvers import _compiled, _compiled_sns
+from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import stacked
 from hqp_tpm.solvers.sns import sns_tpm, sns_tpm_reference, sns_tpm_stacked
 from hqp_tpm.testing.stacks import (
@@ -45,7 +46,8 @@ def _one_blas_thread():
 @pytest.fixture
 def outcomes(monkeypatch):
     """The compiled loop's outcomes (DONE or the hand-over status), counted; ``ENABLED`` restored after."""
-    counts = {_compiled_sns.DONE: 0, _compiled_sns.BAD_BOX: 0, _compiled_sns.DECLINED: 0, _compiled_sns.SHIFT: 0}
+    counts = {_compiled_sns.DONE: 0, _compiled_sns.BAD_BOX: 0, _compiled_sns.DECLINED: 0, _compiled_sns.SHIFT: 0,
+              _compiled_sns.RESUME: 0}
     run = _compiled_sns.sns_tpm_loop
     monkeypatch.setattr(_compiled_sns, "sns_tpm_loop", outcomes_wrapper(counts, run))
     monkeypatch.setattr(_compiled, "ENABLED", True)
@@ -101,7 +103,9 @@ def outcomes_wrapper(counts, run):
     """``run`` counting its outcomes into ``counts``."""
     def counted(*args):
         out = run(*args)
-        counts[_compiled_sns.DONE if type(out) is tuple else out] += 1
+        kind = type(out)
+        counts[_compiled_sns.DONE if kind is tuple else _compiled_sns.RESUME if kind is _compiled_sns.LoopState
+               else out] += 1
         return out
     return counted
 
@@ -285,6 +289,49 @@ def test_ill_conditioned(outcomes):
     assert outcomes[_compiled_sns.DECLINED] >= 5, outcomes
 
 
+def test_numpy_loop_resumes_where_the_compiled_loop_stopped(monkeypatch):
+    """A free-column stack ``J W`` the kernels' certificates cannot decide, met after some saturations: the compiled
+    loop hands back its state (:class:`~hqp_tpm.solvers._compiled_sns.LoopState`) and the numpy loop goes on from
+    that pass, with ``m > n`` (the extension: ``J W`` by the padded factorization) and ``m <= n`` (``F`` from the
+    stack's factorization, ``(J W)#`` by the SVD). The same decisions and command as the numpy loop from the start
+    (1e-12, or ``1e3 eps cond(J)`` on these ill-conditioned draws), and ``(J W)#`` built only for the passes
+    from there (the numpy loop built it for every saturation again before)."""
+    import importlib
+
+    sns_mod = importlib.import_module("hqp_tpm.solvers.sns")  # (the package exports the function ``sns``)
+    monkeypatch.setattr(_compiled, "ENABLED", True)
+    passes = []
+    real_free = sns_mod._free_solver
+    monkeypatch.setattr(sns_mod, "_free_solver", lambda *a: passes.append(1) or real_free(*a))
+    rng = np.random.default_rng(2)
+    resumed = {True: 0, False: 0}                      # by m > n
+    for i in range(400):
+        if i % 2:
+            levels, cond = nearly_dependent_stack(rng, 1e12)
+            n = levels[0][0].shape[1]
+        else:
+            levels, cond = nearly_dependent_stack(rng, 1e10)
+            n = levels[0][0].shape[1]
+            levels = with_posture(levels, n, rng)
+        lo, up = cutting_box(rng, levels, n)
+        _, J, b, sizes, _ = stacked(levels, n)
+        state = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, 0.0, 0.0, MARGIN, COND)
+        if type(state) is not _compiled_sns.LoopState:
+            continue
+        resumed[J.shape[0] > n] += 1
+        passes.clear()
+        x, info = sns_tpm_stacked(J, b, sizes, lo, up, return_info=True)
+        assert len(passes) <= info.iterations - state.iterations + 1, (len(passes), info, state.iterations)
+        from_resume = len(passes)
+        passes.clear()
+        x_start, info_start = sns_tpm_stacked(J, b, sizes, lo, up, return_info=True, compiled=False)
+        tol = max(TOL, 1e3 * np.finfo(float).eps * cond)
+        same_decisions(info, info_start, tol)
+        assert rel_diff(x, x_start) <= tol, rel_diff(x, x_start)
+        assert len(passes) == from_resume + len(state.order) - 1, (len(passes), from_resume, state.order)
+    assert resumed[True] >= 3 and resumed[False] >= 3, resumed
+
+
 def test_dependent_stacks_hand_back(outcomes):
     """Repeated and dependent tasks above a posture level: the shortcut declines, the numpy path solves."""
     rng = np.random.default_rng(31)
@@ -326,8 +373,6 @@ def test_downdated_factorization_equals_the_free_columns():
     """The QR downdate of the SNS loop (m > n): after each saturation, ``Q~[free rows, s:]`` is orthonormal, with
     ``R1`` it factors the upper levels' free columns ``J_<k W^T``, ``C~[:, s:]`` is ``J_k W Q~[free rows, s:]``,
     and the saturated joints' rows are decoupled (the refactorization's factors, up to the columns' signs)."""
-    from hqp_tpm.solvers._fullrank import COND, MARGIN
-
     rng = np.random.default_rng(8)
     n, sizes = 27, (6, 2, 3, 6, 21)
     J = np.vstack([rng.standard_normal((17, n)), np.hstack([np.zeros((21, 6)), np.eye(21)])])

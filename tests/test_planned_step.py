@@ -13,7 +13,7 @@ import pytest
 
 from hqp_tpm.app.build import build
 from hqp_tpm.app.scenario import load
-from hqp_tpm.errors import NonFiniteError
+from hqp_tpm.errors import MagnitudeError, NonFiniteError
 from hqp_tpm.policies.planned_step import PlannedStep
 
 #: The state of the recorded lwr_relaxed run at step 17,890 (t = 17.89 s): the avoidance goes above the EE
@@ -76,7 +76,11 @@ def test_planned_and_readable_steps_mix_on_one_controller():
     close(fast.q, ref.q)
 
 
-def test_non_finite_rows_raise_the_readable_error_and_change_nothing():
+@pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
+@pytest.mark.parametrize("bad", [np.nan, 1e153, 1e160])
+def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
+    """A NaN in the end effector's reference, or one so large that the rows' sum of squares exceeds ``MAX_SUMSQ``
+    or overflows: the readable step's typed error (MagnitudeError for the large ones), nothing changed."""
     ctrl = lwr()
     planned = PlannedStep.of(ctrl)
     for _ in range(50):
@@ -84,8 +88,8 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing():
     q, v, t, steps = ctrl.q.copy(), ctrl.v.copy(), ctrl.t, ctrl.steps
     history = ctrl.policy.snapshot()
     ee = ctrl.policy.ee_task
-    ee.trajectory.center = np.array([np.nan, 0.6, 0.0])
-    with pytest.raises(NonFiniteError, match="ee"):
+    ee.trajectory.center = np.array([bad, 0.6, 0.0])
+    with pytest.raises(NonFiniteError if np.isnan(bad) else MagnitudeError, match="ee"):
         planned.step()
     np.testing.assert_array_equal(ctrl.q, q)
     np.testing.assert_array_equal(ctrl.v, v)
@@ -294,5 +298,7 @@ def test_planned_solve_kernel_equals_tpm_stacked():
     args = (_compiled._sizes((3,)), v, 0.0, 0.0, 0.0, _compiled._UNIT, MARGIN, COND, np.empty(3), np.empty(3))
     b[1] = np.nan
     assert kernel(J, b, *args) == _compiled_step.NONFINITE_ROWS
-    J, b = 1e-100 * np.eye(3), np.full(3, 1e300)  # well conditioned, x = 1e400 overflows
+    J, b = 1e-100 * np.eye(3), np.full(3, 1e300)  # finite rows whose sum of squares overflows: refused
+    assert kernel(J, b, *args) == _compiled_step.NONFINITE_ROWS
+    J, b = 1e-160 * np.eye(3), np.full(3, 1e150)  # well conditioned, rows within bounds, x = 1e310 overflows
     assert kernel(J, b, *args) == _compiled_step.NONFINITE_X

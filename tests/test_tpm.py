@@ -1,14 +1,15 @@
 """TPM (eqs. (7)-(11), (12), (14) of papers/000) against the recursive null space (5)-(6)."""
 
+import warnings
+
 import numpy as np
 import pytest
 from conftest import random_stack, rel_diff
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.errors import MagnitudeError, NonFiniteError, ShapeError
 from hqp_tpm.solvers import Level, nullspace, tpm, tpm_factors, tpm_reference
-from hqp_tpm.solvers.levels import stacked
 from hqp_tpm.testing.strategies import dependent_stack, full_rank_stacks
 
 DAMPING = {"lambda_max": 0.05, "eps": 0.1}
@@ -169,8 +170,8 @@ def test_row_targets_one_row_equals_the_array_rule(seed):
 @pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
 def test_deferred_levels_checked_once_stacked(bad):
     """``defer_finite`` levels (the tasks' levels) are checked on the stacked rows: a sum of squares first,
-    the entries themselves when that sum is not finite. A NaN or inf is named with its level and entry;
-    huge finite rows (their squares overflow to inf, with numpy's overflow warning) are not an input error."""
+    the entries themselves when that sum fails. A NaN or inf is named with its level and entry; rows too large
+    for the solvers' norms (a sum of squares above ``MAX_SUMSQ``) are a MagnitudeError naming the level."""
     rng = np.random.default_rng(3)
     J1, J2 = rng.standard_normal((2, 5)), rng.standard_normal((3, 5))
     b1, b2 = rng.standard_normal(2), rng.standard_normal(3)
@@ -178,10 +179,26 @@ def test_deferred_levels_checked_once_stacked(bad):
         levels = [Level(scale * J1, scale * b1, name="top", defer_finite=True),
                   Level(scale * J2, scale * b2, name="low", defer_finite=True)]
         np.testing.assert_allclose(tpm(levels), tpm([(J1, b1), (J2, b2)]), rtol=1e-10, atol=1e-12)
-    huge = [Level(1e160 * J1, b1, name="top", defer_finite=True), Level(J2, b2, name="low", defer_finite=True)]
-    with pytest.warns(RuntimeWarning, match="overflow"):       # (1e160)^2 overflows: the entries decide
-        _, J, b, sizes, n = stacked(huge)
-    assert sizes == (2, 3) and n == 5 and np.isfinite(J).all()
+    for scale in (1e153, 1e160):                               # sums of squares above 1e304, or overflowing
+        huge = [Level(J1, b1, name="top", defer_finite=True), Level(scale * J2, b2, name="low", defer_finite=True)]
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)        # (numpy's overflow warning at 1e160)
+            with pytest.raises(MagnitudeError, match=r"level 'low': J reaches [0-9.]+e\+1[56]\d: its sum of "
+                                                     r"squares exceeds 1e\+304"):
+                tpm(huge)
+            with pytest.raises(MagnitudeError, match="level 'top': b reaches"):
+                tpm([Level(J1, scale * b1, name="top"), (J2, b2)])  # (checked when the level is made)
+    for lv in (Level(J1, lower=np.full(2, 1e160), name="ineq"),      # an inequality level's active targets
+               Level(J1, lower=np.full(2, 1e160), name="ineq", defer_finite=True)):
+        with pytest.raises(MagnitudeError, match=r"level 'ineq': b of its active rows \(their bounds\) reaches 1e"):
+            tpm([lv, (J2, b2)])
+    np.testing.assert_allclose(J1 @ tpm([Level(J1, lower=np.full(2, 1e150), name="ineq"), (J2, b2)]), 1e150,
+                               rtol=1e-12)                         # 1e150: solved (the top level exactly)
+    many = [Level(np.full((1, 1), 9e151), np.zeros(1), name=str(i), defer_finite=True) for i in range(30_000)]
+    with warnings.catch_warnings():                               # every level within bounds, their sum overflows
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(MagnitudeError, match=r"the sum of squares of the 30000 stacked levels overflows"):
+            tpm(many)
     J2b = J2.copy()
     J2b[2, 4] = bad
     levels = [Level(J1, b1, name="top", defer_finite=True), Level(J2b, b2, name="low", defer_finite=True)]
@@ -192,3 +209,58 @@ def test_deferred_levels_checked_once_stacked(bad):
     levels = [Level(J1, b1b, name="top", defer_finite=True), Level(J2, b2, name="low", defer_finite=True)]
     with pytest.raises(NonFiniteError, match="level 'top'"):
         tpm(levels)
+
+
+def test_padded_factorization_svd_of_the_first_n_rows():
+    """``m > n``: ``J^T`` is padded with zero rows, so the rows of ``R`` below ``n`` are exactly zero (every
+    reflector is zero there) and ``pinv(R^T) y`` is the SVD of the first ``n`` rows' ``R_n^T`` (``m x n``) padded with
+    zeros, taken once per factorization; a pivot block of those zero rows is inverted as zero without an SVD.
+    Checked against the ``m x m`` SVD it replaces, on stacks that cross rank with nearly dependent levels (the
+    SNS loop's ``J W`` that the full-rank shortcut declines)."""
+    from hqp_tpm.solvers._kernels import Factorization, pivot
+    from hqp_tpm.solvers.damping import inverted_singular_values
+
+    rng = np.random.default_rng(17)
+    checked = 0
+    for _ in range(60):
+        n = int(rng.integers(4, 12))
+        sizes = (int(rng.integers(1, n)), int(rng.integers(1, 4)), n)
+        J = rng.standard_normal((sum(sizes), n))
+        J[sizes[0]] = rng.standard_normal(sizes[0]) @ J[: sizes[0]] + 1e-9 * rng.standard_normal(n)
+        fac = Factorization(J, sizes, n, 0.0, 0.0)
+        assert not fac.qr[n:].any()                    # R's rows below n: exactly zero
+        if not fac.singular:
+            continue
+        checked += 1
+        Y = rng.standard_normal((J.shape[0], 3))
+        U, s, Vt = np.linalg.svd(fac.R().T)               # the m x m SVD
+        want = Vt.T @ (inverted_singular_values(s, tol=fac.tol)[:, None] * (U.T @ Y))
+        got = fac._RT_solve(Y)
+        assert rel_diff(got, want) <= 1e-12 * np.linalg.cond(J), rel_diff(got, want)
+        assert fac._svd is not None and fac._svd[0].shape == (J.shape[0], n)  # taken once, on m x n
+        assert rel_diff(fac._RT_solve(Y[:, 0]), got[:, 0]) <= 1e-14            # (the cached SVD, a vector)
+        x = fac.solve(Y[:, 0])
+        ref = tpm_reference([(J[a:e], Y[a:e, 0]) for a, e in zip(np.cumsum((0,) + sizes[:-1]), np.cumsum(sizes),
+                                                                     strict=True)])
+        assert rel_diff(x, ref) <= 1e-9, rel_diff(x, ref)
+    assert checked >= 40, checked
+    Z = np.zeros((4, 4))
+    for lam, eps in ((0.0, 0.0), (0.1, 0.05)):        # a zero block: D = 0, singular, as the SVD gives
+        p = pivot(Z, 1e-15, lam, eps)
+        assert p.singular and not p.regular and not p.D.any() and p.D.shape == (4, 4)
+
+
+def test_sumsq_is_the_sum_of_squares():
+    """``levels.sumsq`` (BLAS ``ddot``, the finiteness and magnitude tests' sum): ``a @ a`` of the entries for
+    contiguous, strided, 2-D and empty arrays; inf on overflow without numpy's warning; NaN and inf propagate."""
+    from hqp_tpm.solvers.levels import sumsq
+
+    rng = np.random.default_rng(4)
+    for a in (rng.standard_normal(38), rng.standard_normal((38, 27)), rng.standard_normal(20)[::3],
+              rng.standard_normal((6, 9))[:, 2:5], np.zeros(0), np.zeros((0, 4))):
+        f = a.ravel()
+        assert abs(sumsq(a) - f @ f) <= 1e-14 * max(1.0, f @ f)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")                         # no RuntimeWarning
+        assert sumsq(np.array([1e200, 1.0])) == np.inf
+    assert np.isnan(sumsq(np.array([1.0, np.nan]))) and sumsq(np.array([-np.inf, 0.5])) == np.inf

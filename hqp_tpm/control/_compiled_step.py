@@ -25,9 +25,10 @@ joints, their count, the iterations and feasibility into the tail of ``ints`` an
 A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises
 the typed error naming the task), :data:`NONFINITE_X`, the TPM kernel's ``DECLINED``/``UNDECIDED`` (then
 ``tpm_stacked`` decides with the numpy reference, as it always does), :data:`BOX_HANDED_BACK` (a joint outside
-its position limits: the box's recovery rules are the caller's) or :data:`SNS_HANDED_BACK` (the SNS loop handed
+its position limits: the box's recovery rules are the caller's), :data:`SNS_HANDED_BACK` (the SNS loop handed
 back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
-:func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves).
+:func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves) or :data:`SNS_RESUME` (the loop stopped at a pass whose
+free-column stack its certificates do not decide: the numpy loop goes on from :meth:`Program.loop_state`).
 
 These kernels call the other modules' kernels, and numba's disk cache checks only the file of the function it
 caches: a cached kernel would keep an earlier version of the kernels it calls. So the cache's stamp also holds
@@ -48,9 +49,10 @@ import numpy as np
 from hqp_tpm.robot import _compiled as _robot_compiled
 from hqp_tpm.solvers import _compiled, _compiled_sns
 from hqp_tpm.solvers._fullrank import COND, MARGIN
+from hqp_tpm.solvers.levels import MAX_SUMSQ
 
 SOLVED, DECLINED, UNDECIDED = _compiled.SOLVED, _compiled.DECLINED, _compiled.UNDECIDED
-#: ``J`` or ``b`` holds a non-finite value (nothing was solved).
+#: ``J`` or ``b`` holds a non-finite value, or their sum of squares exceeds ``levels.MAX_SUMSQ`` (nothing solved).
 NONFINITE_ROWS = 3
 #: the solution holds a non-finite value.
 NONFINITE_X = 4
@@ -60,6 +62,9 @@ WRITTEN = 5
 SNS_HANDED_BACK = 6
 #: the joint box's kernel declined (an empty position box: the recovery rules); nothing solved.
 BOX_HANDED_BACK = 7
+#: the SNS-TPM loop stopped at a pass (``RESUME``): its state is in the program (:meth:`Program.loop_state`) and
+#: the numpy loop goes on from there.
+SNS_RESUME = 8
 #: Where the SNS box comes from (:meth:`Program.set_box`): the caller, the velocity box, the acceleration box.
 BOX_GIVEN, BOX_VELOCITY, BOX_ACCELERATION = 0, 1, 2
 #: What a program solves (:class:`Program`): nothing (the rows only), TPM, SNS-TPM in the box ``lo, up``.
@@ -147,9 +152,11 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     b[r0 + i] = floats[fxd + dim + i] + kd * (xd - rate[i]) + kp * e - jdq[i]
             pi += 11 + dim + k + nc
             pf += 2 + k + 2 * dim
+    s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(mn + m):
-        if not math.isfinite(buf[i]):
-            return NONFINITE_ROWS, pi, pf
+        s += buf[i] * buf[i]
+    if not s <= MAX_SUMSQ:
+        return NONFINITE_ROWS, pi, pf
     return WRITTEN, pi, pf
 
 
@@ -204,6 +211,7 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     sizes = ints[HEAD: HEAD + nlev]
     lo = buf[mn + m + 2 * n: mn + m + 3 * n]
     up = buf[mn + m + 3 * n: mn + m + 4 * n]
+    state = buf[mn + m + 4 * n: mn + m + 7 * n].reshape((3, n))
     bi = pi + 3 + 2 * n  # the box: where from, the slot of its limits in mats, its joint count, its indices
     box = ints[bi]
     if box != BOX_GIVEN:
@@ -215,18 +223,22 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
             ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
         if not ok:
             return BOX_HANDED_BACK
-    status, scale, nsat, iterations, feasible = _sns_loop(J, b, sizes, lo, up, floats[0], floats[1], floats[2],
-                                                          floats[3], floats[4], out, ints[pi + 3 + n: bi])
-    if status != _compiled_sns.DONE:
-        return SNS_HANDED_BACK
-    for i in range(n):
-        if not math.isfinite(out[i]):
-            return NONFINITE_X
-    ints[pi], ints[pi + 1], ints[pi + 2] = nsat, iterations, 1 if feasible else 0  # (a solved step's info only)
+    status, scale, nsat, iterations, feasible, best_nsat = _sns_loop(
+        J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi + 3 + n: bi], state)
+    resume = status == _compiled_sns.RESUME
+    if not resume:
+        if status != _compiled_sns.DONE:
+            return SNS_HANDED_BACK
+        for i in range(n):
+            if not math.isfinite(out[i]):
+                return NONFINITE_X
+    # a solved step's info; after RESUME the loop's state for Program.loop_state (best_nsat, -1: no best yet)
+    ints[pi], ints[pi + 1] = nsat, iterations
+    ints[pi + 2] = (best_nsat if feasible else -1) if resume else (1 if feasible else 0)
     for i in range(nsat):  # the saturated joints, from the loop's scratch
         ints[pi + 3 + i] = ints[pi + 3 + n + i]
     floats[pf] = scale
-    return SOLVED
+    return SNS_RESUME if resume else SOLVED
 
 
 def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
@@ -234,12 +246,13 @@ def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x
     their finiteness, ``x0 = -damping v`` when ``damping`` (eq. (15) of papers/000), the TPM kernel
     ``tpm_stacked`` would call, ``x``'s finiteness; the statuses of :func:`kernel`."""
     m, n = J.shape
+    s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(m):
-        if not math.isfinite(b[i]):
-            return NONFINITE_ROWS
+        s += b[i] * b[i]
         for j in range(n):
-            if not math.isfinite(J[i, j]):
-                return NONFINITE_ROWS
+            s += J[i, j] * J[i, j]
+    if not s <= MAX_SUMSQ:
+        return NONFINITE_ROWS
     use_x0 = damping != 0.0
     if use_x0:
         for i in range(n):
@@ -440,8 +453,9 @@ class Program:
 
     @staticmethod
     def buffer_size(m: int, n: int, solve: int) -> int:
-        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up``."""
-        return m * n + m + (4 if solve == SNS else 2) * n
+        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up`` and
+        the loop's state (``3 x n``: :meth:`loop_state`)."""
+        return m * n + m + (7 if solve == SNS else 2) * n
 
     def build(self) -> Program:
         """Pack the entries and the address table (then slots change only by :meth:`bind_mat`, :meth:`bind_vec`)."""
@@ -491,6 +505,15 @@ class Program:
         nsat, iterations = self.ints[i: i + 2].tolist()
         return {"scale": self.floats.item(f), "saturated": self.ints[i + 3: i + 3 + nsat].tolist(),
                 "iterations": iterations}
+
+    def loop_state(self, buf: np.ndarray) -> _compiled_sns.LoopState:
+        """Where the SNS-TPM loop stopped after :data:`SNS_RESUME` (``buf`` the kernel's buffer)."""
+        i, f = self._sns_at
+        nsat, iterations, best_nsat = self.ints[i: i + 3].tolist()
+        m, n = self.ints.item(0), self.ints.item(1)
+        state = buf[m * n + m + 4 * n: m * n + m + 7 * n].reshape((3, n)).copy()
+        return _compiled_sns.LoopState.of(self.ints[i + 3: i + 3 + nsat].tolist(), state, self.floats.item(f),
+                                          best_nsat, iterations)
 
 
 def kernel(solve: int = TPM):

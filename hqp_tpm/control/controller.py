@@ -17,7 +17,6 @@ distance-field history: :meth:`Policy.snapshot`) are left exactly as they were b
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -30,6 +29,7 @@ from hqp_tpm.errors import NonFiniteError, ParameterError, SolverFailedError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.damping import check_damping, nonnegative
+from hqp_tpm.solvers.levels import all_finite
 from hqp_tpm.solvers.registry import ANALYTIC, check_solver_name, solve
 from hqp_tpm.tasks.base import Task
 
@@ -37,9 +37,9 @@ BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
 
 
 def _finite(*arrays: np.ndarray) -> bool:
-    """Are all entries finite? (one dot product each; an overflow of the sum only costs the exact test)"""
+    """Are all entries finite? (:func:`~hqp_tpm.solvers.levels.all_finite` of each)"""
     for a in arrays:
-        if not (math.isfinite(a @ a) or np.isfinite(a).all()):
+        if not all_finite(a):
             return False
     return True
 
@@ -158,7 +158,7 @@ class Controller:
         try:
             return self._solve_step()
         except NonFiniteError as exc:  # name the state: a NaN in a level may come from a diverged state
-            raise NonFiniteError(f"{exc}{self._where()}") from exc
+            raise type(exc)(f"{exc}{self._where()}") from exc  # (its kind kept: MagnitudeError stays one)
 
     def _solve_step(self) -> StepResult:
         if not self._started:

@@ -44,7 +44,6 @@ rows are not finite is handed to the readable path, which raises the same typed 
 from __future__ import annotations
 
 import copy
-import math
 
 import numpy as np
 
@@ -55,7 +54,7 @@ from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled as _solvers_compiled
-from hqp_tpm.solvers.levels import Level
+from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
 from hqp_tpm.solvers.registry import solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
@@ -278,7 +277,7 @@ class LeanStep:
         # the frames the row writers read (the others are placed if a task asks the state for them)
         self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks
                                           if type(task).row_writer is not Task.row_writer and task.frame is not None))
-        lo_up = (self._buf[a * n + a + 2 * n: a * n + a + 3 * n], self._buf[a * n + a + 3 * n:])
+        lo_up = (self._buf[a * n + a + 2 * n: a * n + a + 3 * n], self._buf[a * n + a + 3 * n: a * n + a + 4 * n])
         if mode == _compiled_step.SNS:
             lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)
         self.box = JointBox(box, lo_up if mode == _compiled_step.SNS else None) if joint_box else box
@@ -357,12 +356,13 @@ class LeanStep:
             if status == _compiled_step.NONFINITE_X:
                 raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {t:.6f}")
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
-            # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked's numpy path): below
+            # BOX_HANDED_BACK (the JointBox's recovery rules), SNS_HANDED_BACK (sns_tpm_stacked's numpy path) or
+            # SNS_RESUME (its numpy loop, from the pass where the kernel's stopped): below
         else:
             for write in self.writers:
                 write(t)
             flat = self._flat
-            if not math.isfinite(flat @ flat) and not np.isfinite(flat).all():  # (an overflow: the exact test)
+            if not sumsq(flat) <= MAX_SUMSQ:       # NaN, inf or too large (one sum fails for all three):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
             x0 = self.x0
             if x0 is not None:
@@ -382,13 +382,15 @@ class LeanStep:
             sizes = self.sizes
             if x0 is not None:  # the x0 damping level appended as the registry does (LeanStep.of)
                 J, b, sizes = np.vstack((J, np.eye(self.n))), np.concatenate((b, x0)), sizes + (self.n,)
+            resume = self._program.loop_state(self._buf) if status == _compiled_step.SNS_RESUME else None
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, compiled=status != _compiled_step.SNS_HANDED_BACK)
+                                       return_info=True, compiled=status != _compiled_step.SNS_HANDED_BACK,
+                                       resume=resume)
             info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         else:
             x, info = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,
                             eps=self.eps)
-        if not math.isfinite(x @ x) and not np.isfinite(x).all():
+        if not all_finite(x):
             raise SolverFailedError(f"solver {solver!r} returned a non-finite command at t = {t:.6f}")
         self._info = info  # the solver's info of this command, as the readable step's StepResult.info
         return x

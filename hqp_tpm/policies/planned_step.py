@@ -33,7 +33,6 @@ are not finite is handed to the readable path, which raises the same typed error
 
 from __future__ import annotations
 
-import math
 from abc import abstractmethod
 
 import numpy as np
@@ -44,6 +43,7 @@ from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
+from hqp_tpm.solvers.levels import MAX_SUMSQ, all_finite, sumsq
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task
@@ -216,8 +216,7 @@ class PlannedStep:
                 # DECLINED / UNDECIDED: tpm_stacked's numpy reference decides, below, on the rows the kernel found
                 # finite, with the x0 it wrote
         if status is None:
-            Jf = J.ravel()
-            if not math.isfinite(Jf @ Jf + b @ b):  # NaN or inf anywhere (an overflow only costs the slow path)
+            if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
             x0 = -self.damping * ctrl._v if self.damping else None
         else:
@@ -226,7 +225,7 @@ class PlannedStep:
             x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0, kernel_status=status)
         else:
             x = np.zeros(self.n) if x0 is None else x0.copy()
-        if not (math.isfinite(x @ x) or np.isfinite(x).all()):  # an overflow of x @ x only costs the exact test
+        if not all_finite(x):
             raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
         return x
 

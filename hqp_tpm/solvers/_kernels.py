@@ -77,6 +77,8 @@ def pivot(block: np.ndarray, tol: float, lambda_max: float, eps: float, Rinv: np
         inv = inverted_singular_value(smin, lambda_max, eps, tol)
         return Pivot(np.array([[inv if r >= 0.0 else -inv]]), False, smin <= tol)
     R = triu(block)
+    if R[0, 0] == 0.0 and not R.any():  # (a padded stack's zero rows, m > n): singular values 0, D = 0 (the SVD's)
+        return Pivot(np.zeros_like(R), False, True)
     if Rinv is None and np.abs(np.diagonal(R)).min() > tol:
         Rinv, info = lapack.dtrtri(R, lower=0)
         Rinv = Rinv if info == 0 else None
@@ -115,7 +117,7 @@ class Factorization:
     If the stack has more rows than columns (``m > n``) ``J`` is padded with zero columns up to ``m``.
     """
 
-    __slots__ = ("J", "m", "n", "qr", "tau", "off", "pivots", "regular", "singular", "tol", "_Fbar", "_Q")
+    __slots__ = ("J", "m", "n", "qr", "tau", "off", "pivots", "regular", "singular", "tol", "_Fbar", "_Q", "_svd")
 
     def __init__(self, J: np.ndarray, sizes, n: int, lambda_max: float, eps: float):
         m = J.shape[0]
@@ -132,7 +134,7 @@ class Factorization:
         self.pivots = pivots(self.qr, off, level_tols(J, off, size), lambda_max, eps)
         self.regular = all(p.regular for p in self.pivots)
         self.singular = any(p.singular for p in self.pivots)
-        self._Fbar = self._Q = None
+        self._Fbar = self._Q = self._svd = None
 
     def Fbar(self) -> np.ndarray:
         """Steps 1-4 of papers/000 on the pivot blocks: ``Fbar`` with ``F = Fbar^T`` (10)."""
@@ -166,13 +168,26 @@ class Factorization:
         return triu(self.qr[: self.m, : self.m])
 
     def _RT_solve(self, y: np.ndarray) -> np.ndarray:
-        """``R^{-T} y`` (triangular solve), or ``pinv(R^T) y`` by the truncated SVD when ``R`` is singular."""
+        """``R^{-T} y`` (triangular solve), or ``pinv(R^T) y`` by the truncated SVD when ``R`` is singular.
+
+        The SVD is taken once per factorization. When ``m > n`` the rows of ``R`` below ``n`` are exactly zero
+        (``J^T`` padded with zero rows: every reflector is zero there), so ``R^T = [R_n^T 0]`` and
+        ``pinv(R^T) = [pinv(R_n^T); 0]``, with ``R_n`` the first ``n`` rows: the SVD of ``R_n^T`` (``m x n``) has
+        the same nonzero singular values as the ``m x m`` one, at a fraction of its cost."""
+        m = self.m
         if not self.singular:
-            return lapack.dtrtrs(self.qr[: self.m, : self.m], y, lower=0, trans=1)[0]  # upper triangle read
-        U, s, Vt = np.linalg.svd(self.R().T, full_matrices=False)
-        inv = inverted_singular_values(s, tol=self.tol)
-        z = U.T @ y
-        return Vt.T @ (inv * z.T).T
+            return lapack.dtrtrs(self.qr[:m, :m], y, lower=0, trans=1)[0]  # upper triangle read
+        if self._svd is None:
+            k = self.n if m > self.n and not self.qr[self.n:].any() else m
+            U, s, Vt = np.linalg.svd((self.R() if k == m else np.triu(self.qr[:k, :m])).T, full_matrices=False)
+            self._svd = (U, inverted_singular_values(s, tol=self.tol), Vt)
+        U, inv, Vt = self._svd
+        z = Vt.T @ (inv * (U.T @ y).T).T
+        if z.shape[0] == m:
+            return z
+        out = np.zeros((m,) + y.shape[1:])
+        out[: z.shape[0]] = z
+        return out
 
     def pinv_times(self, y: np.ndarray) -> np.ndarray:
         """``J# y = Q R^{-T} y`` (eq. (11)), padded rows included when ``m > n``."""

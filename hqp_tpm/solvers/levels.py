@@ -22,8 +22,29 @@ import math
 from collections.abc import Iterable, Sequence
 
 import numpy as np
+from scipy.linalg.blas import ddot as _ddot
 
-from hqp_tpm.errors import BoxError, NonFiniteError, ShapeError
+from hqp_tpm.errors import BoxError, MagnitudeError, NonFiniteError, ShapeError
+
+#: The largest sum of squares of a level's ``J`` (or ``b``) the solvers take: their norms (rank tolerances,
+#: certificates) must not overflow float64, also summed over a stack (entries up to about 1e152; beyond, a
+#: :class:`~hqp_tpm.errors.MagnitudeError`). The same test finds NaN and inf: ``NaN <= x`` is False.
+MAX_SUMSQ = 1e304
+
+_SCALE_DOWN = ("beyond what the solvers' norms (rank tolerances, certificates) and finiteness tests hold; scale the "
+               "level down (J and b by one factor: the same equations)")
+
+
+def sumsq(a: np.ndarray) -> float:
+    """``sum a_i^2`` over an array's entries by BLAS ``ddot``: a quarter of ``a @ a``'s time at a stack's sizes (no
+    ufunc machinery) and no overflow warning; NaN and inf propagate, an overflow gives inf."""
+    f = a.ravel()
+    return _ddot(f, f) if f.size else 0.0
+
+
+def all_finite(a: np.ndarray) -> bool:
+    """Are all entries finite? One sum of squares; only when it overflows are the entries tested one by one."""
+    return math.isfinite(sumsq(a)) or bool(np.isfinite(a).all())
 
 
 def _vector(x, m: int, what: str, *, allow_inf: bool = False, check: bool = True) -> np.ndarray:
@@ -45,9 +66,12 @@ def _check_vector(arr: np.ndarray, what: str, allow_inf: bool) -> None:
     if allow_inf:
         if np.isnan(arr).any():
             raise NonFiniteError(f"{what} holds NaN at rows {np.flatnonzero(np.isnan(arr)).tolist()}: {arr}")
-    elif not np.isfinite(arr).all():
-        bad = np.flatnonzero(~np.isfinite(arr)).tolist()
-        raise NonFiniteError(f"{what} holds non-finite values at rows {bad}: {arr}")
+    elif not sumsq(arr) <= MAX_SUMSQ:            # (one sum: NaN, inf and overflow all fail it)
+        if not np.isfinite(arr).all():
+            bad = np.flatnonzero(~np.isfinite(arr)).tolist()
+            raise NonFiniteError(f"{what} holds non-finite values at rows {bad}: {arr}")
+        raise MagnitudeError(f"{what} reaches {np.abs(arr).max():.3g}: its sum of squares exceeds "
+                             f"{MAX_SUMSQ:.0e}, {_SCALE_DOWN}")
 
 
 def _matrix(J, name: str, check: bool = True) -> np.ndarray:
@@ -57,8 +81,12 @@ def _matrix(J, name: str, check: bool = True) -> np.ndarray:
             J = J.reshape(1, -1)
         if J.ndim != 2:
             raise ShapeError(f"level {name!r}: J must be 2-D (m x n), got shape {np.shape(J)}")
-    if check and not np.isfinite(J).all():
-        raise NonFiniteError(f"level {name!r}: J holds NaN or inf at {np.argwhere(~np.isfinite(J)).tolist()}")
+    if check:
+        if not sumsq(J) <= MAX_SUMSQ:            # (one sum: NaN, inf and overflow all fail it)
+            if not np.isfinite(J).all():
+                raise NonFiniteError(f"level {name!r}: J holds NaN or inf at {np.argwhere(~np.isfinite(J)).tolist()}")
+            raise MagnitudeError(f"level {name!r}: J reaches {np.abs(J).max():.3g}: its sum of squares exceeds "
+                                 f"{MAX_SUMSQ:.0e}, {_SCALE_DOWN}")
     return J
 
 
@@ -231,6 +259,7 @@ def stacked(levels: Iterable, n: int | None = None):
                 deferred = True
         else:
             J, b = level.check_finite().as_equality()
+            _check_vector(b, f"level {level.name!r}: b of its active rows (their bounds)", False)
         m = J.shape[0]
         if m:
             Js.append(J)
@@ -239,9 +268,12 @@ def stacked(levels: Iterable, n: int | None = None):
     if not sizes:
         return lv, np.zeros((0, n)), np.zeros(0), (), n
     J, b = (Js[0], bs[0]) if len(Js) == 1 else (np.concatenate(Js), np.concatenate(bs))
-    if deferred:                                 # a NaN or inf makes a sum of squares non-finite (so may a huge
-        f = J.ravel()                            # finite value: then the entries themselves are tested)
-        if not (math.isfinite(f @ f) and math.isfinite(b @ b)) and not (np.isfinite(J).all() and np.isfinite(b).all()):
+    if deferred:                                 # one sum each: NaN, inf and too large entries fail it, then the
+        sj, sb = sumsq(J), sumsq(b)              # levels' own checks raise naming the level
+        if not (sj <= MAX_SUMSQ and sb <= MAX_SUMSQ):
             for level in lv:
-                level.check_finite()             # raises, naming the level
+                level.check_finite()
+            if not (math.isfinite(sj) and math.isfinite(sb)):  # every level within bounds, their sum overflows
+                raise MagnitudeError(f"the sum of squares of the {len(lv)} stacked levels overflows float64 (each "
+                                     "within bounds): the solvers need its norm; scale the levels down")
     return lv, J, b, tuple(sizes), n

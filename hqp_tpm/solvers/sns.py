@@ -482,37 +482,53 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
 
 
 def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambda_max: float = 0.0,
-                    eps: float = 0.0, return_info: bool = False, compiled: bool = True):
+                    eps: float = 0.0, return_info: bool = False, compiled: bool = True, resume=None):
     """:func:`sns_tpm` of a stack already stacked: ``J`` (m x n) and ``xd`` finite floats, ``sizes`` the row
     counts of the levels (a tuple, summing to m). The box is checked as by :func:`sns_tpm`, the stack is not
     (the lean step, :mod:`hqp_tpm.control.lean`, checks it once per step). Same result as :func:`sns_tpm`.
-    ``compiled=False``: the numpy loop only (the caller's compiled loop has just handed this stack back)."""
+    ``compiled=False``: the numpy loop only (the caller's compiled loop has just handed this stack back);
+    ``resume``: the :class:`~hqp_tpm.solvers._compiled_sns.LoopState` where the caller's compiled loop stopped on
+    these arrays (the numpy loop goes on from there)."""
     n = J.shape[1]
-    tried = False
-    if (compiled and _compiled.ENABLED and sizes and type(lower) is np.ndarray and type(upper) is np.ndarray
-            and lower.dtype == np.float64 and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
+    tried = resume is not None
+    if (not tried and compiled and _compiled.ENABLED and sizes and type(lower) is np.ndarray
+            and type(upper) is np.ndarray and lower.dtype == np.float64 and upper.dtype == np.float64
+            and lower.shape == upper.shape == (n,)):
         tried = True
-        out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lower, upper, lambda_max, eps, MARGIN, COND)
-        if type(out) is tuple:                   # else handed back (a status code): numpy solves
-            x, sat, s, iterations, feasible = out
-            return (x, SNSInfo(s, sat, iterations, feasible)) if return_info else x
+        result, resume = _compiled_loop(J, xd, sizes, lower, upper, lambda_max, eps, return_info)
+        if result is not None:
+            return result
     lo, up = _box(lower, upper, n)
-    return _sns_tpm(J, xd, sizes, lo, up, None, lambda_max, eps, return_info, compiled and not tried)
+    return _sns_tpm(J, xd, sizes, lo, up, None, lambda_max, eps, return_info, compiled and not tried, resume)
 
 
-def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=True):
+def _compiled_loop(J, xd, sizes, lo, up, lambda_max, eps, return_info):
+    """The compiled loop (:mod:`hqp_tpm.solvers._compiled_sns`): ``(its result, None)``, or ``(None, resume)`` when
+    it hands back: ``resume`` its :class:`~hqp_tpm.solvers._compiled_sns.LoopState` (the numpy loop goes on from
+    that pass) or None (the numpy path starts over)."""
+    out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, MARGIN, COND)
+    if type(out) is tuple:
+        x, sat, s, iterations, feasible = out
+        return ((x, SNSInfo(s, sat, iterations, feasible)) if return_info else x), None
+    return None, (out if type(out) is _compiled_sns.LoopState else None)
+
+
+def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=True, resume=None):
     """The fast path of :func:`sns_tpm` on the stacked active rows (``lv``: the levels, or None: built from
     ``J``, ``xd``, ``sizes`` when the box-point shift needs them). The compiled loop
     (:mod:`hqp_tpm.solvers._compiled_sns`) when enabled and ``compiled`` (False: it has handed this stack back
-    already), else (or when it hands back) numpy."""
+    already), else (or when it hands back) numpy: from the start, or from the pass where the compiled loop
+    stopped (``resume``, its :class:`~hqp_tpm.solvers._compiled_sns.LoopState`)."""
     n = lo.shape[0]
     if compiled and _compiled.ENABLED and sizes:
-        out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, MARGIN, COND)
-        if type(out) is tuple:                   # else handed back (a status code): numpy solves
-            x, sat, s, iterations, feasible = out
-            return (x, SNSInfo(s, sat, iterations, feasible)) if return_info else x
+        result, resume = _compiled_loop(J, xd, sizes, lo, up, lambda_max, eps, return_info)
+        if result is not None:
+            return result
+    extended = bool(sizes) and J.shape[0] > n    # more rows than joints: this library's extension (module doc)
+    if resume is not None:
+        return _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, resume)
     x = fac = None
-    if sizes and J.shape[0] > n:                 # rank n before the last level: hqp_tpm.solvers._fullrank
+    if extended:                                 # rank n before the last level: hqp_tpm.solvers._fullrank
         x = past_rank(J, xd, sizes, n, lambda_max, eps)
         if x is not None and ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
@@ -530,20 +546,45 @@ def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=Tr
         x = fac.pinv_times(Fxd)[:n]
         first_singular = fac.pivots[0].singular
     else:
-        F_times, Fxd, x = (lambda v: v), xd, np.zeros(n)
+        F_times, Fxd, x, first_singular = (lambda v: v), xd, np.zeros(n), False
     if ((x >= lo) & (x <= up)).all():            # no bound reached (the common case): the TPM solution
         return (x, SNSInfo(1.0, (), 1)) if return_info else x
+    return _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, None, x, fac, F_times, Fxd,
+                     first_singular)
+
+
+def _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, resume, x=None, fac=None,
+              F_times=None, Fxd=None, first_singular=False):
+    """The passes of :func:`_sns_tpm` after the first: from the TPM solution ``x`` (``fac``, ``F_times``, ``Fxd``
+    of its factorization; ``first_singular``: the first level has a singular pivot), or from ``resume``, the pass
+    where the compiled loop stopped (the same decisions as this loop up to rounding: it goes on as this loop
+    would have)."""
+    n = lo.shape[0]
     box = _Box(lo, up)
-    free = np.ones(n, dtype=bool)
-    xN = np.zeros(n)
-    a, b = x, np.zeros(n)
-    order: list[int] = []
-    best = None                                  # (s*, a, b, saturated) of the best scaled solution
-    iterations = 0
-    G = sb = None
+    if resume is None:
+        free = np.ones(n, dtype=bool)
+        xN = np.zeros(n)
+        a, b = x, np.zeros(n)
+        order: list[int] = []
+        best = None                              # (s*, a, b, saturated) of the best scaled solution
+        iterations = 0
+    else:
+        order, xN, best, iterations = list(resume.order), resume.xN.copy(), resume.best, resume.iterations
+        free = np.ones(n, dtype=bool)
+        free[order] = False
+        if extended:                             # (F is not needed: m > n)
+            first_singular = sizes[0] > n
+        else:                                    # m <= n: F and the rank tolerance from the stack's factorization
+            fac = Factorization(J, sizes, n, lambda_max, eps)
+            F_times = fac.F_times
+            Fxd = F_times(xd)
+    sb = None
     tol = fac.tol if fac is not None else 0.0    # rank(JW) relative to the stack (damping doc; m <= n only)
-    extended = bool(sizes) and J.shape[0] > n    # more rows than joints: this library's extension (module doc)
     k_fit = int(extended and not first_singular)  # m > n: the rank test watches the first level only
+    if resume is not None:                       # the pass that saturated order[-1], from (J W)#
+        G = _free_solver(J, xd, sizes, free, order, lambda_max, eps, extended, k_fit, tol)
+        if G is None:
+            return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
     while True:
         iterations += 1
         if order:                                # (JW)# applied by triangular solves, never formed
@@ -571,20 +612,31 @@ def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=Tr
             free[j] = False
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-            if not extended:
-                G = FreeColumns.of(J, free, tol)
-            elif free.any():
-                G = _FreeStack.of(J[:, free], xd, sizes, lambda_max, eps, k_fit)
-            else:
-                G = None
+            G = _free_solver(J, xd, sizes, free, order, lambda_max, eps, extended, k_fit, tol)
         if j < 0 or G is None:
-            if best is None:                     # no factor kept the box (0 is outside it)
-                if lv is None:
-                    off = np.cumsum((0, *sizes))
-                    lv = [Level(J[a:e], xd[a:e]) for a, e in zip(off, off[1:], strict=False)]
-                return _around_box_point(sns_tpm, lv, box, lambda_max, eps, iterations, return_info)
-            s, a, b, sat = best
-            return _result(s * a + b, box, SNSInfo(float(s), sat, iterations), return_info)
+            return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
+
+
+def _free_solver(J, xd, sizes, free, order, lambda_max, eps, extended, k_fit, tol):
+    """``(J W)#`` for the ``free`` joints after saturating ``order[-1]``, or None when ``J W`` has lost rank
+    (``m <= n``: :class:`FreeColumns`; ``m > n``: :class:`_FreeStack`, None also when no joint is free)."""
+    if not extended:
+        return FreeColumns.of(J, free, tol)
+    if len(order) < free.shape[0]:
+        return _FreeStack.of(J[:, free], xd, sizes, lambda_max, eps, k_fit)
+    return None
+
+
+def _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info):
+    """The loop stops (no joint left to saturate, or rank lost): the best scaled solution, or the box-point
+    shift when no factor kept the box (0 is outside it)."""
+    if best is None:
+        if lv is None:
+            off = np.cumsum((0, *sizes))
+            lv = [Level(J[a:e], xd[a:e]) for a, e in zip(off, off[1:], strict=False)]
+        return _around_box_point(sns_tpm, lv, box, lambda_max, eps, iterations, return_info)
+    s, a, b, sat = best
+    return _result(s * a + b, box, SNSInfo(float(s), sat, iterations), return_info)
 
 
 # ----------------------------------------------------------------------------------------
