@@ -115,7 +115,7 @@ def environment() -> dict[str, str]:
 def host_probe() -> str:
     """How fast the host runs right now: the median time of a fixed workload (a Python loop and 20 numpy QRs of a
     38 x 27 matrix), the same in every run. Not a benchmark of hqp-tpm: this shared machine's speed swings by
-    up to ~1.8x within minutes, and runs whose probes differ that much are not comparable in µs (ratios
+    up to ~2x within minutes, and runs whose probes differ that much are not comparable in µs (ratios
     measured within one run are)."""
     A = np.random.default_rng(0).standard_normal((38, 27))
 
