@@ -80,10 +80,14 @@ def test_random_shapes_past_rank():
 
 
 def test_two_right_hand_sides_equal_two_solves():
-    """_past_rank2 (one factorization, two right-hand sides: the SNS loop's a and b) gives the bits of two
-    _past_rank calls, and the same status, on random, badly scaled, damped and ill-conditioned stacks."""
+    """One factorization for two right-hand sides (the SNS loop's x and a: _refactor, then _refactored_rhs twice,
+    the damped crossing level's QR shared) gives the bits of two _past_rank calls, and the same status, on
+    random, badly scaled, damped and ill-conditioned stacks."""
     if _compiled._sizes(()) is None:
         pytest.skip("numba is not installed")
+    from hqp_tpm.solvers import _compiled_sns
+
+    _compiled_sns._compile()
     rng = np.random.default_rng(77)
     statuses = set()
     for trial in range(400):
@@ -100,13 +104,45 @@ def test_two_right_hand_sides_equal_two_solves():
         s = _compiled._sizes(sizes)
         x1, x2, y1, y2 = (np.zeros(n) for _ in range(4))
         args = (s, n, lam, eps, _compiled._UNIT, MARGIN, COND)
-        status = _compiled._past_rank2(J, b1, b2, *args, y1, y2)
+        status, *factors = _compiled_sns._refactor(J, *args)
         assert status == _compiled._past_rank(J, b1, *args, x1) == _compiled._past_rank(J, b2, *args, x2)
         statuses.add(int(status))
         if status == _compiled.SOLVED:
+            _compiled_sns._refactored_rhs(b1, *factors, lam, eps, y1)
+            _compiled_sns._refactored_rhs(b2, *factors, lam, eps, y2)
             np.testing.assert_array_equal(y1, x1)
             np.testing.assert_array_equal(y2, x2)
     assert {_compiled.SOLVED, _compiled.DECLINED} <= statuses, statuses
+
+
+def test_damped_qr_equals_the_dense_householder():
+    """_damped_qr / _damped_solve (the QR of [R_A; lambda I] walking only its nonzeros) give the bits of
+    _householder_rows on the dense 2r x r matrix, _apply_qt and _solve_upper (the kernel before them), on random
+    triangles with entries over 12 orders of magnitude and lambda from 1e-8 to 10."""
+    if _compiled._sizes(()) is None:
+        pytest.skip("numba is not installed")
+    rng = np.random.default_rng(5)
+    for _ in range(1500):
+        r = int(rng.integers(0, 15))
+        RA = np.triu(rng.normal(size=(r, r)) * 10.0 ** rng.uniform(-6, 6, (r, r)))
+        c = rng.normal(size=r) * 10.0 ** rng.uniform(-3, 3)
+        lam = 10.0 ** rng.uniform(-8, 1)
+        S = np.zeros((r, 2 * r))                       # rows: the columns of [R_A; lam I]
+        S[:, :r] = RA.T
+        S[:, r:] = lam * np.eye(r)
+        tau, R2 = np.empty(r), np.zeros((r, r))
+        _compiled._householder_rows(S, tau, R2)
+        rhs = np.concatenate((c, np.zeros(r)))
+        _compiled._apply_qt(rhs, S, tau, r)
+        want = _compiled._solve_upper(R2, rhs[:r])
+        DV, Dtau, DR = _compiled._damped_qr(RA, lam)
+        np.testing.assert_array_equal(DR, R2)
+        np.testing.assert_array_equal(Dtau, tau)
+        np.testing.assert_array_equal(_compiled._damped_solve(DV, Dtau, DR, c), want)
+        M = np.vstack((RA, lam * np.eye(r)))
+        if r and np.linalg.cond(M) < 1e8:              # and it is the damped least-squares minimizer
+            y = np.linalg.lstsq(M, np.concatenate((c, np.zeros(r))), rcond=None)[0]
+            np.testing.assert_allclose(want, y, rtol=1e-7, atol=1e-7 * np.abs(y).max())
 
 
 @pytest.mark.parametrize("shape", [([6, 7], 7), ([6, 2, 3, 3, 3, 21], 27), ([6, 27], 27), ([3, 3, 7], 7),

@@ -24,7 +24,8 @@ How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hq
   <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide (``sigma_min`` within
   a factor ``sqrt(r)`` of a threshold), the numpy reference runs instead (its SVD decides);
 * the crossing level's least squares ``y = A# r`` from ``R_A`` (undamped) or from the QR of ``[R_A; lambda I]``
-  (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``);
+  (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``; :func:`_damped_qr` walks only its
+  nonzeros, once per factorization, for every right-hand side);
 * ``x = Q [z; y]`` (the reflectors applied once more).
 
 Dispatch: the solvers call these kernels when numba is importable and the environment variable
@@ -374,23 +375,94 @@ def _fro_upper(X, a, e):
     return math.sqrt(s)
 
 
+@_inlined
+def _lower_dot(u, v, i, r):
+    """``sum_{t <= i} u[t] v[t]`` as :func:`_dot` sums these terms inside reflector ``i`` of :func:`_damped_qr`: term
+    ``t`` is entry ``r + t`` of the ``2r`` rows, so term ``r - i - 1 + t`` of ``_dot``'s ``2r - i - 1``, and joins
+    the same one of its four partial sums."""
+    c = 2 * r - i - 1
+    c4 = c - c % 4
+    off = r - i - 1
+    s0 = 0.0
+    s1 = 0.0
+    s2 = 0.0
+    s3 = 0.0
+    for t in range(i + 1):
+        p = u[t] * v[t]
+        tt = off + t
+        k = tt & 3 if tt < c4 else 0
+        if k == 0:
+            s0 += p
+        elif k == 1:
+            s1 += p
+        elif k == 2:
+            s2 += p
+        else:
+            s3 += p
+    return (s0 + s1) + (s2 + s3)
+
+
 @_kernel
-def _damped_ls(RA, c, lam2):
-    """``argmin ||R_A y - c||^2 + lam2 ||y||^2`` by the QR of ``[R_A; sqrt(lam2) I]`` (``r x r`` each)."""
+def _damped_qr(RA, lam):
+    """The QR of ``M = [R_A; lam I]`` (``2r x r``, ``R_A`` upper triangular) for damped least squares:
+    ``(DV, tau, R2)``, reflector ``i`` being ``I - tau_i v v^T`` with ``v`` 1 at row ``i`` and ``DV[i, :i + 1]``
+    at rows ``r .. r + i`` (its only other nonzeros: reflectors ``< i`` fill the lower block's rows ``<= i`` only).
+
+    :func:`_householder_rows` on ``M^T`` gives the same bits: each sum takes the same nonzero terms in the same
+    order and partial sums (:func:`_lower_dot`); it also walks the known zeros, ``~4x`` the arithmetic at ``r = 10``.
+    """
     r = RA.shape[0]
-    lam = math.sqrt(lam2)
-    S = np.zeros((r, 2 * r))                           # rows: the columns of [R_A; lam I]
-    for j in range(r):
-        for i in range(j + 1):
-            S[j, i] = RA[i, j]
-        S[j, r + j] = lam
-    tau = np.empty(r)
+    DV = np.zeros((r, r))
+    tau = np.zeros(r)
     R2 = np.zeros((r, r))
-    _householder_rows(S, tau, R2)
-    rhs = np.zeros(2 * r)
-    rhs[:r] = c
-    _apply_qt(rhs, S, tau, r)
-    return _solve_upper(R2, rhs[:r])
+    B = np.zeros((r, r))                               # B[j, t]: the lower block's entry (t, j) (column j as a row)
+    for j in range(r):
+        B[j, j] = lam
+    for i in range(r):
+        alpha = RA[i, i]                               # (the upper block's rows > i are zero in reflectors < i)
+        xn = _lower_dot(B[i], B[i], i, r)
+        if xn == 0.0:
+            beta = alpha
+            for t in range(i + 1):
+                DV[i, t] = B[i, t]
+        else:
+            beta = -math.copysign(math.sqrt(alpha * alpha + xn), alpha)
+            tau[i] = (beta - alpha) / beta
+            scal = 1.0 / (alpha - beta)
+            for t in range(i + 1):
+                DV[i, t] = B[i, t] * scal
+        R2[i, i] = beta
+        ti = tau[i]
+        for j in range(i + 1, r):
+            w = RA[i, j]
+            for t in range(i + 1):
+                w += DV[i, t] * B[j, t]
+            w *= ti
+            R2[i, j] = RA[i, j] - w
+            for t in range(i + 1):
+                B[j, t] -= w * DV[i, t]
+    return DV, tau, R2
+
+
+@_kernel
+def _damped_solve(DV, tau, R2, c):
+    """``argmin ||R_A y - c||^2 + lam^2 ||y||^2`` from :func:`_damped_qr`'s factors: ``R2^{-1}`` of the first ``r``
+    entries of ``Q^T [c; 0]`` (the sums of :func:`_apply_qt` on ``2r`` entries, without their zero terms)."""
+    r = R2.shape[0]
+    x = np.empty(r)
+    for i in range(r):
+        x[i] = c[i]
+    d = np.zeros(r)                                    # the lower half of Q^T [c; 0]
+    for i in range(r):
+        ti = tau[i]
+        if ti == 0.0:
+            continue
+        w = x[i] + _lower_dot(DV[i], d, i, r)
+        w *= ti
+        x[i] -= w
+        for t in range(i + 1):
+            d[t] -= w * DV[i, t]
+    return _solve_upper(R2, x)
 
 
 # ----------------------------------------------------------------------------------------
@@ -469,7 +541,7 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
 @_inlined
 def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
-    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA)``."""
+    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR)``."""
     m = J.shape[0]
     k, m1, mk, r = _crossing_level(sizes, n)
     w = np.empty(max(n, mk))                           # scratch of the Householder updates and row norms
@@ -479,20 +551,32 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     for i in range(m1):
         if R1[i, i] == 0.0:                            # dtrtri's info > 0
             AT, tauA, RA = np.empty((r, mk)), np.empty(r), np.zeros((r, r))
-            return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+            return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0))
     for i in range(mk):                                # (J_k Q)^T = [J_k Q1, A]^T: J_k x1 = (J_k Q1) z, A = J_k Z
         for t in range(n):
             BT[t, i] = J[m1 + i, t]
     _apply_right_t(BT, V, tau, m1, w)
     status, AT, tauA, RA = _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, n), lambda_max, eps, unit,
                                               margin, cond)
-    return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA
+    if status != SOLVED:
+        return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+    DV, Dtau, DR = _crossing_damping(RA, r, mk, lambda_max, eps)
+    return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR
 
 
 @_inlined
-def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, out):
+def _crossing_damping(RA, r, mk, lambda_max, eps):
+    """The crossing level's damped factors (:func:`_damped_qr` of ``[R_A; lambda_max I]``, shared by every
+    right-hand side) when ``R_kk`` has zero singular values (``r < mk``) and the damping is on, else empty."""
+    if lambda_max > 0.0 and r < mk and 0.0 < eps:
+        return _damped_qr(RA, math.sqrt(lambda_max * lambda_max))
+    return np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+
+
+@_inlined
+def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out):
     """``out[:m1] <- z``, ``out[m1:m1 + r] <- y`` of :func:`_past_rank` for the right-hand side ``b``
-    (``x = Q [z; y]``)."""
+    (``x = Q [z; y]``; ``DV, Dtau, DR``: :func:`_crossing_damping`)."""
     z = _solve_upper_t(R1, b[:m1]) if m1 else np.empty(0)
     res = np.empty(mk)
     for i in range(mk):
@@ -503,7 +587,7 @@ def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, out):
             res[i] -= BT[t, i] * zt
     _apply_qt(res, AT, tauA, r)
     if lambda_max > 0.0 and r < mk and 0.0 < eps:     # R_kk has zero singular values: lambda = lambda_max
-        y = _damped_ls(RA, res[:r], lambda_max * lambda_max)
+        y = _damped_solve(DV, Dtau, DR, res[:r])
     else:
         y = _solve_upper(RA, res[:r])
     out[:m1] = z
@@ -511,9 +595,9 @@ def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, out):
 
 
 @_inlined
-def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out):
+def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out):
     """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors."""
-    _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps, out)
+    _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out)
     _apply_q(out, V, tau, m1)                          # x = Q [z; y]
 
 
@@ -525,21 +609,10 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
     ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
     reference's ``MARGIN`` and ``COND``.
     """
-    status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin,
-                                                                        cond)
+    status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR = _past_rank_factor(J, sizes, n, lambda_max, eps,
+                                                                                    unit, margin, cond)
     if status == SOLVED:
-        _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out)
-    return status
-
-
-@_kernel
-def _past_rank2(J, b1, b2, sizes, n, lambda_max, eps, unit, margin, cond, out1, out2):
-    """:func:`_past_rank` for two right-hand sides with one factorization of ``J`` (the same numbers as two calls)."""
-    status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin,
-                                                                        cond)
-    if status == SOLVED:
-        _past_rank_rhs(b1, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out1)
-        _past_rank_rhs(b2, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, lambda_max, eps, out2)
+        _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out)
     return status
 
 

@@ -14,6 +14,9 @@ the best scaled solution and the clip into the exact box as ``_result``:
   rank test ``rank(J W) < m`` of ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol``
   keeps it).
 
+Each pass after a saturation solves one right-hand side, ``x = (J W)# (xd - J xN) + xN``; ``a = (J W)# xd`` (and
+``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two.
+
 It takes the numpy path's decisions on numbers equal to it up to rounding (its own QR, the downdates); whatever
 it does not implement it hands back before returning anything (a status code says why), and the numpy path then
 solves:
@@ -245,17 +248,17 @@ def _q_times_rows(X, V, tau, p, cs, sn, s):
 
 
 @_kernel
-def _downdated_solve(J, xd, c, sizes, colsq, free, nsat, k, m1, mk, V, tau, cs, sn, CT, Rt, lambda_max, eps, unit,
-                     margin, cond, xf, yf):
-    """``xf``, ``yf`` <- the TPM of ``J W`` (its free columns, in order) for ``xd`` and ``c`` from the downdated
-    factorization (``_past_rank``'s certificates on it); returns ``_past_rank``'s status."""
+def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, CT, Rt, lambda_max, eps, unit, margin, cond):
+    """The TPM of ``J W`` (its free columns, in order) from the downdated factorization: ``_past_rank``'s
+    certificates on it and the crossing level's factors, ``(status, AT, tauA, RA, DV, Dtau, DR)``."""
     m, n = J.shape
     nf = n - nsat
     r = nf - m1
     R1 = Rt[nsat:nsat + m1]
     for i in range(m1):
         if R1[i, i] == 0.0:
-            return _compiled.DECLINED
+            return (_compiled.DECLINED, np.empty((0, 0)), np.empty(0), np.empty((0, 0)), np.empty((0, 0)),
+                    np.empty(0), np.empty((0, 0)))
     BT = CT[nsat:]
     nlev = sizes.shape[0]
     sq = np.empty(nlev)                                # ||J_lev W||_F^2: the free columns' sums of squares, in order
@@ -268,19 +271,38 @@ def _downdated_solve(J, xd, c, sizes, colsq, free, nsat, k, m1, mk, V, tau, cs, 
     status, AT, tauA, RA = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf), lambda_max,
                                                         eps, unit, margin, cond)
     if status != _compiled.SOLVED:
-        return status
-    v2 = np.zeros((2, n))
-    for rhs in range(2):
-        _compiled._crossing_rhs(xd if rhs == 0 else c, m1, mk, r, R1, BT, AT, tauA, RA, lambda_max, eps,
-                                v2[rhs, nsat:])
-    _q_times_rows(v2, V, tau, m1, cs, sn, nsat)
+        return status, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+    DV, Dtau, DR = _compiled._crossing_damping(RA, r, mk, lambda_max, eps)
+    return status, AT, tauA, RA, DV, Dtau, DR
+
+
+@_kernel
+def _downdated_rhs(rhs, free, nsat, m1, mk, V, tau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps,
+                   xf):
+    """``xf <- (J W)# rhs`` (the free joints' entries, in order) from :func:`_downdated_factor`'s factors."""
+    n = free.shape[0]
+    r = n - nsat - m1
+    v = np.zeros((1, n))
+    _compiled._crossing_rhs(rhs, m1, mk, r, Rt[nsat:nsat + m1], CT[nsat:], AT, tauA, RA, DV, Dtau, DR, lambda_max,
+                            eps, v[0, nsat:])
+    _q_times_rows(v, V, tau, m1, cs, sn, nsat)
     f = 0
     for t in range(n):
         if free[t]:
-            xf[f] = v2[0, t]
-            yf[f] = v2[1, t]
+            xf[f] = v[0, t]
             f += 1
-    return status
+
+
+@_kernel
+def _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond):
+    """:func:`_compiled._past_rank_factor` of ``J W`` (its free columns ``Jf``), called (not inlined) from the loop."""
+    return _compiled._past_rank_factor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond)
+
+
+@_kernel
+def _refactored_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, xf):
+    """``xf <- (J W)# rhs`` from :func:`_refactor`'s factors (:func:`_compiled._past_rank_rhs`)."""
+    _compiled._past_rank_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, xf)
 
 
 @_kernel
@@ -361,11 +383,12 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             return BAD_BOX, 0.0, 0, 0, False, 0
     extended = m > n
     if extended:                                       # _past_rank, its factors kept for the downdates
-        status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA = _compiled._past_rank_factor(
+        status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR = _compiled._past_rank_factor(
             J, sizes, n, lambda_max, eps, unit, margin, cond)
         if status != _compiled.SOLVED:
             return DECLINED, 0.0, 0, 0, False, 0
-        _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, lambda_max, eps, x)
+        _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR, lambda_max,
+                                 eps, x)
         k0 = _compiled._crossing_level(sizes, n)[0]
     else:
         m1, mk, k0 = 0, 0, 0
@@ -431,27 +454,42 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     cs = np.empty((0, 0))
     sn = np.empty((0, 0))
     colsq = np.empty((0, 0))
+    # the free-column stack's factors (the downdated ones, or J W's own when refactorized): set at each saturation
+    none2, none1 = np.empty((0, 0)), np.empty(0)     # (placeholders: two allocations, not ten)
+    AT, tauA, RA, DV, Dtau, DR = none2, none1, none2, none2, none1, none2
+    FV, Ftau, FR1, FBT = none2, none1, none2, none2
+    fm1, fmk, fr = 0, 0, 0
+    dc = c.copy()                                      # xd - J xN (F applied when damped)
     while True:
         iterations += 1
-        if nsat:                                       # x = s a + b, a = (J W)# F_W xd, b = xN - (J W)# F_W J xN
-            nf = n - nsat
-            if not extended:                           # (extended: xf and yf solved with J W's factorization)
+        if nsat:                                       # x = (J W)# F_W (xd - J xN) + xN: one right-hand side; a (and
+            nf = n - nsat                              # b = x - a) below, only if a bound is violated
+            if not extended:
                 _saturated_rows(J, order, nsat, xN, c)
-                if damped:                             # (J W)# F (J xN)
+                if damped:                             # F (J xN)
                     _compiled._f_times(Fb, c, Fc)
-                Vf = V[:, :nf]
-                _q_rinv_t(Vf, tau, R, Fxd, xf[:nf])
-                _q_rinv_t(Vf, tau, R, Fc if damped else c, yf[:nf])
+                    for i in range(m):
+                        dc[i] = Fxd[i] - Fc[i]
+                else:
+                    for i in range(m):
+                        dc[i] = Fxd[i] - c[i]
+                _q_rinv_t(V[:, :nf], tau, R, dc, yf[:nf])
+            else:                                      # (c = J xN: computed at the saturation)
+                for i in range(m):
+                    dc[i] = xd[i] - c[i]
+                if downdating:
+                    _downdated_rhs(dc, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
+                                   lambda_max, eps, yf)
+                else:
+                    _refactored_rhs(dc, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, lambda_max,
+                                    eps, yf[:nf])
             f = 0
             for j in range(n):
                 if free[j]:
-                    a[j] = xf[f]
-                    b[j] = xN[j] - yf[f]
+                    x[j] = yf[f]
                     f += 1
                 else:
-                    a[j] = 0.0
-                    b[j] = xN[j]
-                x[j] = a[j] + b[j]
+                    x[j] = xN[j]
         anyv = False
         for j in range(n):
             viol[j] = x[j] < wlo[j] or x[j] > wup[j]
@@ -460,6 +498,24 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             for j in range(n):
                 x[j] = min(max(x[j], lo[j]), up[j])
             return DONE, 1.0, nsat, iterations, True, 0
+        if nsat:                                       # a = (J W)# F_W xd, b = x - a (b = xN - (J W)# F_W J xN)
+            if not extended:
+                _q_rinv_t(V[:, :nf], tau, R, Fxd, xf[:nf])
+            elif downdating:
+                _downdated_rhs(xd, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
+                               lambda_max, eps, xf)
+            else:
+                _refactored_rhs(xd, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps,
+                                xf[:nf])
+            f = 0
+            for j in range(n):
+                if free[j]:
+                    a[j] = xf[f]
+                    b[j] = x[j] - a[j]
+                    f += 1
+                else:
+                    a[j] = 0.0
+                    b[j] = xN[j]
         factor, j = _pick(a, b, lo, up, wlo, wup, free, viol, smax)
         if factor >= 0.0 and (not found or factor > best_s):
             best_s, best_nsat, found = factor, nsat, True
@@ -481,7 +537,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif nf == 0:
                 stop = True
             else:
-                _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN: both right-hand sides at once
+                _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN
                 if downdating and _compiled._crossing_level(sizes, nf)[0] != k0:
                     downdating = False                 # another level crosses rank nf: refactorize from here on
                 if downdating:                         # the upper levels' QR downdated (saturation nsat - 1)
@@ -494,13 +550,14 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                         colsq = _level_colsq(J, sizes)
                     _q_row(j, PV, Ptau, m1, cs, sn, nsat - 1, w)
                     _downdate(w, CT, Rt, nsat - 1, m1, cs, sn)
-                    status = _downdated_solve(J, xd, c, sizes, colsq, free, nsat, k0, m1, mk, PV, Ptau, cs, sn, CT,
-                                              Rt, lambda_max, eps, unit, margin, cond, xf, yf)
+                    status, AT, tauA, RA, DV, Dtau, DR = _downdated_factor(J, sizes, colsq, free, nsat, k0, m1, mk,
+                                                                           CT, Rt, lambda_max, eps, unit, margin,
+                                                                           cond)
                 else:
                     Jf = np.empty((m, nf))             # J W on its free columns, in order
                     _gather_free(J, free, Jf)
-                    status = _compiled._past_rank2(Jf, xd, c, sizes, nf, lambda_max, eps, unit, margin, cond,
-                                                   xf[:nf], yf[:nf])
+                    (status, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau,
+                     DR) = _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond)
                 if status != _compiled.SOLVED:         # the certificates cannot decide J W: numpy, from here
                     _keep_state(state, xN, best_a, best_b)
                     return RESUME, best_s, nsat, iterations, found, best_nsat
