@@ -45,6 +45,27 @@ def test_frame_jacobian_is_pinocchios_to_the_bit(name):
     assert st.frame_jacobian_source(0)[0] is st.frame_jacobian_source(1)[0]  # one view of data.J for every task
 
 
+@pytest.mark.parametrize("name", ["iiwa7", "lwr4", "romeo21"])
+def test_frame_placement_is_pinocchios_to_the_bit(name):
+    """frame_placement (the fused kernel placing a frame from its joint's placement) writes into pinocchio's own
+    oMf what updateFramePlacement writes, to the bit, on every frame of three robots (one with a free flyer), in
+    whatever pinocchio the suite runs with (4.x here, 3.4 in make test-pin-lowest)."""
+    robot = Robot.load(name)
+    st, ref = State(robot), State(robot)
+    model = st.model
+    lo = np.where(np.isfinite(model.lowerPositionLimit), model.lowerPositionLimit, -1.0)
+    up = np.where(np.isfinite(model.upperPositionLimit), model.upperPositionLimit, 1.0)
+    for _ in range(20):
+        q = pin.randomConfiguration(model, lo, up)
+        st.update_positions(q, np.zeros(robot.nv), 0.0, ())           # joints only: oMf as the last q left it
+        ref.update_positions(q, np.zeros(robot.nv), 0.0, range(model.nframes))
+        for fid in range(model.nframes):
+            RiT, pi, P, RfT = st.frame_placement_source(fid)
+            _compiled.frame_placement(RiT, pi, P, RfT, st.data.oMf[fid].translation)
+            np.testing.assert_array_equal(st.data.oMf[fid].homogeneous, ref.data.oMf[fid].homogeneous,
+                                          err_msg=model.frames[fid].name)
+
+
 EPS = np.finfo(float).eps
 
 

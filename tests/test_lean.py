@@ -836,3 +836,47 @@ def test_copied_and_pickled_lean_steps_step_their_own_controller():
             copy.deepcopy(lean._program)
         with pytest.raises(TypeError, match="addresses"):
             pickle.dumps(lean._program)
+
+
+def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
+    """At velocity level the fused kernel places the frames of its frame tasks itself (pinocchio's
+    updateFramePlacement left out of the state update): pinocchio's oMf after a lean step is the full update's, to
+    the bit, and so is the command of a lean step whose frames the state update places; a frame a row writer reads
+    before the kernel (a Harmonic reference has no row program) is still placed by the state update."""
+    import pinocchio as pin
+
+    from hqp_tpm import Controller, FramePose, FramePosition, Gains, Posture, Robot, Stack
+    from hqp_tpm.references.trajectories import Harmonic
+    from hqp_tpm.robot.state import State
+
+    _flags(monkeypatch, True, True)
+    robot = Robot.load("romeo21")
+    g = Gains(5.0)
+    rng = np.random.default_rng(4)
+    circle = Harmonic(center=[0.3, -0.2, 0.9], cos_amplitude=[0.05, 0.0, 0.0], sin_amplitude=[0.0, 0.05, 0.0],
+                      omega=3.0)
+    fids = [robot.frame_id(f) for f in ("r_sole", "l_gripper", "r_gripper")]
+    for harmonic in (False, True):
+        q0 = pin.integrate(robot.model, pin.neutral(robot.model), rng.normal(0.0, 0.3, robot.nv))
+        levels = [FramePose(robot, "r_sole", pin.SE3(pin.exp3(rng.normal(0.0, 0.2, 3)), rng.normal(0.0, 0.3, 3)), g),
+                  (FramePosition(robot, "l_gripper", rng.normal(0.0, 0.5, 3), g),
+                   FramePosition(robot, "r_gripper", rng.normal(0.0, 0.5, 3), g))]
+        if harmonic:                                   # r_sole's position read by a row writer as well
+            levels.append(FramePosition(robot, "r_sole", circle, g))
+        stack = Stack.of(*levels, Posture(robot, None, g))
+        ref, fast, placed_by_state = (Controller(robot, stack, order=1, dt=1e-3, q0=q0, solver="tpm")
+                                      for _ in range(3))
+        lean = LeanStep.of(fast)
+        with monkeypatch.context() as m:               # (no views: the state update places every frame)
+            m.setattr(State, "frame_placement_source", lambda self, fid: None)
+            other = LeanStep.of(placed_by_state)
+        assert lean._program.placed == set(fids) and not other._program.placed
+        assert lean._fused_frames == ((fids[0],) if harmonic else ())
+        for _ in range(5):
+            x = lean.step()
+            np.testing.assert_array_equal(x, other.step())
+            np.testing.assert_allclose(x, ref.step().command, rtol=0.0, atol=1e-12)  # (log3: a few ulps)
+            full = fast.robot.model.createData()
+            pin.framesForwardKinematics(fast.robot.model, full, fast.state.q)
+            for fid in fids:
+                np.testing.assert_array_equal(fast.state.data.oMf[fid].homogeneous, full.oMf[fid].homogeneous)

@@ -80,7 +80,7 @@ HEAD = 9
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
 _write_rows = _solve = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
-_frame_jacobian = _rotation_error = _mat = _vec = None
+_frame_jacobian = _rotation_error = _frame_placement = _mat = _vec = None
 
 
 def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -108,7 +108,11 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
         else:  # FRAME: hqp_tpm.robot._compiled.rows1 / rows2
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
-            at = pi + 11                               # the rows, xrows, then the Jacobian's columns
+            place = ints[pi + 11]                      # the frame's placement from its joint's (else the caller's)
+            at = pi + 12                               # the rows, xrows, then the Jacobian's columns
+            if place >= 0:                             # mats: R_i^T, P, R_f^T from slot place; vecs: p_i, p
+                _frame_placement(_mat(ints, place), _vec(ints, ints[at + dim + k + nc]), _mat(ints, place + 1),
+                                 _mat(ints, place + 2), _vec(ints, ip))
             S = _mat(ints, jm)
             if jsrc >= 0:  # the frame Jacobian from the joint Jacobians (else the caller put it in mats[jm])
                 _frame_jacobian(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc], _vec(ints, ip), S)
@@ -150,7 +154,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     b[r0 + i] = xd + kp * e
                 else:
                     b[r0 + i] = floats[fxd + dim + i] + kd * (xd - rate[i]) + kp * e - jdq[i]
-            pi += 11 + dim + k + nc
+            pi += 12 + dim + k + nc + (1 if place >= 0 else 0)
             pf += 2 + k + 2 * dim
     s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(mn + m):
@@ -284,12 +288,13 @@ def _tpm_solve_kernel() -> None:
 def _build(solve: int):
     """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user
     does not compile the SNS loop); None if numba cannot be imported."""
-    global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box
+    global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
     global _frame_jacobian, _rotation_error, _mat, _vec
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
+        _frame_placement = _robot_compiled.frame_placement
         _mat, _vec = _robot_compiled.table_matrix, _robot_compiled.table_vector
         _write_rows = _jit(_rows)
     _tpm_solve_kernel()
@@ -371,6 +376,8 @@ class Program:
         self.mats: list[np.ndarray] = []
         self.vecs: list[np.ndarray] = []
         self.ints = self.floats = None
+        #: the frames the kernel places itself (:meth:`add_frame`'s ``placement``)
+        self.placed: set[int] = set()
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
         self._ints[5] += 1
@@ -388,7 +395,8 @@ class Program:
         return self._gains(kp, kd, 3 * dim)
 
     def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, x: np.ndarray | None = None,
-                  jacobian=None, rotation=None, transposed: np.ndarray | None = None) -> tuple[int, int, int, int]:
+                  jacobian=None, rotation=None, transposed: np.ndarray | None = None,
+                  placement=None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when
         ``len(xrows) == len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at
@@ -402,7 +410,11 @@ class Program:
         transposed: row-major views): the kernel writes ``w = log3(R_d R^T)``
         (:func:`hqp_tpm.robot._compiled.rotation_error`); the caller replaces ``mats[rot + 1]`` when the target
         changes. ``transposed`` (``n x q``, a view pinocchio updates, e.g. the CoM Jacobian transposed): ``S^T``, put
-        in slot ``mat`` (order 1 only: the kernel does not compute ``rate`` from it). Returns ``(at, mat, vec, rot)``:
+        in slot ``mat`` (order 1 only: the kernel does not compute ``rate`` from it). ``placement = (fid, RiT, pi, P,
+        RfT)`` (with ``jacobian``, at order 1; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
+        places frame ``fid`` first (its rotation and its position ``p``,
+        :func:`hqp_tpm.robot._compiled.frame_placement`), and :attr:`placed` gets ``fid``: the caller need not place
+        it. Returns ``(at, mat, vec, rot)``:
         ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1
         without ``rotation``).
         """
@@ -427,8 +439,17 @@ class Program:
         if rotation is not None:
             rot = len(self.mats)
             self.mats += [rotation[0], rotation[1]]
-        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), *rows,
-                       *xrows, *cols]
+        place, tail = -1, []
+        if placement is not None:
+            if jacobian is None or self.order != 1:
+                raise ValueError("a frame placed in the kernel: with its joint-Jacobian source, at order 1")
+            fid, RiT, pi, P, RfT = placement
+            place = len(self.mats)
+            self.mats += [RiT, np.ascontiguousarray(P, dtype=float), RfT]
+            tail = [self._slot(self.vecs, pi)]
+            self.placed.add(int(fid))
+        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), place,
+                       *rows, *xrows, *cols, *tail]
         return self._gains(kp, kd, k + 2 * dim), mat, vec, rot
 
     @staticmethod

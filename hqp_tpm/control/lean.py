@@ -203,7 +203,7 @@ class LeanStep:
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
-                 "_velocities", "_kernel", "_fused")
+                 "_velocities", "_kernel", "_fused", "_fused_frames")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -286,14 +286,20 @@ class LeanStep:
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
         self._kernel = self._program = self._fused = None
+        self._fused_frames = self.frames
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
                                              self.x0 is not None, solve=mode)
-            fused = []
+            fused, written = [], set()
             for task, r, write in zip(tasks, rows, self.writers, strict=True):
                 gather = task.row_program(st, self.order, program, r.start)
                 fused.append(write if gather is None else gather)
+                if gather is None and task.frame is not None:
+                    written.add(ctrl.robot.frame_id(task.frame))
             self._fused = tuple(fused)
+            # the frames the kernel places itself are left out of the state update (unless a row writer, which
+            # runs before the kernel, reads one)
+            self._fused_frames = tuple(f for f in self.frames if f not in program.placed or f in written)
             if mode == _compiled_step.SNS and type(self.box) is JointBox and self.box.fast:  # the box in the kernel
                 program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
                                 self.box._P, self.box._idx, self.box._dt)
@@ -332,12 +338,13 @@ class LeanStep:
         if not ctrl._started:
             ctrl.start()
         t = ctrl.t
+        kernel, status = self._kernel, None
+        fused = kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED
         if self._velocities:
             st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames)
-        else:
-            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
-        kernel, status = self._kernel, None
-        if kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED:
+        else:  # (the fused kernel places the frames its tasks read: _fused_frames has the others)
+            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self._fused_frames if fused else self.frames)
+        if fused:
             for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
                 write(t)
             x0 = self.x0

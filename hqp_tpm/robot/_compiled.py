@@ -4,7 +4,8 @@ One call each instead of 10-30 small numpy calls: the joint box of
 :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (velocity and acceleration level, the common case of a state
 inside its limits; the recovery cases return False and the caller computes them with ``BoxLimits``), and the
 tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the error (order 2, and the posture rows); for the
-fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's Jacobian from the joint Jacobians, its rotation
+fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement and its Jacobian from the joint
+Jacobians, its rotation
 error ``log3(R_d R^T)``, and the reading of arrays by address (:func:`table_matrix`). Every kernel does the readable
 code's (or pinocchio's) floating-point operations in the same order (no fast-math, no contraction), so the results
 are the same to the last bit (``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3`: it
@@ -186,6 +187,25 @@ def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pr
     for i in range(m):
         e = x_d[i] - x[xrows[i]] if i < k else w[i - k]
         b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e - jdq[i]
+
+
+@_njit
+def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
+    """``pin.updateFramePlacement``: ``oMf = oMi * placement`` of a frame into pinocchio's own arrays, ``R_f = R_i R_p``
+    (``RfT`` its transposed view) and ``p = R_i p_p + p_i``, from its parent joint's placement (``RiT = R_i^T``,
+    ``pi``: views) and its placement in that joint (``P``: the rows of ``R_p``, then ``p_p``); Eigen's sums as the
+    pinocchio wheels compute them (rows 0 and 1 in one SIMD packet, ``(t0 + t1) + t2``; row 2 alone, ``t0 + (t1 +
+    t2)``): the same bits with pinocchio 3.4, 3.8 and 4.1 (``tests/test_frame_kernels.py``)."""
+    for a in range(3):
+        r0, r1, r2 = RiT[0, a], RiT[1, a], RiT[2, a]
+        if a < 2:
+            for b in range(3):
+                RfT[b, a] = (r0 * P[0, b] + r1 * P[1, b]) + r2 * P[2, b]
+            p[a] = ((r0 * P[3, 0] + r1 * P[3, 1]) + r2 * P[3, 2]) + pi[a]
+        else:
+            for b in range(3):
+                RfT[b, a] = r0 * P[0, b] + (r1 * P[1, b] + r2 * P[2, b])
+            p[a] = (r0 * P[3, 0] + (r1 * P[3, 1] + r2 * P[3, 2])) + pi[a]
 
 
 @_njit

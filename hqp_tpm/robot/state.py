@@ -159,6 +159,25 @@ class State:
         again = self.data.oMf[fid]
         return views if _same_memory(views, (again.translation, again.rotation)) else None
 
+    def frame_placement_source(self, fid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+        """``(RiT, pi, P, RfT)``: the parent joint's placement as views of pinocchio's data (rotation transposed,
+        translation), the frame's placement in that joint (``P``, 4 x 3: the rows of its rotation, then its
+        translation) and a view of the frame's rotation transposed, from which the lean step's kernel places the
+        frame as ``pin.updateFramePlacement`` (:func:`hqp_tpm.robot._compiled.frame_placement`; its translation is
+        :meth:`frame_views`'); None if this pinocchio returns copies."""
+        model, data = self.model, self.data
+        frame = model.frames[fid]
+        Mi, Mf = data.oMi[frame.parentJoint], data.oMf[fid]
+        RiT, pi, RfT = Mi.rotation.T, Mi.translation, Mf.rotation.T
+        again, f_again = data.oMi[frame.parentJoint], data.oMf[fid]
+        if not (_same_memory((RiT, pi, RfT, Mf.translation),
+                             (again.rotation.T, again.translation, f_again.rotation.T, f_again.translation))
+                and RiT.flags.c_contiguous and RfT.flags.c_contiguous and RfT.flags.writeable
+                and Mf.translation.flags.writeable):
+            return None
+        P = np.vstack((frame.placement.rotation, frame.placement.translation))
+        return RiT, pi, P, RfT
+
     def frame_jacobian_source(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
         """``(JT, cols)``: the joint Jacobians ``data.J`` transposed (a view, ``nv x 6``, world frame, refreshed by
         every :meth:`update`) and the columns that support frame ``fid``, from which the lean step's kernel writes

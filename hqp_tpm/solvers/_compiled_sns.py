@@ -542,7 +542,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                     downdating = False                 # another level crosses rank nf: refactorize from here on
                 if downdating:                         # the upper levels' QR downdated (saturation nsat - 1)
                     if nsat == 1:
-                        CT = PBT.copy()
+                        CT = PBT                       # (the first pass's, not read again)
                         Rt = np.zeros((n, m1))
                         Rt[:m1] = PR1
                         cs = np.empty((n, n))  # (each entry read is written first: _downdate, then _q_row)

@@ -158,6 +158,16 @@ def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: 
         np.subtract(b, jdq, out=b)
 
 
+def kernel_placement(state: State, fid: int, order: int, inside: bool):
+    """``add_frame``'s ``placement`` (:meth:`hqp_tpm.control._compiled_step.Program.add_frame`) of a frame task's row
+    program: frame ``fid`` placed by the fused kernel when it also computes the frame's Jacobian (``inside``), at
+    order 1, and the state gives views (:meth:`~hqp_tpm.robot.state.State.frame_placement_source`); else None."""
+    if not inside or order != 1:
+        return None
+    source = state.frame_placement_source(fid)
+    return None if source is None else (fid, *source)
+
+
 class ReferenceSlots:
     """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused
     program's floats (:meth:`Task.row_program`) when they changed: a constant reference is one read-only tuple

@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, kernel_placement
 
 
 class FrameOrientation(Task):
@@ -88,7 +88,8 @@ class FrameOrientation(Task):
         inside = source is not None  # the frame Jacobian, w = log3(R_d R^T) (and J qd) computed in the kernel
         at, mat, vec, rot = program.add_frame(row, range(3, 6), (), g.kp, g.kd, x_d_vec=False,
                                               jacobian=(*source, p) if inside else None,
-                                              rotation=(R.T, np.eye(3)) if inside else None)  # (the target's: below)
+                                              rotation=(R.T, np.eye(3)) if inside else None,  # (the target's: below)
+                                              placement=kernel_placement(state, fid, order, inside))
         refresh = ReferenceSlots(self, program, at - 2, at, ((1, 3), (2, 3))).refresh
         target = [None]  # the target rotation whose transpose the kernel reads
         S, w = program.mats[mat], program.vecs[vec]  # the program's arrays (written here if not inside)

@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, kernel_placement
 
 
 class FramePose(Task):
@@ -103,7 +103,8 @@ class FramePose(Task):
         inside = source is not None  # the frame Jacobian and the rotation error computed in the kernel
         at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True, x=p,
                                               jacobian=(*source, p) if inside else None,
-                                              rotation=(RT, np.eye(3)) if inside else None)  # (the target's: below)
+                                              rotation=(RT, np.eye(3)) if inside else None,  # (the target's: below)
+                                              placement=kernel_placement(state, fid, order, inside))
         refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
         target = [None, None, None]  # the target placement and views of its translation and rotation
         xd_slot = vec + (4 if order == 2 else 2)

@@ -10,7 +10,7 @@ from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks import _compiled_rows
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, kernel_placement, row_selector, select_axes
 
 
 class FramePosition(Task):
@@ -124,7 +124,8 @@ class FramePosition(Task):
         source = state.frame_jacobian_source(fid)
         inside = source is not None  # the frame Jacobian (and J qd) computed in the kernel
         at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, x=p,
-                                            jacobian=(*source, p) if inside else None)  # (p: pinocchio's view)
+                                            jacobian=(*source, p) if inside else None,  # (p: pinocchio's view)
+                                            placement=kernel_placement(state, fid, order, inside))
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
         S = program.mats[mat]  # the program's arrays (written here if not inside)
         rate, jdq = (program.vecs[vec + 1][:d], program.vecs[vec + 2][:d]) if order == 2 else (None, None)
