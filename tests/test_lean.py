@@ -842,10 +842,11 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
     """At velocity level the fused kernel places the frames of its frame tasks itself (pinocchio's
     updateFramePlacement left out of the state update): pinocchio's oMf after a lean step is the full update's, to
     the bit, and so is the command of a lean step whose frames the state update places; a frame a row writer reads
-    before the kernel (a Harmonic reference has no row program) is still placed by the state update."""
+    before the kernel (a Harmonic reference has no row program) is still placed by the state update (its
+    orientation task's row program reads it too: independent rows, no level repeating another's)."""
     import pinocchio as pin
 
-    from hqp_tpm import Controller, FramePose, FramePosition, Gains, Posture, Robot, Stack
+    from hqp_tpm import Controller, FrameOrientation, FramePose, FramePosition, Gains, Posture, Robot, Stack
     from hqp_tpm.references.trajectories import Harmonic
     from hqp_tpm.robot.state import State
 
@@ -860,9 +861,9 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
         q0 = pin.integrate(robot.model, pin.neutral(robot.model), rng.normal(0.0, 0.3, robot.nv))
         levels = [FramePose(robot, "r_sole", pin.SE3(pin.exp3(rng.normal(0.0, 0.2, 3)), rng.normal(0.0, 0.3, 3)), g),
                   (FramePosition(robot, "l_gripper", rng.normal(0.0, 0.5, 3), g),
-                   FramePosition(robot, "r_gripper", rng.normal(0.0, 0.5, 3), g))]
-        if harmonic:                                   # r_sole's position read by a row writer as well
-            levels.append(FramePosition(robot, "r_sole", circle, g))
+                   FramePosition(robot, "r_gripper", circle if harmonic else rng.normal(0.0, 0.5, 3), g))]
+        if harmonic:                                   # r_gripper read by a row writer and by a row program
+            levels.append(FrameOrientation(robot, "r_gripper", pin.exp3(rng.normal(0.0, 0.3, 3)), g))
         stack = Stack.of(*levels, Posture(robot, None, g))
         ref, fast, placed_by_state = (Controller(robot, stack, order=1, dt=1e-3, q0=q0, solver="tpm")
                                       for _ in range(3))
@@ -871,7 +872,7 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
             m.setattr(State, "frame_placement_source", lambda self, fid: None)
             other = LeanStep.of(placed_by_state)
         assert lean._program.placed == set(fids) and not other._program.placed
-        assert lean._fused_frames == ((fids[0],) if harmonic else ())
+        assert lean._fused_frames == ((fids[2],) if harmonic else ())
         for _ in range(5):
             x = lean.step()
             np.testing.assert_array_equal(x, other.step())

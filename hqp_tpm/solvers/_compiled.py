@@ -569,6 +569,7 @@ def _crossing_damping(RA, r, mk, lambda_max, eps):
     """The crossing level's damped factors (:func:`_damped_qr` of ``[R_A; lambda_max I]``, shared by every
     right-hand side) when ``R_kk`` has zero singular values (``r < mk``) and the damping is on, else empty."""
     if lambda_max > 0.0 and r < mk and 0.0 < eps:
+        # (lambda as the square root of lambda^2, as the earlier kernel took it: the same bits)
         return _damped_qr(RA, math.sqrt(lambda_max * lambda_max))
     return np.empty((0, 0)), np.empty(0), np.empty((0, 0))
 
