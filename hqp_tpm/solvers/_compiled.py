@@ -551,7 +551,7 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     for i in range(m1):
         if R1[i, i] == 0.0:                            # dtrtri's info > 0
             AT, tauA, RA = np.empty((r, mk)), np.empty(r), np.zeros((r, r))
-            return DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+            return (DECLINED, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, *_no_damping())
     for i in range(mk):                                # (J_k Q)^T = [J_k Q1, A]^T: J_k x1 = (J_k Q1) z, A = J_k Z
         for t in range(n):
             BT[t, i] = J[m1 + i, t]
@@ -559,9 +559,15 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     status, AT, tauA, RA = _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, n), lambda_max, eps, unit,
                                               margin, cond)
     if status != SOLVED:
-        return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+        return (status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, *_no_damping())
     DV, Dtau, DR = _crossing_damping(RA, r, mk, lambda_max, eps)
     return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR
+
+
+@_inlined
+def _no_damping():
+    """:func:`_crossing_damping`'s empty factors (no damped crossing level, or nothing solved)."""
+    return np.empty((0, 0)), np.empty(0), np.empty((0, 0))
 
 
 @_inlined
@@ -571,7 +577,7 @@ def _crossing_damping(RA, r, mk, lambda_max, eps):
     if lambda_max > 0.0 and r < mk and 0.0 < eps:
         # (lambda as the square root of lambda^2, as the earlier kernel took it: the same bits)
         return _damped_qr(RA, math.sqrt(lambda_max * lambda_max))
-    return np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+    return _no_damping()
 
 
 @_inlined

@@ -257,8 +257,7 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, CT, Rt, lambda_max
     R1 = Rt[nsat:nsat + m1]
     for i in range(m1):
         if R1[i, i] == 0.0:
-            return (_compiled.DECLINED, np.empty((0, 0)), np.empty(0), np.empty((0, 0)), np.empty((0, 0)),
-                    np.empty(0), np.empty((0, 0)))
+            return (_compiled.DECLINED, *_compiled._no_damping(), *_compiled._no_damping())
     BT = CT[nsat:]
     nlev = sizes.shape[0]
     sq = np.empty(nlev)                                # ||J_lev W||_F^2: the free columns' sums of squares, in order
@@ -271,7 +270,7 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, CT, Rt, lambda_max
     status, AT, tauA, RA = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf), lambda_max,
                                                         eps, unit, margin, cond)
     if status != _compiled.SOLVED:
-        return status, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0))
+        return (status, AT, tauA, RA, *_compiled._no_damping())
     DV, Dtau, DR = _compiled._crossing_damping(RA, r, mk, lambda_max, eps)
     return status, AT, tauA, RA, DV, Dtau, DR
 

@@ -582,7 +582,7 @@ def _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, 
     tol = fac.tol if fac is not None else 0.0    # rank(JW) relative to the stack (damping doc; m <= n only)
     k_fit = int(extended and not first_singular)  # m > n: the rank test watches the first level only
     if resume is not None:                       # the pass that saturated order[-1], from (J W)#
-        G = _free_solver(J, xd, sizes, free, order, lambda_max, eps, extended, k_fit, tol)
+        G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, tol)
         if G is None:
             return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
     while True:
@@ -612,17 +612,17 @@ def _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, 
             free[j] = False
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-            G = _free_solver(J, xd, sizes, free, order, lambda_max, eps, extended, k_fit, tol)
+            G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, tol)
         if j < 0 or G is None:
             return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
 
 
-def _free_solver(J, xd, sizes, free, order, lambda_max, eps, extended, k_fit, tol):
-    """``(J W)#`` for the ``free`` joints after saturating ``order[-1]``, or None when ``J W`` has lost rank
+def _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, tol):
+    """``(J W)#`` for the ``free`` joints after a saturation, or None when ``J W`` has lost rank
     (``m <= n``: :class:`FreeColumns`; ``m > n``: :class:`_FreeStack`, None also when no joint is free)."""
     if not extended:
         return FreeColumns.of(J, free, tol)
-    if len(order) < free.shape[0]:
+    if free.any():
         return _FreeStack.of(J[:, free], xd, sizes, lambda_max, eps, k_fit)
     return None
 
