@@ -706,6 +706,54 @@ def test_positions_only_state_update_equals_the_partial_update():
     np.testing.assert_array_equal(b.jdot_qdot(other), full.jdot_qdot(other))
 
 
+@pytest.mark.parametrize("robot_name", ["iiwa7", "romeo21"])
+def test_state_update_with_the_com_is_the_two_passes_in_one(robot_name, monkeypatch):
+    """State.update_positions(com=True) (one pinocchio pass, jacobianCenterOfMass from q) leaves the joint placements,
+    the joint Jacobians, the CoM and the CoM Jacobian as computeJointJacobians then jacobianCenterOfMass do, to the bit;
+    com_kinematics(1) then calls nothing in that update, and computes again after the next update without the CoM.
+    A lean step whose stack has a CoM task uses it."""
+    import pinocchio as pin
+
+    from hqp_tpm.robot.model import Robot
+    from hqp_tpm.robot.state import State
+
+    robot = Robot.load(robot_name)
+    model = robot.model
+    rng = np.random.default_rng(11)
+    one = [model.joints[j].idx_q for j in range(1, model.njoints) if model.nqs[j] == 1]  # (revolute joints)
+    lo, up = np.maximum(model.lowerPositionLimit[one], -2.0), np.minimum(model.upperPositionLimit[one], 2.0)
+    for _ in range(5):
+        q = robot.neutral()
+        q[one] = rng.uniform(lo, up)
+        v = rng.normal(0.0, 0.5, robot.nv)
+        a, b = State(robot), State(robot)
+        a.update_positions(q, v, 0.0, ())
+        a.com_kinematics(1)
+        b.update_positions(q, v, 0.0, (), com=True)
+        for i in range(model.njoints):
+            np.testing.assert_array_equal(b.data.oMi[i].homogeneous, a.data.oMi[i].homogeneous)
+        np.testing.assert_array_equal(b.data.J, a.data.J)
+        np.testing.assert_array_equal(b.data.Jcom, a.data.Jcom)
+        np.testing.assert_array_equal(b.data.com[0], a.data.com[0])
+    calls = []
+    real = pin.jacobianCenterOfMass
+    monkeypatch.setattr(pin, "jacobianCenterOfMass", lambda *args: calls.append(len(args)) or real(*args))
+    b.com_kinematics(1)
+    assert calls == []                                 # done by the update
+    b.update_positions(q, v, 0.0, ())
+    b.com_kinematics(1)
+    assert calls == [3]                                # an update without the CoM: computed here
+    monkeypatch.undo()
+    if robot_name == "romeo21":
+        from benchmarks.peers import problems as P
+        from benchmarks.peers.contenders import Hqp
+
+        prob = P.romeo_problem(robot, 1)
+        h = Hqp(robot, prob, "sns_tpm", lean=True)
+        h.setup(prob.configs[0])
+        assert h.fast._com and h.fast.ctrl.state._com_update == h.fast.ctrl.state.updates
+
+
 @pytest.mark.parametrize("robot_name", ["iiwa7", "lwr4", "romeo21"])
 def test_euclidean_integration_equals_pinocchio(robot_name, monkeypatch):
     """State.integrate on a Euclidean configuration space (one compiled call) gives pin.integrate's bits at both

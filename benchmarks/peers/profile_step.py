@@ -158,7 +158,8 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
     if fast._kernel is not None:  # the fused rows (hqp_tpm.control._compiled_step): gathers, one kernel call
         if ctrl.order == 1:
             out[-1] = ("  state update (State.update_positions: the frames the kernel does not place, no velocity "
-                       "pass)", _median_us(lambda: st.update_positions(ctrl.q, ctrl.v, t, fast._fused_frames), reps))
+                       "pass)", _median_us(lambda: st.update_positions(ctrl.q, ctrl.v, t, fast._fused_frames,
+                                                                       fast._com), reps))
         prog = fast._program
         for task, write, own in zip(fast.tasks, fast._fused, fast.writers, strict=True):
             what = "row writer" if write is own else "row program's gather"

@@ -378,6 +378,9 @@ class Program:
         self.ints = self.floats = None
         #: the frames the kernel places itself (:meth:`add_frame`'s ``placement``)
         self.placed: set[int] = set()
+        #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the lean step's state update
+        #: at velocity level computes them in its pinocchio pass (:meth:`hqp_tpm.robot.state.State.update_positions`)
+        self.com_in_update = False
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
         self._ints[5] += 1

@@ -203,7 +203,7 @@ class LeanStep:
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
-                 "_velocities", "_kernel", "_fused", "_fused_frames")
+                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -287,6 +287,7 @@ class LeanStep:
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
         self._kernel = self._program = self._fused = None
         self._fused_frames = self.frames
+        self._com = False
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
                                              self.x0 is not None, solve=mode)
@@ -304,6 +305,7 @@ class LeanStep:
                 program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
+            self._com = program.com_in_update and self.order == 1
             self._kernel = _compiled_step.kernel(mode)
         return self
 
@@ -342,8 +344,10 @@ class LeanStep:
         fused = kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED
         if self._velocities:
             st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames)
-        else:  # (the fused kernel places the frames its tasks read: _fused_frames has the others)
-            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self._fused_frames if fused else self.frames)
+        elif fused:  # (the kernel places the frames its tasks read: _fused_frames has the others; the CoM with them)
+            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self._fused_frames, self._com)
+        else:
+            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
         if fused:
             for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
                 write(t)

@@ -37,6 +37,7 @@ class State:
         self._partial = False
         self._joint_jacobians_T = None  # data.J.T (frame_jacobian_source)
         self.updates = 0
+        self._com_update = -1  # the update whose positions gave pinocchio's CoM and CoM Jacobian (update_positions)
         #: every joint adds its velocity to its configuration (``pin.integrate`` is ``q + dq``): see :meth:`integrate`
         self.euclidean = self.model.nq == self.model.nv and all(j.shortname() in _EUCLIDEAN
                                                                 for j in self.model.joints[1:])
@@ -87,17 +88,25 @@ class State:
         self.updates += 1
         return self
 
-    def update_positions(self, q, v, t: float, frames) -> State:
+    def update_positions(self, q, v, t: float, frames, com: bool = False) -> State:
         """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations (the
-        lean step's update at velocity level, every step)."""
+        lean step's update at velocity level, every step). ``com``: also the CoM and its Jacobian
+        (:meth:`com_views`; :meth:`com_kinematics` at order 1 then has nothing left to do in this update), in the
+        same pinocchio pass: ``jacobianCenterOfMass`` from ``q`` computes the joint Jacobians with the same
+        operations as ``computeJointJacobians`` (the same bits: ``tests/test_lean.py``)."""
         self.q, self.v, self.t = q, v, float(t)
         model, data = self.model, self.data
-        pin.computeJointJacobians(model, data, q)
+        if com:
+            pin.jacobianCenterOfMass(model, data, q, False)
+        else:
+            pin.computeJointJacobians(model, data, q)
         for fid in frames:
             pin.updateFramePlacement(model, data, fid)
         self._partial = True
         self._cache.clear()
         self.updates += 1
+        if com:
+            self._com_update = self.updates
         return self
 
     def _complete(self) -> None:
@@ -206,7 +215,11 @@ class State:
 
     def com_kinematics(self, order: int) -> None:
         """Fill :meth:`com_views` from the kinematics of :meth:`update`: the CoM and its Jacobian, and at
-        ``order`` 2 first its J-dot q-dot (the same calls, in the same order, as :meth:`com`)."""
+        ``order`` 2 first its J-dot q-dot (the same calls, in the same order, as :meth:`com`). At order 1 nothing when
+        this update computed them (:meth:`update_positions` with ``com``): every other path here ends with the same
+        ``jacobianCenterOfMass`` on the same joint placements, so pinocchio holds these numbers whichever ran."""
+        if order == 1 and self._com_update == self.updates:
+            return
         if order == 2:
             if self._partial:
                 self._complete()

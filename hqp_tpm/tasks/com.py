@@ -68,8 +68,9 @@ class CenterOfMass(Task):
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program` at velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the
-        kernel's slots, filled by ``jacobianCenterOfMass`` every step (:meth:`State.com_kinematics`), and the reference
-        into its floats; the kernel then writes :meth:`row_writer`'s numbers. At acceleration level: None (the row
+        kernel's slots, filled by ``jacobianCenterOfMass`` every step (in the lean step's state update,
+        :meth:`State.update_positions` with ``com``, else :meth:`State.com_kinematics`), and the reference into its
+        floats; the kernel then writes :meth:`row_writer`'s numbers. At acceleration level: None (the row
         writer runs)."""
         views = state.com_views()
         if views is None or order != 1:
@@ -79,6 +80,7 @@ class CenterOfMass(Task):
         at, _, _, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, x=com,
                                         transposed=Jcom.T)  # (pinocchio updates both in place)
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
+        program.com_in_update = True  # (the lean step's state update computes them: com_kinematics then returns)
 
         def gather(t: float) -> None:
             refresh(t)
