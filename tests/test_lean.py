@@ -642,9 +642,56 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
                     task.trajectory = Constant(value=np.full(task.dim, 0.2))
                 if i == 30 and type(task) is FramePosition and task.dim == 2:
                     task.trajectory = wave
+                if i == 35 and type(task) is Posture:  # a field of the trajectory, not the task's attribute
+                    task.trajectory.value = np.full(task.dim, -0.1)
         assert_equal_steps(lean.step(), ref.step().command)
         assert_equal_steps(fast.q, ref.q)
         assert_equal_steps(fast.v, ref.v)
+
+
+def test_gathers_of_constant_references_rest_until_an_edit():
+    """A lean step runs the row programs' gathers that only copy a time-invariant reference (Gather.refresh_only)
+    again only after an assignment to a task's or a trajectory's attribute (anywhere in the process: here the
+    readable controller's start counts too); a gather reading the state (order 2) or a moving reference runs every
+    step. Commands equal the readable step's throughout (to ROUNDING: the pose's log3)."""
+    from hqp_tpm import Controller, FramePose, FramePosition, Gains, Harmonic, Posture, Stack
+    from hqp_tpm.references import trajectories
+    from hqp_tpm.robot.model import Robot
+
+    if not _compiled_step._compiled.AVAILABLE:
+        pytest.skip("numba is not installed")
+    robot = Robot.load("iiwa7")
+    g = Gains(5.0, 2.0)
+
+    def make(order):
+        stack = Stack.of(FramePose(robot, "iiwa_ee", None, g),
+                         FramePosition(robot, "iiwa_link_4", [0.1, 0.3], g, axes="zx"), Posture(robot, None, g))
+        return Controller(robot, stack, order=order, dt=1e-3, q0=np.linspace(-0.6, 0.8, 7))
+
+    for order in (1, 2):
+        ref, fast = make(order), make(order)
+        lean = LeanStep.of(fast)
+        runs = [0] * len(lean._fused)
+        lean._fused = tuple((lambda t, w=w, k=k, runs=runs: (runs.__setitem__(k, runs[k] + 1), w(t))[1])
+                            for k, w in enumerate(lean._fused))
+        for _ in range(2):  # (both controllers start: edits)
+            assert_equal_steps(lean.step(), ref.step().command)
+        runs[:] = [0, 0, 0]
+        for _ in range(3):
+            assert_equal_steps(lean.step(), ref.step().command)
+        assert runs == ([0, 0, 0] if order == 1 else [3, 3, 0])  # (order 2: the frames' gathers read J-dot q-dot)
+        assert lean._edits == trajectories.edits()
+        for ctrl in (ref, fast):
+            ctrl.policy.stack.tasks()[2].gains = Gains(3.0, 1.0)
+        assert_equal_steps(lean.step(), ref.step().command)
+        assert runs == ([1, 1, 1] if order == 1 else [4, 4, 1])
+        wave = Harmonic(center=np.array([0.1, 0.3]), cos_amplitude=np.array([0.02, 0.0]),
+                        sin_amplitude=np.array([0.0, 0.02]), omega=3.0)
+        for ctrl in (ref, fast):  # a moving reference: its gather runs every step from now on
+            ctrl.policy.stack.tasks()[1].trajectory = wave
+        for _ in range(3):
+            assert_equal_steps(lean.step(), ref.step().command)
+        assert runs[1:] == ([4, 2] if order == 1 else [7, 2])
 
 
 @pytest.mark.parametrize("solver", ["tpm", "sns_tpm"])

@@ -22,13 +22,15 @@ once, at construction, and per step does only:
 
 With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.control._compiled_step`): the tasks that have a row program
 (:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture
-of revolute/prismatic joints) only refresh their changed references (and at order 2 gather ``Jdot qd``); the
-kernel reads pinocchio's data in place (the joint Jacobians, frame placements, the CoM Jacobian) and computes the
+of revolute/prismatic joints) only refresh their changed references (and at order 2 gather ``Jdot qd``), and
+a refresh of a time-invariant reference (:class:`~hqp_tpm.tasks.base.Gather`) runs only after an assignment to a
+task's or a trajectory's attribute (:func:`hqp_tpm.references.trajectories.edits`); the kernel reads pinocchio's
+data in place (the joint Jacobians, frame placements, the CoM Jacobian) and computes the
 frame Jacobians (pinocchio's operations) and rotation errors ``log3(R_d R^T)`` itself; the other tasks write their
 rows; one compiled call writes the programs' rows, tests ``J`` and ``b`` for finiteness and, with ``tpm`` or
 ``sns_tpm`` (in the joint limits' box), solves and tests ``x`` (other solvers then run on ``J`` and ``b`` as
 above). At velocity level the state update is :meth:`hqp_tpm.robot.state.State.update_positions` (one pinocchio
-pass).
+pass, which also computes the CoM and its Jacobian when a task's rows read them).
 
 Same numbers as the readable path, step by step (``tests/test_lean.py``: the row writers repeat the
 operations of ``jacobian`` and ``command``, the box those of :mod:`hqp_tpm.robot.joint_boxes`, and the
@@ -51,6 +53,7 @@ from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
 from hqp_tpm.errors import SolverFailedError
+from hqp_tpm.references import trajectories
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled as _solvers_compiled
@@ -203,7 +206,8 @@ class LeanStep:
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
-                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com")
+                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_gathers", "_edits",
+                 "_per_step")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -285,19 +289,21 @@ class LeanStep:
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
-        self._kernel = self._program = self._fused = None
+        self._kernel = self._program = self._fused = self._gathers = self._per_step = None
         self._fused_frames = self.frames
         self._com = False
+        self._edits = -1  # (trajectories.edits() when every gather last ran: none yet)
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
                                              self.x0 is not None, solve=mode)
-            fused, written = [], set()
+            fused, gathers, written = [], [], set()
             for task, r, write in zip(tasks, rows, self.writers, strict=True):
                 gather = task.row_program(st, self.order, program, r.start)
-                fused.append(write if gather is None else gather)
+                fused.append(write if gather is None else gather.run)
+                gathers.append(gather)
                 if gather is None and task.frame is not None:
                     written.add(ctrl.robot.frame_id(task.frame))
-            self._fused = tuple(fused)
+            self._fused, self._gathers = tuple(fused), tuple(gathers)
             # the frames the kernel places itself are left out of the state update (unless a row writer, which
             # runs before the kernel, reads one)
             self._fused_frames = tuple(f for f in self.frames if f not in program.placed or f in written)
@@ -348,9 +354,17 @@ class LeanStep:
             st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self._fused_frames, self._com)
         else:
             st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
-        if fused:
-            for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
-                write(t)
+        if fused:  # the program's tasks gather their arrays, the others write their rows
+            edits = trajectories.edits()
+            if edits == self._edits:  # no assignment since: the gathers that only copy constant references rest
+                for write in self._per_step:
+                    write(t)
+            else:
+                for write in self._fused:
+                    write(t)
+                self._edits = edits
+                self._per_step = tuple(write for write, g in zip(self._fused, self._gathers, strict=True)
+                                       if g is None or not g.skippable())
             x0 = self.x0
             if x0 is not None:
                 np.multiply(ctrl._v, -self.damping, out=x0)

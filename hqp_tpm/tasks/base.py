@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
-from hqp_tpm.references.trajectories import Trajectory, as_trajectory
+from hqp_tpm.references.trajectories import Trajectory, as_trajectory, note_edit
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
@@ -47,6 +47,13 @@ class Task(ABC):
         self.name = name
         self.gains = gains or Gains()
         self.trajectory: Trajectory = as_trajectory(target, self.dim)
+
+    def __setattr__(self, name: str, value) -> None:
+        """Every assignment (a new target, gains, trajectory) is counted
+        (:func:`~hqp_tpm.references.trajectories.edits`): a lean step copies what its row programs hold into the
+        program again after one (:class:`Gather`)."""
+        note_edit()
+        object.__setattr__(self, name, value)
 
     # robot-side quantities --------------------------------------------------------------
     @abstractmethod
@@ -117,13 +124,12 @@ class Task(ABC):
             b[...] = self.command(state, t, order, None, Jt)
         return write
 
-    def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
+    def row_program(self, state: State, order: int, program, row: int) -> Gather | None:
         """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows
-        (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the step's
-        pinocchio outputs into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array is
-        bound with ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel then
-        writes the numbers of :meth:`row_writer`. None (this default):
-        the task's row writer runs instead."""
+        (starting at stacked row ``row``) with ``program`` and return a :class:`Gather`, whose ``run(t)`` writes the
+        step's pinocchio outputs into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array
+        is bound with ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel
+        then writes the numbers of :meth:`row_writer`. None (this default): the task's row writer runs instead."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -133,6 +139,22 @@ class Task(ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
+
+
+@dataclass(frozen=True)
+class Gather:
+    """What :meth:`Task.row_program` returns: ``run(t)``, called before the kernel, and whether it only copies what
+    ``task`` holds (its reference, targets, gains) into the program, nothing from the state (``refresh_only``).
+    Such a run may be left out of a lean step while no trajectory or task attribute was assigned since it last ran
+    (:func:`~hqp_tpm.references.trajectories.edits`) and the task's trajectory does not depend on time."""
+
+    run: Callable[[float], None]
+    task: Task
+    refresh_only: bool = False
+
+    def skippable(self) -> bool:
+        """Whether a step without edits may leave :attr:`run` out (now: the task's trajectory may be replaced)."""
+        return self.refresh_only and not self.task.trajectory.time_varying
 
 
 def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: np.ndarray | None = None,

@@ -7,7 +7,7 @@ import numpy as np
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, row_selector, select_axes
 
 
 class CenterOfMass(Task):
@@ -84,5 +84,5 @@ class CenterOfMass(Task):
 
         def gather(t: float) -> None:
             refresh(t)
-            state.com_kinematics(1)
-        return gather
+            state.com_kinematics(1)  # (nothing when the lean step's state update computed them: com_in_update)
+        return Gather(gather, self, refresh_only=True)

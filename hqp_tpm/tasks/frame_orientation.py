@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, kernel_placement
+from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, kernel_placement
 
 
 class FrameOrientation(Task):
@@ -109,4 +109,4 @@ class FrameOrientation(Task):
                     np.dot(S[3:], state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
-        return gather
+        return Gather(gather, self, refresh_only=inside and order == 1)

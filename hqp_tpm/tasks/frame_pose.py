@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, kernel_placement
+from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, kernel_placement
 
 
 class FramePose(Task):
@@ -126,4 +126,4 @@ class FramePose(Task):
                     np.dot(S, state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-        return gather
+        return Gather(gather, self, refresh_only=inside and order == 1)

@@ -10,7 +10,16 @@ from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks import _compiled_rows
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback, kernel_placement, row_selector, select_axes
+from hqp_tpm.tasks.base import (
+    Gains,
+    Gather,
+    ReferenceSlots,
+    Task,
+    feedback,
+    kernel_placement,
+    row_selector,
+    select_axes,
+)
 
 
 class FramePosition(Task):
@@ -138,7 +147,7 @@ class FramePosition(Task):
                     np.dot(S[sel], state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
-        return gather
+        return Gather(gather, self, refresh_only=inside and order == 1)
 
 
 class _HarmonicParams:

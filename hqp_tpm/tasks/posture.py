@@ -11,7 +11,7 @@ import numpy as np
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, feedback
+from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback
 from hqp_tpm.tasks.manipulability import JointAngles
 
 
@@ -72,4 +72,4 @@ class Posture(Task):
         g, d = self.gains, self.dim
         at = program.add_selection(row, self.angles.idx, self.cols, g.kp, g.kd)
         slots = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d)))
-        return slots.refresh
+        return Gather(slots.refresh, self, refresh_only=True)
