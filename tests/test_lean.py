@@ -294,7 +294,8 @@ def test_row_writers_equal_jacobian_and_command(order, compiled):
 @pytest.mark.parametrize("order", [1, 2])
 @pytest.mark.parametrize("robot_name", ["iiwa7", "romeo21"])
 def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compiled):
-    """The lean box equals JointLimits' to the last bit: inside the limits, on them, beyond them, fast or not."""
+    """The lean box and JointLimits' (both one compiled call where they can) equal JointLimits.reference_box (its
+    BoxLimits formulas) to the last bit: inside the limits, on them, beyond them, fast or not."""
     import pinocchio as pin
 
     from hqp_tpm import JointLimits
@@ -319,10 +320,10 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
             q[:7] = pin.SE3ToXYZQUAT(pin.SE3.Random())
         v = rng.normal(0.0, (0.05, 0.5, 3.0)[k % 3], robot.nv)
         st.update(q, v)
-        want = limits(st, 0.0)
-        got = box(st.q, st.v)
-        np.testing.assert_array_equal(got[0], want[0])
-        np.testing.assert_array_equal(got[1], want[1])
+        want = limits.reference_box(st)
+        for got in (box(st.q, st.v), limits(st, 0.0)):
+            np.testing.assert_array_equal(got[0], want[0])
+            np.testing.assert_array_equal(got[1], want[1])
         if compiled and box.fast:
             from hqp_tpm.robot import _compiled
 

@@ -161,8 +161,11 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
                        "pass)", _median_us(lambda: st.update_positions(ctrl.q, ctrl.v, t, fast._fused_frames,
                                                                        fast._com), reps))
         prog = fast._program
+        fast.compute()  # (the gathers that rest between edits: fast._per_step leaves them out)
         for task, write, own in zip(fast.tasks, fast._fused, fast.writers, strict=True):
             what = "row writer" if write is own else "row program's gather"
+            if write not in fast._per_step:
+                what += " (rests: a constant reference, copied again only after an edit)"
             out.append((f"  {type(task).__name__}({task.name}) {what}", _median_us(lambda w=write: w(t), reps)))
         what = {_compiled_step.TPM: "TPM, finiteness of x",
                 _compiled_step.SNS: f"box ({'given' if prog.box_given else 'in the kernel'}), SNS-TPM, finiteness of x",
@@ -214,6 +217,8 @@ def main(argv=None) -> int:
         for c in ctrls:
             c.compute()
         steps = [c.lean().compute if args.lean else c.compute for c in ctrls]
+        for step in steps:  # (a lean step's first call also copies its constant references: traced below, the next)
+            step()
         phases = lean_phase_times(ctrls[0], args.reps) if args.lean else phase_times(ctrls[0], args.reps)
         lines, counts = trace_one(steps[0])
         times, readable = [], []

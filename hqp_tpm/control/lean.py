@@ -97,7 +97,7 @@ class JointBox:
         self._cols = _columns(limits.cols)
         self._lo_c = self.lo[self._cols] if isinstance(self._cols, slice) else None
         self._up_c = self.up[self._cols] if isinstance(self._cols, slice) else None
-        self.fast = bool(n) and bool(np.isfinite(L.q_min).all() and np.isfinite(L.q_max).all() and (L.a_max > 0).all())
+        self.fast = limits.kernel_limits is not None  # (finite position limits, a_max > 0)
         two = np.concatenate
         self._qidx2, self._cols2 = two([limits.qidx, limits.qidx]), two([limits.cols, limits.cols])
         self._sgn = two([-np.ones(n), np.ones(n)])
@@ -109,9 +109,8 @@ class JointBox:
         self._dt = L.dt
         self._g, self._r, self._t, self._L = np.zeros(2 * n), np.zeros(2 * n), np.zeros(n), np.zeros(2 * n)
         self._ok = np.zeros(2 * n, dtype=bool)
-        # the compiled kernels' inputs (hqp_tpm.robot._compiled): the limits as rows, the joint indices
-        self._P = np.ascontiguousarray(np.vstack([L.q_min, L.q_max, L.v_max, L.a_max, L._two_a, ad]))
-        self._idx = np.ascontiguousarray(np.vstack([limits.qidx, limits.cols]).astype(np.int64))
+        # the compiled kernels' inputs (hqp_tpm.robot._compiled): the limits as rows, the joint indices (JointLimits')
+        self._P, self._idx = limits.kernel_limits, limits.kernel_indices
 
     def __call__(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(lower, upper)`` at ``(q, v)`` (the arrays are this object's, overwritten by the next call)."""

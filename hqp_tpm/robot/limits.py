@@ -8,13 +8,20 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.joint_boxes import BoxLimits
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 
 
 class JointLimits:
-    """``box(state, t) -> (lower, upper)`` for the controller (velocity level: on qd; acceleration: on qdd)."""
+    """``box(state, t) -> (lower, upper)`` for the controller (velocity level: on qd; acceleration: on qdd).
+
+    :meth:`reference_box` computes it with :class:`~hqp_tpm.robot.joint_boxes.BoxLimits`; a call takes one compiled
+    kernel instead where numba is available (:func:`hqp_tpm.robot._compiled.velocity_box`, ``acceleration_box``: the
+    same operations, the same bits, ``tests/test_lean.py``), for joints with finite position limits and ``a_max > 0``
+    inside their viable set; any other case (the recovery rules) is :meth:`reference_box`'s.
+    """
 
     def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
                  acceleration_limit: float = 50.0, velocity_scale: float = 1.0):
@@ -33,8 +40,27 @@ class JointLimits:
         self._up = np.full(robot.nv, np.inf)
         self.velocity_limits = np.full(robot.nv, np.inf)
         self.velocity_limits[self.cols] = self.v_max
+        L = self.limits
+        #: the compiled kernels' inputs: the limits as rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt`` (None
+        #: when a position limit is infinite or an ``a_max`` not positive: then BoxLimits), the joints' q and v indices
+        self.kernel_limits = (np.ascontiguousarray(np.vstack([L.q_min, L.q_max, L.v_max, L.a_max, L._two_a,
+                                                               L.a_max * L.dt]))
+                              if self.cols.size and np.isfinite(L.q_min).all() and np.isfinite(L.q_max).all()
+                              and (L.a_max > 0).all() else None)
+        self.kernel_indices = np.ascontiguousarray(np.vstack([self.qidx, self.cols]).astype(np.int64))
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
+        P = self.kernel_limits
+        if P is not None and _compiled.ENABLED and (
+                _compiled.velocity_box(state.q, P, self.kernel_indices, self.limits.dt, self._lo, self._up)
+                if self.order == 1 else
+                _compiled.acceleration_box(state.q, state.v, P, self.kernel_indices, self.limits.dt, self._lo,
+                                           self._up)):
+            return self._lo.copy(), self._up.copy()
+        return self.reference_box(state)
+
+    def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
+        """The box by :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (the readable formulas, recovery rules included)."""
         q = state.q[self.qidx]  # the state's q, v are finite and of the right sizes
         if self.order == 1:
             lo, up = self.limits.velocity_box(q)
