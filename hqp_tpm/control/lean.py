@@ -115,8 +115,7 @@ class JointBox:
     def __call__(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(lower, upper)`` at ``(q, v)`` (the arrays are this object's, overwritten by the next call)."""
         if self.fast and _compiled.ENABLED:  # one compiled call, the same operations as BoxLimits
-            if (_compiled.velocity_box(q, self._P, self._idx, self._dt, self.lo, self.up) if self.order == 1 else
-                    _compiled.acceleration_box(q, v, self._P, self._idx, self._dt, self.lo, self.up)):
+            if self.limits.kernel_box(q, v, self.lo, self.up):
                 return self.lo, self.up
             res = None
         else:
@@ -310,7 +309,7 @@ class LeanStep:
                 program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
-            self._com = program.com_in_update and self.order == 1
+            self._com = program.com_in_update  # (set by a row program at velocity level only)
             self._kernel = _compiled_step.kernel(mode)
         return self
 

@@ -50,14 +50,20 @@ class JointLimits:
         self.kernel_indices = np.ascontiguousarray(np.vstack([self.qidx, self.cols]).astype(np.int64))
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
-        P = self.kernel_limits
-        if P is not None and _compiled.ENABLED and (
-                _compiled.velocity_box(state.q, P, self.kernel_indices, self.limits.dt, self._lo, self._up)
-                if self.order == 1 else
-                _compiled.acceleration_box(state.q, state.v, P, self.kernel_indices, self.limits.dt, self._lo,
-                                           self._up)):
+        if self.kernel_box(state.q, state.v, self._lo, self._up):
             return self._lo.copy(), self._up.copy()
         return self.reference_box(state)
+
+    def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> bool:
+        """The box at ``(q, v)`` by the compiled kernel into ``lo``, ``up`` (their limited columns); False when it
+        cannot (numba off, an infinite limit or ``a_max <= 0``, or a case for the recovery rules: then
+        :meth:`reference_box`)."""
+        P = self.kernel_limits
+        if P is None or not _compiled.ENABLED:
+            return False
+        if self.order == 1:
+            return _compiled.velocity_box(q, P, self.kernel_indices, self.limits.dt, lo, up)
+        return _compiled.acceleration_box(q, v, P, self.kernel_indices, self.limits.dt, lo, up)
 
     def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
         """The box by :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (the readable formulas, recovery rules included)."""
