@@ -5,7 +5,7 @@ pivot pseudo-inverses (Steps 1-4 of papers/000), ``(J W)# = (J W)^T ((J W)(J W)^
 eigendecomposition (exact enough at 50 digits for cond(J) up to 1e20), the box tested exactly (no
 round-off tolerance). Rank decisions use the library's documented law
 (:func:`hqp_tpm.solvers.damping.rank_tol`, restated here: ``100 max(m, n) eps ||A||_F`` with ``A`` the
-level's rows for a pivot, the stacked ``J`` for ``rank(J W)``).
+level's rows for a pivot, ``D J`` for ``rank(J W)``, each level's rows scaled to unit norm).
 
 Besides the command it returns ``margin``: the smallest relative gap met by any decision of the run
 (a joint's distance to its bound, the gap between the two most critical joints, a new factor against
@@ -105,7 +105,11 @@ def sns_tpm_mp(levels, lower, upper, dps: int = 50):
         lo, up = np.asarray(lower, float), np.asarray(upper, float)
         finite = np.abs(np.concatenate([lo[np.isfinite(lo)], up[np.isfinite(up)]]))
         unit = float(finite.max()) if finite.size and finite.max() > 0 else 1.0   # the box's unit
-        tol = rank_tol(_fro(J), max(m, n))
+        # rank(J W) on unit levels: D J W with D = diag(1/||J_i||_F) (hqp_tpm.solvers._kernels.row_weights)
+        w = np.concatenate([np.full(k, 1.0 / _fro(Ji) if _fro(Ji) > 0 else 1.0)
+                            for k, Ji in zip(sizes, Js, strict=True)])
+        D = mpmath.diag(w.tolist()) if m else mpmath.matrix(0, 0)
+        tol = rank_tol(np.sqrt(sum(_fro(Ji) > 0 for Ji in Js)), max(m, n))
         W = [1] * n
         xN = mpmath.zeros(n, 1)
         s_star, found = mpmath.mpf(0), False
@@ -116,7 +120,8 @@ def sns_tpm_mp(levels, lower, upper, dps: int = 50):
             for j in range(n):
                 if not Wd[j]:
                     G[:, j] = mpmath.zeros(m, 1)
-            P, rank = _pinv_rows(G, tol, run)
+            P, rank = _pinv_rows(D * G, tol, run)             # (J W)# = (D J W)# D at full row rank
+            P = P * D
             for j in range(n):
                 if not Wd[j]:
                     P[j, :] = mpmath.zeros(1, m)

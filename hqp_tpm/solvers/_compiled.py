@@ -827,3 +827,64 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
     use = x0 is not None
     status = _general(J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
     return x if status == SOLVED else None
+
+
+# ----------------------------------------------------------------------------------------
+# The recursion of hqp_tpm.solvers.nullspace: TPM on the stacks its factorization cannot take exactly.
+# ----------------------------------------------------------------------------------------
+@_kernel
+def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0):
+    """``x`` of eqs. (5)-(6) of papers/000 on orthonormal bases ``Z`` (:mod:`hqp_tpm.solvers.nullspace`): level by
+    level the SVD of ``J_i Z``; its singular values above ``rank_tol(||J_i||_F, max(m, n))`` are the directions the
+    level uses (inverted by the damping law, which sees ``m_i`` values: zeros for the rows beyond ``Z``'s columns),
+    the others stay in ``Z`` for the levels below. Then ``+ Z Z^T x0`` (eq. (14)) when ``use_x0``."""
+    m = J.shape[0]
+    size = max(m, n)
+    x = np.zeros(n)
+    Z = np.eye(n)
+    a = 0
+    for lev in range(sizes.shape[0]):
+        e = a + sizes[lev]
+        k = Z.shape[1]
+        if k > 0 and e > a:
+            Ji = np.ascontiguousarray(J[a:e])
+            ssq = 0.0
+            for i in range(Ji.shape[0]):
+                for j in range(n):
+                    ssq += Ji[i, j] * Ji[i, j]
+            tol = unit * size * math.sqrt(ssq)
+            r = b[a:e] - Ji @ x
+            U, s, Vt = np.linalg.svd(Ji @ Z)
+            ns = s.shape[0]
+            smin = s[ns - 1] if ns == e - a else 0.0      # m_i values: zeros beyond Z's columns
+            lam2 = 0.0
+            if lambda_max > 0.0 and smin < eps:
+                lam2 = (1.0 - (smin / eps) ** 2) * lambda_max * lambda_max
+            rank = 0
+            y = np.zeros(k)
+            for t in range(ns):
+                if s[t] > tol:
+                    rank += 1
+                    c = 0.0
+                    for i in range(e - a):
+                        c += U[i, t] * r[i]
+                    c *= s[t] / (s[t] * s[t] + lam2)
+                    for j in range(k):
+                        y[j] += c * Vt[t, j]
+            x += Z @ y                                    # eq. (5): Z (J_i Z)# (b_i - J_i x)
+            Z = Z @ np.ascontiguousarray(Vt[rank:].T)     # eq. (6): P = Z Z^T
+        a = e
+    if use_x0:
+        x += Z @ (Z.T @ x0)                               # eq. (14)
+    return x
+
+
+def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
+    """:func:`_recursion`, compiled when :data:`ENABLED` (else the same source as Python)."""
+    use = x0 is not None
+    x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
+    if ENABLED:
+        s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
+        if s is not None or (s := _sizes(sizes)) is not None:
+            return _recursion(J, b, s, n, float(lambda_max), float(eps), _UNIT, x0, use)
+    return _recursion(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, x0, use)

@@ -129,14 +129,17 @@ def _saturated_rows(J, order, nsat, xN, c):
 
 
 @_kernel
-def _free_columns(J, free, nf, tol, V, tau, R):
-    """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(J W)^T`` into ``V`` (``m x nf``), ``tau``,
-    ``R``. Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``), 0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an
-    SVD decides: hand back)."""
+def _free_columns(J, free, nf, tol, V, tau, R, rw):
+    """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(D J W)^T`` into ``V`` (``m x nf``), ``tau``,
+    ``R``, ``D = diag(rw)`` the rows' level weights (``row_weights``). Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``),
+    0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an SVD decides: hand back)."""
     m = J.shape[0]
     if nf < m:
         return 0
     _gather_free(J, free, V)
+    for i in range(m):
+        for f in range(nf):
+            V[i, f] *= rw[i]
     _compiled._householder_rows(V, tau, R)
     dmin = math.inf
     for i in range(m):
@@ -441,7 +444,21 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     k_fit = not sizes[0] > n                           # the rank test watches the first level (module doc of sns)
     Jf = np.empty((m, 0))
     mg = 0 if extended else m                          # (the general path's arrays: empty when extended)
-    tol = 0.0 if extended else unit * max(m, n) * _compiled._fro_block(J, 0, m, 0, n)  # Factorization.tol
+    rw = np.ones(m)                                    # row_weights: rank(J W) on unit levels (m <= n)
+    nz = 0
+    a0 = 0
+    for k in range(sizes.shape[0]):
+        e0 = a0 + sizes[k]
+        nrm = _compiled._fro_block(J, a0, e0, 0, n)
+        if nrm > 0.0:
+            nz += 1
+            for i in range(a0, e0):
+                rw[i] = 1.0 / nrm
+        a0 = e0
+    tol = 0.0 if extended else unit * max(m, n) * math.sqrt(nz)
+    wFxd = np.empty(Fxd.shape[0])
+    for i in range(Fxd.shape[0]):
+        wFxd[i] = rw[i] * Fxd[i]
     V = np.empty((mg, n))
     tau = np.empty(mg)
     R = np.zeros((mg, mg))
@@ -472,6 +489,8 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 else:
                     for i in range(m):
                         dc[i] = Fxd[i] - c[i]
+                for i in range(m):
+                    dc[i] *= rw[i]                     # (J W)# = (D J W)# D
                 _q_rinv_t(V[:, :nf], tau, R, dc, yf[:nf])
             else:                                      # (c = J xN: computed at the saturation)
                 for i in range(m):
@@ -499,7 +518,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             return DONE, 1.0, nsat, iterations, True, 0
         if nsat:                                       # a = (J W)# F_W xd, b = x - a (b = xN - (J W)# F_W J xN)
             if not extended:
-                _q_rinv_t(V[:, :nf], tau, R, Fxd, xf[:nf])
+                _q_rinv_t(V[:, :nf], tau, R, wFxd, xf[:nf])
             elif downdating:
                 _downdated_rhs(xd, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
                                lambda_max, eps, xf)
@@ -528,7 +547,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             nsat += 1
             nf = n - nsat
             if not extended:
-                rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R)
+                rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R, rw)
                 if rank < 0:                           # only an SVD decides rank(J W): numpy, from this pass on
                     _keep_state(state, xN, best_a, best_b)
                     return RESUME, best_s, nsat, iterations, found, best_nsat

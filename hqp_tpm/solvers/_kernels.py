@@ -206,29 +206,45 @@ class Factorization:
         return x[: self.n] + x0
 
 
+def row_weights(J: np.ndarray, sizes) -> tuple[np.ndarray, float]:
+    """``(w, tol)``: ``w_r = 1/||J_i||_F`` for the rows ``r`` of each level ``i`` (1 for a zero level) and the rank
+    tolerance of the stack ``diag(w) J`` whose levels have unit norm. ``rank(J W) = rank(diag(w) J W)``, and the
+    decision on the weighted rows does not depend on each level's units (:mod:`hqp_tpm.solvers.damping`)."""
+    w = np.empty(J.shape[0])
+    a, unit = 0, 0
+    for k in sizes:
+        flat = J[a:a + k].ravel()
+        nrm = float(np.sqrt(flat @ flat))
+        w[a:a + k] = 1.0 / nrm if nrm > 0.0 else 1.0
+        unit += nrm > 0.0
+        a += k
+    return w, rank_tol(np.sqrt(float(unit)), max(J.shape[0], J.shape[1]))
+
+
 class FreeColumns:
     """``(J W)#`` applied to vectors, ``W`` keeping the ``free`` columns, when ``rank(J W) = m``.
 
-    ``(J W)^T = Q R`` on the free columns gives ``(J W)# v = Q R^{-T} v`` (triangular solve) on the
-    free rows, 0 on the others. Build it with :meth:`of`, which returns None on a rank loss.
+    With ``D = diag(w)`` (:func:`row_weights`), ``(D J W)^T = Q R`` on the free columns gives
+    ``(J W)# v = (D J W)# D v = Q R^{-T} D v`` (triangular solve; ``D`` invertible and ``J W`` of full row rank)
+    on the free rows, 0 on the others. Build it with :meth:`of`, which returns None on a rank loss.
     """
 
-    __slots__ = ("free", "n", "m", "qr", "tau", "svd", "_Q")
+    __slots__ = ("free", "n", "m", "qr", "tau", "svd", "_Q", "w")
 
     @classmethod
-    def of(cls, J: np.ndarray, free: np.ndarray, tol: float) -> FreeColumns | None:
-        """The solver of ``(J W)#``, or None if ``rank(J W) < m`` (singular values ``<= tol`` count as 0).
+    def of(cls, J: np.ndarray, free: np.ndarray, tol: float, w: np.ndarray) -> FreeColumns | None:
+        """The solver of ``(J W)#``, or None if ``rank(D J W) < m`` (singular values ``<= tol`` count as 0).
 
         The SVD (the reference's rank test) is taken only when ``1/||R^-1||_F <= sigma_min <= min |r_jj|``
         cannot decide ``sigma_min > tol``.
         """
         m, n = J.shape
         self = cls.__new__(cls)
-        self.free, self.n, self.m, self.svd, self._Q = free, n, m, None, None
+        self.free, self.n, self.m, self.svd, self._Q, self.w = free, n, m, None, None, w
         if m == 0:
             self.qr = None
             return self
-        A = J[:, free]
+        A = J[:, free] * w[:, None]
         if A.shape[1] < m:
             return None
         self.qr, self.tau, _, _ = lapack.dgeqrf(A.T)
@@ -248,6 +264,7 @@ class FreeColumns:
         out = np.zeros((self.n,) + V.shape[1:])
         if self.m == 0:
             return out
+        V = (self.w * V.T).T
         if self.svd is not None:
             U, sv, Vt = self.svd
             out[self.free] = Vt.T @ ((U.T @ V).T / sv).T

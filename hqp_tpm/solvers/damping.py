@@ -8,11 +8,12 @@ A singular value counts as zero when it is at most
 with ``eps`` the machine epsilon (2.2e-16), ``size = max(m, n)`` of the stacked active rows of the
 stack being solved and ``A`` the data the matrix comes from: a level's own rows ``J_i`` for that
 level's pivot (TPM, SNS-TPM), its projected Jacobian ``J_i P_{i-1}`` (recursive null space,
-multi-task SNS) or the cascaded QP's level, and the stacked ``J`` for a decision on the whole stack
-(``rank(J W) < m`` of SNS-TPM, ``J# = Q pinv(R^T)``). So the decisions are invariant to the units
-of a level (scaling ``J_i`` and ``b_i`` by any factor scales the singular values and the tolerance
-alike), and a nearly dependent level with ``sigma_min / ||J_i|| >= 1e-10`` (cond(J) up to about
-1e10 at n <= 40) is inverted, not dropped: the rounding noise of an exactly dependent row is a few
+multi-task SNS) or the cascaded QP's level, and for a decision on the whole stack (``rank(J W) < m`` of
+SNS-TPM) the stack ``D J`` whose levels are scaled to unit norm (:func:`hqp_tpm.solvers._kernels.row_weights`;
+``rank(D J W) = rank(J W)``). So the decisions are invariant to the units of each level (scaling
+``J_i`` and ``b_i`` by any factor scales the singular values and the tolerance alike),
+and a nearly dependent level with ``sigma_min / ||J_i|| >= 1e-10`` (cond(J) up to about 1e10 at
+n <= 40) is inverted, not dropped: the rounding noise of an exactly dependent row is a few
 ``eps ||J_i||``, far below the tolerance, and ``1e-10`` is far above it (``RANK_FACTOR = 100``:
 ``8.9e-13 ||J_i||`` at ``size = 40``).
 

@@ -24,12 +24,17 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 from scipy.linalg.blas import ddot as _ddot
 
-from hqp_tpm.errors import BoxError, MagnitudeError, NonFiniteError, ShapeError
+from hqp_tpm.errors import BoxError, MagnitudeError, NonFiniteError, ParameterError, ShapeError
 
 #: The largest sum of squares of a level's ``J`` (or ``b``) the solvers take: their norms (rank tolerances,
 #: certificates) must not overflow float64, also summed over a stack (entries up to about 1e152; beyond, a
 #: :class:`~hqp_tpm.errors.MagnitudeError`). The same test finds NaN and inf: ``NaN <= x`` is False.
 MAX_SUMSQ = 1e304
+
+#: The smallest nonzero sum of squares of a level's ``J`` the solvers take: below it (entries under about 1e-146)
+#: the norms behind the rank tolerances underflow and a solve would divide by zero; a
+#: :class:`~hqp_tpm.errors.MagnitudeError` asks to scale the level up instead.
+MIN_SUMSQ = 1e-292
 
 _SCALE_DOWN = ("beyond what the solvers' norms (rank tolerances, certificates) and finiteness tests hold; scale the "
                "level down (J and b by one factor: the same equations)")
@@ -51,7 +56,7 @@ def _vector(x, m: int, what: str, *, allow_inf: bool = False, check: bool = True
     if type(x) is np.ndarray and x.dtype == np.float64 and x.shape == (m,):  # the common case, checked cheaply
         arr = x
     else:
-        arr = np.asarray(x, dtype=float)
+        arr = _real(x, what)
         if arr.ndim == 0:
             arr = np.full(m, float(arr))
         arr = arr.reshape(-1) if arr.ndim == 2 and 1 in arr.shape else arr
@@ -74,9 +79,16 @@ def _check_vector(arr: np.ndarray, what: str, allow_inf: bool) -> None:
                              f"{MAX_SUMSQ:.0e}, {_SCALE_DOWN}")
 
 
+def _real(x, what: str) -> np.ndarray:
+    """``x`` as a float array; a complex one is refused (``np.asarray(x, float)`` would drop its imaginary part)."""
+    if np.iscomplexobj(x):
+        raise ParameterError(f"{what} is complex; the solvers take real arrays only")
+    return np.asarray(x, dtype=float)
+
+
 def _matrix(J, name: str, check: bool = True) -> np.ndarray:
     if not (type(J) is np.ndarray and J.dtype == np.float64 and J.ndim == 2):
-        J = np.asarray(J, dtype=float)
+        J = _real(J, f"level {name!r}: J")
         if J.ndim == 1:
             J = J.reshape(1, -1)
         if J.ndim != 2:
@@ -87,7 +99,17 @@ def _matrix(J, name: str, check: bool = True) -> np.ndarray:
                 raise NonFiniteError(f"level {name!r}: J holds NaN or inf at {np.argwhere(~np.isfinite(J)).tolist()}")
             raise MagnitudeError(f"level {name!r}: J reaches {np.abs(J).max():.3g}: its sum of squares exceeds "
                                  f"{MAX_SUMSQ:.0e}, {_SCALE_DOWN}")
+        _check_not_tiny(J, name)
     return J
+
+
+def _check_not_tiny(J: np.ndarray, name: str) -> None:
+    """A nonzero ``J`` whose sum of squares is below :data:`MIN_SUMSQ` (or underflows to 0): a MagnitudeError."""
+    sq = sumsq(J)
+    if sq < MIN_SUMSQ and (sq > 0.0 or J.any()):
+        raise MagnitudeError(f"level {name!r}: J is at most {np.abs(J).max():.3g}: its sum of squares is below "
+                             f"{MIN_SUMSQ:.0e}, where the solvers' norms underflow; scale the level up (J and b by "
+                             "one factor: the same equations)")
 
 
 class Level:

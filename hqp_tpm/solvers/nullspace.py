@@ -23,7 +23,8 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from hqp_tpm.solvers.damping import check_damping, check_x0, inverted_singular_values, rank_tol
+from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers.damping import check_damping, check_x0, inverted_singular_values
 from hqp_tpm.solvers.levels import as_levels, equality_stack
 
 
@@ -32,14 +33,16 @@ def projected_step(J: np.ndarray, Z: np.ndarray, lambda_max: float, eps: float,
     """``(Z (J Z)#, Z N)``: the (damped) ``(J P)#`` with ``P = Z Z^T`` and the next null-space basis.
 
     ``N`` is an orthonormal basis of the null space of ``J Z`` (singular values at or below ``tol`` count
-    as zero). The damping law sees the ``min(m, n)`` singular values of ``J P``: those of ``J Z`` and zeros.
+    as zero). The damping law sees the ``m`` singular values of TPM's pivot ``R_ii`` (``m x m``): those of
+    ``J Z`` and zeros, one for each row beyond the ``Z.shape[1]`` directions left (so a level with more rows
+    than the joints left to it is damped as singular, as TPM's padded pivot is).
     """
     m = J.shape[0]
     if Z.shape[1] == 0 or m == 0:
         return np.zeros((Z.shape[0], m)), Z
     U, s, Vt = np.linalg.svd(J @ Z, full_matrices=True)
     k = s.size
-    pad = np.zeros(max(min(J.shape) - k, 0))
+    pad = np.zeros(max(m - k, 0))
     inv = inverted_singular_values(np.concatenate([s, pad]), lambda_max, eps, tol)[:k]
     G = Z @ ((Vt[:k].T * inv) @ U[:, :k].T)
     return G, Z @ Vt[int((s > tol).sum()):].T
@@ -53,13 +56,17 @@ def nullspace(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
     lambda_max, eps = check_damping(lambda_max, eps)
     x0 = check_x0(x0, n)
     pairs = equality_stack(lv)
-    size = max(sum(J.shape[0] for J, _ in pairs), n)
-    x = np.zeros(n)
-    Z = np.eye(n)
-    for J, b in pairs:
-        G, Z_next = projected_step(J, Z, lambda_max, eps, rank_tol(np.linalg.norm(J), size))
-        x = x + G @ (b - J @ x)                               # eq. (5): Z (J Z)# (b - J x)
-        Z = Z_next                                            # eq. (6): P = Z Z^T
-    if x0 is not None:
-        x = x + Z @ (Z.T @ x0)                                # eq. (14)
-    return x
+    if not pairs:
+        return np.zeros(n) if x0 is None else x0.copy()
+    J = np.concatenate([J for J, _ in pairs])
+    b = np.concatenate([b for _, b in pairs])
+    return nullspace_stacked(J, b, tuple(J.shape[0] for J, _ in pairs), n, lambda_max, eps, x0)
+
+
+def nullspace_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float = 0.0, eps: float = 0.0,
+                      x0: np.ndarray | None = None) -> np.ndarray:
+    """:func:`nullspace` of a stack already stacked and checked (``J`` m x n, ``b``, ``sizes`` the levels' row
+    counts, damping and ``x0`` valid): eqs. (5)-(6) on the orthonormal bases ``Z``, then (14), by the one kernel
+    :func:`hqp_tpm.solvers._compiled.recursion` (compiled when numba is on; the same steps as
+    :func:`projected_step`)."""
+    return _compiled.recursion(J, b, tuple(sizes), n, lambda_max, eps, x0)

@@ -73,10 +73,10 @@ import numpy as np
 from hqp_tpm.errors import BoxError, ShapeError
 from hqp_tpm.solvers import _compiled, _compiled_sns
 from hqp_tpm.solvers._fullrank import COND, MARGIN
-from hqp_tpm.solvers._kernels import Factorization, FreeColumns
-from hqp_tpm.solvers.damping import matrix_tol, pinv, rank_tol
+from hqp_tpm.solvers._kernels import Factorization, FreeColumns, row_weights
+from hqp_tpm.solvers.damping import check_damping, matrix_tol, pinv, rank_tol
 from hqp_tpm.solvers.levels import Level, as_levels, equality_stack, stacked
-from hqp_tpm.solvers.nullspace import projected_step
+from hqp_tpm.solvers.nullspace import nullspace_stacked, projected_step
 from hqp_tpm.solvers.tpm import past_rank, tpm_factors
 
 #: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (|bound| + B)``, ``B``
@@ -301,27 +301,30 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
     With more rows than joints (``m > n``) the extension of the module doc: the core step is TPM of
     ``(J W, xd - J xN)`` (its own ``F``) and the rank test looks at the first level only.
     """
+    lambda_max, eps = check_damping(lambda_max, eps)
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
     m = J.shape[0]
-    tol = matrix_tol(J, max(m, n))                               # rank(JW) relative to the stack (damping doc)
+    w, tol = row_weights(J, sizes)                               # rank(JW) on unit levels (damping doc)
     F = tpm_factors(lv, lambda_max=lambda_max, eps=eps, n=n).F
     extended = m > n                                             # this library's extension (module doc)
     m_fit = _kept_rows(J, sizes, max(m, n)) if extended else m
-    off = np.cumsum((0, *sizes))
+
+    def tpm_matrix(Jf):                                          # x = M c is tpm's solution of (Jf, c)
+        return np.column_stack([nullspace_stacked(Jf, e, sizes, Jf.shape[1], lambda_max, eps)
+                                for e in np.eye(m)]) if m else np.zeros((Jf.shape[1], 0))
 
     def core(W):                                                 # the matrix of the core step: x = xN + M (.)
+        free = np.diag(W) > 0.5
+        if free.all():                                           # W = I: eq. (4) is the TPM solution (1)
+            return tpm_matrix(J)
         if not extended:
-            return W @ pinv(J @ W, tol=tol) @ F                  # (JW)# F, whose saturated rows are 0
-        free = np.diag(W) > 0.5                                  # TPM of the stack J W on its free columns
-        M = np.zeros((n, m))                                     # (after a singular pivot the TPM of a padded
-        if free.any():                                           # stack depends on where its zero rows are)
-            Jf = J[:, free]
-            f = tpm_factors([(Jf[a:e], np.zeros(e - a)) for a, e in zip(off, off[1:], strict=False)],
-                            lambda_max=lambda_max, eps=eps, n=int(free.sum()))
-            M[free] = f.Jpinv @ f.F
+            return W @ pinv(w[:, None] * (J @ W), tol=tol) @ (w[:, None] * F)  # (JW)# F = (D J W)# D F
+        M = np.zeros((n, m))                                     # TPM of the stack J W on its free columns
+        if free.any():
+            M[free] = tpm_matrix(J[:, free])
         return M
 
     W, xN, s, s_star = np.eye(n), np.zeros(n), 1.0, 0.0          # W = I, qdot_N = 0, s = 1, s* = 0
@@ -346,7 +349,7 @@ def sns_tpm_reference(levels: Iterable, lower, upper, *, lambda_max: float = 0.0
             W[j, j] = 0.0
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-        lost = _level_rank_lost((J @ W)[:m_fit], max(m, n)) if extended else _rank(J @ W, tol) < m
+        lost = _level_rank_lost((J @ W)[:m_fit], max(m, n)) if extended else _rank(w[:, None] * (J @ W), tol) < m
         if j < 0 or not W.any() or lost:                         # rank(JW) < m: output the best solution
             if not found:                                        # no factor kept the box (0 is outside it)
                 return _around_box_point(sns_tpm_reference, lv, box, lambda_max, eps, iterations, return_info)
@@ -454,8 +457,10 @@ class _FreeStack:
         return None if any(p.singular for p in self.fac.pivots[:k_fit]) else self
 
     def solve(self, c):
-        """``(J W)# F_W c`` on the free joints."""
+        """``(J W)# F_W c`` on the free joints (tpm's exact recursion after a singular pivot)."""
         if self.fac is not None:
+            if self.fac.singular:
+                return nullspace_stacked(self.Jf, c, self.sizes, self.nf, *self.damping)
             return self.fac.solve(c)
         if c is self.xd:
             return self.x_xd
@@ -475,6 +480,7 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     stack gives both ``x`` and ``F``), later ones evaluate the core step as ``x = s a + b`` with
     ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
     """
+    lambda_max, eps = check_damping(lambda_max, eps)
     lo, up = _box(lower, upper, None)
     n = lo.shape[0]
     lv, J, xd, sizes = _stacked(levels, n)
@@ -543,7 +549,8 @@ def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=Tr
         fac = Factorization(J, sizes, n, lambda_max, eps)
         F_times = fac.F_times
         Fxd = F_times(xd)
-        x = fac.pinv_times(Fxd)[:n]
+        # a level losing rank in what the levels above leave: tpm's exact recursion (hqp_tpm.solvers.tpm)
+        x = nullspace_stacked(J, xd, sizes, n, lambda_max, eps) if fac.singular else fac.pinv_times(Fxd)[:n]
         first_singular = fac.pivots[0].singular
     else:
         F_times, Fxd, x, first_singular = (lambda v: v), xd, np.zeros(n), False
@@ -579,10 +586,10 @@ def _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, 
             F_times = fac.F_times
             Fxd = F_times(xd)
     sb = None
-    tol = fac.tol if fac is not None else 0.0    # rank(JW) relative to the stack (damping doc; m <= n only)
+    weights = row_weights(J, sizes) if not extended else None  # rank(JW) on unit levels (m <= n only)
     k_fit = int(extended and not first_singular)  # m > n: the rank test watches the first level only
     if resume is not None:                       # the pass that saturated order[-1], from (J W)#
-        G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, tol)
+        G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, weights)
         if G is None:
             return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
     while True:
@@ -612,16 +619,17 @@ def _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, 
             free[j] = False
             xN[j] = up[j] if x[j] > up[j] else lo[j]
             order.append(j)
-            G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, tol)
+            G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, weights)
         if j < 0 or G is None:
             return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
 
 
-def _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, tol):
+def _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, weights):
     """``(J W)#`` for the ``free`` joints after a saturation, or None when ``J W`` has lost rank
     (``m <= n``: :class:`FreeColumns`; ``m > n``: :class:`_FreeStack`, None also when no joint is free)."""
     if not extended:
-        return FreeColumns.of(J, free, tol)
+        w, tol = weights
+        return FreeColumns.of(J, free, tol, w)
     if free.any():
         return _FreeStack.of(J[:, free], xd, sizes, lambda_max, eps, k_fit)
     return None
@@ -708,6 +716,7 @@ def sns(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float =
     result is :func:`nullspace`'s. If the zero command is outside the box and the result leaves it,
     the stack is solved around ``x0 = clip(0, box)`` instead (module doc; ``info.shifted``).
     """
+    lambda_max, eps = check_damping(lambda_max, eps)
     lo, up = _box(lower, upper, None)
     box = _Box(lo, up)
     n = lo.shape[0]

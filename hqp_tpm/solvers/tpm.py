@@ -13,6 +13,21 @@ Two paths compute the same numbers:
   factorization (:class:`hqp_tpm.solvers._kernels.Factorization`) is shared with :func:`hqp_tpm.solvers.sns.sns_tpm`,
   which needs ``x`` and ``F`` of the same stack. ``tests/test_tpm.py`` proves the paths equal.
 
+**Exact on every stack.** Steps 2-4 on the pivots are a forward substitution: with every pivot invertible
+(regular, or damped with ``sigma_min > tol``), ``x = Q R^{-T} F b = Q y`` with ``y_i = D_i^T (b_i - sum_{j<i}
+R_ji^T y_j)``, ``D_i`` the (damped) inverse of ``R_ii``; ``Q_i`` spans the directions the levels above leave to
+level ``i`` (``J_i Q_i = R_ii^T``), so this is the recursion of :mod:`hqp_tpm.solvers.nullspace` on the basis ``Q``.
+A *singular* pivot (level ``i`` loses rank in what the levels above leave: a zero row, a level repeating or
+depending on the ones above, more rows than joints left) breaks this: the unpivoted QR of eq. (8) hands the
+level ``m_i`` directions although it uses fewer, and the levels below lose the others (``[0] x = 1`` then
+``[1] x = 1`` gives ``x = 0``, the strict-priority answer is 1). The paper's algorithm as written
+(:func:`tpm_reference`) keeps that limit; :func:`tpm` hands such a stack to the recursion
+(:func:`hqp_tpm.solvers._compiled.recursion`, compiled), whose per-level SVD keeps only the directions the level
+uses and returns the rest to the levels below: the lexicographic minimum-norm solution undamped, and the same
+damping law as the pivots (``m_i`` singular values, zeros for the directions missing) when damped. Rank
+decisions are relative to each level's own rows (:mod:`hqp_tpm.solvers.damping`), so a level's units do not
+change them.
+
 At acceleration level the same call gives ``qdd = J# F (pdd - Jdot qd)`` (12); pass
 ``x0 = qdd_0`` to add the null-space term ``(I - J# J) qdd_0`` of (14).
 
@@ -166,18 +181,19 @@ def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float =
     ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
     :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step).
 
-    ``kernel_status``: what the compiled TPM kernel (:mod:`hqp_tpm.solvers._compiled`) already answered on these
-    arrays (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with other work): it is not run again."""
-    if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
-        if kernel_status is None:
-            x = _compiled.past_rank(J, b, sizes, n, lambda_max, eps, MARGIN, COND) if _compiled.ENABLED else \
-                solve_past_rank(J, b, sizes, n, lambda_max, eps)
-        else:  # the kernel declined (the reference declines too) or left sigma_min to the reference
-            x = None if kernel_status == _compiled.DECLINED else solve_past_rank(J, b, sizes, n, lambda_max, eps)
+    The factorization's kernels first (the full-rank shortcut when ``m > n``, else ``x = Q R^{-T} F b``); a stack
+    they do not take (a singular pivot, or a certificate that cannot decide) is solved by the recursion, compiled
+    (:func:`hqp_tpm.solvers._compiled.recursion`; module doc: the same answer where both apply, the exact one where
+    a pivot is singular). ``kernel_status``: what the factorization's kernel already answered on these arrays
+    (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with other work): the recursion runs."""
+    if kernel_status is None:
+        if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
+            x = past_rank(J, b, sizes, n, lambda_max, eps)
+        elif _compiled.ENABLED:  # m <= n: x = Q R^-T F b in one compiled call
+            x = _compiled.general(J, b, sizes, n, lambda_max, eps, x0)
+        else:
+            fac = Factorization(J, sizes, n, lambda_max, eps)
+            x = None if fac.singular else fac.solve(b, x0)
         if x is not None:
             return x
-    elif _compiled.ENABLED and kernel_status is None:  # m <= n: x = Q R^-T F b in one compiled call
-        x = _compiled.general(J, b, sizes, n, lambda_max, eps, x0)
-        if x is not None:
-            return x
-    return Factorization(J, sizes, n, lambda_max, eps).solve(b, x0)
+    return _compiled.recursion(J, b, sizes, n, lambda_max, eps, x0)

@@ -92,6 +92,16 @@ GUARANTEES: tuple[Guarantee, ...] = (
     Guarantee("sns_tpm == sns_tpm_reference == Algorithm 1 in 50 digits, ill-conditioned", COND_FACTOR * EPS * 1e10,
               "the same nearly dependent stacks with a box cutting the TPM solution (ties within 1e-9 left out); "
               "agreement max(1e-6, 1e3 eps cond)", 1e10, (1e-11, 1e6), "tests/test_numerics.py"),
+    Guarantee("tpm == nullspace == the lexicographic optimum after a singular or repeated level", 1e-6,
+              "a level repeating the one above with another target, a level with a zero row or two dependent "
+              "rows, then 1-2 more levels, n = 3-8 (tpm == nullspace to 1e-9, exact and damped; == the cascaded "
+              "QP (daqp) to 1e-6); the paper-literal tpm_reference is not the optimum there: it gives the "
+              "singular level a direction it does not use", 1e3, (1.0, 1.0), "tests/test_solver_core.py"),
+    Guarantee("tpm and sns_tpm unchanged by each level's units (undamped)", 1e-7,
+              "each level's (J_i, b_i) times its own factor 10^U(-8, 8); 2-5 levels of 1-3 rows, n = 4-8, "
+              "repeated levels, a final posture (m > n), a binding box; sns_tpm against Algorithm 1 in 50 digits "
+              "to 1e-6 (m <= n, ties within 1e-9 left out). With damping, lambda_max and eps are in each "
+              "level's units", 1e3, (1e-8, 1e8), "tests/test_solver_core.py"),
     Guarantee("cascaded QP == tpm (equality stacks, no box)", 1e-8,
               "1-6 levels of 1-4 rows, n <= 20, full row rank; dependent and conflicting levels "
               "(proxqp, daqp, quadprog; osqp to 1e-5); scaled stacks 1e-6..1e6", 1e3, (1e-6, 1e6),
