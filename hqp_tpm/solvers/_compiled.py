@@ -833,11 +833,12 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
 # The recursion of hqp_tpm.solvers.nullspace: TPM on the stacks its factorization cannot take exactly.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0):
+def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0, ranks):
     """``x`` of eqs. (5)-(6) of papers/000 on orthonormal bases ``Z`` (:mod:`hqp_tpm.solvers.nullspace`): level by
     level the SVD of ``J_i Z``; its singular values above ``rank_tol(||J_i||_F, max(m, n))`` are the directions the
     level uses (inverted by the damping law, which sees ``m_i`` values: zeros for the rows beyond ``Z``'s columns),
-    the others stay in ``Z`` for the levels below. Then ``+ Z Z^T x0`` (eq. (14)) when ``use_x0``."""
+    the others stay in ``Z`` for the levels below. Then ``+ Z Z^T x0`` (eq. (14)) when ``use_x0``. ``ranks[i]``:
+    the number of directions level ``i`` uses (its rank in what the levels above leave)."""
     m = J.shape[0]
     size = max(m, n)
     x = np.zeros(n)
@@ -846,6 +847,7 @@ def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0):
     for lev in range(sizes.shape[0]):
         e = a + sizes[lev]
         k = Z.shape[1]
+        ranks[lev] = 0
         if k > 0 and e > a:
             Ji = np.ascontiguousarray(J[a:e])
             ssq = 0.0
@@ -871,6 +873,7 @@ def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0):
                     c *= s[t] / (s[t] * s[t] + lam2)
                     for j in range(k):
                         y[j] += c * Vt[t, j]
+            ranks[lev] = rank
             x += Z @ y                                    # eq. (5): Z (J_i Z)# (b_i - J_i x)
             Z = Z @ np.ascontiguousarray(Vt[rank:].T)     # eq. (6): P = Z Z^T
         a = e
@@ -879,12 +882,16 @@ def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0):
     return x
 
 
-def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
-    """:func:`_recursion`, compiled when :data:`ENABLED` (else the same source as Python)."""
+def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None,
+              ranks: np.ndarray | None = None) -> np.ndarray:
+    """:func:`_recursion`, compiled when :data:`ENABLED` (else the same source as Python); ``ranks`` (int64, one
+    per level), when given, receives the levels' ranks."""
     use = x0 is not None
     x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
+    ranks = np.empty(len(sizes), dtype=np.int64) if ranks is None else ranks
     if ENABLED:
         s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
         if s is not None or (s := _sizes(sizes)) is not None:
-            return _recursion(J, b, s, n, float(lambda_max), float(eps), _UNIT, x0, use)
-    return _recursion(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, x0, use)
+            return _recursion(J, b, s, n, float(lambda_max), float(eps), _UNIT, x0, use, ranks)
+    return _recursion(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, x0, use,
+                      ranks)

@@ -439,32 +439,33 @@ def _scale_and_pick(a, b, sb: _ScalarBox, free, viol) -> tuple[float, int]:
 
 class _FreeStack:
     """TPM of the stack restricted to the free joints (``J W`` of the extension, ``m > n``): the full-rank shortcut
-    (:func:`hqp_tpm.solvers.tpm.past_rank`, compiled when enabled) when it applies, else the padded general path.
-    The shortcut's decisions do not depend on the right-hand side, so trying it once on ``xd`` tells."""
+    (:func:`hqp_tpm.solvers.tpm.past_rank`, compiled when enabled) when it applies, else tpm's recursion
+    (:func:`hqp_tpm.solvers._compiled.recursion`, compiled). The shortcut's decisions do not depend on the
+    right-hand side, so trying it once on ``xd`` tells."""
 
-    __slots__ = ("Jf", "xd", "x_xd", "sizes", "nf", "damping", "fac")
+    __slots__ = ("Jf", "xd", "x_xd", "sizes", "nf", "damping", "shortcut")
 
     @classmethod
     def of(cls, Jf, xd, sizes, lambda_max, eps, k_fit):
-        """The solver, or None when the first level of ``J W`` has a singular pivot and ``k_fit`` watches it."""
+        """The solver, or None when the first level of ``J W`` loses rank and ``k_fit`` watches it."""
         self = cls.__new__(cls)
         nf = Jf.shape[1]
-        self.Jf, self.xd, self.sizes, self.nf, self.damping, self.fac = Jf, xd, sizes, nf, (lambda_max, eps), None
+        self.Jf, self.xd, self.sizes, self.nf, self.damping = Jf, xd, sizes, nf, (lambda_max, eps)
         self.x_xd = past_rank(Jf, xd, sizes, nf, lambda_max, eps)        # Jf has m > n > nf rows
-        if self.x_xd is not None:                # upper pivots regular: only a crossing first level can be singular
+        self.shortcut = self.x_xd is not None
+        if self.shortcut:                        # upper pivots regular: only a crossing first level can be singular
             return None if k_fit and sizes[0] > nf else self
-        self.fac = Factorization(Jf, sizes, nf, lambda_max, eps)
-        return None if any(p.singular for p in self.fac.pivots[:k_fit]) else self
+        ranks = np.empty(len(sizes), dtype=np.int64)
+        self.x_xd = _compiled.recursion(Jf, xd, sizes, nf, lambda_max, eps, ranks=ranks)
+        return None if k_fit and ranks[0] < sizes[0] else self
 
     def solve(self, c):
-        """``(J W)# F_W c`` on the free joints (tpm's exact recursion after a singular pivot)."""
-        if self.fac is not None:
-            if self.fac.singular:
-                return nullspace_stacked(self.Jf, c, self.sizes, self.nf, *self.damping)
-            return self.fac.solve(c)
+        """``(J W)# F_W c`` on the free joints (TPM of ``J W``)."""
         if c is self.xd:
             return self.x_xd
-        return past_rank(self.Jf, c, self.sizes, self.nf, *self.damping)
+        if self.shortcut:
+            return past_rank(self.Jf, c, self.sizes, self.nf, *self.damping)
+        return _compiled.recursion(self.Jf, c, self.sizes, self.nf, *self.damping)
 
 
 def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
@@ -534,17 +535,22 @@ def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=Tr
     if resume is not None:
         return _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, resume)
     x = fac = None
+    first_singular = False
     if extended:                                 # rank n before the last level: hqp_tpm.solvers._fullrank
         x = past_rank(J, xd, sizes, n, lambda_max, eps)
-        if x is not None and ((x >= lo) & (x <= up)).all():
+        first_singular = sizes[0] > n            # (the shortcut: the first level crosses rank n with more rows)
+        if x is None:                            # else tpm's recursion (compiled), and the first level's rank
+            ranks = np.empty(len(sizes), dtype=np.int64)
+            x = _compiled.recursion(J, xd, sizes, n, lambda_max, eps, ranks=ranks)
+            first_singular = bool(ranks[0] < sizes[0])
+        if ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
     elif sizes and _compiled.ENABLED:            # m <= n: the TPM solution by the compiled general path
         x0 = _compiled.general(J, xd, sizes, n, lambda_max, eps)
         if x0 is not None and ((x0 >= lo) & (x0 <= up)).all():
             return (x0, SNSInfo(1.0, (), 1)) if return_info else x0
-    if x is not None:                            # the TPM solution by the shortcut: F is not needed (m > n)
+    if extended:                                 # the TPM solution: F is not needed (m > n)
         F_times = Fxd = None
-        first_singular = sizes[0] > n            # the first level crosses rank n with more rows than n
     elif sizes:                                  # W = I: eq. (4) is the TPM solution (1)
         fac = Factorization(J, sizes, n, lambda_max, eps)
         F_times = fac.F_times
