@@ -47,6 +47,10 @@ class SolverNotAvailableError(HqpTpmError):
     """A QP backend is unknown to qpsolvers or not installed."""
 
 
+class PlantNotAvailableError(HqpTpmError):
+    """A physics plant needs a package that is not installed (MuJoCo: ``pip install hqp-tpm[sim]``)."""
+
+
 class SolverFailedError(HqpTpmError):
     """A numerical solver did not return a solution."""
 

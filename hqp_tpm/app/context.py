@@ -45,6 +45,9 @@ class RunContext:
     limits: JointLimits | None = None
     #: what a viewer may draw (obstacles, control points, EE frame and task, pointing task, distance field)
     scene: SceneItems = field(default_factory=SceneItems)
+    #: the physics plant's per-step recorder and run summary (None: no plant; :mod:`hqp_tpm.app.plant_build`)
+    plant_probe: Probe | None = None
+    plant_summary: Callable[[dict], dict] | None = None
 
     @property
     def velocity_limits(self) -> np.ndarray | None:
@@ -66,8 +69,12 @@ class RunContext:
         """The per-step recorders of a run: every task's error, then the policy's channels."""
         from hqp_tpm.app.results import task_error_probe
 
-        return [task_error_probe(self.tasks), self.policy.probe]
+        extra = [self.plant_probe] if self.plant_probe is not None else []
+        return [task_error_probe(self.tasks), self.policy.probe, *extra]
 
     def summary(self, arrays: dict) -> dict:
-        """The policy's run summary numbers."""
-        return self.policy.summary(arrays)
+        """The policy's run summary numbers (and the plant's)."""
+        out = self.policy.summary(arrays)
+        if self.plant_summary is not None:
+            out = {**out, **self.plant_summary(arrays)}
+        return out

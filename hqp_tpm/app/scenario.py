@@ -200,6 +200,8 @@ class Scenario:
     policy: Section
     limits: Section | None
     raw: dict
+    #: ``[plant]``: what closes the loop (None: perfect integration; ``hqp_tpm.app.plant_build``)
+    plant: Section | None = None
 
     @property
     def order(self) -> int:
@@ -319,7 +321,7 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         initial=top.table("initial", None) or Section({}, f"{path.name}.initial"),
         obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
-        limits=top.table("limits", None), raw=data,
+        limits=top.table("limits", None), raw=data, plant=top.table("plant", None),
     )
     if out.limits is not None and solver in ANALYTIC:  # the analytic solvers ignore a box: say so, don't run
         raise ScenarioError(f"{out.limits.where}: a hard joint box, which solver {solver!r} ({sc.where}.solver) "
