@@ -282,10 +282,11 @@ def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
         lim.check_unused()
     args = dict(dt=sc.period, solver=solver or sc.solver, lambda_max=sc.lambda_max, eps=sc.eps,
                 nullspace_damping=sc.nullspace_damping, box=limits)
-    plant_probe = plant_summary = None
+    plant_probe = plant_summary = plant_files = None
     if plant_kind(sc) == "mujoco":  # the loop closed on MuJoCo (hqp_tpm.app.plant_build)
         ctrl, q0 = build_contact_controller(sc, robot, tasks, policy, q0, **args)
         plant_probe, plant_summary = ctrl.probe, ctrl.summary
+        plant_files = ctrl.plant_files
     else:
         if sc.plant is not None:
             sc.plant.check_unused()
@@ -294,7 +295,7 @@ def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
     scene = policy.scene()
     if not scene.obstacles:
         scene.obstacles = list(obstacles)
-    return RunContext(sc, robot, ctrl, tasks, policy, obstacles, limits, scene, plant_probe, plant_summary)
+    return RunContext(sc, robot, ctrl, tasks, policy, obstacles, limits, scene, plant_probe, plant_summary, plant_files)
 
 
 def build(sc: Scenario, solver: str | None = None):

@@ -114,6 +114,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         results.write_npz(folder.path / "trajectory.npz", files)
         results.write_text(folder.path / "metrics.json", results.dumps(summary))
         written = ["trajectory.npz", "metrics.json"]
+        if ctx.plant_files is not None:  # the model the plant simulated (hqp_tpm.app.plant_build)
+            written += ctx.plant_files(folder.path)
         if figures and explainer is not None:
             from hqp_tpm.app.explain import figure as explain_figure
 

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -48,6 +49,8 @@ class RunContext:
     #: the physics plant's per-step recorder and run summary (None: no plant; :mod:`hqp_tpm.app.plant_build`)
     plant_probe: Probe | None = None
     plant_summary: Callable[[dict], dict] | None = None
+    #: ``plant_files(folder) -> names``: writes the model the plant simulated (``plant.xml``) beside the results
+    plant_files: Callable[[Path], list[str]] | None = None
 
     @property
     def velocity_limits(self) -> np.ndarray | None:

@@ -100,6 +100,8 @@ class ContactInverseDynamics:
         # friction pyramid and minimum normal force, per point: rows on (fx, fy, fz)
         m = self.mu / np.sqrt(2.0)
         self._cone = np.array([[1.0, 0.0, -m], [-1.0, 0.0, -m], [0.0, 1.0, -m], [0.0, -1.0, -m], [0.0, 0.0, -1.0]])
+        #: proxqp's default tolerance (1e-5 on the equalities) is loose for the floating-base rows: 1e-9
+        self._tolerances = {"eps_abs": 1e-9, "eps_rel": 0.0} if solver == "proxqp" else {}
         weight = sum(i.mass for i in self.model.inertias) * np.linalg.norm(self.model.gravity.linear)
         self.f0 = np.tile([0.0, 0.0, weight / self.points], self.points)
 
@@ -145,7 +147,7 @@ class ContactInverseDynamics:
         w = self.weight_force
         P = np.diag(np.concatenate([np.ones(nv), np.full(npt, w)]))
         c_ = -np.concatenate([a_star, w * self.f0])
-        y = qpsolvers.solve_qp(P, c_, G, hv, A, b, solver=self.solver)
+        y = qpsolvers.solve_qp(P, c_, G, hv, A, b, solver=self.solver, **self._tolerances)
         if y is None or not np.isfinite(y).all():
             raise SolverFailedError(f"contact QP ({self.solver}) found no solution at t = {t:.4f}: no contact forces "
                                     f"inside the friction cones and torques inside their limits give this motion")

@@ -101,9 +101,25 @@ class FloatingBasePlant:
             out[i] = f if m.geom_bodyid[c.geom2] != 0 else -f
         return out
 
-    def xml(self) -> str:
-        """The exact model MuJoCo simulates (MJCF, with its timestep and integrator)."""
-        return self.spec.to_xml()
+    def write(self, folder, q0, v0=None) -> list[str]:
+        """Write the model MuJoCo simulates into ``folder`` with the run's initial state as keyframe ``initial``
+        (``mj_resetDataKeyframe(m, d, 0)``): ``plant.xml`` (MJCF, readable, 6 significant digits: MuJoCo's
+        writer) and ``plant.mjb`` (MuJoCo's binary model: the same bits, for an exact torque replay)."""
+        from pathlib import Path
+
+        saved = self.data.qpos.copy(), self.data.qvel.copy()
+        self.set_state(q0, np.zeros(self.robot.nv) if v0 is None else v0)
+        qpos, qvel = self.data.qpos.copy(), self.data.qvel.copy()
+        self.data.qpos[:], self.data.qvel[:] = saved
+        self._mj.mj_forward(self.model, self.data)
+        for key in list(self.spec.keys):
+            self.spec.delete(key)
+        self.spec.add_key(name="initial", qpos=qpos.tolist(), qvel=qvel.tolist(), ctrl=[0.0] * self.model.nu)
+        model = self.spec.compile()  # the same model with its keyframe (this plant keeps its own)
+        folder = Path(folder)
+        (folder / "plant.xml").write_text(self.spec.to_xml())
+        self._mj.mj_saveModel(model, str(folder / "plant.mjb"), None)
+        return ["plant.xml", "plant.mjb"]
 
 
 class ContactController(Controller):
@@ -123,6 +139,7 @@ class ContactController(Controller):
         self.feet_bodies = list(feet_bodies)
         self._contact_state = State(robot)
         plant.set_state(self.q, self.v)
+        self.q0, self.v0 = self.q.copy(), self.v.copy()
         self._feet0 = np.array([plant.body_position(b) for b in self.feet_bodies]).reshape(-1, 3)
         self._base0 = self.q[2]
 
@@ -158,6 +175,11 @@ class ContactController(Controller):
         return x
 
     # -- what a run records -------------------------------------------------------------------
+    def plant_files(self, folder) -> list[str]:
+        """The plant's model with the run's initial state (:meth:`FloatingBasePlant.write`): replaying the recorded
+        ``tau`` on ``plant.mjb`` with MuJoCo alone gives the recorded run."""
+        return self.plant.write(folder, self.q0, self.v0)
+
     def probe(self, ctrl, res) -> dict:
         """Per step: torques and their ratio to the limits, the QP's forces and cone margins, the plant's contact
         forces and their margins in the controller's cone, base height change, largest horizontal foot slip."""
