@@ -22,7 +22,9 @@ KINDS = ("kinematic", "mujoco")
 
 
 def plant_kind(sc: Scenario) -> str:
-    return "kinematic" if sc.plant is None else sc.plant.string("kind", "kinematic", choices=KINDS)
+    """``[plant] kind``: ``"kinematic"`` (perfect integration, the default) or ``"mujoco"``."""
+    sec = sc.plant
+    return "kinematic" if sec is None else sec.string("kind", "kinematic", choices=KINDS)
 
 
 def build_contact_controller(sc: Scenario, robot: Robot, tasks: dict, policy, q0: np.ndarray, **controller_args):
@@ -59,7 +61,7 @@ def build_contact_controller(sc: Scenario, robot: Robot, tasks: dict, policy, q0
                              integrator=sec.string("integrator", "implicitfast"))
         plant = FloatingBasePlant(robot, spec)
         cid = ContactInverseDynamics(robot, contacts, mu=sec.number("mu", 0.7), f_min=sec.number("f_min", 1.0),
-                                     solver=sec.string("qp_solver", "proxqp"))
+                                     solver=sec.string("qp_solver", "daqp"))
     except ScenarioError:
         raise
     except HqpTpmError as exc:

@@ -52,6 +52,8 @@ SECTIONS.update({
         "[policy.ee_repulsion], [policy.body_repulsion] (algorithm1)",
     ("hqp_tpm.app.policy_builders.switching", "operator_from", "sec"): "[policy] type = \"switching\", \"admittance\"",
     ("hqp_tpm.app.policy_builders.switching", "operator_from", "tab"): "[policy.operator] (switching, admittance)",
+    ("hqp_tpm.app.plant_build", "plant_kind", None): "[plant]",
+    ("hqp_tpm.app.plant_build", "build_contact_controller", "sec"): "[plant] kind = \"mujoco\" (a floating base)",
 })
 
 #: Helpers that read a field whose name they get as an argument: name -> (index of that argument, type).
@@ -100,7 +102,7 @@ def _sections_for(module: str, func: str, receiver: str) -> str | None:
 
 def fields() -> list[Field]:
     """Every field read by the parser modules, in source order, filed under its section."""
-    modules = ["hqp_tpm.app.scenario", "hqp_tpm.app.build",
+    modules = ["hqp_tpm.app.scenario", "hqp_tpm.app.build", "hqp_tpm.app.plant_build",
                *(f"hqp_tpm.app.policy_builders.{m}" for m in _POLICY_MODULES)]
     out: list[Field] = []
     unmapped = []

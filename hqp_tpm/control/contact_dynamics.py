@@ -74,7 +74,7 @@ class ContactInverseDynamics:
     """
 
     def __init__(self, robot: Robot, contacts: list[SoleContact], *, mu: float = 0.7, f_min: float = 1.0,
-                 weight_force: float = 1e-5, solver: str = "proxqp"):
+                 weight_force: float = 1e-5, solver: str = "daqp"):
         if not robot.has_free_flyer:
             raise ParameterError(f"robot {robot.name!r} has no free-flyer base: use rnea for a fixed base")
         if not contacts:

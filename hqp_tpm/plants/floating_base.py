@@ -79,6 +79,19 @@ class FloatingBasePlant:
         v[6:] = d.qvel[self.vadr]
         return q, v
 
+    def snapshot(self) -> tuple:
+        """What the next ``mj_step`` reads of the data (state, controls, the constraint solver's warm start)."""
+        d = self.data
+        return d.time, d.qpos.copy(), d.qvel.copy(), d.act.copy(), d.ctrl.copy(), d.qacc_warmstart.copy()
+
+    def restore(self, snapshot: tuple) -> None:
+        """Put back a :meth:`snapshot` (a rejected step leaves the plant as it was, to the bit)."""
+        d = self.data
+        d.time = snapshot[0]
+        d.qpos[:], d.qvel[:], d.act[:], d.ctrl[:] = snapshot[1:5]
+        self._mj.mj_forward(self.model, d)  # (it overwrites the warm start with its own solution)
+        d.qacc_warmstart[:] = snapshot[5]
+
     def step(self, tau: np.ndarray) -> None:
         """Apply joint torques ``tau`` (pinocchio's joint order) for one MuJoCo step."""
         self.data.ctrl[self.actuators] = tau
@@ -143,16 +156,11 @@ class ContactController(Controller):
         self._feet0 = np.array([plant.body_position(b) for b in self.feet_bodies]).reshape(-1, 3)
         self._base0 = self.q[2]
 
-    def lean(self):
-        """None: a plant step is not the lean step's integration."""
-        return None
-
     def advance(self, command) -> np.ndarray:
         """``command()`` -> ``a*``; the contact QP's torques for one plant step; the measured state (transactional:
         a failure leaves the controller, its policy and the plant as they were)."""
         started, saved = self._started, self.policy.snapshot()
-        mj_saved = (self.plant.data.qpos.copy(), self.plant.data.qvel.copy(), self.plant.data.act.copy(),
-                    self.plant.data.time)
+        plant_saved = self.plant.snapshot()
         try:
             x = command()
             st = self._contact_state.update(self._q, self._v, self.t, validate=False)
@@ -164,8 +172,7 @@ class ContactController(Controller):
         except BaseException:
             self.policy.restore(saved)
             self._started = started
-            d = self.plant.data
-            d.qpos[:], d.qvel[:], d.act[:], d.time = mj_saved
+            self.plant.restore(plant_saved)
             raise
         self._q, self._v = q, v
         self.a = sol.a.copy()
