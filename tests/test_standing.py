@@ -164,6 +164,7 @@ def test_romeo_stands_while_the_hands_draw(tmp_path):
     q = arrays["q"]
     assert q.shape[1] == 28 and np.ptp(q[:, 2]) > 0 and (out / "replay.html").is_file()
     assert summary["base_height_max_change_m"] < 0.02 and summary["foot_slip_max_m"] < 1e-3
+    assert summary["units"]["cone_margin_min_N"] == "N" and summary["units"]["tau_ratio_max"] == "1"
     # the recorded torques replayed on plant.mjb by MuJoCo alone give the recorded run; plant.xml is its text
     assert mujoco.MjModel.from_xml_path(str(out / "plant.xml")).nu == 21
     model = mujoco.MjModel.from_binary_path(str(out / "plant.mjb"))
@@ -176,3 +177,24 @@ def test_romeo_stands_while_the_hands_draw(tmp_path):
         data.ctrl[:] = arrays["tau"][k]
         mujoco.mj_step(model, data)
     assert worst < 1e-6
+
+
+def test_replay_draws_the_measured_base_pose(romeo):
+    """The replay places the robot from the recorded q, base pose included (a raised, yawed base moves every
+    drawn node with it)."""
+    import meshcat
+
+    from hqp_tpm.app.viewer_replay import _OfflineWindow
+    from hqp_tpm.app.viewer_scene import Scene
+
+    scene = Scene(meshcat.Visualizer(window=_OfflineWindow()), romeo)
+    q = romeo.neutral()
+    moved = q.copy()
+    M = pin.SE3(pin.rpy.rpyToMatrix(0.0, 0.0, 0.3), np.array([0.2, -0.1, 0.5]))
+    moved[:7] = pin.SE3ToXYZQUAT(M)
+    a, b = scene.state(q), scene.state(moved)
+    assert a and set(a) == set(b)
+    for path in a:
+        if path.startswith("robot") or "visuals" in path or "collisions" in path:
+            Ta, Tb = a[path][0], b[path][0]
+            assert np.allclose(Tb, M.homogeneous @ Ta, atol=1e-9), path

@@ -124,6 +124,14 @@ METRICS: dict[str, tuple[str, str]] = {
     "time_below_d_m_s": ("s", "time with a link closer than d_m to an obstacle"),
     "time_avoidance_primary_s": ("s", "time with the avoidance as the primary task"),
     "time_avoidance_secondary_s": ("s", "time with the avoidance as a secondary task"),
+    # plant summaries: a floating base standing on MuJoCo (hqp_tpm.plants.floating_base)
+    "base_height_max_change_m": ("m", "largest change of the base height from its start"),
+    "foot_slip_max_m": ("m", "largest horizontal displacement of a sole on the ground from its start"),
+    "cone_margin_min_N": ("N", "smallest mu f_z - |f_t| of the contact QP's corner forces (>= 0: inside the cones)"),
+    "normal_force_min_N": ("N", "smallest normal force of a sole corner in the contact QP"),
+    "sim_cone_margin_min_N": ("N", "smallest mu f_n - |f_t| of MuJoCo's contact forces with the controller's mu"),
+    "tau_ratio_max": ("1", "largest |tau_i| / effort limit_i"),
+    "qp_deviation_max": ("rad/s^2", "largest |a - a*|: the contact QP's change of the stack's acceleration"),
 }
 
 #: Units of task errors by task type (a pose task is split into position and orientation).
