@@ -12,12 +12,9 @@ alone). MuJoCo is an optional dependency (``pip install hqp-tpm[sim]``), importe
 from hqp_tpm.plants.joint_map import JointMap
 from hqp_tpm.plants.mjcf import plant_xml
 from hqp_tpm.plants.mujoco_plant import MujocoPlant
-from hqp_tpm.plants.options import PlantOptions
+from hqp_tpm.plants.options import KINDS, PlantOptions
 from hqp_tpm.plants.replay import replay_torques
 from hqp_tpm.plants.torque import InverseDynamics, JointImpedance
-
-#: Plant kinds a scenario's ``[plant] kind`` takes.
-KINDS = ("kinematic", "mujoco")
 
 __all__ = ["KINDS", "InverseDynamics", "JointImpedance", "JointMap", "MujocoPlant", "PlantOptions", "plant_xml",
            "replay_torques"]

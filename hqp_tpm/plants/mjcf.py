@@ -162,6 +162,10 @@ _PRECISE = {
 }
 
 
+#: MJCF names of MuJoCo's integrators by ``mjtIntegrator`` value.
+_INTEGRATOR_NAMES = {0: "Euler", 1: "RK4", 2: "implicit", 3: "implicitfast"}
+
+
 def precise_xml(xml: str, spec) -> str:
     """``spec.to_xml()`` writes 6 significant digits (an inertia of 0.02419666 becomes 0.0241967, a mass
     matrix entry moves by 3e-8): the numbers of named bodies, inertials, joints, geoms and actuators written
@@ -186,6 +190,12 @@ def precise_xml(xml: str, spec) -> str:
             if tag == "body":
                 for inertial in el.findall("inertial"):
                     _precise_inertial(inertial, obj)
+    option = root.find("option")
+    if option is None:
+        option = ET.Element("option")
+        root.insert(1, option)
+    option.set("timestep", repr(float(spec.option.timestep)))
+    option.set("integrator", _INTEGRATOR_NAMES[int(spec.option.integrator)])  # written even when the default
     ET.indent(root, space="  ")
     return ET.tostring(root, encoding="unicode") + "\n"
 

@@ -19,7 +19,7 @@ from collections import deque
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.errors import ParameterError, ShapeError
+from hqp_tpm.errors import ParameterError, PlantError, ShapeError
 from hqp_tpm.plants.joint_map import JointMap
 from hqp_tpm.plants.mjcf import compile_xml, mujoco_module, plant_xml
 from hqp_tpm.plants.options import PlantOptions
@@ -123,6 +123,9 @@ class MujocoPlant:
         self.data.ctrl[:] = act
         for _ in range(self.substeps):
             self.mujoco.mj_step(self.model, self.data)
+        if self.data.warning[self.mujoco.mjtWarning.mjWARN_BADQACC].number:
+            raise PlantError(f"the MuJoCo simulation diverged (bad accelerations) at t = {self.data.time:.6f} s: "
+                             "torques or contacts too large for the timestep")
         self.tau = np.zeros(self.robot.nv)
         self.tau[self.map.actuated] = act
         self._sample()

@@ -20,6 +20,9 @@ from dataclasses import dataclass, fields
 
 from hqp_tpm.errors import ParameterError
 
+#: Plant kinds (a scenario's ``[plant] kind``): the controller's own perfect integration, or MuJoCo.
+KINDS = ("kinematic", "mujoco")
+
 #: MuJoCo's integrators by their MJCF names.
 INTEGRATORS = ("euler", "rk4", "implicit", "implicitfast")
 
