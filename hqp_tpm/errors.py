@@ -47,10 +47,6 @@ class SolverNotAvailableError(HqpTpmError):
     """A QP backend is unknown to qpsolvers or not installed."""
 
 
-class PlantNotAvailableError(HqpTpmError):
-    """A physics plant needs a package that is not installed (MuJoCo: ``pip install hqp-tpm[sim]``)."""
-
-
 class SolverFailedError(HqpTpmError):
     """A numerical solver did not return a solution."""
 
@@ -86,6 +82,11 @@ class SweepError(HqpTpmError, ValueError):
 class OutputError(HqpTpmError, OSError):
     """An output location cannot be used: a file where a folder is needed, a read-only folder, or a
     non-empty folder that is not a previous result of hqp-tpm (``--force`` to use it anyway)."""
+
+
+class PlantError(HqpTpmError, RuntimeError):
+    """A physics plant cannot be built or used: MuJoCo is not installed, the robot's model file cannot be made
+    into a MuJoCo model, or its joints do not match the controller's model."""
 
 
 def unknown_name(kind: str, name: object, valid, cls=UnknownNameError) -> UnknownNameError:

@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.app.context import RunContext
-from hqp_tpm.app.plant_build import build_contact_controller, plant_kind
 from hqp_tpm.app.policy_builders import POLICY_BUILDERS
 from hqp_tpm.app.scenario import Scenario, Section, number, vector
 from hqp_tpm.control.controller import Controller
@@ -280,22 +279,14 @@ def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
                              acceleration_limit=lim.number("acceleration_limit", 50.0),
                              velocity_scale=lim.number("velocity_scale", 1.0))
         lim.check_unused()
-    args = dict(dt=sc.period, solver=solver or sc.solver, lambda_max=sc.lambda_max, eps=sc.eps,
-                nullspace_damping=sc.nullspace_damping, box=limits)
-    plant_probe = plant_summary = plant_files = None
-    if plant_kind(sc) == "mujoco":  # the loop closed on MuJoCo (hqp_tpm.app.plant_build)
-        ctrl, q0 = build_contact_controller(sc, robot, tasks, policy, q0, **args)
-        plant_probe, plant_summary = ctrl.probe, ctrl.summary
-        plant_files = ctrl.plant_files
-    else:
-        if sc.plant is not None:
-            sc.plant.check_unused()
-        ctrl = Controller(robot, policy, order=sc.order, q0=q0, v0=v0, **args)
+    ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,
+                      lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,
+                      box=limits, q0=q0, v0=v0)
     sc.initial.check_unused()
     scene = policy.scene()
     if not scene.obstacles:
         scene.obstacles = list(obstacles)
-    return RunContext(sc, robot, ctrl, tasks, policy, obstacles, limits, scene, plant_probe, plant_summary, plant_files)
+    return RunContext(sc, robot, ctrl, tasks, policy, obstacles, limits, scene)
 
 
 def build(sc: Scenario, solver: str | None = None):

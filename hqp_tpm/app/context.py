@@ -9,7 +9,6 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
@@ -46,11 +45,6 @@ class RunContext:
     limits: JointLimits | None = None
     #: what a viewer may draw (obstacles, control points, EE frame and task, pointing task, distance field)
     scene: SceneItems = field(default_factory=SceneItems)
-    #: the physics plant's per-step recorder and run summary (None: no plant; :mod:`hqp_tpm.app.plant_build`)
-    plant_probe: Probe | None = None
-    plant_summary: Callable[[dict], dict] | None = None
-    #: ``plant_files(folder) -> names``: writes the model the plant simulated (``plant.xml``) beside the results
-    plant_files: Callable[[Path], list[str]] | None = None
 
     @property
     def velocity_limits(self) -> np.ndarray | None:
@@ -72,12 +66,8 @@ class RunContext:
         """The per-step recorders of a run: every task's error, then the policy's channels."""
         from hqp_tpm.app.results import task_error_probe
 
-        extra = [self.plant_probe] if self.plant_probe is not None else []
-        return [task_error_probe(self.tasks), self.policy.probe, *extra]
+        return [task_error_probe(self.tasks), self.policy.probe]
 
     def summary(self, arrays: dict) -> dict:
-        """The policy's run summary numbers (and the plant's)."""
-        out = self.policy.summary(arrays)
-        if self.plant_summary is not None:
-            out = {**out, **self.plant_summary(arrays)}
-        return out
+        """The policy's run summary numbers."""
+        return self.policy.summary(arrays)

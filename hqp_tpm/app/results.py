@@ -103,6 +103,12 @@ METRICS: dict[str, tuple[str, str]] = {
     "units": ("-", "the unit of every numeric metric of this file (metric -> unit)"),
     "explain": ("s", "with ``--explain``: seconds each task was degraded, by cause, by blocking joint bound and by "
                 "blocking higher task; ``fraction_met_min``: smallest fraction of a task met (1)"),
+    # the plant ([plant] section, hqp_tpm.plants; docs/plant.md)
+    "plant": ("-", "what the command drove: ``kinematic`` (the controller's own perfect integration) or ``mujoco``"),
+    "plant_integrator": ("-", "MuJoCo's integrator (``euler``, ``implicitfast``, ...)"),
+    "plant_timestep_s": ("s", "MuJoCo's timestep (it divides the control period)"),
+    "plant_unmodelled": ("-", "the effects the plant simulated and the controller did not model (option -> value)"),
+    "tau_max": ("N m", "largest applied joint torque (absolute value)"),
     # policy summaries: the co-manipulation hierarchy and admittance (papers/003)
     "sigma_m_min": ("1", "smallest manipulability index sigma_m (14)"),
     "sigma_m_mean": ("1", "mean manipulability index"),

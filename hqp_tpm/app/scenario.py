@@ -200,8 +200,8 @@ class Scenario:
     policy: Section
     limits: Section | None
     raw: dict
-    #: ``[plant]``: what closes the loop (None: perfect integration; ``hqp_tpm.app.plant_build``)
-    plant: Section | None = None
+    #: the ``[plant]`` section (:class:`hqp_tpm.app.scenario_plant.PlantConfig`: kinematic by default)
+    plant: Any = None
 
     @property
     def order(self) -> int:
@@ -291,6 +291,13 @@ def load(spec: str | Path) -> Scenario:
     return parse(read(path), path)
 
 
+def _plant(sec: Section | None, period: float):
+    """The ``[plant]`` section, checked (:func:`hqp_tpm.app.scenario_plant.plant_config`)."""
+    from hqp_tpm.app.scenario_plant import plant_config
+
+    return plant_config(sec, period)
+
+
 def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
     top = Section(data, path.name)
     sc = top.table("scenario")
@@ -321,12 +328,13 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         initial=top.table("initial", None) or Section({}, f"{path.name}.initial"),
         obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
-        limits=top.table("limits", None), raw=data, plant=top.table("plant", None),
+        limits=top.table("limits", None), raw=data,
     )
     if out.limits is not None and solver in ANALYTIC:  # the analytic solvers ignore a box: say so, don't run
         raise ScenarioError(f"{out.limits.where}: a hard joint box, which solver {solver!r} ({sc.where}.solver) "
                             f"ignores; valid: a boxed solver ({', '.join(BOXED)}, qp, qp:<backend>), or no "
                             "[limits] section")
+    out.plant = _plant(top.table("plant", None), period)
     sc.check_unused()
     top.check_unused()
     if not out.tasks:

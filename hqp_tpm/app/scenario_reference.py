@@ -42,6 +42,7 @@ SECTIONS: dict[tuple[str, str, str | None], str] = {
     ("hqp_tpm.app.build", "trajectory", "sec"): "[[tasks]] target",
     ("hqp_tpm.app.build", "trajectory", "tab"): "target = { type = ... } (a trajectory table)",
     ("hqp_tpm.app.build", "build_policy", "sec"): "[policy] type = \"fixed\" (the default)",
+    ("hqp_tpm.app.scenario_plant", "plant_config", "sec"): "[plant]",
     **{("hqp_tpm.app.build", f"_{kind}", "sec"): f"[[tasks]] type = \"{kind}\"" for kind in (
         "frame_position", "frame_orientation", "frame_pose", "pointing", "com", "posture", "force",
         "quaternion_orientation", "manipulability", "joint_limit")},
@@ -52,8 +53,6 @@ SECTIONS.update({
         "[policy.ee_repulsion], [policy.body_repulsion] (algorithm1)",
     ("hqp_tpm.app.policy_builders.switching", "operator_from", "sec"): "[policy] type = \"switching\", \"admittance\"",
     ("hqp_tpm.app.policy_builders.switching", "operator_from", "tab"): "[policy.operator] (switching, admittance)",
-    ("hqp_tpm.app.plant_build", "plant_kind", None): "[plant]",
-    ("hqp_tpm.app.plant_build", "build_contact_controller", "sec"): "[plant] kind = \"mujoco\" (a floating base)",
 })
 
 #: Helpers that read a field whose name they get as an argument: name -> (index of that argument, type).
@@ -102,7 +101,7 @@ def _sections_for(module: str, func: str, receiver: str) -> str | None:
 
 def fields() -> list[Field]:
     """Every field read by the parser modules, in source order, filed under its section."""
-    modules = ["hqp_tpm.app.scenario", "hqp_tpm.app.build", "hqp_tpm.app.plant_build",
+    modules = ["hqp_tpm.app.scenario", "hqp_tpm.app.build", "hqp_tpm.app.scenario_plant",
                *(f"hqp_tpm.app.policy_builders.{m}" for m in _POLICY_MODULES)]
     out: list[Field] = []
     unmapped = []

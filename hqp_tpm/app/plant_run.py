@@ -1,0 +1,78 @@
+"""A run closed through a plant (``[plant] kind = "mujoco"``): the plant built from the scenario, the per-step probe
+that steps it, and what the run writes about it (``plant.xml``, the ``plant*`` metrics).
+
+The probe runs after every control step, last of the probes: it applies the operator's hand force (a co-manipulation
+run) to the flange as an external wrench, steps the plant with the command the controller just computed, and sets
+the controller's state to the plant's measurement -- the only thing the plant writes into the controller. Recorded
+per step: ``tau`` (the applied motor torques, N m), ``dq`` (the measured velocity the step read), and with sensor
+noise or delay ``q_true``/``dq_true`` (the plant's true state at that time).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hqp_tpm.app.context import RunContext
+from hqp_tpm.errors import HqpTpmError, ScenarioError
+
+
+def build_plant(ctx: RunContext):
+    """The plant of ``ctx``'s scenario (None: kinematic), at the controller's initial state; the controller then
+    starts from the plant's first measurement."""
+    config = ctx.scenario.plant
+    if config is None or config.kind == "kinematic":
+        return None
+    from hqp_tpm.plants import MujocoPlant
+
+    ctrl = ctx.controller
+    try:
+        plant = MujocoPlant(ctx.robot, ctrl.dt, ctrl.order, config.options)
+    except HqpTpmError as exc:
+        raise ScenarioError(f"{ctx.scenario.path.name}.plant: {exc}") from exc
+    plant.reset(ctrl.q, ctrl.v)
+    ctrl.set_state(*plant.measure())
+    return plant
+
+
+def plant_probe(ctx: RunContext, plant):
+    """``probe(ctrl, res) -> dict`` that steps ``plant`` with the step's command (see the module docstring)."""
+    operator = ctx.scene.operator
+    truth = bool(plant.options.noise_q or plant.options.noise_v or plant.options.delay)
+    read = {"v": plant.measure()[1], "state": plant.state()}
+
+    def probe(ctrl, res) -> dict:
+        if operator is not None:
+            plant.push(operator.fid, operator.force)
+        tau = plant.step(res.command)
+        row = {"tau": tau, "dq": read["v"]}
+        if truth:
+            row["q_true"], row["dq_true"] = read["state"]
+        q, v = plant.measure()
+        ctrl.set_state(q, v)
+        read["v"], read["state"] = v, plant.state()
+        return row
+
+    return probe
+
+
+def plant_summary(ctx: RunContext, plant, arrays: dict) -> dict:
+    """The ``plant*`` metrics: the plant's kind, and for MuJoCo its integrator, timestep and largest torque."""
+    if plant is None:
+        return {"plant": "kinematic"}
+    o = plant.options
+    out = {"plant": plant.kind, "plant_integrator": o.integrator, "plant_timestep_s": float(plant.model.opt.timestep),
+           "plant_unmodelled": {k: getattr(o, k) for k in ("armature", "damping", "friction", "noise_q", "noise_v",
+                                                           "delay") if getattr(o, k)}}
+    if "tau" in arrays and len(arrays["tau"]):
+        out["tau_max"] = float(np.abs(arrays["tau"]).max())
+    return out
+
+
+def write_plant_xml(folder: Path, plant) -> str | None:
+    """``plant.xml``: the exact model the plant simulated (None for a kinematic run)."""
+    if plant is None:
+        return None
+    (Path(folder) / "plant.xml").write_text(plant.xml)
+    return "plant.xml"
