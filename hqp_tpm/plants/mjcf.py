@@ -118,13 +118,17 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
     for joint in list(spec.joints):
         if joint.type != mujoco.mjtJoint.mjJNT_FREE and joint.name not in names:
             spec.delete(joint)  # locked in a reduced robot (at 0, its neutral value)
+    kept = {j.name for j in spec.joints}
+    for eq in list(spec.equalities):  # a URDF's mimic joints (Romeo's fingers) tie joints removed just above
+        if eq.type == mujoco.mjtEq.mjEQ_JOINT and not {eq.name1, eq.name2} - {""} <= kept:
+            spec.delete(eq)
     for joint in spec.joints:
         if joint.type != mujoco.mjtJoint.mjJNT_FREE:
             joint.armature = options.armature + _model_armature(model, joint.name)
             joint.frictionloss = options.friction
             joint.damping = [options.damping, 0.0, 0.0]  # (linear, and MuJoCo 4's higher-order terms)
-    for body in spec.bodies:
-        if body.name != "world" and body.mass <= 0 and len(body.joints):
+    for body in spec.bodies:  # a moving body with no mass of its own nor on the bodies welded to it
+        if body.name != "world" and len(body.joints) and _welded_mass(body) <= 0:
             body.mass, body.inertia = MIN_MASS, [MIN_INERTIA] * 3
     contype = 1 if (options.floor or options.self_collision) else 0
     for geom in spec.geoms:
@@ -222,6 +226,12 @@ def _precise_inertial(el, body) -> None:
         el.attrib.pop(attr, None)
     el.set("fullinertia", " ".join(repr(float(inertia[i, j])) for i, j in ((0, 0), (1, 1), (2, 2), (0, 1), (0, 2),
                                                                             (1, 2))))
+
+
+def _welded_mass(body) -> float:
+    """Mass of ``body`` and of the bodies welded to it (children without joints, recursively): Romeo's
+    ``base_link`` has none of its own, but carries the trunk, so the free joint needs no made-up mass."""
+    return float(body.mass) + sum(_welded_mass(c) for c in body.bodies if not len(c.joints))
 
 
 def _model_armature(model, name: str) -> float:

@@ -33,8 +33,11 @@ class MujocoPlant:
     kind = "mujoco"
 
     def __init__(self, robot: Robot, period: float, order: int = 2, options: PlantOptions | None = None,
-                 xml: str | None = None) -> None:
-        """``xml``: the MJCF to simulate (default: :func:`~hqp_tpm.plants.mjcf.plant_xml` of the robot)."""
+                 xml: str | None = None, law=None) -> None:
+        """``xml``: the MJCF to simulate (default: :func:`~hqp_tpm.plants.mjcf.plant_xml` of the robot). ``law``:
+        what turns a command into torques, ``law(q, v, command) -> tau`` (``nv``) with ``law.reset(q, v)``
+        (default: :class:`InverseDynamics` at acceleration level, :class:`JointImpedance` at velocity level; a
+        floating base on contacts: :class:`~hqp_tpm.plants.contact_torque.ContactTorque`)."""
         if order not in (1, 2):
             raise ParameterError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
         if not (np.isfinite(period) and period > 0):
@@ -47,8 +50,9 @@ class MujocoPlant:
         self.model = compile_xml(self.xml)
         self.data = self.mujoco.MjData(self.model)
         self.map = JointMap(robot.model, self.model)
-        self.law = (InverseDynamics(robot.model) if order == 2 else
-                    JointImpedance(robot.model, self.period, self.options.kp, self.options.kd))
+        self.law = law if law is not None else (
+            InverseDynamics(robot.model) if order == 2 else
+            JointImpedance(robot.model, self.period, self.options.kp, self.options.kd))
         lo, up = self.model.actuator_ctrlrange.T
         limited = self.model.actuator_ctrllimited.astype(bool)
         self.tau_min = np.where(limited, lo, -np.inf)
