@@ -21,7 +21,6 @@ from hqp_tpm.app import build, scenario
 from hqp_tpm.app.results import task_error_probe
 from hqp_tpm.data import scenarios_dir
 from hqp_tpm.errors import HqpTpmError, SolverFailedError
-from hqp_tpm.plants.floating_base import ContactController
 
 #: every shipped scenario; the Romeo ones (27-37 DOF, 1-6 ms per step) are marked slow
 SCENARIOS = [pytest.param(p.stem, marks=pytest.mark.slow) if p.stem.startswith("romeo") else p.stem
@@ -60,15 +59,6 @@ def inject(ctrl, fault: str, monkeypatch):
                 fired["fired"] = True
                 return np.full_like(q, np.nan), np.full_like(v, np.nan)
             m.setattr(st, "integrate", integrate, raising=False)
-            if isinstance(ctrl, ContactController):  # a plant run: the measured state is what comes back non-finite
-                plant, measure = ctrl.plant, ctrl.plant.measure
-
-                def measured():
-                    fired["fired"] = True
-                    q, v = measure()
-                    return np.full_like(q, np.nan), v
-
-                m.setattr(plant, "measure", measured, raising=False)
         else:
             k, calls, solve = int(fault.split("_")[1]), [0], controller_module.solve
 

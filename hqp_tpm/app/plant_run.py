@@ -28,18 +28,64 @@ def build_plant(ctx: RunContext):
 
     ctrl = ctx.controller
     try:
-        plant = MujocoPlant(ctx.robot, ctrl.dt, ctrl.order, config.options)
+        if config.contacts is None:
+            plant = MujocoPlant(ctx.robot, ctrl.dt, ctrl.order, config.options)
+        else:  # a floating base on its soles: the standing model, torques from the contact QP
+            plant = _standing_plant(ctx, config)
     except HqpTpmError as exc:
+        if isinstance(exc, ScenarioError):
+            raise
         raise ScenarioError(f"{ctx.scenario.path.name}.plant: {exc}") from exc
     plant.reset(ctrl.q, ctrl.v)
     ctrl.set_state(*plant.measure())
     return plant
 
 
+def contact_soles(sc, tasks: dict) -> dict:
+    """``[plant] contacts``: sole frame -> its box (:data:`~hqp_tpm.plants.humanoid.ROMEO_SOLES`), checked against
+    the scenario's tasks (each a ``frame_pose`` task on a known sole)."""
+    from hqp_tpm.plants.humanoid import ROMEO_SOLES
+    from hqp_tpm.tasks import FramePose
+
+    where = f"{sc.path.name}.plant.contacts"
+    soles = {}
+    for name in sc.plant.contacts.tasks:
+        task = tasks.get(name)
+        if not isinstance(task, FramePose):
+            valid = [k for k, t in tasks.items() if isinstance(t, FramePose)]
+            raise ScenarioError(f"{where}: {name!r} is not a frame_pose task; frame_pose tasks: {valid}")
+        if task.frame not in ROMEO_SOLES:
+            raise ScenarioError(f"{where}: task {name!r} holds frame {task.frame!r}, which has no sole box; known "
+                                f"soles: {sorted(ROMEO_SOLES)}")
+        soles[task.frame] = ROMEO_SOLES[task.frame]
+    return soles
+
+
+def _standing_plant(ctx: RunContext, config):
+    """A :class:`MujocoPlant` on :func:`~hqp_tpm.plants.humanoid.standing_xml` driven by a
+    :class:`~hqp_tpm.plants.contact_torque.ContactTorque` law over the scenario's sole tasks."""
+    from hqp_tpm.control.contact_dynamics import ContactInverseDynamics, SoleContact, sole_corners
+    from hqp_tpm.plants import MujocoPlant
+    from hqp_tpm.plants.contact_torque import ContactTorque
+    from hqp_tpm.plants.humanoid import Ground, standing_xml
+
+    c, sc, ctrl = config.contacts, ctx.scenario, ctx.controller
+    if sc.order != 2:
+        raise ScenarioError(f"{sc.path.name}.plant.contacts: the contact QP needs level = \"acceleration\", got "
+                            f"{sc.level!r}")
+    soles = contact_soles(sc, ctx.tasks)
+    contacts = [SoleContact(ctx.tasks[n], sole_corners(*soles[ctx.tasks[n].frame])) for n in c.tasks]
+    cid = ContactInverseDynamics(ctx.robot, contacts, mu=c.mu, f_min=c.f_min, solver=c.qp_solver)
+    xml = standing_xml(ctx.robot, ctrl.dt, soles, config.options, Ground(friction=c.ground_friction))
+    return MujocoPlant(ctx.robot, ctrl.dt, ctrl.order, config.options, xml=xml,
+                       law=ContactTorque(cid, feet_bodies=list(soles)))
+
+
 def plant_probe(ctx: RunContext, plant):
     """``probe(ctrl, res) -> dict`` that steps ``plant`` with the step's command (see the module docstring)."""
     operator = ctx.scene.operator
     truth = bool(plant.options.noise_q or plant.options.noise_v or plant.options.delay)
+    standing = ctx.scenario.plant.contacts is not None
     read = {"v": plant.measure()[1], "state": plant.state()}
 
     def probe(ctrl, res) -> dict:
@@ -47,6 +93,8 @@ def plant_probe(ctx: RunContext, plant):
             plant.push(operator.fid, operator.force)
         tau = plant.step(res.command)
         row = {"tau": tau, "dq": read["v"]}
+        if standing:  # the contact QP's forces and the standing criteria (hqp_tpm.plants.contact_torque)
+            row.update(plant.law.record(plant))
         if truth:
             row["q_true"], row["dq_true"] = read["state"]
         q, v = plant.measure()
@@ -67,6 +115,8 @@ def plant_summary(ctx: RunContext, plant, arrays: dict) -> dict:
                                                            "delay") if getattr(o, k)}}
     if "tau" in arrays and len(arrays["tau"]):
         out["tau_max"] = float(np.abs(arrays["tau"]).max())
+    if ctx.scenario.plant.contacts is not None:
+        out.update(plant.law.summary(arrays))
     return out
 
 

@@ -19,11 +19,24 @@ _DEFAULT = PlantOptions()
 
 
 @dataclass(frozen=True)
+class ContactConfig:
+    """``[plant] contacts``: a floating base standing on its soles, torques from the contact QP
+    (:class:`~hqp_tpm.control.contact_dynamics.ContactInverseDynamics`)."""
+
+    tasks: tuple[str, ...]  # the scenario's frame_pose tasks that hold the soles
+    mu: float = 0.7  # the controller's friction coefficient (the linearised cones)
+    f_min: float = 1.0  # smallest normal force per sole corner (N)
+    qp_solver: str = "daqp"
+    ground_friction: float = 1.0  # MuJoCo's friction coefficient between the soles and the ground
+
+
+@dataclass(frozen=True)
 class PlantConfig:
-    """The parsed ``[plant]`` section: its kind and, for ``"mujoco"``, the plant's options."""
+    """The parsed ``[plant]`` section: its kind and, for ``"mujoco"``, the plant's options (and its contacts)."""
 
     kind: str = "kinematic"
     options: PlantOptions | None = None
+    contacts: ContactConfig | None = None
 
 
 def plant_config(sec: Section | None, period: float) -> PlantConfig:
@@ -59,10 +72,35 @@ def plant_config(sec: Section | None, period: float) -> PlantConfig:
             PlantOptions(**{name: value})
         except ParameterError as exc:
             raise ScenarioError(f"{sec.where}.{name}: {str(exc).split(': ', 1)[-1]}") from None
+    contacts = _contacts(sec)
     sec.check_unused()
     options = PlantOptions(**values)
     try:
         options.substeps(period)
     except ParameterError as exc:
         raise ScenarioError(f"{sec.where}.timestep: {str(exc).split(': ', 1)[-1]}") from None
-    return PlantConfig(kind, options)
+    return PlantConfig(kind, options, contacts)
+
+
+def _contacts(sec: Section) -> ContactConfig | None:
+    """``contacts`` (a list of frame_pose task names) and the contact QP's fields; None without ``contacts``."""
+    names = sec.raw("contacts", None)
+    fields = ("mu", "f_min", "qp_solver", "ground_friction")
+    if names is None:
+        given = [f for f in fields if sec.has(f)]
+        if given:
+            raise ScenarioError(f"{sec.where}.{given[0]}: a field of the contact QP, which needs `contacts` (the "
+                                "frame_pose tasks that hold the soles)")
+        return None
+    if not isinstance(names, list) or not names or not all(isinstance(n, str) for n in names):
+        raise ScenarioError(f"{sec.where}.contacts: expected a list of frame_pose task names (the held soles), "
+                            f"got {names!r}")
+    out = ContactConfig(tuple(names), mu=sec.number("mu", 0.7), f_min=sec.number("f_min", 1.0),
+                        qp_solver=sec.string("qp_solver", "daqp"),
+                        ground_friction=sec.number("ground_friction", 1.0))
+    for name in ("mu", "ground_friction"):
+        if getattr(out, name) <= 0:
+            raise ScenarioError(f"{sec.where}.{name}: must be > 0, got {getattr(out, name)!r}")
+    if out.f_min < 0:
+        raise ScenarioError(f"{sec.where}.f_min: must be >= 0, got {out.f_min!r}")
+    return out

@@ -43,6 +43,7 @@ SECTIONS: dict[tuple[str, str, str | None], str] = {
     ("hqp_tpm.app.build", "trajectory", "tab"): "target = { type = ... } (a trajectory table)",
     ("hqp_tpm.app.build", "build_policy", "sec"): "[policy] type = \"fixed\" (the default)",
     ("hqp_tpm.app.scenario_plant", "plant_config", "sec"): "[plant]",
+    ("hqp_tpm.app.scenario_plant", "_contacts", "sec"): "[plant] contacts (a floating base on its soles)",
     **{("hqp_tpm.app.build", f"_{kind}", "sec"): f"[[tasks]] type = \"{kind}\"" for kind in (
         "frame_position", "frame_orientation", "frame_pose", "pointing", "com", "posture", "force",
         "quaternion_orientation", "manipulability", "joint_limit")},
