@@ -2,11 +2,12 @@
 
     python benchmarks/standing_step.py [--steps 3000] [--warmup 300]
 
-One BLAS thread, the lean step as ``hqp-tpm run`` uses it. Per part, median and 99th percentile of the wall
-time and of the thread CPU time (µs) over ``--steps`` steps after ``--warmup``: the motion stack (state update,
-rows, TPM solve: :meth:`LeanStep.compute`), the contact QP (its own state update, the QP, the torques:
-:meth:`ContactInverseDynamics.solve`), the plant (``mj_step`` and the measured state), and the whole step
-(``ContactController.advance``). Prints a Markdown table.
+One BLAS thread, the lean step as ``hqp-tpm run`` uses it, the plant as ``hqp-tpm run`` builds it
+(:func:`hqp_tpm.app.plant_run.build_plant`). Per part, median and 99th percentile of the wall time and of the thread
+CPU time (µs) over ``--steps`` steps after ``--warmup``: the motion stack (state update, rows, TPM solve,
+integration: the lean step), the contact QP (its state update, the QP, the torques: the plant's torque law), the
+MuJoCo step (``mj_step`` and the measurement), and the whole loop step (controller step, plant step, measured state
+back into the controller). Prints a Markdown table.
 """
 
 from __future__ import annotations
@@ -23,29 +24,32 @@ def main(argv=None) -> int:
     p.add_argument("--steps", type=int, default=3000)
     p.add_argument("--warmup", type=int, default=300)
     args = p.parse_args(argv)
-    from hqp_tpm.app import build, scenario
+    from hqp_tpm.app import build, plant_run, scenario
 
-    ctrl = build.build_run(scenario.load("romeo_standing")).controller
+    ctx = build.build_run(scenario.load("romeo_standing"))
+    plant = plant_run.build_plant(ctx)
+    ctrl, law = ctx.controller, plant.law
     lean = ctrl.lean()
-    parts = {k: ([], []) for k in ("motion stack (TPM)", "contact QP", "plant (mj_step + measure)", "whole step")}
-    clock = (time.perf_counter, time.thread_time)
+    parts = {k: ([], []) for k in ("motion stack (lean TPM step)", "contact QP (torque law)",
+                                   "MuJoCo step + measurement", "whole loop step")}
 
-    def timed(key, fn):
-        w0, c0 = clock[0](), clock[1]()
-        out = fn()
-        parts[key][0].append(clock[0]() - w0)
-        parts[key][1].append(clock[1]() - c0)
+    def timed(key, fn, *a):
+        w0, c0 = time.perf_counter(), time.thread_time()
+        out = fn(*a)
+        parts[key][0].append(time.perf_counter() - w0)
+        parts[key][1].append(time.thread_time() - c0)
         return out
 
-    def command():
-        return timed("motion stack (TPM)", lean.compute)
+    def loop_step():
+        a = timed("motion stack (lean TPM step)", lean.step)
+        q, v = plant.measure()
+        tau = timed("contact QP (torque law)", law, q, v, a)
+        timed("MuJoCo step + measurement", plant.apply, tau)
+        ctrl.set_state(*plant.measure())
 
-    solve, step = ctrl.contacts.solve, ctrl.plant.step
-    ctrl.contacts.solve = lambda *a: timed("contact QP", lambda: solve(*a))
-    ctrl.plant.step = lambda tau: timed("plant (mj_step + measure)", lambda: step(tau))
     with threadpool_limits(limits=1):
         for _ in range(args.warmup + args.steps):
-            timed("whole step", lambda: ctrl.advance(command))
+            timed("whole loop step", loop_step)
     print(f"romeo_standing, {args.steps} steps after {args.warmup} (t = {ctrl.t:.2f} s), one BLAS thread, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}\n")
     print("| part | wall median µs | wall p99 µs | CPU median µs | CPU p99 µs |\n|---|---|---|---|---|")
