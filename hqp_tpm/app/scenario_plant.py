@@ -98,9 +98,9 @@ def _contacts(sec: Section) -> ContactConfig | None:
     out = ContactConfig(tuple(names), mu=sec.number("mu", 0.7), f_min=sec.number("f_min", 1.0),
                         qp_solver=sec.string("qp_solver", "daqp"),
                         ground_friction=sec.number("ground_friction", 1.0))
-    for name in ("mu", "ground_friction"):
-        if getattr(out, name) <= 0:
-            raise ScenarioError(f"{sec.where}.{name}: must be > 0, got {getattr(out, name)!r}")
+    for name, value in (("mu", out.mu), ("ground_friction", out.ground_friction)):
+        if value <= 0:
+            raise ScenarioError(f"{sec.where}.{name}: must be > 0, got {value!r}")
     if out.f_min < 0:
         raise ScenarioError(f"{sec.where}.f_min: must be >= 0, got {out.f_min!r}")
     return out
