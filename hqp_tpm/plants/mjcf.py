@@ -2,7 +2,8 @@
 
 :func:`robot_urdf` finds that file (a project robot, a URDF path, an example-robot-data robot);
 :func:`plant_xml` turns it into one MJCF text: visuals dropped, ``package://`` mesh paths made absolute,
-the URDF's collision cylinders marked as capsules (``<collision_checking><capsule/>``) made capsules as
+no inertia from geometry (the URDF's inertials only, as pinocchio), the URDF's collision cylinders marked
+as capsules (``<collision_checking><capsule/>``) made capsules as
 pinocchio reads them, a free joint named after pinocchio's root joint for a floating base, joints a reduced
 robot locked removed, the plant options' armature, damping, friction, timestep and integrator, one
 torque motor per actuated joint (in pinocchio's velocity order, limited to the URDF's ``effort`` when
@@ -51,7 +52,8 @@ def robot_urdf(robot: Robot) -> tuple[Path, list[Path]]:
         name = source.split(":", 1)[1].split()[0]
         loader = robots_loader.ROBOTS[name]()
         urdf = Path(loader.df_path)
-        return urdf, [Path(loader.model_path), urdf.parent, urdf.parent.parent]
+        model_path = Path(loader.model_path)  # .../share/example-robot-data/robots
+        return urdf, [model_path, model_path.parent.parent, urdf.parent, urdf.parent.parent]
     raise PlantError(f"robot {robot.name!r}: no URDF to build the plant from (source {source!r}); load it from a "
                      "URDF path, a project robot name or an example-robot-data name")
 
@@ -104,7 +106,8 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
         spec = mujoco.MjSpec.from_string(text)
     except (ValueError, RuntimeError) as exc:
         raise PlantError(f"MuJoCo cannot read {str(urdf)!r}: {exc}") from exc
-    spec.compiler.discardvisual = True
+    spec.compiler.discardvisual = False  # visuals are gone already; contact-free collision geoms must stay
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE  # the URDF's inertials only
     spec.compiler.fusestatic = False
     spec.strippath = False
     spec.modelname = robot.name
