@@ -269,3 +269,36 @@ def test_bad_inputs_are_typed_errors(iiwa):
         plant.step(np.zeros(6))
     with pytest.raises(PlantError, match="no URDF"):
         MujocoPlant(Robot(iiwa.model, name="bare"), 1e-3, 2)
+
+
+def test_mujoco_distances_equal_the_distance_field(iiwa):
+    """The cross-check of runs with a distance field (hqp_tpm.plants.distances): MuJoCo's mj_geomDistance on the
+    plant's capsules and the field's coal distances (capsules vs box, capsule and sphere obstacles; control points
+    in closed form) agree at random states, and differ as soon as the plant is elsewhere."""
+    from hqp_tpm.geometry.distances import DistanceField
+    from hqp_tpm.geometry.obstacles import Obstacle
+    from hqp_tpm.plants.distances import DistanceCheck, field_geoms
+
+    obstacles = [Obstacle.box("box", [0.5, 0.3, 0.4], [0.1, 0.05, 0.2]),
+                 Obstacle.capsule("bar", [-0.4, -0.4, 0.2], [-0.4, 0.4, 0.6], 0.05),
+                 Obstacle.sphere("ball", [0.3, -0.4, 0.9], 0.1), Obstacle.sphere("dot", [0.0, 0.5, 0.5])]
+    field = DistanceField(iiwa.model, iiwa.collision_model, ["iiwa_ee", "iiwa_elbow"], obstacles, surveillance=10.0)
+    assert "geometry" in field.kinds and "point" in field.kinds
+    plant = MujocoPlant(iiwa, 1e-3, 2, geoms=field_geoms(iiwa, field))
+    check = DistanceCheck(plant, field)
+    assert check.pairs == len(field.names) * len(obstacles)
+    data = iiwa.model.createData()
+    rng = np.random.default_rng(5)
+    for _ in range(5):
+        q, _, _ = random_state(iiwa, rng)
+        pin.forwardKinematics(iiwa.model, data, q)
+        pin.updateFramePlacements(iiwa.model, data)
+        field.update(data)
+        plant.reset(q)
+        assert field.computed.all()
+        worst = check()
+        assert worst < 1e-6, worst
+    plant.reset(q + 0.01)
+    assert check() > 1e-3
+    # the added geoms carry no mass and no contact: the dynamics are the robot's
+    assert np.all(plant.model.geom_contype == 0) and plant.model.nbody == MujocoPlant(iiwa, 1e-3, 2).model.nbody

@@ -80,7 +80,7 @@ def test_comanipulation_operator_force_acts_on_the_flange():
     rec.discard()
     op = ctx.scene.operator
     assert np.linalg.norm(op.force) > 2.0  # the hand pulls from t = 0.5 s on
-    body = plant._frame_body(op.fid)
+    body, _ = plant.frame_body(op.fid)
     assert np.array_equal(plant.data.xfrc_applied[body, :3], op.force)
     q, v = plant.measure()
     assert np.array_equal(ctx.controller.q, q) and np.array_equal(ctx.controller.v, v)
@@ -110,3 +110,19 @@ def test_no_plant_section_is_kinematic():
     assert scenario.load("iiwa_first_controller").plant.kind == "kinematic"
     sc = scenario.load("lwr_relaxed_mujoco")
     assert sc.plant.kind == "mujoco" and sc.plant.options.integrator == "euler"
+
+
+def test_lwr_relaxed_on_the_plant_cross_checks_its_distances(tmp_path):
+    """Algorithm 1's control-point distances against MuJoCo's on the plant (shortened: 1,000 of 18,850 steps); the
+    distance queries between steps leave the simulation as it was (the torques still replay exactly)."""
+    out = tmp_path / "run"
+    assert main(["run", "lwr_relaxed_mujoco", "--out", str(out), "--quiet", "--no-replay", "--no-figures",
+                 "--steps", "1000"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    assert metrics["plant"] == "mujoco" and metrics["distance_crosscheck_steps"] == 1000
+    assert metrics["distance_crosscheck_max"] < 1e-9 and metrics["units"]["distance_crosscheck_max"] == "m"
+    data = np.load(out / "trajectory.npz")
+    from hqp_tpm.plants import replay_torques
+
+    q = replay_torques((out / "plant.xml").read_text(), data["q"][0], data["dq"][0], data["tau"], 1e-3)
+    assert np.abs(q - data["q"]).max() <= 1e-6

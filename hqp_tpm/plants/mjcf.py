@@ -18,8 +18,10 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from hqp_tpm.errors import PlantError
+from hqp_tpm.plants.frames import body_of_frame
 from hqp_tpm.plants.options import PlantOptions
 from hqp_tpm.robot.model import Robot
 
@@ -96,8 +98,9 @@ def clean_urdf(urdf: Path, dirs: list[Path], collision: bool) -> tuple[str, set[
     return ET.tostring(root, encoding="unicode"), capsules
 
 
-def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) -> str:
-    """The MJCF text of the plant of ``robot`` stepped every ``period`` seconds (see the module docstring)."""
+def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None, geoms=()) -> str:
+    """The MJCF text of the plant of ``robot`` stepped every ``period`` seconds (see the module docstring);
+    ``geoms``: contact-free :class:`~hqp_tpm.plants.distances.ExtraGeom` s to add (distance checks)."""
     mujoco = mujoco_module()
     options = PlantOptions() if options is None else options
     urdf, dirs = robot_urdf(robot)
@@ -137,6 +140,7 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
     if options.floor:
         spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], contype=0,
                                 conaffinity=1)
+    _add_geoms(mujoco, spec, model, geoms)
     for jid in range(1, model.njoints):
         joint = model.joints[jid]
         if joint.nv != 1:
@@ -153,6 +157,23 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
     except (ValueError, RuntimeError) as exc:
         raise PlantError(f"MuJoCo cannot compile the plant of {robot.name!r} ({urdf}): {exc}") from exc
     return precise_xml(spec.to_xml(), spec)
+
+
+def _add_geoms(mujoco, spec, model, geoms) -> None:
+    """Contact-free geoms at pinocchio frames or in the world (they carry no mass: inertia comes from the URDF)."""
+    bodies = {b.name for b in spec.bodies}
+    types = {"sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+             "box": mujoco.mjtGeom.mjGEOM_BOX}
+    for g in geoms:
+        if g.frame is None:
+            body, placement = spec.worldbody, g.placement
+        else:
+            name, offset = body_of_frame(model, bodies, g.frame)
+            body, placement = (spec.worldbody if name == "world" else spec.body(name)), offset * g.placement
+        quat = pin.Quaternion(placement.rotation)
+        body.add_geom(name=g.name, type=types[g.kind], size=[*g.size, *[0.0] * (3 - len(g.size))],
+                      pos=placement.translation, quat=[quat.w, quat.x, quat.y, quat.z], contype=0, conaffinity=0,
+                      group=3)
 
 
 #: MJCF attributes (per element) whose numbers :func:`precise_xml` writes from the spec in full precision.
