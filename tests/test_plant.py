@@ -302,3 +302,22 @@ def test_mujoco_distances_equal_the_distance_field(iiwa):
     assert check() > 1e-3
     # the added geoms carry no mass and no contact: the dynamics are the robot's
     assert np.all(plant.model.geom_contype == 0) and plant.model.nbody == MujocoPlant(iiwa, 1e-3, 2).model.nbody
+
+
+def test_floating_base_falls_freely(talos):
+    """Talos without a floor and without torques falls as one body: after n Euler steps the base is
+    ``g T^2 n (n+1) / 2`` lower, its orientation unchanged, and the measured velocity (pinocchio's body frame) is
+    ``R^T (0, 0, -g n T)``: the free joint converted both ways along the plant's own path."""
+    plant = MujocoPlant(talos, 1e-3, 2, PlantOptions(collision=False))
+    q0 = talos.neutral()
+    q0[:3] = [0.1, -0.2, 1.0]
+    q0[3:7] = [0.1, -0.2, 0.3, 0.9] / np.linalg.norm([0.1, -0.2, 0.3, 0.9])
+    plant.reset(q0)
+    n, g = 100, 9.81
+    for _ in range(n):
+        plant.apply(np.zeros(talos.nv))
+    q, v = plant.measure()
+    R = pin.Quaternion(q0[6], *q0[3:6]).toRotationMatrix()
+    assert q[2] == pytest.approx(1.0 - g * 1e-6 * n * (n + 1) / 2, abs=1e-12)
+    assert np.allclose(q[3:7], q0[3:7], atol=1e-12) and np.allclose(q[7:], q0[7:], atol=1e-12)
+    assert np.allclose(v[:3], R.T @ [0.0, 0.0, -g * n * 1e-3], atol=1e-10) and np.abs(v[3:]).max() < 1e-10
