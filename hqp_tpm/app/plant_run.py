@@ -4,8 +4,10 @@ that steps it, and what the run writes about it (``plant.xml``, the ``plant*`` m
 The probe runs after every control step, last of the probes: it applies the operator's hand force (a co-manipulation
 run) to the flange as an external wrench, steps the plant with the command the controller just computed, and sets
 the controller's state to the plant's measurement -- the only thing the plant writes into the controller. Recorded
-per step: ``tau`` (the applied motor torques, N m), ``dq`` (the measured velocity the step read), and with sensor
-noise or delay ``q_true``/``dq_true`` (the plant's true state at that time).
+per step: ``tau`` (the applied motor torques, N m), ``dq`` (the measured velocity the step read), with sensor
+noise or delay ``q_true``/``dq_true`` (the plant's true state at that time), and where the run has a distance field
+``distance_crosscheck``: the largest difference between the field's distances and MuJoCo's own on the same pairs
+(:mod:`hqp_tpm.plants.distances`; NaN at a step where the field computed no pair).
 """
 
 from __future__ import annotations
@@ -25,11 +27,14 @@ def build_plant(ctx: RunContext):
     if config is None or config.kind == "kinematic":
         return None
     from hqp_tpm.plants import MujocoPlant
+    from hqp_tpm.plants.distances import field_geoms
 
     ctrl = ctx.controller
+    field = ctx.scene.field
     try:
         if config.contacts is None:
-            plant = MujocoPlant(ctx.robot, ctrl.dt, ctrl.order, config.options)
+            geoms = field_geoms(ctx.robot, field) if field is not None else ()
+            plant = MujocoPlant(ctx.robot, ctrl.dt, ctrl.order, config.options, geoms=geoms)
         else:  # a floating base on its soles: the standing model, torques from the contact QP
             plant = _standing_plant(ctx, config)
     except HqpTpmError as exc:
@@ -83,16 +88,22 @@ def _standing_plant(ctx: RunContext, config):
 
 def plant_probe(ctx: RunContext, plant):
     """``probe(ctrl, res) -> dict`` that steps ``plant`` with the step's command (see the module docstring)."""
+    from hqp_tpm.plants.distances import DistanceCheck
+
     operator = ctx.scene.operator
     truth = bool(plant.options.noise_q or plant.options.noise_v or plant.options.delay)
     standing = ctx.scenario.plant.contacts is not None
     read = {"v": plant.measure()[1], "state": plant.state()}
+    check = DistanceCheck(plant, ctx.scene.field) if ctx.scene.field is not None else None
+    if check is not None and not check.pairs:
+        check = None
 
     def probe(ctrl, res) -> dict:
+        row = {} if check is None else {"distance_crosscheck": check()}  # the plant still at the step's state
         if operator is not None:
             plant.push(operator.fid, operator.force)
         tau = plant.step(res.command)
-        row = {"tau": tau, "dq": read["v"]}
+        row.update(tau=tau, dq=read["v"])
         if standing:  # the contact QP's forces and the standing criteria (hqp_tpm.plants.contact_torque)
             row.update(plant.law.record(plant))
         if truth:
@@ -115,6 +126,10 @@ def plant_summary(ctx: RunContext, plant, arrays: dict) -> dict:
                                                            "delay") if getattr(o, k)}}
     if "tau" in arrays and len(arrays["tau"]):
         out["tau_max"] = float(np.abs(arrays["tau"]).max())
+    if "distance_crosscheck" in arrays:
+        diff = np.asarray(arrays["distance_crosscheck"])
+        out["distance_crosscheck_max"] = float(np.nanmax(diff)) if np.isfinite(diff).any() else None
+        out["distance_crosscheck_steps"] = int(np.isfinite(diff).sum())
     if ctx.scenario.plant.contacts is not None:
         out.update(plant.law.summary(arrays))
     return out

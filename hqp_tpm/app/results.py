@@ -109,6 +109,9 @@ METRICS: dict[str, tuple[str, str]] = {
     "plant_timestep_s": ("s", "MuJoCo's timestep (it divides the control period)"),
     "plant_unmodelled": ("-", "the effects the plant simulated and the controller did not model (option -> value)"),
     "tau_max": ("N m", "largest applied joint torque (absolute value)"),
+    "distance_crosscheck_max": ("m", "largest difference between the run's distances (coal or closed form) and "
+                                "MuJoCo's ``mj_geomDistance`` on the plant's geometry, over the pairs computed"),
+    "distance_crosscheck_steps": ("1", "steps at which ``distance_crosscheck_max`` compared at least one pair"),
     # policy summaries: the co-manipulation hierarchy and admittance (papers/003)
     "sigma_m_min": ("1", "smallest manipulability index sigma_m (14)"),
     "sigma_m_mean": ("1", "mean manipulability index"),

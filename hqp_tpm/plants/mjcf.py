@@ -2,7 +2,8 @@
 
 :func:`robot_urdf` finds that file (a project robot, a URDF path, an example-robot-data robot);
 :func:`plant_xml` turns it into one MJCF text: visuals dropped, ``package://`` mesh paths made absolute,
-the URDF's collision cylinders marked as capsules (``<collision_checking><capsule/>``) made capsules as
+no inertia from geometry (the URDF's inertials only, as pinocchio), the URDF's collision cylinders marked
+as capsules (``<collision_checking><capsule/>``) made capsules as
 pinocchio reads them, a free joint named after pinocchio's root joint for a floating base, joints a reduced
 robot locked removed, the plant options' armature, damping, friction, timestep and integrator, one
 torque motor per actuated joint (in pinocchio's velocity order, limited to the URDF's ``effort`` when
@@ -17,8 +18,10 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import numpy as np
+import pinocchio as pin
 
 from hqp_tpm.errors import PlantError
+from hqp_tpm.plants.frames import body_of_frame
 from hqp_tpm.plants.options import PlantOptions
 from hqp_tpm.robot.model import Robot
 
@@ -51,7 +54,8 @@ def robot_urdf(robot: Robot) -> tuple[Path, list[Path]]:
         name = source.split(":", 1)[1].split()[0]
         loader = robots_loader.ROBOTS[name]()
         urdf = Path(loader.df_path)
-        return urdf, [Path(loader.model_path), urdf.parent, urdf.parent.parent]
+        model_path = Path(loader.model_path)  # .../share/example-robot-data/robots
+        return urdf, [model_path, model_path.parent.parent, urdf.parent, urdf.parent.parent]
     raise PlantError(f"robot {robot.name!r}: no URDF to build the plant from (source {source!r}); load it from a "
                      "URDF path, a project robot name or an example-robot-data name")
 
@@ -94,8 +98,9 @@ def clean_urdf(urdf: Path, dirs: list[Path], collision: bool) -> tuple[str, set[
     return ET.tostring(root, encoding="unicode"), capsules
 
 
-def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) -> str:
-    """The MJCF text of the plant of ``robot`` stepped every ``period`` seconds (see the module docstring)."""
+def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None, geoms=()) -> str:
+    """The MJCF text of the plant of ``robot`` stepped every ``period`` seconds (see the module docstring);
+    ``geoms``: contact-free :class:`~hqp_tpm.plants.distances.ExtraGeom` s to add (distance checks)."""
     mujoco = mujoco_module()
     options = PlantOptions() if options is None else options
     urdf, dirs = robot_urdf(robot)
@@ -104,7 +109,8 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
         spec = mujoco.MjSpec.from_string(text)
     except (ValueError, RuntimeError) as exc:
         raise PlantError(f"MuJoCo cannot read {str(urdf)!r}: {exc}") from exc
-    spec.compiler.discardvisual = True
+    spec.compiler.discardvisual = False  # visuals are gone already; contact-free collision geoms must stay
+    spec.compiler.inertiafromgeom = mujoco.mjtInertiaFromGeom.mjINERTIAFROMGEOM_FALSE  # the URDF's inertials only
     spec.compiler.fusestatic = False
     spec.strippath = False
     spec.modelname = robot.name
@@ -138,6 +144,7 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
     if options.floor:
         spec.worldbody.add_geom(name="floor", type=mujoco.mjtGeom.mjGEOM_PLANE, size=[0, 0, 1], contype=0,
                                 conaffinity=1)
+    _add_geoms(mujoco, spec, model, geoms)
     for jid in range(1, model.njoints):
         joint = model.joints[jid]
         if joint.nv != 1:
@@ -154,6 +161,23 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None) 
     except (ValueError, RuntimeError) as exc:
         raise PlantError(f"MuJoCo cannot compile the plant of {robot.name!r} ({urdf}): {exc}") from exc
     return precise_xml(spec.to_xml(), spec)
+
+
+def _add_geoms(mujoco, spec, model, geoms) -> None:
+    """Contact-free geoms at pinocchio frames or in the world (they carry no mass: inertia comes from the URDF)."""
+    bodies = {b.name for b in spec.bodies}
+    types = {"sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
+             "box": mujoco.mjtGeom.mjGEOM_BOX}
+    for g in geoms:
+        if g.frame is None:
+            body, placement = spec.worldbody, g.placement
+        else:
+            name, offset = body_of_frame(model, bodies, g.frame)
+            body, placement = (spec.worldbody if name == "world" else spec.body(name)), offset * g.placement
+        quat = pin.Quaternion(placement.rotation)
+        body.add_geom(name=g.name, type=types[g.kind], size=[*g.size, *[0.0] * (3 - len(g.size))],
+                      pos=placement.translation, quat=[quat.w, quat.x, quat.y, quat.z], contype=0, conaffinity=0,
+                      group=3)
 
 
 #: MJCF attributes (per element) whose numbers :func:`precise_xml` writes from the spec in full precision.

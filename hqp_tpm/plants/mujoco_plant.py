@@ -20,6 +20,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ParameterError, PlantError, ShapeError
+from hqp_tpm.plants.frames import body_of_frame
 from hqp_tpm.plants.joint_map import JointMap
 from hqp_tpm.plants.mjcf import compile_xml, mujoco_module, plant_xml
 from hqp_tpm.plants.options import PlantOptions
@@ -33,11 +34,12 @@ class MujocoPlant:
     kind = "mujoco"
 
     def __init__(self, robot: Robot, period: float, order: int = 2, options: PlantOptions | None = None,
-                 xml: str | None = None, law=None) -> None:
-        """``xml``: the MJCF to simulate (default: :func:`~hqp_tpm.plants.mjcf.plant_xml` of the robot). ``law``:
-        what turns a command into torques, ``law(q, v, command) -> tau`` (``nv``) with ``law.reset(q, v)``
-        (default: :class:`InverseDynamics` at acceleration level, :class:`JointImpedance` at velocity level; a
-        floating base on contacts: :class:`~hqp_tpm.plants.contact_torque.ContactTorque`)."""
+                 xml: str | None = None, geoms=(), law=None) -> None:
+        """``xml``: the MJCF to simulate (default: :func:`~hqp_tpm.plants.mjcf.plant_xml` of the robot, with the
+        contact-free ``geoms`` added). ``law``: what turns a command into torques, ``law(q, v, command) -> tau``
+        (``nv``) with ``law.reset(q, v)`` (default: :class:`InverseDynamics` at acceleration level,
+        :class:`JointImpedance` at velocity level; a floating base on contacts:
+        :class:`~hqp_tpm.plants.contact_torque.ContactTorque`)."""
         if order not in (1, 2):
             raise ParameterError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
         if not (np.isfinite(period) and period > 0):
@@ -46,7 +48,7 @@ class MujocoPlant:
         self.robot, self.period, self.order = robot, float(period), order
         self.options = PlantOptions() if options is None else options
         self.substeps = self.options.substeps(self.period)
-        self.xml = plant_xml(robot, self.period, self.options) if xml is None else xml
+        self.xml = plant_xml(robot, self.period, self.options, geoms) if xml is None else xml
         self.model = compile_xml(self.xml)
         self.data = self.mujoco.MjData(self.model)
         self.map = JointMap(robot.model, self.model)
@@ -141,34 +143,20 @@ class MujocoPlant:
 
     # -- external forces -------------------------------------------------------------------------
     def push(self, frame: str | int, force, torque=None) -> None:
-        """An external wrench (world frame: N, N m) on the body that holds ``frame``, acting at the frame's
-        origin, until changed (``push(frame, 0)`` removes it). Written to MuJoCo's ``xfrc_applied``, which acts at
-        the body's centre of mass: the moment of the force about it is added."""
+        """An external wrench (world frame: N, N m) on the body that carries ``frame``, acting at the frame's origin,
+        until changed (``push(frame, 0)`` removes it). Written to MuJoCo's ``xfrc_applied``, which acts at the
+        body's centre of mass: the moment of the force about it is added."""
         fid = self.robot.frame_id(frame) if isinstance(frame, str) else int(frame)
-        fr = self.robot.model.frames[fid]
-        body = self._frame_body(fid)
+        body, offset = self.frame_body(fid)
         f = np.broadcast_to(np.asarray(force, dtype=float), (3,))
         n = np.zeros(3) if torque is None else np.asarray(torque, dtype=float)
-        xb, Rb = self.data.xpos[body], self.data.xmat[body].reshape(3, 3)
-        point = xb + Rb @ self._frame_offset(fid, fr)
+        point = self.data.xpos[body] + self.data.xmat[body].reshape(3, 3) @ offset.translation
         self.data.xfrc_applied[body, :3] = f
         self.data.xfrc_applied[body, 3:] = n + np.cross(point - self.data.xipos[body], f)
 
-    def _frame_body(self, fid: int) -> int:
-        """The MuJoCo body of a pinocchio frame: the body named like the frame, else like its parent joint's
-        child link."""
-        model = self.robot.model
-        name = model.frames[fid].name
-        try:
-            return int(self.model.body(name).id)
-        except KeyError:
-            joint = model.frames[fid].parentJoint
-            return int(self.model.joint(model.names[joint]).bodyid[0]) if joint > 0 else 0
-
-    def _frame_offset(self, fid: int, fr) -> np.ndarray:
-        """The frame's origin in its MuJoCo body (zero when the body is the frame's own)."""
-        try:
-            self.model.body(fr.name)
-            return np.zeros(3)
-        except KeyError:
-            return np.asarray(fr.placement.translation, dtype=float)
+    def frame_body(self, fid: int) -> tuple[int, pin.SE3]:
+        """MuJoCo body id carrying pinocchio frame ``fid`` and the frame's placement in it
+        (:func:`hqp_tpm.plants.frames.body_of_frame`)."""
+        names = {self.model.body(b).name for b in range(self.model.nbody)}
+        name, offset = body_of_frame(self.robot.model, names, fid)
+        return int(self.model.body(name).id), offset
