@@ -3,9 +3,12 @@
 The motion stack (any hierarchy, solved by the project's solvers) gives a desired acceleration ``a*``. A
 floating base cannot be given ``a*`` through ``rnea`` alone: the six base rows of ``M a + h`` must be
 produced by contact forces. This QP finds the acceleration closest to ``a*`` and the contact forces that
-produce it (task-space inverse dynamics with contacts, the formulation of TSID: del Prete et al.,
-"Implementing torque control with high-Q..." / TSID's ``InverseDynamicsFormulationAccForce``; read, not
-copied). Variables ``y = (a, f)`` with ``f`` the 3-D world-frame forces at the corners of each sole:
+produce it: task-space inverse dynamics with contacts as TSID formulates it (its
+``InverseDynamicsFormulationAccForce``, ``src/formulations/inverse-dynamics-formulation-acc-force.cpp``: the base
+rows ``M_u a - J_u^T f = -h_u`` and the contacts' motion as equalities, the friction cones on the forces of a flat
+contact's four corners as inequalities, a force regularisation, ``tau = M_a a + h_a - J_a^T f``; read, not copied;
+here the motion tasks are solved before, by the project's hierarchy, and enter through ``a*``). Variables
+``y = (a, f)`` with ``f`` the 3-D world-frame forces at the corners of each sole:
 
     min  |a - a*|^2 + w_f |f - f_0|^2
     s.t. M_u a + h_u = J_u^T f                           (the base rows of M a + h = S^T tau + J^T f)
