@@ -321,3 +321,25 @@ def test_floating_base_falls_freely(talos):
     assert q[2] == pytest.approx(1.0 - g * 1e-6 * n * (n + 1) / 2, abs=1e-12)
     assert np.allclose(q[3:7], q0[3:7], atol=1e-12) and np.allclose(q[7:], q0[7:], atol=1e-12)
     assert np.allclose(v[:3], R.T @ [0.0, 0.0, -g * n * 1e-3], atol=1e-10) and np.abs(v[3:]).max() < 1e-10
+
+
+def test_contact_geoms_touch_the_floor_only(iiwa):
+    """An added geom with ``contact`` (a sole for a robot built without its meshes) collides with the floor and
+    with nothing else; the robot's own geoms touch the floor when ``floor`` and each other only with
+    ``self_collision``."""
+    from hqp_tpm.plants.distances import ExtraGeom
+
+    sole = ExtraGeom("sole", "box", (0.05, 0.05, 0.01), iiwa.frame_id("iiwa_ee"), pin.SE3.Identity(), contact=True)
+    plant = MujocoPlant(iiwa, 1e-3, 2, PlantOptions(floor=True), geoms=[sole])
+    m = plant.model
+    floor, g = m.geom("floor").id, m.geom("sole").id
+    assert (m.geom_contype[g], m.geom_conaffinity[g]) == (1, 0)
+    assert (m.geom_contype[floor], m.geom_conaffinity[floor]) == (0, 1)
+    robot = [k for k in range(m.ngeom) if k not in (floor, g)]
+    assert all(m.geom_contype[k] == 1 and m.geom_conaffinity[k] == 0 for k in robot)
+    plant.reset(np.deg2rad([0, 110, 0, -90, 0, 0, 0]))  # flange at z = -0.29 m, below the floor
+    mujoco.mj_forward(m, plant.data)
+    assert plant.data.ncon > 0
+    assert all(floor in (c.geom1, c.geom2) for c in plant.data.contact[:plant.data.ncon])
+    selfish = MujocoPlant(iiwa, 1e-3, 2, PlantOptions(self_collision=True)).model
+    assert all(selfish.geom_conaffinity[k] == 1 for k in range(selfish.ngeom))

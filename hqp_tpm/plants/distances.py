@@ -27,14 +27,16 @@ DISTMAX = 100.0
 
 @dataclass(frozen=True)
 class ExtraGeom:
-    """A contact-free geom added to the plant: ``kind`` sphere/capsule/box with MuJoCo's ``size``, at ``placement``
-    in pinocchio frame ``frame`` (None: the world)."""
+    """A geom added to the plant: ``kind`` sphere/capsule/box with MuJoCo's ``size``, at ``placement`` in pinocchio
+    frame ``frame`` (None: the world). Contact-free unless ``contact`` (then it touches the ``floor``, e.g. a
+    humanoid's sole when its meshes are left out)."""
 
     name: str
     kind: str
     size: tuple
     frame: int | None
     placement: pin.SE3
+    contact: bool = False
 
 
 def _obstacle_geom(obs) -> ExtraGeom | None:

@@ -164,7 +164,7 @@ def plant_xml(robot: Robot, period: float, options: PlantOptions | None = None, 
 
 
 def _add_geoms(mujoco, spec, model, geoms) -> None:
-    """Contact-free geoms at pinocchio frames or in the world (they carry no mass: inertia comes from the URDF)."""
+    """Geoms at pinocchio frames or in the world (no mass: inertia comes from the URDF); contact-free unless asked."""
     bodies = {b.name for b in spec.bodies}
     types = {"sphere": mujoco.mjtGeom.mjGEOM_SPHERE, "capsule": mujoco.mjtGeom.mjGEOM_CAPSULE,
              "box": mujoco.mjtGeom.mjGEOM_BOX}
@@ -176,8 +176,8 @@ def _add_geoms(mujoco, spec, model, geoms) -> None:
             body, placement = (spec.worldbody if name == "world" else spec.body(name)), offset * g.placement
         quat = pin.Quaternion(placement.rotation)
         body.add_geom(name=g.name, type=types[g.kind], size=[*g.size, *[0.0] * (3 - len(g.size))],
-                      pos=placement.translation, quat=[quat.w, quat.x, quat.y, quat.z], contype=0, conaffinity=0,
-                      group=3)
+                      pos=placement.translation, quat=[quat.w, quat.x, quat.y, quat.z],
+                      contype=1 if g.contact else 0, conaffinity=0, group=3)
 
 
 #: MJCF attributes (per element) whose numbers :func:`precise_xml` writes from the spec in full precision.
