@@ -52,8 +52,11 @@ def robot_urdf(robot: Robot) -> tuple[Path, list[Path]]:
         from example_robot_data import robots_loader
 
         name = source.split(":", 1)[1].split()[0]
-        loader = robots_loader.ROBOTS[name]()
-        urdf = Path(loader.df_path)
+        loaders = getattr(robots_loader, "ROBOTS", {})
+        if name not in loaders:
+            raise PlantError(f"robot {robot.name!r}: example-robot-data has no loader {name!r} to find its URDF")
+        loader = loaders[name]()
+        urdf = Path(getattr(loader, "df_path", None) or loader.urdf_path)
         model_path = Path(loader.model_path)  # .../share/example-robot-data/robots
         return urdf, [model_path, model_path.parent.parent, urdf.parent, urdf.parent.parent]
     raise PlantError(f"robot {robot.name!r}: no URDF to build the plant from (source {source!r}); load it from a "
