@@ -50,6 +50,7 @@ test-pin-lowest: $(VENV_PIN_LOWEST)/.dev
 	$(VENV_PIN_LOWEST)/bin/python -m pytest -q -n 2 --dist loadfile
 
 scenarios: $(VENV)/.base
+	$(PY) -m pip install -q -e '.[sim]'  # the *_mujoco scenarios run on MuJoCo
 	for s in $$($(VENV)/bin/hqp-tpm list --names); do $(VENV)/bin/hqp-tpm run $$s --out $(OUT)/$$s || exit 1; done
 
 clean:

@@ -2,7 +2,7 @@
 
     python benchmarks/run_all.py [--quick] [--out DIR] [--draws N] [--qp-draws N] [--steps N]
 
-Runs ``solvers.py``, ``control_step.py`` and ``profile_steps.py`` one after the other (each with one
+Runs ``solvers.py``, ``control_step.py``, ``profile_steps.py`` and ``plant_step.py`` one after the other (each with one
 BLAS thread), then writes ``summary.md`` and ``summary.csv`` (every target, met or missed, with the
 figure measured in this run) next to their own result files in ``benchmarks/results/``.
 """
@@ -18,7 +18,7 @@ from pathlib import Path
 if __package__ in (None, ""):  # run as a script: make ``benchmarks`` importable
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks import common, control_step, profile_steps, solvers  # noqa: E402
+from benchmarks import common, control_step, plant_step, profile_steps, solvers  # noqa: E402
 
 
 def parse(argv=None):
@@ -50,6 +50,10 @@ def main(argv=None) -> int:
     t1 = time.perf_counter()
     p = profile_steps.main(common_args)
     durations["profile_steps.py"] = time.perf_counter() - t1
+    common.progress("plant_step.py")
+    t1 = time.perf_counter()
+    ps = plant_step.main(common_args)
+    durations["plant_step.py"] = time.perf_counter() - t1
     total = time.perf_counter() - t0
 
     targets = [*c["targets"], *s["targets"]]
@@ -67,8 +71,10 @@ def main(argv=None) -> int:
         *[(f"Control step — {h}", b) for h, b in c["sections"] if h != "Targets"],
         *[(f"Solvers — {h}", b) for h, b in s["sections"] if h != "Targets"],
         *p["sections"],
+        *[(f"MuJoCo plant — {h}", b) for h, b in ps["sections"]],
         ("Files", "`solvers.csv`, `solvers.md`, `solvers_vs_l.png`, `solvers_vs_n.png`, `control_step.csv`, "
-                  "`control_step.md`, `profile_lwr_relaxed.txt`, `profile_romeo_sns_tpm.txt`, `summary.csv`."),
+                  "`control_step.md`, `profile_lwr_relaxed.txt`, `profile_romeo_sns_tpm.txt`, `plant_step.csv`, "
+                  "`plant_step.md`, `summary.csv`."),
     ]
     common.write_markdown(args.out / "summary.md", "Benchmark summary", env, sections)
     with open(args.out / "summary.csv", "w", newline="") as fh:

@@ -84,6 +84,11 @@ class OutputError(HqpTpmError, OSError):
     non-empty folder that is not a previous result of hqp-tpm (``--force`` to use it anyway)."""
 
 
+class PlantError(HqpTpmError, RuntimeError):
+    """A physics plant cannot be built or used: MuJoCo is not installed, the robot's model file cannot be made
+    into a MuJoCo model, or its joints do not match the controller's model."""
+
+
 def unknown_name(kind: str, name: object, valid, cls=UnknownNameError) -> UnknownNameError:
     """Build an error naming the bad ``name`` and listing the ``valid`` choices."""
     choices = ", ".join(repr(v) for v in sorted(map(str, valid)))

@@ -261,6 +261,11 @@ def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
         raise ScenarioError(f"{sc.path.name}.scenario.robot: {exc}") from exc
     tasks = {t.string("name"): build_task(robot, t) for t in sc.tasks}
     q0 = initial_configuration(robot, sc.initial)
+    if sc.plant is not None and sc.plant.contacts is not None:  # standing on the ground (hqp_tpm.app.plant_run)
+        from hqp_tpm.app.plant_run import contact_soles
+        from hqp_tpm.plants.humanoid import standing_base
+
+        q0 = standing_base(robot, q0, contact_soles(sc, tasks))
     v0 = np.zeros(robot.nv)
     obstacles = obstacles_from(sc)
     try:

@@ -68,6 +68,11 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
 
             live = LiveViewer(robot, ctx.scene, policy=ctx.policy, realtime=realtime)
             probes.append(live.probe)
+        from hqp_tpm.app import plant_run
+
+        plant = plant_run.build_plant(ctx)  # None: kinematic (the controller integrates its command)
+        if plant is not None:
+            probes.append(plant_run.plant_probe(ctx, plant))  # last: it moves the controller to the measured state
         rec = runner.Recording(list(robot.joint_names), folder.path / ".columns")
         failure = None
         with threadpool_limits(limits=1):
@@ -94,6 +99,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         summary = {"scenario": sc.name, "solver": ctrl.solver, "level": sc.level, "crosscheck_solver": other,
                    **results.metrics(arrays, timing, tasks)}
         summary.update(ctx.summary(arrays))  # policy-specific numbers (e.g. the co-manipulation indices)
+        summary.update(plant_run.plant_summary(ctx, plant, arrays))
         if explainer is not None:
             from hqp_tpm.app.explain import summary as explain_summary
 
@@ -114,6 +120,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         results.write_npz(folder.path / "trajectory.npz", files)
         results.write_text(folder.path / "metrics.json", results.dumps(summary))
         written = ["trajectory.npz", "metrics.json"]
+        if plant_run.write_plant_xml(folder.path, plant):
+            written.append("plant.xml")
         if figures and explainer is not None:
             from hqp_tpm.app.explain import figure as explain_figure
 

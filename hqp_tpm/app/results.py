@@ -103,6 +103,15 @@ METRICS: dict[str, tuple[str, str]] = {
     "units": ("-", "the unit of every numeric metric of this file (metric -> unit)"),
     "explain": ("s", "with ``--explain``: seconds each task was degraded, by cause, by blocking joint bound and by "
                 "blocking higher task; ``fraction_met_min``: smallest fraction of a task met (1)"),
+    # the plant ([plant] section, hqp_tpm.plants; docs/plant.md)
+    "plant": ("-", "what the command drove: ``kinematic`` (the controller's own perfect integration) or ``mujoco``"),
+    "plant_integrator": ("-", "MuJoCo's integrator (``euler``, ``implicitfast``, ...)"),
+    "plant_timestep_s": ("s", "MuJoCo's timestep (it divides the control period)"),
+    "plant_unmodelled": ("-", "the effects the plant simulated and the controller did not model (option -> value)"),
+    "tau_max": ("N m", "largest applied joint torque (absolute value)"),
+    "distance_crosscheck_max": ("m", "largest difference between the run's distances (coal or closed form) and "
+                                "MuJoCo's ``mj_geomDistance`` on the plant's geometry, over the pairs computed"),
+    "distance_crosscheck_steps": ("1", "steps at which ``distance_crosscheck_max`` compared at least one pair"),
     # policy summaries: the co-manipulation hierarchy and admittance (papers/003)
     "sigma_m_min": ("1", "smallest manipulability index sigma_m (14)"),
     "sigma_m_mean": ("1", "mean manipulability index"),
@@ -124,6 +133,14 @@ METRICS: dict[str, tuple[str, str]] = {
     "time_below_d_m_s": ("s", "time with a link closer than d_m to an obstacle"),
     "time_avoidance_primary_s": ("s", "time with the avoidance as the primary task"),
     "time_avoidance_secondary_s": ("s", "time with the avoidance as a secondary task"),
+    # plant summaries: a floating base standing on MuJoCo (hqp_tpm.plants.floating_base)
+    "base_height_max_change_m": ("m", "largest change of the base height from its start"),
+    "foot_slip_max_m": ("m", "largest horizontal displacement of a sole on the ground from its start"),
+    "cone_margin_min_N": ("N", "smallest mu f_z - |f_t| of the contact QP's corner forces (>= 0: inside the cones)"),
+    "normal_force_min_N": ("N", "smallest normal force of a sole corner in the contact QP"),
+    "sim_cone_margin_min_N": ("N", "smallest mu f_n - |f_t| of MuJoCo's contact forces with the controller's mu"),
+    "tau_ratio_max": ("1", "largest |tau_i| / effort limit_i"),
+    "qp_deviation_max": ("rad/s^2", "largest |a - a*|: the contact QP's change of the stack's acceleration"),
 }
 
 #: Units of task errors by task type (a pose task is split into position and orientation).

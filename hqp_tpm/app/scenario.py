@@ -200,6 +200,8 @@ class Scenario:
     policy: Section
     limits: Section | None
     raw: dict
+    #: the ``[plant]`` section (:class:`hqp_tpm.app.scenario_plant.PlantConfig`: kinematic by default)
+    plant: Any = None
 
     @property
     def order(self) -> int:
@@ -289,6 +291,13 @@ def load(spec: str | Path) -> Scenario:
     return parse(read(path), path)
 
 
+def _plant(sec: Section | None, period: float):
+    """The ``[plant]`` section, checked (:func:`hqp_tpm.app.scenario_plant.plant_config`)."""
+    from hqp_tpm.app.scenario_plant import plant_config
+
+    return plant_config(sec, period)
+
+
 def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
     top = Section(data, path.name)
     sc = top.table("scenario")
@@ -325,6 +334,7 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         raise ScenarioError(f"{out.limits.where}: a hard joint box, which solver {solver!r} ({sc.where}.solver) "
                             f"ignores; valid: a boxed solver ({', '.join(BOXED)}, qp, qp:<backend>), or no "
                             "[limits] section")
+    out.plant = _plant(top.table("plant", None), period)
     sc.check_unused()
     top.check_unused()
     if not out.tasks:

@@ -42,6 +42,8 @@ SECTIONS: dict[tuple[str, str, str | None], str] = {
     ("hqp_tpm.app.build", "trajectory", "sec"): "[[tasks]] target",
     ("hqp_tpm.app.build", "trajectory", "tab"): "target = { type = ... } (a trajectory table)",
     ("hqp_tpm.app.build", "build_policy", "sec"): "[policy] type = \"fixed\" (the default)",
+    ("hqp_tpm.app.scenario_plant", "plant_config", "sec"): "[plant]",
+    ("hqp_tpm.app.scenario_plant", "_contacts", "sec"): "[plant] contacts (a floating base on its soles)",
     **{("hqp_tpm.app.build", f"_{kind}", "sec"): f"[[tasks]] type = \"{kind}\"" for kind in (
         "frame_position", "frame_orientation", "frame_pose", "pointing", "com", "posture", "force",
         "quaternion_orientation", "manipulability", "joint_limit")},
@@ -100,7 +102,7 @@ def _sections_for(module: str, func: str, receiver: str) -> str | None:
 
 def fields() -> list[Field]:
     """Every field read by the parser modules, in source order, filed under its section."""
-    modules = ["hqp_tpm.app.scenario", "hqp_tpm.app.build",
+    modules = ["hqp_tpm.app.scenario", "hqp_tpm.app.build", "hqp_tpm.app.scenario_plant",
                *(f"hqp_tpm.app.policy_builders.{m}" for m in _POLICY_MODULES)]
     out: list[Field] = []
     unmapped = []
