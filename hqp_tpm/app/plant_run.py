@@ -122,8 +122,7 @@ def plant_summary(ctx: RunContext, plant, arrays: dict) -> dict:
         return {"plant": "kinematic"}
     o = plant.options
     out = {"plant": plant.kind, "plant_integrator": o.integrator, "plant_timestep_s": float(plant.model.opt.timestep),
-           "plant_unmodelled": {k: getattr(o, k) for k in ("armature", "damping", "friction", "noise_q", "noise_v",
-                                                           "delay") if getattr(o, k)}}
+           "plant_unmodelled": o.unmodelled_effects()}
     if "tau" in arrays and len(arrays["tau"]):
         out["tau_max"] = float(np.abs(arrays["tau"]).max())
     if "distance_crosscheck" in arrays:

@@ -47,6 +47,12 @@ class PlantOptions:
     self_collision: bool = False
     collision: bool = True
 
+    def unmodelled_effects(self) -> dict:
+        """The effects the controller does not model that are set (nonzero), by name."""
+        effects = {"armature": self.armature, "damping": self.damping, "friction": self.friction,
+                   "noise_q": self.noise_q, "noise_v": self.noise_v, "delay": self.delay}
+        return {k: v for k, v in effects.items() if v}
+
     def __post_init__(self) -> None:
         for f in fields(self):
             value = getattr(self, f.name)
@@ -72,7 +78,7 @@ class PlantOptions:
     @property
     def unmodelled(self) -> bool:
         """Does the plant simulate something the controller's model does not have?"""
-        return bool(self.armature or self.damping or self.friction or self.noise_q or self.noise_v or self.delay)
+        return bool(self.unmodelled_effects())
 
     def substeps(self, period: float) -> int:
         """MuJoCo steps per control period (the timestep must divide the period)."""
