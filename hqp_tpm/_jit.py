@@ -15,7 +15,8 @@
   dispatchers are made and restored after). Its root is the first writable of ``$NUMBA_CACHE_DIR/hqp_tpm``, the
   package's ``__pycache__`` and the user cache directory (``$XDG_CACHE_HOME`` or ``~/.cache``, ``/hqp_tpm``);
   with none writable (a read-only install run by a user without a home) the kernels compile in memory, once per
-  process, with a one-line notice on stderr. The four most recent directories are kept.
+  process, with a one-line notice on stderr. The four most recently used directories (and any used in the last
+  hour) are kept.
 * Before numba reads the cache, every cache file (index ``.nbi``, data ``.nbc``) not seen whole before is parsed
   as the pickle stream numba reads (:mod:`pickletools`, nothing is executed); a damaged one (truncated, zeroed) is
   deleted with a one-line notice on stderr, and numba compiles that kernel again and writes it anew. Files seen
@@ -34,6 +35,7 @@ import shutil
 import sys
 import tempfile
 import threading
+import time
 import types
 from pathlib import Path
 
@@ -241,13 +243,18 @@ def cache_dir() -> Path | None:
 
 
 def _prune(current: Path) -> None:
-    """Delete all but the :data:`KEEP` most recent cache directories beside ``current`` (earlier sources)."""
+    """Mark ``current`` used (its modification time) and delete the cache directories beside it (earlier sources)
+    but the most recently used (:data:`KEEP` in all, with ``current``) and those used in the last hour (other
+    checkouts sharing the root)."""
     try:
+        os.utime(current)
         others = [p for p in current.parent.glob("numba-*") if p != current and p.is_dir()]
         others.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+        recent = time.time() - 3600.0
+        old = [p for p in others[KEEP - 1:] if p.stat().st_mtime < recent]
     except OSError:
         return
-    for p in others[KEEP - 1:]:
+    for p in old:
         shutil.rmtree(p, ignore_errors=True)
 
 

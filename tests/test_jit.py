@@ -120,6 +120,7 @@ def test_a_damaged_cache_file_is_discarded_and_rebuilt(warm, tmp_path, suffix, h
     assert ok(clean) == want and clean.stderr == "", clean.stderr
 
 
+@pytest.mark.slow  # (compiles the TPM kernel again: ~15 s of CPU)
 def test_every_cache_file_damaged_at_once(warm, tmp_path):
     """Every index and data file of the cache damaged (alternately truncated and zeroed), the solver's too: the same
     numbers with one notice, then a clean run."""
@@ -225,3 +226,22 @@ def test_the_cache_key_follows_every_kernel_file_and_the_constants_they_import(t
         keys.append(out.stdout.strip())
     assert keys[0] != keys[1] != keys[2] and keys[2] == keys[3]  # (an unrelated module: the same key)
 
+
+
+def test_earlier_cache_directories_are_pruned(tmp_path):
+    """:data:`~hqp_tpm._jit.KEEP` cache directories stay, the current one and the most recently used others (and any
+    used in the last hour: another checkout sharing ``NUMBA_CACHE_DIR``); older ones of earlier sources go."""
+    import time
+
+    from hqp_tpm import _jit
+
+    now = time.time()
+    ages = {"numba-a": 10, "numba-b": 20, "numba-c": 30, "numba-d": 40, "numba-e": 50, "numba-f": 0.1}  # hours
+    for name, hours in ages.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "x.nbi").write_bytes(b"")
+        os.utime(tmp_path / name, (now - 3600 * hours, now - 3600 * hours))
+    (tmp_path / "numba-current").mkdir()
+    _jit._prune(tmp_path / "numba-current")
+    kept = sorted(p.name for p in tmp_path.iterdir())
+    assert kept == ["numba-a", "numba-b", "numba-current", "numba-f"], kept  # f, a, b: the 3 most recent others
