@@ -245,3 +245,50 @@ def test_earlier_cache_directories_are_pruned(tmp_path):
     _jit._prune(tmp_path / "numba-current")
     kept = sorted(p.name for p in tmp_path.iterdir())
     assert kept == ["numba-a", "numba-b", "numba-current", "numba-f"], kept  # f, a, b: the 3 most recent others
+
+# -- the fused step's reads of pinocchio's memory by address: verified against pinocchio's API, else its API -----
+@pytest.fixture(scope="module")
+def robots():
+    sys.path.insert(0, str(PACKAGE.parent))  # the repository root: ``benchmarks``
+    from benchmarks.peers import problems as P
+
+    return [P.load_robot(P.ROMEO), P.load_robot(P.IIWA)]
+
+
+def test_pinocchio_memory_read_by_address_is_pinocchio_s_api(robots):
+    """Every frame of Romeo and the iiwa: the views the fused step reads and writes by address are pinocchio's storage
+    (taken before an update, they hold its values after) and the kernels on them are pinocchio's API to the bit, so
+    the state hands them out (with this pinocchio)."""
+    from hqp_tpm.robot.state import State, verify_source
+
+    for robot in robots:
+        model, st = robot.model, State(robot)
+        for fid in range(1, model.nframes):
+            assert verify_source(model, "jacobian", fid) and verify_source(model, "placement", fid), \
+                model.frames[fid].name
+        assert st.frame_jacobian_source(model.nframes - 1) is not None
+        assert st.frame_placement_source(model.nframes - 1) is not None
+
+
+@pytest.mark.parametrize("what", ["frame_jacobian", "frame_placement"])
+def test_a_kernel_that_is_not_pinocchio_s_api_is_not_used(robots, what, monkeypatch):
+    """A frame kernel one ulp away from pinocchio's API (as another pinocchio's arithmetic or memory layout would
+    be): the state hands out no source for the fused step (None: the tasks call pinocchio's API every step). On main
+    0d7b885 nothing compared them: the sources were handed out."""
+    import numpy as np
+
+    from hqp_tpm.robot import _compiled
+    from hqp_tpm.robot.state import State
+
+    kernel = getattr(_compiled, what)
+
+    def off_by_an_ulp(*args):
+        kernel(*args)
+        out = args[-1]
+        out[...] = np.nextafter(out, np.inf)
+
+    robot = robots[1]
+    fid = robot.model.nframes - 1
+    assert getattr(State(robot), f"{what}_source")(fid) is not None
+    monkeypatch.setattr(_compiled, what, off_by_an_ulp)
+    assert getattr(State(robot), f"{what}_source")(fid) is None
