@@ -61,7 +61,7 @@ _FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)
 
 def notice(message: str) -> None:
     """One line on stderr."""
-    sys.stderr.write(f"hqp_tpm: {message}\n")
+    sys.stderr.write("hqp_tpm: " + " ".join(message.split()) + "\n")
     sys.stderr.flush()
 
 
@@ -277,7 +277,7 @@ def discard_damaged(where: Path) -> list[Path]:
     listing = where / CHECKED
     try:
         seen = set(listing.read_text().splitlines())
-    except OSError:
+    except (OSError, ValueError):  # none yet, or itself damaged: every file is read
         seen = set()
     damaged, checked = [], []
     for path in sorted(where.rglob("*.nb[ic]")):

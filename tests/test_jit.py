@@ -122,8 +122,8 @@ def test_a_damaged_cache_file_is_discarded_and_rebuilt(warm, tmp_path, suffix, h
 
 @pytest.mark.slow  # (compiles the TPM kernel again: ~15 s of CPU)
 def test_every_cache_file_damaged_at_once(warm, tmp_path):
-    """Every index and data file of the cache damaged (alternately truncated and zeroed), the solver's too: the same
-    numbers with one notice, then a clean run."""
+    """Every index and data file of the cache damaged (alternately truncated and zeroed), the solver's too, and the
+    list of files found whole: the same numbers with one notice, then a clean run."""
     cache, want = warm
     copy = tmp_path / "cache"
     shutil.copytree(cache, copy)
@@ -131,6 +131,8 @@ def test_every_cache_file_damaged_at_once(warm, tmp_path):
     assert any("_past_rank" in p.name for p in files)
     for i, p in enumerate(files):
         damage(p, "truncate" if i % 2 else "zero")
+    for listing in copy.rglob("checked.txt"):  # (the jit layer's list of files found whole: damaged too)
+        listing.write_bytes(b"\xff\xfe" + bytes(64))
     damaged = run({"NUMBA_CACHE_DIR": str(copy)}, "solve")
     assert ok(damaged) == want
     assert len(damaged.stderr.splitlines()) == 1 and "damaged" in damaged.stderr, damaged.stderr
@@ -182,6 +184,16 @@ def test_switched_off_the_same_numbers_without_numba(warm, read_only_install):
     assert have[:ROBOT] == ref[:ROBOT]  # the robot kernels' numbers: the same source, run as Python
     assert max(abs(a - b) for a, b in zip(have[ROBOT:-1], ref[ROBOT:-1], strict=True)) <= 1e-12
 
+
+def test_switched_on_later_compiles_then(warm):
+    """Off at import (``HQP_TPM_COMPILED=0``), then turned on by either module's name: the kernel modules are
+    compiled then (numba's dispatchers in place of the plain functions), with the same numbers."""
+    cache, want = warm
+    probe = PROBE.replace("out = []", "out = []\nassert 'numba' not in sys.modules and not rc.ENABLED\n"
+                          "from hqp_tpm.solvers import _compiled as sc\nsc.ENABLED = True\n"
+                          "assert rc.ENABLED and type(rc.feedback2).__name__ == 'CPUDispatcher'")
+    got = run({"NUMBA_CACHE_DIR": str(cache), "HQP_TPM_COMPILED": "0"}, "solve", probe=probe)
+    assert ok(got) == want and got.stderr == "", got.stderr
 
 def test_one_switch():
     """The solvers' and the robot's ``ENABLED`` are one switch (main 0d7b885 had two, set apart)."""

@@ -288,6 +288,8 @@ def _build(solve: int):
     global _frame_jacobian, _rotation_error, _mat, _vec
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
+    if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
+        return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
         _frame_placement = _robot_compiled.frame_placement
