@@ -558,20 +558,20 @@ def test_general_path_damped_pivots_of_several_rows(compiled):
 
 
 READ_ONLY_SCRIPT = """
-import numpy as np, hqp_tpm.solvers as s, hqp_tpm.solvers._compiled as C
+import numpy as np, hqp_tpm.solvers as s, hqp_tpm.solvers._compiled as C, hqp_tpm._jit as jit
 rng = np.random.default_rng(0)
 lv = [(rng.standard_normal((6, 7)), rng.standard_normal(6)), (np.eye(7), rng.standard_normal(7))]
 x = s.tpm(lv)
 C.ENABLED = False
-print(float(np.abs(x - s.tpm(lv)).max()), C._past_rank._cache._cache_path)
+print(float(np.abs(x - s.tpm(lv)).max()), jit.cache_dir())
 """
 
 
 @pytest.mark.slow
 def test_read_only_install_caches_in_the_user_directory(tmp_path):
     """The package in a read-only folder (a wheel in a read-only site-packages): the kernels compile once and
-    numba caches them in the user's cache directory (``~/.cache/numba``); the next process loads them. Needs
-    root for a read-only bind mount in a private mount namespace (``unshare -m``), skipped otherwise."""
+    :mod:`hqp_tpm._jit` caches them in the user's cache directory (``~/.cache/hqp_tpm``); the next process loads
+    them. Needs root for a read-only bind mount in a private mount namespace (``unshare -m``), skipped otherwise."""
     import os
     import shutil
     import subprocess
@@ -593,8 +593,8 @@ def test_read_only_install_caches_in_the_user_directory(tmp_path):
         assert out.returncode == 0, out.stderr
         outs.append(out.stdout.split())
     for diff, path in outs:
-        assert float(diff) <= 1e-12 and Path(path).is_relative_to(home / ".cache" / "numba")
-    assert not list(ro.rglob("*.nbi")) and list((home / ".cache" / "numba").rglob("*.nbi"))
+        assert float(diff) <= 1e-12 and Path(path).is_relative_to(home / ".cache" / "hqp_tpm")
+    assert not list(ro.rglob("*.nbi")) and list((home / ".cache" / "hqp_tpm").rglob("*.nbi"))
 
 
 def test_sizes_as_a_list_or_an_array(compiled):

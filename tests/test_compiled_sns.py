@@ -355,20 +355,6 @@ def test_invalid_box_is_handed_back(outcomes):
     assert outcomes[_compiled_sns.BAD_BOX] == 2, outcomes   # (sns_tpm checks the box before stacking)
 
 
-def test_cache_stamp_includes_the_callees_file():
-    """The loop's cached code contains the TPM kernels' (hqp_tpm/solvers/_compiled.py): a change there must
-    invalidate it (numba alone checks the kernel's own file)."""
-    import os
-
-    rng = np.random.default_rng(0)
-    sns_tpm_stacked(rng.standard_normal((10, 7)), rng.standard_normal(10), (6, 4), -np.ones(7), np.ones(7))
-    cache_file = getattr(getattr(_compiled_sns._sns_loop, "_cache", None), "_cache_file", None)
-    if cache_file is None:
-        pytest.skip("numba caches nothing here")
-    st = os.stat(_compiled.__file__)
-    assert cache_file._source_stamp[1:] == (st.st_mtime, st.st_size)
-
-
 def test_downdated_factorization_equals_the_free_columns():
     """The QR downdate of the SNS loop (m > n): after each saturation, ``Q~[free rows, s:]`` is orthonormal, with
     ``R1`` it factors the upper levels' free columns ``J_<k W^T``, ``C~[:, s:]`` is ``J_k W Q~[free rows, s:]``,

@@ -18,9 +18,9 @@ import hqp_tpm
 ROOT = Path(hqp_tpm.__file__).parent
 
 #: Bottom-up; a module may import its own layer and the ones before it (README layout table).
-LAYERS = ("errors", "data", "solvers", "robot", "geometry", "references", "tasks", "control", "policies", "plants",
-          "app", "testing")
-RANK = {"errors": 0, "data": 0, **{name: i for i, name in enumerate(LAYERS) if i >= 2}}
+LAYERS = ("errors", "data", "_jit", "solvers", "robot", "geometry", "references", "tasks", "control", "policies",
+          "plants", "app", "testing")
+RANK = {"errors": 0, "data": 0, "_jit": 0, **{name: i for i, name in enumerate(LAYERS) if i >= 3}}
 
 
 def module_name(path: Path) -> str:

@@ -30,22 +30,18 @@ back: an invalid box, a stack its certificates do not decide, the box-point shif
 :func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves) or :data:`SNS_RESUME` (the loop stopped at a pass whose
 free-column stack its certificates do not decide: the numpy loop goes on from :meth:`Program.loop_state`).
 
-These kernels call the other modules' kernels, and numba's disk cache checks only the file of the function it
-caches: a cached kernel would keep an earlier version of the kernels it calls. So the cache's stamp also holds
-:mod:`hqp_tpm.solvers._compiled`'s, :mod:`hqp_tpm.solvers._compiled_sns`' and :mod:`hqp_tpm.robot._compiled`'s
-(as :mod:`hqp_tpm.solvers._compiled_sns` does for its callees); where numba's cache object is laid out otherwise,
-the disk cache is used only when this file is newer than the callees' files, else the kernel is compiled in memory
-once per process. First use on a machine compiles, later processes load the cache
-(``benchmarks/first_call.py`` measures both).
+These kernels call the other modules' kernels; :mod:`hqp_tpm._jit` makes their dispatchers, and keys its disk cache
+by the source of every kernel module, so a changed callee is compiled again here too. First use on a machine
+compiles, later processes load the cache (``benchmarks/first_call.py`` measures both).
 """
 
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
+from hqp_tpm import _jit
 from hqp_tpm.robot import _compiled as _robot_compiled
 from hqp_tpm.solvers import _compiled, _compiled_sns
 from hqp_tpm.solvers._fullrank import COND, MARGIN
@@ -273,7 +269,7 @@ def stacked_kernel():
         if _compiled._sizes(()) is None:
             return None
         _tpm_solve_kernel()
-        kernel = _KERNELS["stacked"] = _jit(_stacked_tpm)
+        kernel = _KERNELS["stacked"] = _jit.dispatcher(_stacked_tpm)
     return kernel
 
 
@@ -282,7 +278,7 @@ def _tpm_solve_kernel() -> None:
     global _solve, _past_rank, _general
     if _solve is None:
         _past_rank, _general = _compiled._past_rank, _compiled._general
-        _solve = _jit(_tpm_solve)
+        _solve = _jit.dispatcher(_tpm_solve)
 
 
 def _build(solve: int):
@@ -292,49 +288,26 @@ def _build(solve: int):
     global _frame_jacobian, _rotation_error, _mat, _vec
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return None
+    if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
+        return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
         _frame_placement = _robot_compiled.frame_placement
-        _mat, _vec = _robot_compiled.table_matrix, _robot_compiled.table_vector
-        _write_rows = _jit(_rows)
+        readers = _jit.address_readers()
+        if readers is None:
+            return None
+        _mat, _vec = readers
+        _write_rows = _jit.dispatcher(_rows)
     _tpm_solve_kernel()
     if solve == SNS and not _compiled_sns._READY:
-        _compiled_sns._compile()
+        try:
+            _compiled_sns._compile()
+        except ImportError:  # pragma: no cover - numba not importable after all
+            return None
     _past_rank, _general, _sns_loop = _compiled._past_rank, _compiled._general, _compiled_sns._sns_loop
     _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
-    _KERNELS[solve] = _jit({ROWS: _rows_step, TPM: _tpm_step, SNS: _sns_step}[solve])
+    _KERNELS[solve] = _jit.dispatcher({ROWS: _rows_step, TPM: _tpm_step, SNS: _sns_step}[solve])
     return _KERNELS[solve]
-
-
-def _jit(fn):
-    """``fn`` compiled by numba with its disk cache, its stamp also holding the callees' files (below)."""
-    import numba
-
-    try:
-        kernel = numba.njit(nogil=True, cache=True)(fn)
-    except RuntimeError:  # pragma: no cover - no writable cache location: compile in memory
-        return numba.njit(nogil=True)(fn)
-    try:  # numba checks a cached kernel against its own file's stamp: add the callees' files' stamps
-        cache_file = kernel._cache._cache_file
-        stamps = [(st.st_mtime, st.st_size) for st in map(os.stat, _CALLEES)]
-        cache_file._source_stamp = (cache_file._source_stamp, *stamps)
-    except (AttributeError, OSError):  # pragma: no cover - another numba layout: the cache only when safe
-        if not _cache_is_safe():
-            kernel = numba.njit(nogil=True)(fn)
-    return kernel
-
-
-#: the files of the kernels :func:`_tpm_step` calls
-_CALLEES = (_compiled.__file__, _compiled_sns.__file__, _robot_compiled.__file__)
-
-
-def _cache_is_safe() -> bool:
-    """May numba's own cache check do (this file newer than the callees' files: any cache entry numba accepts,
-    stamped with this file's version, was built after the callees' last change)?"""
-    try:
-        return all(os.stat(__file__).st_mtime_ns > os.stat(f).st_mtime_ns for f in _CALLEES)
-    except OSError:  # pragma: no cover - no files (a frozen install): compile in memory
-        return False
 
 
 def _checked(a: np.ndarray, ndim: int) -> np.ndarray:

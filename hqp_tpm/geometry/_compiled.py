@@ -10,7 +10,7 @@ the rotations ``R.dot(x)`` of the witness point's ``J̇_c q̇`` sum in numpy's o
 elsewhere a few ulps apart (``tests/test_geometry_compiled.py`` compares both paths: within 1e-12 there); a case the
 kernel does not handle (coinciding centres) returns False and the readable code runs.
 
-Switched with the other kernels: :data:`hqp_tpm.robot._compiled.ENABLED` (``HQP_TPM_COMPILED=0``: off).
+Switched with the other kernels: :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off).
 """
 
 from __future__ import annotations
@@ -19,7 +19,8 @@ import math
 
 import numpy as np
 
-from hqp_tpm.robot._compiled import _njit
+from hqp_tpm import _jit
+from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
 
 
 @_njit
@@ -163,3 +164,6 @@ def near_pairs(Ca, ia, Cb, ib, ra, rb, surveillance):  # pragma: no cover - comp
             out[n] = k
             n += 1
     return out[:n]
+
+
+_jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on

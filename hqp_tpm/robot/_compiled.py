@@ -5,64 +5,25 @@ One call each instead of 10-30 small numpy calls: the joint box of
 inside its limits; the recovery cases return False and the caller computes them with ``BoxLimits``), and the
 tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the error (order 2, and the posture rows); for the
 fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement and its Jacobian from the joint
-Jacobians, its rotation
-error ``log3(R_d R^T)``, and the reading of arrays by address (:func:`table_matrix`). Every kernel does the readable
-code's (or pinocchio's) floating-point operations in the same order (no fast-math, no contraction), so the results
-are the same to the last bit (``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3`: it
-follows pinocchio's steps, but its sums round within a few ulps of pinocchio's.
+Jacobians, its rotation error ``log3(R_d R^T)`` (the arrays that step reads by address:
+:func:`hqp_tpm._jit.table_matrix`). Every kernel does the readable code's (or pinocchio's) floating-point operations
+in the same order (no fast-math, no contraction), so the results are the same to the last bit
+(``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3`: it follows pinocchio's steps, but its
+sums round within a few ulps of pinocchio's.
 
-Used when numba is importable and ``HQP_TPM_COMPILED`` is not ``0`` (the switch of the solvers' compiled
-kernels too); :data:`ENABLED` may be set to False in a running process. Compiled code is cached on disk
-(``cache=True``); the first call of a process compiles (~1-3 s) or loads the cache.
+Used when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED` and
+:data:`AVAILABLE` are that one switch, shared with the solvers' kernels). :mod:`hqp_tpm._jit` compiles them on the
+first call of a process (~1-3 s) or loads them from its disk cache.
 """
 
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
-try:  # pragma: no cover - depends on the environment
-    import numba
-except ImportError:  # pragma: no cover
-    numba = None
-
-#: numba is importable (the kernels can run).
-AVAILABLE = numba is not None
-#: The lean step uses the kernels (default: when available, unless ``HQP_TPM_COMPILED=0``).
-ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip().lower() not in ("0", "false", "no", "off")
-
-
-def _njit(fn):
-    return numba.njit(cache=True, nogil=True)(fn) if AVAILABLE else fn
-
-
-if AVAILABLE:  # pragma: no branch
-    from numba import types
-    from numba.extending import intrinsic
-
-    @intrinsic
-    def _float_pointer(typingctx, address):
-        """The int64 ``address`` as a ``float64*`` (for :func:`table_matrix`, :func:`table_vector`)."""
-        def codegen(context, builder, signature, args):
-            return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
-        return types.CPointer(types.float64)(types.int64), codegen
-
-
-@_njit
-def table_matrix(ints, slot):  # pragma: no cover - compiled
-    """The matrix of slot ``slot`` of an address table in ``ints`` (from ``ints[7]``: address, rows, columns per slot;
-    :class:`hqp_tpm.control._compiled_step.Program`, which keeps the arrays alive), a view of that memory."""
-    at = ints[7] + 3 * slot
-    return numba.carray(_float_pointer(ints[at]), (ints[at + 1], ints[at + 2]))
-
-
-@_njit
-def table_vector(ints, slot):  # pragma: no cover - compiled
-    """The vector of slot ``slot`` of the address table from ``ints[8]`` (address, length per slot)."""
-    at = ints[8] + 2 * slot
-    return numba.carray(_float_pointer(ints[at]), (ints[at + 1],))
+from hqp_tpm import _jit
+from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
 
 
 @_njit
@@ -292,3 +253,7 @@ def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
         for j in range(3):
             E[i, j] = RdT[0, i] * RT[0, j] + RdT[1, i] * RT[1, j] + RdT[2, i] * RT[2, j]
     log3(E, w)
+
+
+_jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on
+_jit.share_switch(__name__)  # ENABLED, AVAILABLE: hqp_tpm._jit's

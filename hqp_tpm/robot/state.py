@@ -36,6 +36,7 @@ class State:
         self._cache: dict = {}
         self._partial = False
         self._joint_jacobians_T = None  # data.J.T (frame_jacobian_source)
+        self._verified: dict = {}  # (what, frame): the kernels' reads of pinocchio's memory checked (verify_source)
         self.updates = 0
         self._com_update = -1  # the update whose positions gave pinocchio's CoM and CoM Jacobian (update_positions)
         #: every joint adds its velocity to its configuration (``pin.integrate`` is ``q + dq``): see :meth:`integrate`
@@ -173,7 +174,8 @@ class State:
         translation), the frame's placement in that joint (``P``, 4 x 3: the rows of its rotation, then its
         translation) and a view of the frame's rotation transposed, from which the lean step's kernel places the
         frame as ``pin.updateFramePlacement`` (:func:`hqp_tpm.robot._compiled.frame_placement`; its translation is
-        :meth:`frame_views`'); None if this pinocchio returns copies."""
+        :meth:`frame_views`'); None if this pinocchio returns copies or that kernel on such views is not
+        ``pin.updateFramePlacement`` to the bit (:func:`verify_source`)."""
         model, data = self.model, self.data
         frame = model.frames[fid]
         Mi, Mf = data.oMi[frame.parentJoint], data.oMf[fid]
@@ -182,7 +184,7 @@ class State:
         if not (_same_memory((RiT, pi, RfT, Mf.translation),
                              (again.rotation.T, again.translation, f_again.rotation.T, f_again.translation))
                 and RiT.flags.c_contiguous and RfT.flags.c_contiguous and RfT.flags.writeable
-                and Mf.translation.flags.writeable):
+                and Mf.translation.flags.writeable and self._verified_source("placement", fid)):
             return None
         P = np.vstack((frame.placement.rotation, frame.placement.translation))
         return RiT, pi, P, RfT
@@ -191,9 +193,12 @@ class State:
         """``(JT, cols)``: the joint Jacobians ``data.J`` transposed (a view, ``nv x 6``, world frame, refreshed by
         every :meth:`update`) and the columns that support frame ``fid``, from which the lean step's kernel writes
         the frame Jacobian (:func:`hqp_tpm.robot._compiled.frame_jacobian`); None if this pinocchio returns a copy
-        of ``data.J`` or the model has mimic joints (then ``getFrameJacobian`` is called)."""
+        of ``data.J``, the model has mimic joints, or that kernel on such a view is not ``getFrameJacobian`` to the bit
+        (:func:`verify_source`; then ``getFrameJacobian`` is called)."""
         model, data = self.model, self.data
         if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
+            return None
+        if not self._verified_source("jacobian", fid):
             return None
         JT = self._joint_jacobians_T  # (one array object for every task; a copied state's is a copy: made again)
         if JT is None or not _same_memory((JT,), (data.J.T,)):
@@ -201,9 +206,17 @@ class State:
             if not (JT.flags.c_contiguous and JT.flags.writeable and _same_memory((JT,), (data.J.T,))):
                 return None
             self._joint_jacobians_T = JT
-        joint = model.frames[fid].parentJoint
-        cols = [c for j in model.supports[joint] for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])]
-        return JT, np.array(cols, dtype=np.int64)
+        return JT, _cols(model, fid)
+
+    def _verified_source(self, what: str, fid: int) -> bool:
+        """Does the fused step's reading of pinocchio's memory by address reproduce pinocchio's own API for frame
+        ``fid`` (checked once per state and frame: :func:`verify_source`)? If not, the source methods return None and
+        the tasks call pinocchio's API each step."""
+        key = (what, fid)
+        ok = self._verified.get(key)
+        if ok is None:
+            ok = self._verified[key] = verify_source(self.model, what, fid)
+        return ok
 
     # -- centre of mass --------------------------------------------------------------------------
     def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -261,6 +274,50 @@ class State:
             _compiled.acceleration_step(v, a, dt, dq, v_next)
             return pin.integrate(self.model, q, dq), v_next
         return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
+
+
+def _cols(model, fid: int) -> np.ndarray:
+    """The velocity columns of the joints that support frame ``fid`` (the nonzero columns of its Jacobian)."""
+    joint = model.frames[fid].parentJoint
+    return np.array([c for j in model.supports[joint] for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])],
+                    dtype=np.int64)
+
+
+def verify_source(model, what: str, fid: int) -> bool:
+    """Check, on a fresh ``data`` of ``model`` and a probe configuration, what the fused step
+    (:mod:`hqp_tpm.control._compiled_step`) assumes when it reads and writes pinocchio's memory by address for frame
+    ``fid``: views of ``data`` taken *before* pinocchio updates it hold pinocchio's new values after (they are its
+    storage, not copies), and the kernels computed from them are pinocchio's API to the bit.
+
+    ``what``: ``"jacobian"``, :func:`~hqp_tpm.robot._compiled.frame_jacobian` from ``data.J.T`` equals
+    ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``; ``"placement"``,
+    :func:`~hqp_tpm.robot._compiled.frame_placement` from the parent joint's placement equals
+    ``pin.updateFramePlacement``, and writes through the views of
+    ``data.oMf[fid]`` are what pinocchio's ``data.oMf[fid]`` then reads.
+    """
+    data = model.createData()
+    frame = model.frames[fid]
+    try:
+        JT, Mi, Mf = data.J.T, data.oMi[frame.parentJoint], data.oMf[fid]
+        RiT, pi, RfT, pf = Mi.rotation.T, Mi.translation, Mf.rotation.T, Mf.translation
+        v = 0.7 * np.sin(1.0 + np.arange(model.nv))  # a probe configuration: every joint moved
+        q = pin.integrate(model, pin.neutral(model), v)
+        pin.computeJointJacobians(model, data, q)
+        M = pin.updateFramePlacement(model, data, fid)
+        if what == "jacobian":
+            S = np.zeros((6, model.nv))
+            _compiled.frame_jacobian(JT, _cols(model, fid), np.array(M.translation), S)
+            return bool(np.array_equal(S, pin.getFrameJacobian(model, data, fid, LWA)))
+        P = np.vstack((frame.placement.rotation, frame.placement.translation))
+        R, p = np.empty((3, 3)), np.empty(3)
+        _compiled.frame_placement(RiT, pi, P, R, p)
+        if not (np.array_equal(R, M.rotation.T) and np.array_equal(p, M.translation)):
+            return False
+        RfT[...], pf[...] = 2.0 * R, 2.0 * p  # written through the views: pinocchio reads them back
+        return bool(np.array_equal(data.oMf[fid].rotation, 2.0 * R.T) and np.array_equal(data.oMf[fid].translation,
+                                                                                        2.0 * p))
+    except (ValueError, TypeError):  # read-only or mismatched views of another pinocchio: its API every step
+        return False
 
 
 def _same_memory(a, b) -> bool:

@@ -28,66 +28,41 @@ How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hq
   nonzeros, once per factorization, for every right-hand side);
 * ``x = Q [z; y]`` (the reflectors applied once more).
 
-Dispatch: the solvers call these kernels when numba is importable and the environment variable
-``HQP_TPM_COMPILED`` is not ``0`` at import time; :data:`ENABLED` is the module flag (set it to False to force
-the numpy path in a running process). Compiled code is cached on disk (``cache=True``): next to this file, or
-where ``NUMBA_CACHE_DIR`` points, or (read-only install) numba's user cache directory. The first call of a
-process compiles (~2-5 s) or loads the cache (~0.1-1 s).
+Dispatch: the solvers call these kernels when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this
+module's :data:`ENABLED` and :data:`AVAILABLE` are that switch). :mod:`hqp_tpm._jit` compiles them on the first
+call of a process (~2-5 s) or loads them from its disk cache (~0.1-1 s).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import math
-import os
 
 import numpy as np
 
+from hqp_tpm import _jit
+from hqp_tpm._jit import kernel as _kernel  # the package's one kernel decorator
 from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
-
-#: numba is importable (the kernels can run). numba itself is imported, and the kernels compiled or loaded
-#: from the cache, on the first call of a kernel (importing numba takes ~0.3-1 s).
-AVAILABLE = importlib.util.find_spec("numba") is not None
-#: The solvers use the compiled kernels (default: when available, unless ``HQP_TPM_COMPILED=0``).
-ENABLED = AVAILABLE and os.environ.get("HQP_TPM_COMPILED", "1").strip().lower() not in ("0", "false", "no", "off")
 
 #: Kernel outcomes: ``x`` computed; declined (the general path decides, as the reference declines); the
 #: certificates cannot decide (the numpy reference runs: it needs ``sigma_min`` from an SVD).
 SOLVED, DECLINED, UNDECIDED = 0, 1, 2
 
-_KERNELS: list[str] = []  # compiled on first use, callees first
-_INLINED: set[str] = set()  # kernels numba inlines into their callers (its IR, before LLVM)
 _READY = False
 
 
-def _kernel(fn):
-    """Mark ``fn`` (plain Python until :func:`_compile`) as a kernel."""
-    _KERNELS.append(fn.__name__)
-    return fn
-
-
 def _inlined(fn):
-    """Mark ``fn`` as a kernel that numba inlines where compiled code calls it (``inline="always"``): no call,
-    no array tuple handed back, fewer reference counts; the same operations in the same order (numba's IR is
-    inlined, LLVM does not reorder floating-point operations)."""
-    _INLINED.add(fn.__name__)
-    return _kernel(fn)
+    """A kernel numba inlines where compiled code calls it (``inline="always"``): no call, no array tuple handed
+    back, fewer reference counts; the same operations in the same order (numba's IR is inlined, LLVM does not
+    reorder floating-point operations)."""
+    return _kernel(fn, inline=True)
 
 
 def _compile() -> None:
-    """Replace every kernel of this module by its numba dispatcher (cached on disk when a cache location is
-    writable: next to this file, ``NUMBA_CACHE_DIR`` or numba's user cache directory; else in memory)."""
+    """Replace every kernel of this module by its numba dispatcher (:func:`hqp_tpm._jit.compile_module`)."""
     global _READY
-    import numba
-
-    g = globals()
-    for name in _KERNELS:
-        inline = "always" if name in _INLINED else "never"
-        try:
-            g[name] = numba.njit(cache=True, nogil=True, inline=inline)(g[name])
-        except RuntimeError:  # pragma: no cover - no writable cache location at all: compile per process
-            g[name] = numba.njit(nogil=True, inline=inline)(g[name])
+    if not _jit.compile_module(globals()):
+        raise ImportError("numba cannot be imported")
     _READY = True
 
 
@@ -785,12 +760,10 @@ _NO_X0 = np.zeros(0)
 def _sizes(sizes) -> np.ndarray | None:
     """``sizes`` as an int64 array (cached per tuple), after compiling the kernels on first use; None if numba
     cannot be imported after all (then :data:`ENABLED` becomes False: the numpy path from now on)."""
-    global ENABLED
     if not _READY:
         try:
             _compile()
-        except ImportError:  # pragma: no cover - numba found but not importable
-            ENABLED = False
+        except ImportError:  # pragma: no cover - numba found but not importable (_jit turned the switch off)
             return None
     if type(sizes) is not tuple:                       # a list or an array: not hashable, converted each call
         return np.asarray(sizes, dtype=np.int64)
@@ -889,9 +862,12 @@ def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
     use = x0 is not None
     x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
     ranks = np.empty(len(sizes), dtype=np.int64) if ranks is None else ranks
-    if ENABLED:
+    if _jit.ENABLED:
         s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
         if s is not None or (s := _sizes(sizes)) is not None:
             return _recursion(J, b, s, n, float(lambda_max), float(eps), _UNIT, x0, use, ranks)
     return _recursion(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, x0, use,
                       ranks)
+
+
+_jit.share_switch(__name__)  # ENABLED, AVAILABLE: hqp_tpm._jit's

@@ -34,10 +34,11 @@ solves:
 from __future__ import annotations
 
 import math
-import os
 
 import numpy as np
 
+from hqp_tpm import _jit
+from hqp_tpm._jit import kernel as _kernel  # the package's one kernel decorator
 from hqp_tpm.solvers import _compiled
 
 #: Outcomes: solved; handed back to the numpy path (which starts over) because the box is not valid, the
@@ -46,51 +47,24 @@ from hqp_tpm.solvers import _compiled
 #: stack ``J W``.
 DONE, BAD_BOX, DECLINED, SHIFT, RESUME = 0, 1, 2, 3, 4
 
-_KERNELS: list[str] = []
-_INLINED: set[str] = set()
 _READY = False
 
 
-def _kernel(fn):
-    """Mark ``fn`` (plain Python until :func:`_compile`) as a kernel."""
-    _KERNELS.append(fn.__name__)
-    return fn
-
-
 def _inlined(fn):
-    """Mark ``fn`` as a kernel numba inlines where compiled code calls it (as :func:`_compiled._inlined`)."""
-    _INLINED.add(fn.__name__)
-    return _kernel(fn)
+    """A kernel numba inlines where compiled code calls it (as :func:`_compiled._inlined`)."""
+    return _kernel(fn, inline=True)
 
 
 def _compile() -> None:
-    """Compile :mod:`hqp_tpm.solvers._compiled` first (its kernels are called from here), then this module's."""
+    """Compile :mod:`hqp_tpm.solvers._compiled` first (its kernels are called from here), then this module's
+    (:func:`hqp_tpm._jit.compile_module`: its cache directory is keyed by both files, so a changed callee is
+    compiled again in every caller)."""
     global _READY
-    import numba
-
     if not _compiled._READY:
         _compiled._compile()
-    g = globals()
-    for name in _KERNELS:
-        inline = "always" if name in _INLINED else "never"
-        try:
-            g[name] = _with_callees_stamp(numba.njit(cache=True, nogil=True, inline=inline)(g[name]))
-        except RuntimeError:  # pragma: no cover - no writable cache location at all: compile per process
-            g[name] = numba.njit(nogil=True, inline=inline)(g[name])
+    if not _jit.compile_module(globals()):
+        raise ImportError("numba cannot be imported")
     _READY = True
-
-
-def _with_callees_stamp(dispatcher):
-    """numba's disk cache checks a kernel against its own source file only, but these kernels contain the
-    compiled code of :mod:`hqp_tpm.solvers._compiled`'s: add that file's stamp (modification time and size, as
-    numba's own), so that a changed callee recompiles them instead of loading stale code."""
-    try:
-        cache_file = dispatcher._cache._cache_file
-        st = os.stat(_compiled.__file__)
-        cache_file._source_stamp = (cache_file._source_stamp, st.st_mtime, st.st_size)
-    except (AttributeError, OSError):  # pragma: no cover - another numba layout, or no cache: its own check only
-        pass
-    return dispatcher
 
 # ----------------------------------------------------------------------------------------
 # Building blocks: hqp_tpm.solvers._compiled's QR kernels (_householder_rows, _triangular_inverse, _fro_block,
@@ -617,7 +591,10 @@ def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin, cond):
     if not _READY:
         if _compiled._sizes(sizes) is None:        # numba not importable after all
             return DECLINED
-        _compile()
+        try:
+            _compile()
+        except ImportError:  # pragma: no cover - (_jit turned the switch off)
+            return DECLINED
     s = _compiled._sizes(sizes)
     n = lo.shape[0]
     x = np.empty(n)

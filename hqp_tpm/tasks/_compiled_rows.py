@@ -8,14 +8,15 @@ and :class:`~hqp_tpm.tasks.avoidance.Avoidance` in the same order: numpy's small
 too the results are the same to the last bit; elsewhere they are a few ulps apart (``tests/test_planned_step.py``
 compares them with the readable tasks within 1e-12 on random states and every step of a run).
 
-Switched with the other kernels: :data:`hqp_tpm.robot._compiled.ENABLED` (``HQP_TPM_COMPILED=0``: off).
+Switched with the other kernels: :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off).
 """
 
 from __future__ import annotations
 
 import math
 
-from hqp_tpm.robot._compiled import _njit
+from hqp_tpm import _jit
+from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
 
 
 @_njit
@@ -94,3 +95,6 @@ def harmonic_position_rows(J, b, Jf, rows, p, rate, acc, h, t, kp, kd, extra, ha
         if has_extra:
             xdd = xdd + extra[i]
         b[i] = xdd + kd * (xd - rate[i]) + kp * e - acc[r]
+
+
+_jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on

@@ -1,0 +1,356 @@
+"""The package's one owner of numba: the switch, the kernel decorator, the disk cache.
+
+* :data:`ENABLED` is the one switch of every compiled kernel (``HQP_TPM_COMPILED=0`` at import: off; may be set
+  in a running process; ``hqp_tpm.solvers._compiled.ENABLED`` and ``hqp_tpm.robot._compiled.ENABLED`` are the same
+  switch, :func:`share_switch`). Off, the readable paths run; :data:`AVAILABLE`: numba can be found.
+* :func:`kernel` marks a function of a kernel module; :func:`compile_module` replaces the module's marked functions
+  by numba dispatchers (``nogil``, cached; numba compiles each on its first call, or loads it from the cache), and
+  :func:`compile_when_enabled` does so now if the switch is on, else when it is turned on (off from the start,
+  numba is never imported). Until then, and without numba, they are the plain Python functions.
+* The disk cache lives in a directory named by a hash of the source of every kernel module and the modules they
+  import from the package (:func:`source_key`): numba checks a cached function against its own file only, but a
+  compiled kernel holds the code of the kernels it calls and the constants it reads, so any change to those files
+  starts a fresh directory (no stale callee is ever loaded; nothing of numba's internals is patched: the
+  directory is numba's documented ``NUMBA_CACHE_DIR`` / ``numba.config.CACHE_DIR``, set while the package's
+  dispatchers are made and restored after). Its root is the first writable of ``$NUMBA_CACHE_DIR/hqp_tpm``, the
+  package's ``__pycache__`` and the user cache directory (``$XDG_CACHE_HOME`` or ``~/.cache``, ``/hqp_tpm``);
+  with none writable (a read-only install run by a user without a home) the kernels compile in memory, once per
+  process, with a one-line notice on stderr. The four most recently used directories (and any used in the last
+  hour) are kept.
+* Before numba reads the cache, every cache file (index ``.nbi``, data ``.nbc``) not seen whole before is parsed
+  as the pickle stream numba reads (:mod:`pickletools`, nothing is executed); a damaged one (truncated, zeroed) is
+  deleted with a one-line notice on stderr, and numba compiles that kernel again and writes it anew. Files seen
+  whole are listed with their size and modification time (``checked.txt``), so a later process only stats them.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+import io
+import os
+import pickletools
+import re
+import shutil
+import sys
+import tempfile
+import threading
+import time
+import types
+from pathlib import Path
+
+_SWITCH = {"available": importlib.util.find_spec("numba") is not None}
+_SWITCH["enabled"] = _SWITCH["available"] and \
+    os.environ.get("HQP_TPM_COMPILED", "1").strip().lower() not in ("0", "false", "no", "off")
+
+PACKAGE = Path(__file__).resolve().parent
+#: Cache directories kept under a root (the current one and the most recent others).
+KEEP = 4
+#: The list of cache files found whole (name, size, modification time), in the cache directory.
+CHECKED = "checked.txt"
+
+_KERNELS: dict[str, list[tuple[str, bool]]] = {}   # module -> (name, inline) of its kernels, in order
+_COMPILED: set[str] = set()
+_PENDING: dict[str, dict] = {}                      # modules compiled when the switch is turned on
+_LOCK = threading.RLock()
+_CACHE: list = []                                   # [the cache directory or None], once known
+_IMPORTS_JIT = re.compile(r"^\s*(?:from\s+hqp_tpm\s+import\s+[^\n]*\b_jit\b|from\s+hqp_tpm\._jit\s+import|"
+                          r"import\s+hqp_tpm\._jit)", re.M)
+_FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)", re.M)
+
+
+def notice(message: str) -> None:
+    """One line on stderr."""
+    sys.stderr.write("hqp_tpm: " + " ".join(message.split()) + "\n")
+    sys.stderr.flush()
+
+
+def kernel(fn=None, *, inline: bool = False):
+    """Mark ``fn`` as a kernel of its module (plain Python until :func:`compile_module`). ``inline=True``: numba
+    inlines it where compiled code calls it (its IR, before LLVM: the same operations in the same order)."""
+    def mark(f):
+        _KERNELS.setdefault(f.__module__, []).append((f.__name__, inline))
+        return f
+    return mark if fn is None else mark(fn)
+
+
+def compile_module(namespace: dict) -> bool:
+    """Replace the kernels of the module whose globals are ``namespace`` by numba dispatchers (once; numba compiles
+    each on its first call, or loads it from the cache). False (nothing replaced) if numba cannot be imported: then
+    :data:`ENABLED` and :data:`AVAILABLE` become False."""
+    name = namespace["__name__"]
+    with _LOCK:
+        if name in _COMPILED:
+            return True
+        if not _SWITCH["available"]:
+            return False
+        made = {}
+        for fn_name, inline in _KERNELS.get(name, ()):
+            made[fn_name] = dispatcher(namespace[fn_name], inline=inline)
+            if made[fn_name] is None:
+                return False
+        namespace.update(made)
+        _COMPILED.add(name)
+        _PENDING.pop(name, None)
+        return True
+
+
+def compile_when_enabled(namespace: dict) -> None:
+    """:func:`compile_module` now if :data:`ENABLED`, else when the switch is turned on."""
+    if _SWITCH["enabled"]:
+        compile_module(namespace)
+    else:
+        _PENDING[namespace["__name__"]] = namespace
+
+
+def set_enabled(value: bool) -> None:
+    """Turn the switch (on: only if numba can be imported; the modules waiting for it are compiled)."""
+    with _LOCK:
+        _SWITCH["enabled"] = bool(value) and _SWITCH["available"]
+        if _SWITCH["enabled"]:
+            for namespace in list(_PENDING.values()):
+                compile_module(namespace)
+
+
+def dispatcher(fn, inline: bool = False):
+    """``fn`` as a numba dispatcher (``nogil``; cached in :func:`cache_dir` when there is one, else compiled in
+    memory), or None if numba cannot be imported."""
+    with _LOCK:
+        try:
+            import numba
+        except ImportError as e:  # found but broken (e.g. llvmlite): the readable paths from now on
+            _SWITCH["available"] = _SWITCH["enabled"] = False
+            notice(f"numba cannot be imported ({e}): the compiled kernels are off")
+            return None
+        where = cache_dir()
+        options = {"nogil": True, "inline": "always" if inline else "never"}
+        if where is None:
+            return numba.njit(**options)(fn)
+        before = numba.config.CACHE_DIR
+        numba.config.CACHE_DIR = str(where)  # read once, by the dispatcher's cache locator (restored below)
+        try:
+            return numba.njit(cache=True, **options)(fn)
+        except RuntimeError:  # no cache locator after all (the directory went away): in memory
+            return numba.njit(**options)(fn)
+        finally:
+            numba.config.CACHE_DIR = before
+
+
+def share_switch(module_name: str) -> None:
+    """Make ``ENABLED`` and ``AVAILABLE`` of module ``module_name`` read and write this module's (one switch for
+    every module that has a switch of its own name; this module's own are made so at its end)."""
+    module = sys.modules[module_name]
+    for attr in ("ENABLED", "AVAILABLE"):
+        module.__dict__.pop(attr, None)
+    module.__class__ = _SharedSwitch
+
+
+class _SharedSwitch(types.ModuleType):
+    """A module whose ``ENABLED`` and ``AVAILABLE`` are :mod:`hqp_tpm._jit`'s."""
+
+    @property
+    def ENABLED(self) -> bool:  # noqa: N802 - the module attribute's name
+        return _SWITCH["enabled"]
+
+    @ENABLED.setter
+    def ENABLED(self, value) -> None:  # noqa: N802
+        set_enabled(value)
+
+    @property
+    def AVAILABLE(self) -> bool:  # noqa: N802
+        return _SWITCH["available"]
+
+    @AVAILABLE.setter
+    def AVAILABLE(self, value) -> None:  # noqa: N802
+        _SWITCH["available"] = bool(value)
+
+
+# -- the cache ---------------------------------------------------------------------------------------------------
+def kernel_files() -> list[Path]:
+    """The package's files whose content a compiled kernel depends on: this file, every module that imports it and
+    the package modules those import by name (their constants are compiled in)."""
+    files = {Path(__file__).resolve()}
+    for folder, _, names in os.walk(PACKAGE):
+        for name in names:
+            if not name.endswith(".py"):
+                continue
+            path = Path(folder, name)
+            text = path.read_text(encoding="utf-8", errors="replace")
+            if "_jit" not in text or not _IMPORTS_JIT.search(text):
+                continue
+            files.add(path)
+            for base, imported in _FROM_IMPORT.findall(text):  # from X import a, b: X.py, else X/a.py or X/__init__
+                stem = PACKAGE.parent.joinpath(*base.split("."))
+                if stem.with_suffix(".py").is_file():
+                    files.add(stem.with_suffix(".py"))
+                    continue
+                for n in re.findall(r"\w+", re.sub(r"#[^\n]*|\bas\s+\w+", "", imported)):
+                    files.add(stem / f"{n}.py" if (stem / f"{n}.py").is_file() else stem / "__init__.py")
+    return sorted(f for f in files if f.is_file())
+
+
+def source_key() -> str:
+    """Hash of the numba version, the Python version and the content of :func:`kernel_files` (16 hex digits)."""
+    import numba
+
+    h = hashlib.sha256(f"{numba.__version__} {sys.version}".encode())
+    for path in kernel_files():
+        h.update(str(path.relative_to(PACKAGE.parent)).encode())
+        h.update(path.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _roots() -> list[Path]:
+    roots = []
+    if os.environ.get("NUMBA_CACHE_DIR"):
+        roots.append(Path(os.environ["NUMBA_CACHE_DIR"]) / "hqp_tpm")
+    roots.append(PACKAGE / "__pycache__")
+    xdg = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    roots.append(Path(xdg) / "hqp_tpm")
+    return roots
+
+
+def _writable(path: Path) -> bool:
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+        tempfile.TemporaryFile(dir=path).close()  # (numba's own test of a cache directory)
+        return True
+    except OSError:
+        return False
+
+
+def cache_dir() -> Path | None:
+    """The directory of the compiled kernels' cache (made, pruned and checked on the first call of a process), or
+    None: no writable location, the kernels compile in memory."""
+    if _CACHE:
+        return _CACHE[0]
+    with _LOCK:
+        if _CACHE:
+            return _CACHE[0]
+        key, where = f"numba-{source_key()}", None
+        for root in _roots():
+            if _writable(root / key):
+                where = root / key
+                break
+        if where is None:
+            notice("no writable cache directory (tried " + ", ".join(str(r) for r in _roots()) + "): the compiled "
+                   "kernels are compiled in memory in each process (set NUMBA_CACHE_DIR to a writable directory)")
+        else:
+            _prune(where)
+            discard_damaged(where)
+        _CACHE.append(where)
+        return where
+
+
+def _prune(current: Path) -> None:
+    """Mark ``current`` used (its modification time) and delete the cache directories beside it (earlier sources)
+    but the most recently used (:data:`KEEP` in all, with ``current``) and those used in the last hour (other
+    checkouts sharing the root)."""
+    try:
+        os.utime(current)
+        others = [p for p in current.parent.glob("numba-*") if p != current and p.is_dir()]
+        others.sort(key=lambda p: p.stat().st_mtime, reverse=True)
+        recent = time.time() - 3600.0
+        old = [p for p in others[KEEP - 1:] if p.stat().st_mtime < recent]
+    except OSError:
+        return
+    for p in old:
+        shutil.rmtree(p, ignore_errors=True)
+
+
+def whole(data: bytes, streams: int) -> bool:
+    """Do ``data`` hold ``streams`` complete pickle streams, one after the other (parsed, nothing executed)?"""
+    f = io.BytesIO(data)
+    try:
+        for _ in range(streams):
+            for _ in pickletools.genops(f):
+                pass
+    except Exception:  # noqa: BLE001 - whatever the parser meets, the file is not whole
+        return False
+    return True
+
+
+def discard_damaged(where: Path) -> list[Path]:
+    """Delete the cache files under ``where`` that are not whole pickle streams (an index ``.nbi``: numba's version,
+    then its entries; a data file ``.nbc``: one); return them. Those listed in :data:`CHECKED` with their current
+    size and modification time are not read again."""
+    listing = where / CHECKED
+    try:
+        seen = set(listing.read_text().splitlines())
+    except (OSError, ValueError):  # none yet, or itself damaged: every file is read
+        seen = set()
+    damaged, checked = [], []
+    for path in sorted(where.rglob("*.nb[ic]")):
+        try:
+            st = path.stat()
+            entry = f"{path.relative_to(where)}\t{st.st_size}\t{st.st_mtime_ns}"
+            if entry in seen:
+                checked.append(entry)
+                continue
+            if whole(path.read_bytes(), 2 if path.suffix == ".nbi" else 1):
+                checked.append(entry)
+                continue
+            path.unlink()
+        except FileNotFoundError:  # (another process replaced or removed it)
+            continue
+        except OSError:
+            continue
+        damaged.append(path)
+    if damaged:
+        notice(f"discarded {len(damaged)} damaged compiled-kernel cache file(s) in {where} "
+               f"({', '.join(p.name for p in damaged[:3])}{', ...' if len(damaged) > 3 else ''}): compiled again")
+    if set(checked) != seen:
+        try:
+            with tempfile.NamedTemporaryFile("w", dir=where, delete=False, suffix=".tmp") as f:
+                f.write("\n".join(checked) + "\n")
+            os.replace(f.name, listing)
+        except OSError:
+            pass
+    return damaged
+
+
+# -- arrays read by address (the lean step's program: hqp_tpm.control._compiled_step.Program) -------------------
+numba = _float_pointer = None  # set by address_readers (globals of the two kernels below)
+
+
+@kernel
+def table_matrix(ints, slot):  # pragma: no cover - compiled
+    """The matrix of slot ``slot`` of an address table in ``ints`` (from ``ints[7]``: address, rows, columns per slot;
+    :class:`hqp_tpm.control._compiled_step.Program`, which keeps the arrays alive), a view of that memory."""
+    at = ints[7] + 3 * slot
+    return numba.carray(_float_pointer(ints[at]), (ints[at + 1], ints[at + 2]))
+
+
+@kernel
+def table_vector(ints, slot):  # pragma: no cover - compiled
+    """The vector of slot ``slot`` of the address table from ``ints[8]`` (address, length per slot)."""
+    at = ints[8] + 2 * slot
+    return numba.carray(_float_pointer(ints[at]), (ints[at + 1],))
+
+
+def address_readers():
+    """``(table_matrix, table_vector)`` compiled (numba's ``carray`` on the int64 address made a ``float64*``), or
+    None if numba cannot be imported."""
+    global numba, _float_pointer
+    with _LOCK:
+        if _float_pointer is None:
+            try:
+                import numba as nb
+                from numba.extending import intrinsic
+            except ImportError:
+                return None
+
+            @intrinsic
+            def float_pointer(typingctx, address):
+                """The int64 ``address`` as a ``float64*``."""
+                def codegen(context, builder, signature, args):
+                    return builder.inttoptr(args[0], context.get_value_type(signature.return_type))
+                return nb.types.CPointer(nb.types.float64)(nb.types.int64), codegen
+
+            numba, _float_pointer = nb, float_pointer
+        if not compile_module(globals()):
+            return None
+        return table_matrix, table_vector
+
+
+share_switch(__name__)  # ENABLED, AVAILABLE (module attributes; set_enabled on assignment)

@@ -1,0 +1,306 @@
+"""The jit layer (:mod:`hqp_tpm._jit`, issue 28 item 5): one switch, a cache that survives damage, read-only installs.
+
+Each run is a subprocess (:data:`PROBE`: the robot kernels ``feedback2`` and ``velocity_box`` and, where the test
+says, a small ``tpm_stacked`` solve through the compiled TPM kernel) with its own ``NUMBA_CACHE_DIR``, warmed once
+for the module (the solve's kernels take ~15 s of CPU to compile cold; the robot kernels ~1 s).
+"""
+
+from __future__ import annotations
+
+import ast
+import importlib.util
+import os
+import shutil
+import stat
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import pytest
+
+import hqp_tpm
+
+#: the probe's numbers from the robot kernels (then, with ``solve``, x and the solvers' switch)
+ROBOT = 9
+
+pytestmark = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
+
+PACKAGE = Path(hqp_tpm.__file__).resolve().parent
+
+#: A few kernel calls whose numbers are printed in full (``repr``); ``solve`` in argv: also a small TPM solve by the
+#: compiled kernel (m > n: ``_past_rank``). It imports only what an application imports (no ``hqp_tpm._jit``).
+PROBE = r"""
+import sys
+import numpy as np
+from hqp_tpm.robot import _compiled as rc
+out = []
+e = np.array([1.0, -2.0, 0.5, 3.0])
+b = np.zeros(4)
+rc.feedback2(b, e, 0.5 * e, 0.25 * e, -e, 0.1 * e, 2.0, 3.0)
+out += b.tolist()
+P = np.array([[-1.0, -2.0], [1.0, 2.0], [0.5, 0.7], [3.0, 4.0], [6.0, 8.0], [0.03, 0.04]])
+idx = np.array([[0, 1], [0, 1]], dtype=np.int64)
+lo, up = np.zeros(2), np.zeros(2)
+out += [bool(rc.velocity_box(np.array([0.3, -1.9]), P, idx, 0.01, lo, up))] + lo.tolist() + up.tolist()
+if "solve" in sys.argv:
+    from hqp_tpm.solvers import _compiled
+    from hqp_tpm.solvers.tpm import tpm_stacked
+    J = np.sin(np.arange(63.0)).reshape(9, 7)
+    out += tpm_stacked(J, np.cos(np.arange(9.0)), (3, 3, 3), 7).tolist() + [_compiled.ENABLED]
+import numba  # noqa: E402  (imported by now when the kernels are on)
+print(repr(out))
+"""
+
+
+def as_user(nobody: bool) -> list[str]:
+    """The command prefix that runs a program as the unprivileged user ``nobody`` (when we are root; otherwise we
+    already are an unprivileged user)."""
+    if not nobody or os.geteuid() != 0:
+        return []
+    if shutil.which("setpriv") is None:
+        pytest.skip("setpriv is not installed")
+    return ["setpriv", "--reuid=nobody", "--regid=nogroup", "--clear-groups"]
+
+
+def run(env_extra: dict, *args: str, cwd=None, pythonpath=None, as_nobody=False, drop_env=(), probe=PROBE):
+    env = {k: v for k, v in os.environ.items() if k not in drop_env and not k.startswith("NUMBA_")}
+    env["PYTHONPATH"] = str(pythonpath or PACKAGE.parent)
+    env["OMP_NUM_THREADS"] = env["OPENBLAS_NUM_THREADS"] = "1"
+    env.update(env_extra)
+    return subprocess.run([*as_user(as_nobody), sys.executable, "-c", probe, *args], env=env,
+                          cwd=cwd or tempfile.gettempdir(), capture_output=True, text=True, timeout=600)
+
+
+def ok(result) -> str:
+    assert result.returncode == 0, result.stderr[-3000:]
+    return result.stdout
+
+
+@pytest.fixture(scope="module")
+def warm(tmp_path_factory):
+    """A cache directory holding every kernel the probe (with the solve) uses, and the probe's output."""
+    cache = tmp_path_factory.mktemp("numba_cache")
+    first = run({"NUMBA_CACHE_DIR": str(cache)}, "solve")
+    want = ok(first)
+    again = run({"NUMBA_CACHE_DIR": str(cache)}, "solve")
+    assert ok(again) == want and again.stderr == "", again.stderr   # from the cache: the same numbers, quiet
+    return cache, want
+
+
+def cache_files(cache: Path, suffix: str, names=("feedback2", "velocity_box")) -> list[Path]:
+    """The probe's kernels' cache files of one kind (``.nbi`` index, ``.nbc`` data) under ``cache``."""
+    return sorted(p for p in cache.rglob(f"*{suffix}") if any(f".{n}-" in p.name for n in names))
+
+
+def damage(path: Path, how: str) -> None:
+    data = path.read_bytes()
+    path.write_bytes(data[: len(data) // 2] if how == "truncate" else bytes(len(data)))
+
+
+@pytest.mark.parametrize("how", ["truncate", "zero"])
+@pytest.mark.parametrize("suffix", [".nbi", ".nbc"])
+def test_a_damaged_cache_file_is_discarded_and_rebuilt(warm, tmp_path, suffix, how):
+    """Damaged index or data files (truncated, zeroed) of the kernels a run loads: the same numbers, at most one
+    line on stderr, the files rebuilt whole, and the next run is clean (on main 0d7b885: UnpicklingError / EOFError,
+    every run, until the cache is deleted by hand)."""
+    cache, want = warm
+    copy = tmp_path / "cache"
+    shutil.copytree(cache, copy)
+    hit = cache_files(copy, suffix)
+    assert len(hit) >= 2, sorted(p.name for p in copy.rglob("*.nb?"))
+    for p in hit:
+        damage(p, how)
+    damaged = run({"NUMBA_CACHE_DIR": str(copy)}, "solve")
+    assert ok(damaged) == want
+    assert len(damaged.stderr.splitlines()) <= 1, damaged.stderr
+    for p in hit:  # rebuilt: there again, and numba reads it (next run quiet, same numbers)
+        assert p.exists() and p.stat().st_size > 0 and p.read_bytes()[:1] == b"\x80"
+    clean = run({"NUMBA_CACHE_DIR": str(copy)}, "solve")
+    assert ok(clean) == want and clean.stderr == "", clean.stderr
+
+
+@pytest.mark.slow  # (compiles the TPM kernel again: ~15 s of CPU)
+def test_every_cache_file_damaged_at_once(warm, tmp_path):
+    """Every index and data file of the cache damaged (alternately truncated and zeroed), the solver's too, and the
+    list of files found whole: the same numbers with one notice, then a clean run."""
+    cache, want = warm
+    copy = tmp_path / "cache"
+    shutil.copytree(cache, copy)
+    files = sorted(p for p in copy.rglob("*.nb?") if p.suffix in (".nbi", ".nbc"))
+    assert any("_past_rank" in p.name for p in files)
+    for i, p in enumerate(files):
+        damage(p, "truncate" if i % 2 else "zero")
+    for listing in copy.rglob("checked.txt"):  # (the jit layer's list of files found whole: damaged too)
+        listing.write_bytes(b"\xff\xfe" + bytes(64))
+    damaged = run({"NUMBA_CACHE_DIR": str(copy)}, "solve")
+    assert ok(damaged) == want
+    assert len(damaged.stderr.splitlines()) == 1 and "damaged" in damaged.stderr, damaged.stderr
+    clean = run({"NUMBA_CACHE_DIR": str(copy)}, "solve")
+    assert ok(clean) == want and clean.stderr == "", clean.stderr
+
+
+@pytest.fixture
+def read_only_install():
+    """A copy of the package in a directory nobody may write to (readable by everyone), removed after."""
+    root = Path(tempfile.mkdtemp(prefix="hqp_tpm_ro_"))
+    site = root / "site"
+    shutil.copytree(PACKAGE, site / "hqp_tpm", ignore=shutil.ignore_patterns("__pycache__", "*.pyc"))
+    for p in [site, *site.rglob("*")]:
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    root.chmod(0o755)
+    yield site
+    for p in [site, *site.rglob("*")]:
+        p.chmod(stat.S_IRWXU)
+    shutil.rmtree(root)
+
+
+def test_a_read_only_install_without_a_cache_directory_compiles_in_memory(warm, read_only_install):
+    """The package read-only, run by an unprivileged user whose home does not exist and without NUMBA_CACHE_DIR:
+    the same numbers, at most a one-line notice, nothing written (on main 0d7b885: RuntimeError "no locator
+    available" at import of hqp_tpm.robot._compiled)."""
+    _, want = warm
+    got = run({"HOME": "/nonexistent"}, pythonpath=read_only_install, cwd=read_only_install, as_nobody=True,
+              drop_env=("XDG_CACHE_HOME",))
+    assert ast.literal_eval(ok(got)) == ast.literal_eval(want)[:ROBOT]
+    assert len(got.stderr.splitlines()) <= 1, got.stderr
+    assert not list(read_only_install.rglob("__pycache__"))
+
+
+def test_switched_off_the_same_numbers_without_numba(warm, read_only_install):
+    """``HQP_TPM_COMPILED=0``: the same numbers from the same kernel source run as Python (the solve by the numpy
+    path, equal to 1e-12), numba never imported, no notice, nothing written, even from a read-only install run by an
+    unprivileged user (on main 0d7b885 that import already fails: the robot kernels were made with numba's cache
+    whatever the switch)."""
+    _, want = warm
+    probe = PROBE.replace("import numba  # noqa: E402  (imported by now when the kernels are on)",
+                          "assert 'numba' not in sys.modules, 'numba imported'")
+    got = run({"HOME": "/nonexistent", "HQP_TPM_COMPILED": "0"}, "solve", pythonpath=read_only_install,
+              cwd=read_only_install, as_nobody=True, drop_env=("XDG_CACHE_HOME",), probe=probe)
+    out = ok(got)
+    assert got.stderr == ""
+    have, ref = ast.literal_eval(out), ast.literal_eval(want)
+    assert have[-1] is False and ref[-1] is True  # (the solvers' switch off here, on in the warm runs)
+    assert have[:ROBOT] == ref[:ROBOT]  # the robot kernels' numbers: the same source, run as Python
+    assert max(abs(a - b) for a, b in zip(have[ROBOT:-1], ref[ROBOT:-1], strict=True)) <= 1e-12
+
+
+def test_switched_on_later_compiles_then(warm):
+    """Off at import (``HQP_TPM_COMPILED=0``), then turned on by either module's name: the kernel modules are
+    compiled then (numba's dispatchers in place of the plain functions), with the same numbers."""
+    cache, want = warm
+    probe = PROBE.replace("out = []", "out = []\nassert 'numba' not in sys.modules and not rc.ENABLED\n"
+                          "from hqp_tpm.solvers import _compiled as sc\nsc.ENABLED = True\n"
+                          "assert rc.ENABLED and type(rc.feedback2).__name__ == 'CPUDispatcher'")
+    got = run({"NUMBA_CACHE_DIR": str(cache), "HQP_TPM_COMPILED": "0"}, "solve", probe=probe)
+    assert ok(got) == want and got.stderr == "", got.stderr
+
+def test_one_switch():
+    """The solvers' and the robot's ``ENABLED`` are one switch (main 0d7b885 had two, set apart)."""
+    from hqp_tpm import _jit
+    from hqp_tpm.robot import _compiled as robot_compiled
+    from hqp_tpm.solvers import _compiled as solvers_compiled
+
+    before = _jit.ENABLED
+    try:
+        for value in (False, True, False):
+            solvers_compiled.ENABLED = value
+            assert robot_compiled.ENABLED is _jit.ENABLED is (value and _jit.AVAILABLE)
+            robot_compiled.ENABLED = not value
+            assert solvers_compiled.ENABLED is _jit.ENABLED is ((not value) and _jit.AVAILABLE)
+    finally:
+        _jit.ENABLED = before
+
+
+def test_the_cache_key_follows_every_kernel_file_and_the_constants_they_import(tmp_path):
+    """Every module that uses the jit layer (and the package modules it imports names from: compiled-in constants) is
+    in the cache key, so a cached kernel never holds an earlier version of a kernel it calls; any change to one of
+    them changes the key."""
+    from hqp_tpm import _jit
+
+    files = {str(p.relative_to(PACKAGE)) for p in _jit.kernel_files()}
+    users = {str(p.relative_to(PACKAGE)) for p in PACKAGE.rglob("*.py") if _jit._IMPORTS_JIT.search(p.read_text())}
+    assert {"solvers/_compiled.py", "solvers/_compiled_sns.py", "control/_compiled_step.py", "robot/_compiled.py",
+            "geometry/_compiled.py", "tasks/_compiled_rows.py", "solvers/levels.py", "solvers/damping.py"} <= files
+    assert users <= files
+    key = "import sys; from hqp_tpm import _jit; print(_jit.source_key())"
+    site = tmp_path / "site"
+    shutil.copytree(PACKAGE, site / "hqp_tpm", ignore=shutil.ignore_patterns("__pycache__"))
+    keys = []
+    for edit in (None, "solvers/levels.py", "solvers/_compiled.py", "README-not-a-kernel"):
+        if edit and (site / "hqp_tpm" / edit).exists():
+            with open(site / "hqp_tpm" / edit, "a") as f:
+                f.write("\n# edited\n")
+        elif edit:
+            (site / "hqp_tpm" / "app" / "unrelated_note.py").write_text("X = 1\n")
+        out = subprocess.run([sys.executable, "-c", key], env={**os.environ, "PYTHONPATH": str(site)},
+                             cwd=tmp_path, capture_output=True, text=True, check=True)
+        keys.append(out.stdout.strip())
+    assert keys[0] != keys[1] != keys[2] and keys[2] == keys[3]  # (an unrelated module: the same key)
+
+
+
+def test_earlier_cache_directories_are_pruned(tmp_path):
+    """:data:`~hqp_tpm._jit.KEEP` cache directories stay, the current one and the most recently used others (and any
+    used in the last hour: another checkout sharing ``NUMBA_CACHE_DIR``); older ones of earlier sources go."""
+    import time
+
+    from hqp_tpm import _jit
+
+    now = time.time()
+    ages = {"numba-a": 10, "numba-b": 20, "numba-c": 30, "numba-d": 40, "numba-e": 50, "numba-f": 0.1}  # hours
+    for name, hours in ages.items():
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "x.nbi").write_bytes(b"")
+        os.utime(tmp_path / name, (now - 3600 * hours, now - 3600 * hours))
+    (tmp_path / "numba-current").mkdir()
+    _jit._prune(tmp_path / "numba-current")
+    kept = sorted(p.name for p in tmp_path.iterdir())
+    assert kept == ["numba-a", "numba-b", "numba-current", "numba-f"], kept  # f, a, b: the 3 most recent others
+
+# -- the fused step's reads of pinocchio's memory by address: verified against pinocchio's API, else its API -----
+@pytest.fixture(scope="module")
+def robots():
+    sys.path.insert(0, str(PACKAGE.parent))  # the repository root: ``benchmarks``
+    from benchmarks.peers import problems as P
+
+    return [P.load_robot(P.ROMEO), P.load_robot(P.IIWA)]
+
+
+def test_pinocchio_memory_read_by_address_is_pinocchio_s_api(robots):
+    """Every frame of Romeo and the iiwa: the views the fused step reads and writes by address are pinocchio's storage
+    (taken before an update, they hold its values after) and the kernels on them are pinocchio's API to the bit, so
+    the state hands them out (with this pinocchio)."""
+    from hqp_tpm.robot.state import State, verify_source
+
+    for robot in robots:
+        model, st = robot.model, State(robot)
+        for fid in range(1, model.nframes):
+            assert verify_source(model, "jacobian", fid) and verify_source(model, "placement", fid), \
+                model.frames[fid].name
+        assert st.frame_jacobian_source(model.nframes - 1) is not None
+        assert st.frame_placement_source(model.nframes - 1) is not None
+
+
+@pytest.mark.parametrize("what", ["frame_jacobian", "frame_placement"])
+def test_a_kernel_that_is_not_pinocchio_s_api_is_not_used(robots, what, monkeypatch):
+    """A frame kernel one ulp away from pinocchio's API (as another pinocchio's arithmetic or memory layout would
+    be): the state hands out no source for the fused step (None: the tasks call pinocchio's API every step). On main
+    0d7b885 nothing compared them: the sources were handed out."""
+    import numpy as np
+
+    from hqp_tpm.robot import _compiled
+    from hqp_tpm.robot.state import State
+
+    kernel = getattr(_compiled, what)
+
+    def off_by_an_ulp(*args):
+        kernel(*args)
+        out = args[-1]
+        out[...] = np.nextafter(out, np.inf)
+
+    robot = robots[1]
+    fid = robot.model.nframes - 1
+    assert getattr(State(robot), f"{what}_source")(fid) is not None
+    monkeypatch.setattr(_compiled, what, off_by_an_ulp)
+    assert getattr(State(robot), f"{what}_source")(fid) is None
