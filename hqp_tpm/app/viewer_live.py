@@ -134,13 +134,17 @@ class LiveViewer:
         return None if self.rate is None else self.rate.report()
 
     def serve(self, message: bool = True) -> None:
-        """Keep the server up until Ctrl-C (KeyboardInterrupt), then stop it."""
+        """Keep the server up until Ctrl-C (SIGINT) or one SIGTERM (``timeout``, ``docker stop``, systemd), then
+        stop it."""
         import signal
         import threading
 
-        old = None
-        if threading.current_thread() is threading.main_thread():  # Ctrl-C raises here, whatever handler ran the run
-            old = signal.signal(signal.SIGINT, signal.default_int_handler)
+        def _end(signum, frame):
+            raise KeyboardInterrupt
+
+        old = {}
+        if threading.current_thread() is threading.main_thread():  # either signal ends the wait, whatever handler
+            old = {sig: signal.signal(sig, _end) for sig in (signal.SIGINT, signal.SIGTERM)}  # ran the run
         if message:
             print("hqp-tpm: the run is over; the viewer stays up until you press Ctrl-C", flush=True)
         try:
@@ -149,8 +153,8 @@ class LiveViewer:
         except KeyboardInterrupt:
             pass
         finally:
-            if old is not None:
-                signal.signal(signal.SIGINT, old)
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
             self.close()
 
     def close(self) -> None:
