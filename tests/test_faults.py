@@ -18,10 +18,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hqp_tpm import errors
 from hqp_tpm.app import build, scenario, sweep
 from hqp_tpm.app.cli import main, run_scenario
 from hqp_tpm.data import scenarios_dir
-from hqp_tpm.errors import MAX_MESSAGE, HqpTpmError, OutputError, ScenarioError, SolverFailedError, SweepError
+from hqp_tpm.errors import HqpTpmError, OutputError, ScenarioError, SolverFailedError, SweepError
 
 RUN = {"progress": False, "figures": False, "replay": False}
 
@@ -57,7 +58,7 @@ def test_a_huge_list_gives_a_short_message_naming_file_and_field(tmp_path):
     assert "s.toml.policy.operator.markers[0]" in msg and "(200000 items)" in msg
     # any typed error: the message is capped, its middle elided
     long = ScenarioError("x" * 1_000_000)
-    assert len(str(long)) <= MAX_MESSAGE and "characters elided" in str(long)
+    assert len(str(long)) <= errors.MAX_MESSAGE and "characters elided" in str(long)
 
 
 @pytest.mark.parametrize("depth", [40, 300, 5000])
@@ -231,11 +232,16 @@ def test_a_full_disk_is_an_output_error(tmp_path):
         out = disk / "out"
         run_scenario("planar5_exact", out, steps=10, **RUN)
         before = snapshot(out)
-        with pytest.raises(OutputError, match="no space left on the device"):
+        with pytest.raises(OutputError, match="no space left on the device") as err:
             run_scenario("planar5_exact", out, steps=30, **{**RUN, "replay": True})
+        del err  # its traceback holds the run's memory-mapped columns (files on the tmpfs)
         assert snapshot(out) == before and hidden(disk) == []
     finally:
-        subprocess.run(["umount", str(disk)], check=False)
+        import gc
+
+        gc.collect()
+        if subprocess.run(["umount", str(disk)], capture_output=True).returncode:
+            subprocess.run(["umount", "-l", str(disk)], check=False)  # detached now, freed when unused
 
 
 # ------------------------------------------------------------------------------------------ sweeps
