@@ -544,6 +544,23 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def remove_stale(parent: Path, name: str) -> None:
+    """Remove the ``.<name>.hqp-tpm-<pid>-...`` entries in ``parent`` of processes that are gone (a killed run's
+    temporary folder; a symbolic link among them, left by an earlier version that swapped a linked ``--out``
+    away: only the link is removed)."""
+    prefix = f".{name}{_TMP_TAG}"
+    for p in parent.glob(f"{prefix}*"):
+        try:
+            pid = int(p.name[len(prefix):].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            if p.is_symlink():
+                p.unlink(missing_ok=True)
+            else:
+                shutil.rmtree(p, ignore_errors=True)
+
+
 class ResultFolder:
     """A run's output folder, built in a fresh temporary folder next to ``target`` and swapped in at the end.
 
@@ -562,10 +579,10 @@ class ResultFolder:
         parent = self.target.parent
         try:
             parent.mkdir(parents=True, exist_ok=True)
-            self._sweep_stale(parent, self.target.name)
+            remove_stale(parent, self.target.name)
             given = Path(target).absolute()
             if given != self.target and given.parent.is_dir():  # a link's own folder: the earlier versions' leftovers
-                self._sweep_stale(given.parent, given.name)
+                remove_stale(given.parent, given.name)
             self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{_TMP_TAG}{os.getpid()}-", dir=parent))
             umask = os.umask(0)
             os.umask(umask)
@@ -573,22 +590,6 @@ class ResultFolder:
         except OSError as exc:
             raise OutputError(f"cannot create a folder next to {str(self.target)!r}: {exc.strerror or exc}") from None
         self.done = False
-
-    @staticmethod
-    def _sweep_stale(parent: Path, name: str) -> None:
-        """Remove ``.<name>.hqp-tpm-<pid>-...`` entries of processes that are gone (a symbolic link among them,
-        left by an earlier version that swapped a linked ``--out`` away: only the link is removed)."""
-        prefix = f".{name}{_TMP_TAG}"
-        for p in parent.glob(f"{prefix}*"):
-            try:
-                pid = int(p.name[len(prefix):].split("-", 1)[0])
-            except ValueError:
-                continue
-            if pid != os.getpid() and not _pid_alive(pid):
-                if p.is_symlink():
-                    p.unlink(missing_ok=True)
-                else:
-                    shutil.rmtree(p, ignore_errors=True)
 
     def destination(self, status: str) -> Path:
         """Where a result of this ``status`` goes: the target, or ``<target>.partial`` for a partial run

@@ -452,7 +452,7 @@ def run_sweep(spec, out: Path, *, grid: dict | None = None, ranges: dict | None 
                     rows[row["variant"]] = row
         except BaseException:  # the temporary folders of the variants the ended workers were writing
             for job in jobs:
-                results.ResultFolder._sweep_stale(out, job.variant.name)
+                results.remove_stale(out, job.variant.name)
             raise
     wall = time.perf_counter() - t0
     table = []
