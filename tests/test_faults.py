@@ -330,19 +330,29 @@ def test_the_scheduler_option_says_it_must_be_trusted(capsys):
 
 
 # ------------------------------------------------------------------------------------------ --viz
-def test_one_sigterm_ends_viz(tmp_path):
-    cmd = [sys.executable, "-m", "hqp_tpm.app.cli", "run", "planar5_exact", "--steps", "50", "--viz",
-           "--no-figures", "--no-replay", "--quiet", "--out", str(tmp_path / "out")]
+@pytest.mark.parametrize("when", ["after", "during"])
+def test_one_sigterm_ends_viz(tmp_path, when):
+    out = tmp_path / "out"
+    steps = "50" if when == "after" else "5000000"
+    cmd = [sys.executable, "-m", "hqp_tpm.app.cli", "run", "planar5_exact", "--steps", steps, "--viz",
+           "--no-figures", "--no-replay", "--quiet", "--out", str(out)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
-        for line in proc.stdout:
-            if "press Ctrl-C" in line:
-                break
+        if when == "after":
+            for line in proc.stdout:
+                if "press Ctrl-C" in line:
+                    break
+        else:
+            t0 = time.time()
+            while time.time() - t0 < 120 and not list(tmp_path.glob(".out.hqp-tpm-*/.columns/t.npy")):
+                assert proc.poll() is None
+                time.sleep(0.1)
         assert proc.poll() is None
-        proc.send_signal(signal.SIGTERM)  # before: ignored after the run, a second one was needed
-        proc.wait(timeout=15)
+        proc.send_signal(signal.SIGTERM)  # before: ignored after the run (or the viewer kept up after a partial
+        proc.wait(timeout=15)  # run), a second one was needed
     finally:
         if proc.poll() is None:
             proc.kill()
             proc.wait()
-    assert proc.returncode == 0 and (tmp_path / "out" / "manifest.json").is_file()
+    manifest = json.loads((out.with_name("out") / "manifest.json").read_text())
+    assert (proc.returncode, manifest["status"]) == ((0, "complete") if when == "after" else (143, "partial"))

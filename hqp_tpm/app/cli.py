@@ -173,8 +173,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         report = live.report()
         if report:
             print(f"hqp-tpm: {report}", flush=True)
-        if serve and failure is None:
-            live.serve()  # until Ctrl-C
+        if serve and failure is None and not (stop is not None and stop()):  # a signal already ended the run: no wait
+            live.serve(until=stop)  # until Ctrl-C or SIGTERM
         else:
             live.close()
     if failure is not None:
