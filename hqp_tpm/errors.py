@@ -7,12 +7,46 @@ their messages name the bad value and, where there is a finite set, the valid ch
 
 from __future__ import annotations
 
+import reprlib
+
+#: Longest message an error keeps (characters): beyond it the middle is elided, so that a value pasted whole into
+#: a message (a list of 200,000 numbers) cannot make a megabyte of text.
+MAX_MESSAGE = 2000
+
+
+def elide(text: str, limit: int = MAX_MESSAGE) -> str:
+    """``text`` cut to at most about ``limit`` characters, its middle replaced by ``... [N characters elided] ...``."""
+    if len(text) <= limit:
+        return text
+    keep = max(limit // 2 - 40, 10)
+    return f"{text[:keep]} ... [{len(text) - 2 * keep:,} characters elided] ... {text[-keep:]}"
+
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxlevel, _SHOWN.maxlist, _SHOWN.maxtuple, _SHOWN.maxdict = 3, 6, 6, 6
+_SHOWN.maxstring, _SHOWN.maxother, _SHOWN.maxlong = 80, 80, 40
+
+
+def shown(value: object) -> str:
+    """A short ``repr`` of a bad value for an error message: nested containers cut at three levels and six items
+    (``[1.0, 1.0, 1.0, 1.0, 1.0, 1.0, ...] (200000 items)``); never recursive, so any nesting depth is fine."""
+    text = _SHOWN.repr(value)
+    if isinstance(value, (list, tuple, dict)) and len(value) > 6:
+        text += f" ({len(value)} items)"
+    return text
+
 
 class HqpTpmError(Exception):
-    """Root of every error raised by hqp-tpm on bad input or impossible requests."""
+    """Root of every error raised by hqp-tpm on bad input or impossible requests (messages are capped at
+    :data:`MAX_MESSAGE` characters: :func:`elide`)."""
 
     #: where a run that failed with this error left the steps before it (set by ``hqp-tpm run``; None: nowhere)
     partial_result: object | None = None
+
+    def __init__(self, *args) -> None:
+        if args and isinstance(args[0], str) and len(args[0]) > MAX_MESSAGE:
+            args = (elide(args[0]), *args[1:])
+        super().__init__(*args)
 
 
 class ShapeError(HqpTpmError, ValueError):

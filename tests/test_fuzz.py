@@ -322,3 +322,101 @@ def test_fuzz_bases_run_clean(tmp_path, name):
     assert tomllib.loads(path.read_text())
     s = run_scenario(path, tmp_path / "out", steps=STEPS, progress=False, figures=False, replay=False)
     assert s["status"] == "complete" and folder_consistent(tmp_path / "out")
+
+
+# ------------------------------------------------------------------------------------------ hostile mutants
+#: The kinds of the held-out campaign of issue 31, each applied to every base (deep and huge at random fields).
+HOSTILE = ("deep", "huge", "repeat_level", "inside", "negative_radius", "qp_backend", "extends", "symlink_out")
+DEEP = "__hqp_tpm_deep__"
+#: The longest error message a user should get (characters).
+LONGEST_MESSAGE = 2_000
+
+
+def hostile(data: dict, kind: str, rng: np.random.Generator) -> tuple[str, str]:
+    """The TOML text of ``data`` with one hostile edit of ``kind``, and a description."""
+    out = copy.deepcopy(data)
+    tasks = [t["name"] for t in out.get("tasks", [])]
+    obstacles = out.get("obstacles", [])
+    what = kind
+    if kind in ("deep", "huge"):
+        paths = [p for p, v in _paths(out) if not isinstance(v, (dict, list)) or kind == "huge"]
+        path = paths[int(rng.integers(len(paths)))]
+        parent = out
+        for p in path[:-1]:
+            parent = parent[p]
+        if kind == "deep":
+            depth = int(rng.choice([40, 400, 3000]))
+            parent[path[-1]] = DEEP
+            what = f"{path} nested {depth} deep"
+            return dump_toml(out).replace(json.dumps(DEEP), "[" * depth + "]" * depth), what
+        parent[path[-1]] = [0.5] * 200_000
+        what = f"{path} = 200,000 numbers"
+    elif kind == "repeat_level":
+        out["policy"] = {"type": "fixed", "levels": [tasks[0], tasks[0]]}
+    elif kind == "inside" and obstacles:
+        obstacles[0].update(type="sphere", center=[0.0, 0.0, 0.0], radius=50.0)
+        for k in ("half_extents", "a", "b", "velocity"):
+            obstacles[0].pop(k, None)
+    elif kind == "negative_radius" and obstacles:
+        obstacles[0]["radius"] = -0.1
+    elif kind == "qp_backend":
+        out["scenario"]["solver"] = "qp:no_such_backend"
+    elif kind == "extends":
+        out["scenario"]["extends"] = "no_such_parent"
+    return dump_toml(out), what
+
+
+def test_hostile_mutants(tmp_path, capsys):
+    """Deep nesting, huge lists, a repeated level, an obstacle holding the robot, a negative radius, an unknown QP
+    backend, a missing parent, a symbolic-link ``--out``: a clean result or a typed error naming the file, a
+    message of at most 2,000 characters (``hqp_tpm.errors.MAX_MESSAGE``), no folder left behind."""
+    rng = np.random.default_rng(31)
+    counts = {"inputs": 0, "clean": 0, "typed_errors": 0, "problems": 0}
+    problems = []
+    bases = {name: base_data(name) for name in BASES}
+    runs, real = tmp_path / "runs", tmp_path / "real"
+    runs.mkdir()
+    for i in range(SCALE):
+        for name in BASES:
+            for kind in HOSTILE:
+                text, what = hostile(bases[name], kind, rng)
+                what = f"{name}: {what}"
+                path = tmp_path / f"hostile{i}_{name}_{kind}.toml"
+                path.write_text(text)
+                out = runs / f"out_{name}_{kind}_{i}"
+                if kind == "symlink_out":
+                    target = real / out.name
+                    target.mkdir(parents=True)
+                    out.symlink_to(target, target_is_directory=True)
+                counts["inputs"] += 1
+                try:
+                    limited(lambda p=path, o=out: run_scenario(p, o, steps=STEPS, progress=False, figures=False,
+                                                               replay=False))
+                    counts["clean"] += 1
+                except HqpTpmError as exc:
+                    counts["typed_errors"] += 1
+                    if path.name not in str(exc):
+                        problems.append(f"{what}: error without the file named: {str(exc)[:300]}")
+                    if len(str(exc)) > LONGEST_MESSAGE:
+                        problems.append(f"{what}: a message of {len(str(exc))} characters")
+                except Hang:
+                    problems.append(f"{what}: no answer after {TIME_LIMIT} s")
+                except Exception as exc:  # noqa: BLE001 - the point of the fuzz
+                    problems.append(f"{what}: {type(exc).__name__}: {str(exc)[:300]}")
+                if kind == "symlink_out":
+                    if not out.is_symlink():
+                        problems.append(f"{what}: the link --out was replaced")
+                    out = real / out.name
+                try:
+                    if out.exists() and any(out.iterdir()) and not folder_consistent(out):
+                        raise ValueError("mismatch")
+                except (OSError, ValueError, KeyError) as exc:
+                    problems.append(f"{what}: inconsistent output folder ({exc})")
+                left = [p.name for d in (runs, real) if d.exists() for p in d.iterdir() if p.name.startswith(".")]
+                if left:
+                    problems.append(f"{what}: entries left behind: {left}")
+    counts["problems"] = len(problems)
+    with capsys.disabled():
+        print(f"\nhostile mutants: {json.dumps(counts)}")
+    assert not problems, "\n".join(problems[:20])
+    assert counts["typed_errors"] >= counts["inputs"] // 2 and counts["clean"] > 0

@@ -11,7 +11,7 @@ from hqp_tpm.app.scenario import Scenario, Section, number, vector
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack, Stack
-from hqp_tpm.errors import HqpTpmError, ScenarioError
+from hqp_tpm.errors import HqpTpmError, ScenarioError, shown
 from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.tasks import (
@@ -215,13 +215,19 @@ def obstacles_from(sc: Scenario) -> list:
         motion = {}
         if sec.has("velocity"):
             motion["velocity"] = sec.vector("velocity", 3)
-        if kind in ("sphere", "point"):
-            out.append(Obstacle.sphere(name, sec.vector("center", 3), sec.number("radius", 0.0), **motion))
-        elif kind == "box":
-            out.append(Obstacle.box(name, sec.vector("center", 3), sec.vector("half_extents", 3), **motion))
-        else:
-            out.append(Obstacle.capsule(name, sec.vector("a", 3), sec.vector("b", 3), sec.number("radius"),
-                                        **motion))
+        try:
+            if kind in ("sphere", "point"):
+                out.append(Obstacle.sphere(name, sec.vector("center", 3), sec.number("radius", 0.0), **motion))
+            elif kind == "box":
+                out.append(Obstacle.box(name, sec.vector("center", 3), sec.vector("half_extents", 3), **motion))
+            else:
+                out.append(Obstacle.capsule(name, sec.vector("a", 3), sec.vector("b", 3), sec.number("radius"),
+                                            **motion))
+        except ScenarioError:
+            raise
+        except (HqpTpmError, ValueError) as exc:  # the geometry's own check (a negative radius, ...)
+            field = next((k for k in ("radius", "half_extents") if k in sec.data and k in str(exc)), None)
+            raise ScenarioError(f"{sec.where}{'.' + field if field else ''} ({kind}): {exc}") from exc
         sec.check_unused()
     return out
 
@@ -237,12 +243,20 @@ def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list) -> Po
             if not isinstance(levels, list):
                 raise ScenarioError(f"{sec.where}.levels: expected a list of task names or lists of names")
             out = []
+            first: dict = {}  # task name -> the level it is in
             for i, lv in enumerate(levels):
                 names = [lv] if isinstance(lv, str) else lv
+                if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+                    raise ScenarioError(f"{sec.where}.levels[{i}]: expected a task name or a list of task names, "
+                                        f"got {shown(lv)}")
                 for n in names:
                     if n not in tasks:
                         raise ScenarioError(f"{sec.where}.levels[{i}]: unknown task {n!r}; tasks: "
                                             f"{', '.join(tasks)}")
+                    if n in first:
+                        raise ScenarioError(f"{sec.where}.levels[{i}]: task {n!r} is repeated (already in "
+                                            f"levels[{first[n]}]); a task may appear once in a stack")
+                    first[n] = i
                 out.append(tuple(tasks[n] for n in names))
             stack = Stack(out)
         sec.check_unused()
@@ -251,6 +265,41 @@ def build_policy(sc: Scenario, robot: Robot, tasks: dict, obstacles: list) -> Po
         raise ScenarioError(f"{sec.where}.type: unknown policy {kind!r}; valid: "
                             f"{', '.join(['fixed', *sorted(POLICY_BUILDERS)])}")
     return POLICY_BUILDERS[kind](sc, robot, tasks, sec, obstacles)
+
+
+def check_start_outside_obstacles(sc: Scenario, robot: Robot, policy: Policy, q0: np.ndarray) -> None:
+    """Refuse a start with the robot entirely inside an obstacle (every element of the policy's distance field at
+    a negative distance from it) or an element deeper inside one than the robot's own size (the diameter of the
+    bounding sphere of its elements): a modelling error (an obstacle placed or sized wrongly), not a situation the
+    avoidance can answer. Policies without a distance field are not checked."""
+    from hqp_tpm.geometry.distances import DistanceField
+    from hqp_tpm.robot.state import State
+
+    field = getattr(policy, "field", None)
+    if not isinstance(field, DistanceField) or not field.n_obstacles or not field.n_elements:
+        return
+    snap = field.snapshot()
+    try:
+        field.update(State(robot).update(q0, np.zeros(robot.nv), 0.0).data, None, 0.0)
+        D = np.where(field.computed, field.distance, np.inf)
+        centers, radii = field.bounding_spheres()
+    finally:
+        field.restore(snap)
+    size = 2.0 * float((np.linalg.norm(centers - centers.mean(axis=0), axis=1) + radii).max())
+    where = {sec.data.get("name"): (i, sec) for i, sec in enumerate(sc.obstacles)}
+    for j, ob in enumerate(field.obstacles):
+        d = D[:, j]
+        k = int(np.argmin(d))
+        inside = bool((d < 0.0).all())
+        if not (inside or d[k] < -size):
+            continue
+        i, sec = where.get(ob.name, (None, None))
+        at = sec.where if sec is not None else f"{sc.path.name}.obstacles"
+        what = ("the robot starts entirely inside it (every one of its " f"{field.n_elements} elements)" if inside
+                else f"{field.names[k]!r} starts deeper inside it than the robot's own size ({size:.3g} m)")
+        raise ScenarioError(f"{at} ({ob.name!r}): {what}: distance {d[k]:.4g} m at {field.names[k]!r}; an "
+                            "obstacle that holds the robot is a modelling error (check its center and size, or the "
+                            "initial configuration)")
 
 
 def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
@@ -288,6 +337,7 @@ def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
                       lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,
                       box=limits, q0=q0, v0=v0)
     sc.initial.check_unused()
+    check_start_outside_obstacles(sc, robot, policy, q0)
     scene = policy.scene()
     if not scene.obstacles:
         scene.obstacles = list(obstacles)

@@ -24,6 +24,14 @@ def _every(arrays: dict, n: int, limit: int = FIGURE_SAMPLES) -> dict:
             for key, v in arrays.items()}
 
 
+def _naming_file(exc: HqpTpmError, name: str, where: str = "") -> HqpTpmError:
+    """``exc`` (same type) with its message starting ``<name><where>: `` unless it names the file already."""
+    text = str(exc)
+    if name not in text:
+        exc.args = (f"{name}{where}: {text}", *exc.args[1:])
+    return exc
+
+
 def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool = False,
                  progress: bool = True, figures: bool = True, replay: bool = True, viz: bool = False,
                  steps: int | None = None, explain: bool = False, force: bool = False, stop=None,
@@ -50,7 +58,10 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     n_steps = sc.steps if steps is None else scenario.check_steps(steps, "--steps")
     folder = results.ResultFolder(Path(out), force=force)
     try:
-        ctx = build.build_run(sc, solver=solver)
+        try:
+            ctx = build.build_run(sc, solver=solver)
+        except HqpTpmError as exc:  # every error of a scenario run names its file
+            raise _naming_file(exc, sc.path.name) from None
         robot, ctrl, tasks = ctx.robot, ctx.controller, ctx.tasks
         probes = ctx.probes()
         explainer = None
@@ -81,7 +92,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
                                          label=sc.name, recording=rec, stop=stop,
                                          lean=explainer is None and live is None)
             except HqpTpmError as exc:  # the steps before the failing one are kept, as a partial result
-                failure = exc
+                failure = _naming_file(exc, sc.path.name, f", step {len(rec) + 1} (t = {ctrl.t:.6g} s)")
                 rec.close()
                 timing = {"wall_time_s": float("nan"), "steps": len(rec), "mean_step_us": float("nan")}
         done = int(timing["steps"])
@@ -155,6 +166,12 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         dest = folder.commit({"scenario": sc.name, "scenario_file": str(sc.path), "solver": ctrl.solver,
                               "steps": done, "steps_requested": n_steps, "status": status, "reason": reason,
                               **(manifest or {})})
+    except OSError as exc:  # a full disk, a file-size limit (ulimit -f): a typed error; the target is as it was
+        folder.abort()
+        cause = exc.__cause__ if isinstance(exc, HqpTpmError) and isinstance(exc.__cause__, OSError) else exc
+        if cause is exc and isinstance(exc, HqpTpmError) or cause.errno not in results.WRITE_ERRNOS:
+            raise
+        raise results.output_error(cause, Path(out)) from cause
     except BaseException:
         folder.abort()
         raise
@@ -164,8 +181,8 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         report = live.report()
         if report:
             print(f"hqp-tpm: {report}", flush=True)
-        if serve and failure is None:
-            live.serve()  # until Ctrl-C
+        if serve and failure is None and not (stop is not None and stop()):  # a signal already ended the run: no wait
+            live.serve(until=stop)  # until Ctrl-C or SIGTERM
         else:
             live.close()
     if failure is not None:
@@ -273,7 +290,8 @@ def _bare_assignments(argv: list) -> list:
 def _executor_args(p) -> None:
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: one per core; "
                    "0: in this process)")
-    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster")
+    p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster (trusted "
+                   "only: Dask unpickles what the cluster sends back, so a scheduler can run code in this process)")
     p.add_argument("--cluster", default=None, metavar="local:N", help="start a Dask LocalCluster of N processes")
     p.add_argument("--quiet", action="store_true", help="no progress lines")
 

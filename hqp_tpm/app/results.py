@@ -417,8 +417,26 @@ def write(out_dir: Path, arrays: dict, summary: dict) -> None:
     write_text(out_dir / "metrics.json", dumps(summary))
 
 
+#: ``errno`` values of a write that failed for lack of room (a full disk or quota, a file-size limit) or a broken
+#: medium: reported as :class:`~hqp_tpm.errors.OutputError` naming the output.
+WRITE_ERRNOS = frozenset(e for e in (errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", None), errno.EROFS,
+                                     errno.EIO) if e is not None)
+
+
+def output_error(exc: OSError, out: Path) -> OutputError:
+    """The :class:`~hqp_tpm.errors.OutputError` of a failed write under ``out`` (``exc`` one of
+    :data:`WRITE_ERRNOS`)."""
+    why = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "a file grew beyond the file-size limit "
+           "(ulimit -f)", getattr(errno, "EDQUOT", -1): "the disk quota is exhausted"}.get(exc.errno,
+                                                                                        exc.strerror or str(exc))
+    file = f" (writing {Path(exc.filename).name})" if getattr(exc, "filename", None) else ""
+    return OutputError(f"cannot write the result to {str(out)!r}: {why}{file}; nothing was replaced (a previous "
+                       "result there is kept)")
+
+
 def write_text(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a uniquely named temporary file in the same folder."""
+    """Write ``text`` to ``path`` through a uniquely named temporary file in the same folder (a full disk or a
+    file-size limit: :class:`~hqp_tpm.errors.OutputError`, ``path`` as it was)."""
     tmp = path.with_name(f".{path.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
         with open(tmp, "x", encoding="utf-8") as fh:
@@ -426,6 +444,10 @@ def write_text(path: Path, text: str) -> None:
             fh.flush()
             os.fsync(fh.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        if isinstance(exc, OutputError) or exc.errno not in WRITE_ERRNOS:
+            raise
+        raise output_error(exc, path) from exc
     finally:
         tmp.unlink(missing_ok=True)
 
@@ -476,7 +498,14 @@ def check_target(target: Path, *, force: bool = False) -> Path:
     a non-empty folder that is not a previous result of hqp-tpm (unless ``force``).
     """
     target = Path(target).absolute()
-    if target.exists() or target.is_symlink():
+    if target.is_symlink():  # followed knowingly: the result goes where the link points, the link stays
+        real = Path(os.path.realpath(target))
+        if real.is_symlink() or not real.exists():
+            raise OutputError(f"output {str(target)!r} is a symbolic link to {str(real)!r}, which "
+                              f"{'is a loop' if real.is_symlink() else 'does not exist'}; create the folder it "
+                              "points to or choose another --out")
+        target = real
+    if target.exists():
         if not target.is_dir():
             raise OutputError(f"output {str(target)!r} is a file, not a folder; choose another --out")
         if _read_only(target):
@@ -532,6 +561,23 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
+def remove_stale(parent: Path, name: str) -> None:
+    """Remove the ``.<name>.hqp-tpm-<pid>-...`` entries in ``parent`` of processes that are gone (a killed run's
+    temporary folder; a symbolic link among them, left by an earlier version that swapped a linked ``--out``
+    away: only the link is removed)."""
+    prefix = f".{name}{_TMP_TAG}"
+    for p in parent.glob(f"{prefix}*"):
+        try:
+            pid = int(p.name[len(prefix):].split("-", 1)[0])
+        except ValueError:
+            continue
+        if pid != os.getpid() and not _pid_alive(pid):
+            if p.is_symlink():
+                p.unlink(missing_ok=True)
+            else:
+                shutil.rmtree(p, ignore_errors=True)
+
+
 class ResultFolder:
     """A run's output folder, built in a fresh temporary folder next to ``target`` and swapped in at the end.
 
@@ -545,12 +591,15 @@ class ResultFolder:
     """
 
     def __init__(self, target: Path, *, force: bool = False) -> None:
-        self.target = check_target(target, force=force)
+        self.target = check_target(target, force=force)  # a symbolic link: the folder it points to
         self.force = force
         parent = self.target.parent
         try:
             parent.mkdir(parents=True, exist_ok=True)
-            self._sweep_stale(parent)
+            remove_stale(parent, self.target.name)
+            given = Path(target).absolute()
+            if given != self.target and given.parent.is_dir():  # a link's own folder: the earlier versions' leftovers
+                remove_stale(given.parent, given.name)
             self.path = Path(tempfile.mkdtemp(prefix=f".{self.target.name}{_TMP_TAG}{os.getpid()}-", dir=parent))
             umask = os.umask(0)
             os.umask(umask)
@@ -558,16 +607,6 @@ class ResultFolder:
         except OSError as exc:
             raise OutputError(f"cannot create a folder next to {str(self.target)!r}: {exc.strerror or exc}") from None
         self.done = False
-
-    def _sweep_stale(self, parent: Path) -> None:
-        prefix = f".{self.target.name}{_TMP_TAG}"
-        for p in parent.glob(f"{prefix}*"):
-            try:
-                pid = int(p.name[len(prefix):].split("-", 1)[0])
-            except ValueError:
-                continue
-            if pid != os.getpid() and not _pid_alive(pid):
-                shutil.rmtree(p, ignore_errors=True)
 
     def destination(self, status: str) -> Path:
         """Where a result of this ``status`` goes: the target, or ``<target>.partial`` for a partial run

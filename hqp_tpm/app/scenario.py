@@ -23,7 +23,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 from hqp_tpm.data import scenarios_dir
-from hqp_tpm.errors import ScenarioError
+from hqp_tpm.errors import ScenarioError, shown
 from hqp_tpm.solvers.registry import ANALYTIC, BOXED, SOLVER_NAMES, check_solver_name
 
 #: Folder of the shipped scenario files (package data ``hqp_tpm/data/scenarios/``).
@@ -38,6 +38,8 @@ MAX_EXPR_CHARS = 200
 MAX_EXPONENT = 64
 #: Most steps one run may take (10 million: 2.8 h at 1 kHz); a longer run is split into several.
 MAX_STEPS = 10_000_000
+#: Deepest nesting of arrays and tables in a scenario file (the shipped ones use 5); deeper is a damaged file.
+MAX_DEPTH = 32
 
 _BINOPS = {ast.Add: operator.add, ast.Sub: operator.sub, ast.Mult: operator.mul, ast.Div: operator.truediv,
            ast.Pow: operator.pow}
@@ -88,7 +90,7 @@ def expression(text: str, where: str) -> float:
 def number(value: Any, where: str) -> float:
     """A finite float of magnitude <= :data:`MAX_ABS` from a number or a tiny arithmetic string (``"6*pi"``)."""
     if isinstance(value, bool):
-        raise ScenarioError(f"{where}: expected a number, got {value!r}")
+        raise ScenarioError(f"{where}: expected a number, got {shown(value)}")
     if isinstance(value, int):
         out = float(value) if abs(value) <= MAX_ABS else math.inf
     elif isinstance(value, float):
@@ -96,7 +98,7 @@ def number(value: Any, where: str) -> float:
     elif isinstance(value, str):
         out = expression(value, where)
     else:
-        raise ScenarioError(f"{where}: expected a number or an expression like '6*pi', got {value!r}")
+        raise ScenarioError(f"{where}: expected a number or an expression like '6*pi', got {shown(value)}")
     if not math.isfinite(out):
         raise ScenarioError(f"{where}: {value!r} is not finite")
     if abs(out) > MAX_ABS:
@@ -107,7 +109,7 @@ def number(value: Any, where: str) -> float:
 def vector(value: Any, where: str, dim: int | None = None) -> list[float]:
     """A list of floats, optionally of a given length."""
     if not isinstance(value, (list, tuple)):
-        raise ScenarioError(f"{where}: expected a list of numbers, got {value!r}")
+        raise ScenarioError(f"{where}: expected a list of numbers, got {shown(value)}")
     out = [number(v, f"{where}[{i}]") for i, v in enumerate(value)]
     if dim is not None and len(out) != dim:
         raise ScenarioError(f"{where}: expected {dim} numbers, got {len(out)}")
@@ -146,15 +148,15 @@ class Section:
         if v is None or (default is not ... and v is default):
             return v
         if not isinstance(v, str):
-            raise ScenarioError(f"{self.where}.{key}: expected a string, got {v!r}")
+            raise ScenarioError(f"{self.where}.{key}: expected a string, got {shown(v)}")
         if choices is not None and v not in choices:
-            raise ScenarioError(f"{self.where}.{key}: {v!r} is not one of {', '.join(map(repr, choices))}")
+            raise ScenarioError(f"{self.where}.{key}: {shown(v)} is not one of {', '.join(map(repr, choices))}")
         return v
 
     def boolean(self, key: str, default: Any = ...) -> bool:
         v = self.raw(key, default)
         if not isinstance(v, bool):
-            raise ScenarioError(f"{self.where}.{key}: expected true or false, got {v!r}")
+            raise ScenarioError(f"{self.where}.{key}: expected true or false, got {shown(v)}")
         return v
 
     def table(self, key: str, default: Any = ...) -> Section | None:
@@ -162,7 +164,7 @@ class Section:
         if v is None or (default is not ... and v is default):
             return v
         if not isinstance(v, dict):
-            raise ScenarioError(f"{self.where}.{key}: expected a table, got {v!r}")
+            raise ScenarioError(f"{self.where}.{key}: expected a table, got {shown(v)}")
         return Section(v, f"{self.where}.{key}")
 
     def tables(self, key: str) -> list[Section]:
@@ -236,6 +238,46 @@ def resolve_path(spec: str | Path) -> Path:
     raise ScenarioError(f"unknown scenario {str(spec)!r}; scenarios in {SCENARIO_DIR}: {', '.join(known)}")
 
 
+def check_nesting(data, where: str, limit: int = MAX_DEPTH) -> None:
+    """Refuse arrays or tables nested deeper than ``limit`` (naming the first such field), before anything
+    recursive (a copy, a message, the builders) meets them. Walks the data without recursion."""
+    todo = [(data, where, 0)]
+    while todo:
+        node, at, depth = todo.pop()
+        if depth > limit:
+            raise ScenarioError(f"{at}: arrays or tables nested more than {limit} deep; a scenario field is a "
+                                "number, a string, a list of numbers or a table")
+        if isinstance(node, dict):
+            todo += [(v, f"{at}.{k}", depth + 1) for k, v in node.items() if isinstance(v, (dict, list))]
+        elif isinstance(node, list):
+            todo += [(v, f"{at}[{i}]", depth + 1) for i, v in enumerate(node) if isinstance(v, (dict, list))]
+
+
+def _deep_line(text: str, limit: int = MAX_DEPTH) -> str:
+    """Where in TOML ``text`` brackets first nest deeper than ``limit``: ``"line N (key)"`` (a best effort that
+    skips strings and comments), for a file too deeply nested for the TOML parser itself."""
+    depth, quote, comment, line, start = 0, None, False, 1, 0
+    for i, c in enumerate(text):
+        if c == "\n":
+            line, start, comment = line + 1, i + 1, False
+        elif comment:
+            continue
+        elif quote:
+            quote = None if c == quote else quote
+        elif c in "\"'":
+            quote = c
+        elif c == "#":
+            comment = True
+        elif c in "[{":
+            depth += 1
+            if depth > limit:
+                key = text[start:i].split("=", 1)[0].strip() if "=" in text[start:i] else ""
+                return f"line {line}" + (f" (field {key!r})" if key else "")
+        elif c in "]}":
+            depth -= 1
+    return "somewhere"
+
+
 def merge(base: dict, over: dict) -> dict:
     """Deep merge for ``extends``: tables merge key by key; arrays of named tables merge by ``name``
     (a table with ``remove = true`` drops that entry); anything else is replaced."""
@@ -273,13 +315,26 @@ def read(path: Path, seen: tuple = ()) -> dict:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:  # arrays or inline tables nested too deep for the parser
+        raise ScenarioError(f"{path}: {_deep_line(text)}: arrays or tables nested more than {MAX_DEPTH} deep; a "
+                            "scenario field is a number, a string, a list of numbers or a table") from None
+    check_nesting(data, path.name)
     parent = data.get("scenario", {}).pop("extends", None) if isinstance(data.get("scenario"), dict) else None
     if parent is None:
         return data
-    base_path = resolve_path(parent) if not Path(parent).suffix else path.parent / parent
+    where = f"{path.name}.scenario.extends"
+    if not isinstance(parent, str) or not parent:
+        raise ScenarioError(f"{where}: expected the name or path of a scenario file, got {shown(parent)}")
+    try:
+        base_path = resolve_path(parent) if not Path(parent).suffix else path.parent / parent
+    except ScenarioError as exc:
+        raise ScenarioError(f"{where}: {exc}") from None
     if base_path.resolve() in seen:
-        raise ScenarioError(f"{path.name}.scenario.extends: cycle through {base_path.name}")
-    base = read(base_path, (*seen, path.resolve()))
+        raise ScenarioError(f"{where}: cycle through {base_path.name}")
+    try:
+        base = read(base_path, (*seen, path.resolve()))
+    except ScenarioError as exc:
+        raise ScenarioError(f"{where} ({parent!r}): {exc}") from None
     base.get("scenario", {}).pop("name", None)
     base.get("scenario", {}).pop("description", None)
     return merge(base, data)
@@ -299,13 +354,23 @@ def _plant(sec: Section | None, period: float):
 
 
 def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
+    check_nesting(data, path.name)
     top = Section(data, path.name)
     sc = top.table("scenario")
     solver = sc.string("solver", "tpm")
     try:
         check_solver_name(solver)
     except Exception:
-        raise ScenarioError(f"{sc.where}.solver: unknown solver {solver!r}; valid: {', '.join(SOLVER_NAMES)}") from None
+        raise ScenarioError(f"{sc.where}.solver: unknown solver {shown(solver)}; valid: "
+                            f"{', '.join(SOLVER_NAMES)}") from None
+    if solver.startswith("qp:"):  # the backend too, here, where the file and field are known
+        from hqp_tpm.errors import SolverNotAvailableError
+        from hqp_tpm.solvers.cascaded_qp import check_solver
+
+        try:
+            check_solver(solver[3:])
+        except SolverNotAvailableError as exc:
+            raise ScenarioError(f"{sc.where}.solver: {exc}") from None
     period = sc.number("period")
     if period <= 0:
         raise ScenarioError(f"{sc.where}.period: must be > 0, got {period}")

@@ -29,7 +29,9 @@ import itertools
 import json
 import math
 import os
+import signal
 import sys
+import threading
 import time
 import traceback
 from dataclasses import dataclass, field
@@ -40,7 +42,7 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-from hqp_tpm.errors import HqpTpmError, OutputError, SweepError
+from hqp_tpm.errors import HqpTpmError, OutputError, SweepError, elide
 
 SWEEP_FILE = "sweep.json"
 #: Seconds to wait for a Dask scheduler given by --scheduler.
@@ -127,6 +129,8 @@ def parse_value(text: str):
         return tomllib.loads(f"v = {text}")["v"]
     except tomllib.TOMLDecodeError:
         return text
+    except RecursionError:
+        raise SweepError(f"value {elide(text, 200)!r}: arrays nested too deep") from None
 
 
 def _numeric(v) -> bool:
@@ -298,8 +302,67 @@ def executor(workers: int | None = None, scheduler: str | None = None, cluster: 
     if n == 0:
         yield InlineExecutor()
         return
-    with cf.ProcessPoolExecutor(max_workers=n) as ex:
+    ex = cf.ProcessPoolExecutor(max_workers=n, initializer=watch_parent, initargs=(os.getpid(),))
+    try:
         yield ex
+    except BaseException:  # interrupted (a signal): the workers end now, not after their current variant
+        stop_workers(ex)
+        raise
+    ex.shutdown(wait=True)
+
+
+#: Seconds between two checks of a worker that the sweep process is still there (where PR_SET_PDEATHSIG is not).
+WATCH_PERIOD = 1.0
+
+
+def watch_parent(parent: int) -> None:
+    """Worker initializer: the worker ends when the sweep process ``parent`` ends, whatever ended it (``kill -9``
+    included), instead of waiting forever on its job pipe. Linux: ``prctl(PR_SET_PDEATHSIG, SIGKILL)``; every
+    platform: a daemon thread that checks the parent every :data:`WATCH_PERIOD` seconds."""
+    direct = os.getppid() == parent  # not so under the forkserver start method
+    if direct and sys.platform == "linux":
+        import ctypes
+
+        try:
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL), 0, 0, 0)  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+        if os.getppid() != parent:  # the parent died before prctl took effect
+            os._exit(1)
+
+    def watch() -> None:
+        while True:
+            time.sleep(WATCH_PERIOD)
+            if (os.getppid() != parent) if direct else not _alive(parent):
+                os._exit(1)
+
+    threading.Thread(target=watch, name="hqp-tpm-watch-parent", daemon=True).start()
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def stop_workers(ex: cf.ProcessPoolExecutor, timeout: float = 5.0) -> None:
+    """End the worker processes of ``ex`` at once (SIGTERM, then SIGKILL after ``timeout`` s)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.terminate()
+    deadline = time.monotonic() + timeout
+    for p in procs:
+        with contextlib.suppress(Exception):
+            p.join(max(0.0, deadline - time.monotonic()))
+            if p.is_alive():
+                p.kill()
+                p.join(1.0)
 
 
 def map_unordered(ex: cf.Executor, fn, items, on_result=None) -> list:
@@ -349,17 +412,18 @@ def run_sweep(spec, out: Path, *, grid: dict | None = None, ranges: dict | None 
         except SweepError as exc:
             raise SweepError(f"{label}: {exc}") from None
     out = Path(out).absolute()
+    definition = {"scenario": label, "scenario_file": str(path), "grid": grid, "ranges": ranges,
+                  "random": n_random, "seed": seed, "solvers": list(solvers), "steps": steps,
+                  "variants": [{"name": v.name, "overrides": v.overrides, "solver": v.solver, "key": v.key}
+                               for v in variants]}
     if out.exists():
         if not out.is_dir():
             raise OutputError(f"sweep output {str(out)!r} is a file")
         if any(out.iterdir()) and not (out / SWEEP_FILE).is_file() and not force:
             raise OutputError(f"sweep output {str(out)!r} is not empty and holds no sweep ({SWEEP_FILE}); choose "
                               "another --out or pass --force")
+        _claim(out, definition, force)
     out.mkdir(parents=True, exist_ok=True)
-    definition = {"scenario": label, "scenario_file": str(path), "grid": grid, "ranges": ranges,
-                  "random": n_random, "seed": seed, "solvers": list(solvers), "steps": steps,
-                  "variants": [{"name": v.name, "overrides": v.overrides, "solver": v.solver, "key": v.key}
-                               for v in variants]}
     results.write_text(out / SWEEP_FILE, json.dumps(definition, indent=2) + "\n")
     rows: dict[str, dict] = {}
     jobs = []
@@ -382,9 +446,14 @@ def run_sweep(spec, out: Path, *, grid: dict | None = None, ranges: dict | None 
 
     t0 = time.perf_counter()
     if jobs:
-        with executor(workers, scheduler, cluster) as ex:
-            for row in map_unordered(ex, run_job, jobs, report):
-                rows[row["variant"]] = row
+        try:
+            with executor(workers, scheduler, cluster) as ex:
+                for row in map_unordered(ex, run_job, jobs, report):
+                    rows[row["variant"]] = row
+        except BaseException:  # the temporary folders of the variants the ended workers were writing
+            for job in jobs:
+                results.remove_stale(out, job.variant.name)
+            raise
     wall = time.perf_counter() - t0
     table = []
     for v in variants:
@@ -401,6 +470,51 @@ def run_sweep(spec, out: Path, *, grid: dict | None = None, ranges: dict | None 
                          else f"processes ({workers if workers is not None else os.cpu_count()})")}
     results.write_text(out / "sweep_run.json", json.dumps(meta, indent=2) + "\n")
     return table
+
+
+#: What makes two sweeps the same sweep (``sweep.json``): the rest of the file follows from these.
+SAME_SWEEP = ("scenario", "scenario_file", "grid", "ranges", "random", "seed", "solvers", "steps")
+#: Files a sweep writes into its folder besides the variants' folders.
+SWEEP_FILES = (SWEEP_FILE, "sweep_run.json", "summary.csv", "summary.md", "sweep.png")
+
+
+def _claim(out: Path, definition: dict, force: bool) -> None:
+    """A folder holding another sweep (its ``sweep.json`` differs in :data:`SAME_SWEEP`) is refused, unless
+    ``force``: then that sweep's files and variant folders are removed first (the same sweep is resumed)."""
+    from hqp_tpm.app import results
+
+    try:
+        old = json.loads((out / SWEEP_FILE).read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        return
+    except (OSError, ValueError):
+        old = {}
+    new = json.loads(json.dumps(definition))
+    if not isinstance(old, dict):
+        old = {}
+
+    def same_file(a, b) -> bool:
+        return a == b or (isinstance(a, str) and isinstance(b, str) and Path(a).resolve() == Path(b).resolve())
+
+    differ = [k for k in SAME_SWEEP if not (same_file(old.get(k), new[k]) if k == "scenario_file"
+                                            else old.get(k) == new[k])]
+    if not differ:
+        return
+    if not force:
+        what = "; ".join(f"{k}: {_cell(old.get(k))} there, {_cell(new[k])} now" for k in differ)
+        raise OutputError(elide(f"sweep output {str(out)!r} holds a different sweep ({what}); choose another --out, "
+                                "or pass --force to replace it"))
+    import shutil
+
+    for v in old.get("variants", []) if isinstance(old.get("variants"), list) else []:
+        name = v.get("name") if isinstance(v, dict) else None
+        folder = out / name if isinstance(name, str) and name and "/" not in name and name not in (".", "..") \
+            else None
+        if folder is not None and folder.is_dir() and not folder.is_symlink() and (
+                results.read_manifest(folder) is not None or not any(folder.iterdir())):
+            shutil.rmtree(folder)
+    for f in SWEEP_FILES:
+        (out / f).unlink(missing_ok=True)
 
 
 def _chosen(table: list[dict], metrics) -> list[str]:

@@ -133,24 +133,29 @@ class LiveViewer:
         """What the real-time pacing saw (None without it)."""
         return None if self.rate is None else self.rate.report()
 
-    def serve(self, message: bool = True) -> None:
-        """Keep the server up until Ctrl-C (KeyboardInterrupt), then stop it."""
+    def serve(self, message: bool = True, until=None) -> None:
+        """Keep the server up until Ctrl-C (SIGINT) or one SIGTERM (``timeout``, ``docker stop``, systemd), or
+        until ``until()`` returns true (checked every 0.5 s: a signal the caller's handler took), then stop it."""
         import signal
         import threading
 
-        old = None
-        if threading.current_thread() is threading.main_thread():  # Ctrl-C raises here, whatever handler ran the run
-            old = signal.signal(signal.SIGINT, signal.default_int_handler)
-        if message:
-            print("hqp-tpm: the run is over; the viewer stays up until you press Ctrl-C", flush=True)
-        try:
-            while True:
+        def _end(signum, frame):
+            raise KeyboardInterrupt
+
+        old: dict = {}
+        try:  # a signal at any point from here on ends the wait
+            if threading.current_thread() is threading.main_thread():  # either signal, whatever handler ran the run
+                for sig in (signal.SIGINT, signal.SIGTERM):
+                    old[sig] = signal.signal(sig, _end)
+            if message:
+                print("hqp-tpm: the run is over; the viewer stays up until you press Ctrl-C", flush=True)
+            while until is None or not until():
                 time.sleep(0.5)
         except KeyboardInterrupt:
             pass
         finally:
-            if old is not None:
-                signal.signal(signal.SIGINT, old)
+            for sig, handler in old.items():
+                signal.signal(sig, handler)
             self.close()
 
     def close(self) -> None:

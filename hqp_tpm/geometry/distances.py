@@ -566,6 +566,11 @@ class DistanceField:
             views = self._joint_views[(id(data), jid)] = (*views, data)  # keeps data alive: its id stays its own
         return views
 
+    def bounding_spheres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Centres ``(M, 3)`` (world, at the last update) and radii ``(M,)`` of the elements' bounding spheres
+        (control points: radius 0), copies."""
+        return self._elem_center.copy(), self._elem_radius.copy()
+
     def snapshot(self) -> tuple:
         """The history an update carries over (the last normals, used where witness points coincide).
 

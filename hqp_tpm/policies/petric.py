@@ -265,7 +265,7 @@ class Petric(DistancePolicy):
         if self._crit:
             j, dn = self._crit[0]
             out["alpha_h"] = alpha_h(dn, self.d_m, self.d_i)
-            out["alpha_v"] = alpha_v(dn, self.d_m)
+            out["alpha_v"] = alpha_v(max(dn, self.d_b), self.d_m)  # the gain applied (held at d_b below it)
             out["avoid_rate"] = float(self.avoid[j].jacobian(ctrl.state)[0].dot(res.command))
         else:
             out["alpha_h"] = out["alpha_v"] = out["avoid_rate"] = 0.0

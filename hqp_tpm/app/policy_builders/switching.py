@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from hqp_tpm.app.policy_builders.registry import register_policy
-from hqp_tpm.errors import ScenarioError
+from hqp_tpm.errors import ScenarioError, shown
 from hqp_tpm.policies.switching import Switching
 from hqp_tpm.references.operator import Operator
 from hqp_tpm.tasks import Force, FramePosition, JointLimit, Manipulability, QuaternionOrientation
@@ -43,7 +43,7 @@ def operator_from(sec, robot, frame: str) -> Operator | None:
 
 def _point(tab, m, i) -> list[float]:
     if not isinstance(m, list) or len(m) != 3 or not all(isinstance(x, (int, float)) for x in m):
-        raise ScenarioError(f"{tab.where}.markers[{i}]: expected 3 numbers, got {m!r}")
+        raise ScenarioError(f"{tab.where}.markers[{i}]: expected 3 numbers, got {shown(m)}")
     return [float(x) for x in m]
 
 

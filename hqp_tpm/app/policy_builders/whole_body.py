@@ -17,9 +17,12 @@ def build_whole_body(sc, robot, tasks: dict, sec, obstacles: list[Obstacle]) -> 
     raw = sec.raw("levels", ["right_sole", "com", "left_foot", "left_hand", "right_hand"])
     if not isinstance(raw, list) or not all(isinstance(x, str) for x in raw):
         raise ScenarioError(f"{sec.where}.levels: expected a list of task names (one task per level)")
-    for n in raw:
+    for i, n in enumerate(raw):
         if n not in tasks:
             raise ScenarioError(f"{sec.where}.levels: unknown task {n!r}; tasks: {', '.join(tasks)}")
+        if n in raw[:i]:
+            raise ScenarioError(f"{sec.where}.levels[{i}]: task {n!r} is repeated (already levels[{raw.index(n)}]); "
+                                "a task may appear once in a stack")
     at = sec.raw("avoid_at", 1)
     if not isinstance(at, int) or not 0 <= at <= len(raw):
         raise ScenarioError(f"{sec.where}.avoid_at: expected an integer in [0, {len(raw)}], got {at!r}")
