@@ -34,7 +34,8 @@ bench: $(VENV)/.dev
 	$(PY) benchmarks/run_all.py
 
 # The lowest pinocchio pyproject.toml claims, in its own venv: pin 3.4.0 (its wheels need these cmeel pins)
-# with example-robot-data 4.4 (the 5.0 loaders need pinocchio.WITH_COLLISION, which pin 3.4 lacks).
+# with the example-robot-data 4.4 loaders (the 5.0 loaders need pinocchio.WITH_COLLISION, which pin 3.4 lacks)
+# and the 5.0 robot files (MuJoCo refuses two inertias of the 4.4 files' romeo and talos: A + B < C).
 PIN_LOWEST ?= 3.4.0
 VENV_PIN_LOWEST ?= .venv-pin-lowest
 
@@ -42,7 +43,7 @@ $(VENV_PIN_LOWEST)/.dev: pyproject.toml
 	$(PYTHON) -m venv $(VENV_PIN_LOWEST)
 	$(VENV_PIN_LOWEST)/bin/python -m pip install -q --upgrade pip
 	$(VENV_PIN_LOWEST)/bin/python -m pip install -q -e '.[dev]' 'pin==$(PIN_LOWEST)' 'cmeel-urdfdom==4.0.1' 'cmeel-tinyxml2<11' \
-		'example-robot-data==4.4.0' 'example-robot-data-loaders==4.4.0'
+		'example-robot-data==5.0.0' 'example-robot-data-loaders==4.4.0'
 	touch $@
 
 test-pin-lowest: $(VENV_PIN_LOWEST)/.dev
