@@ -43,7 +43,8 @@ $(VENV_PIN_LOWEST)/.dev: pyproject.toml
 	$(PYTHON) -m venv $(VENV_PIN_LOWEST)
 	$(VENV_PIN_LOWEST)/bin/python -m pip install -q --upgrade pip
 	$(VENV_PIN_LOWEST)/bin/python -m pip install -q -e '.[dev]' 'pin==$(PIN_LOWEST)' 'cmeel-urdfdom==4.0.1' 'cmeel-tinyxml2<11' \
-		'example-robot-data==5.0.0' 'example-robot-data-loaders==4.4.0'
+		'example-robot-data==4.4.0' 'example-robot-data-loaders==4.4.0'
+	$(VENV_PIN_LOWEST)/bin/python -m pip install -q --no-deps 'example-robot-data==5.0.0'  # the loaders pin 4.4.0
 	touch $@
 
 test-pin-lowest: $(VENV_PIN_LOWEST)/.dev
