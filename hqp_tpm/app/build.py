@@ -9,7 +9,7 @@ from hqp_tpm.app.context import RunContext
 from hqp_tpm.app.policy_builders import POLICY_BUILDERS
 from hqp_tpm.app.scenario import Scenario, Section, number, vector
 from hqp_tpm.control.controller import Controller
-from hqp_tpm.control.policy import Policy
+from hqp_tpm.control.policy import DistancePolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.errors import HqpTpmError, ScenarioError, shown
 from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
@@ -272,11 +272,12 @@ def check_start_outside_obstacles(sc: Scenario, robot: Robot, policy: Policy, q0
     a negative distance from it) or an element deeper inside one than the robot's own size (the diameter of the
     bounding sphere of its elements): a modelling error (an obstacle placed or sized wrongly), not a situation the
     avoidance can answer. Policies without a distance field are not checked."""
-    from hqp_tpm.geometry.distances import DistanceField
     from hqp_tpm.robot.state import State
 
-    field = getattr(policy, "field", None)
-    if not isinstance(field, DistanceField) or not field.n_obstacles or not field.n_elements:
+    if not isinstance(policy, DistancePolicy):  # the contract of a policy that owns a distance field
+        return
+    field = policy.field
+    if not field.n_obstacles or not field.n_elements:
         return
     snap = field.snapshot()
     try:

@@ -419,17 +419,17 @@ def write(out_dir: Path, arrays: dict, summary: dict) -> None:
 
 #: ``errno`` values of a write that failed for lack of room (a full disk or quota, a file-size limit) or a broken
 #: medium: reported as :class:`~hqp_tpm.errors.OutputError` naming the output.
-WRITE_ERRNOS = frozenset(e for e in (errno.ENOSPC, errno.EFBIG, getattr(errno, "EDQUOT", None), errno.EROFS,
-                                     errno.EIO) if e is not None)
+_EDQUOT = {name: code for code, name in errno.errorcode.items()}.get("EDQUOT", -1)  # (not on every platform)
+WRITE_ERRNOS = frozenset(e for e in (errno.ENOSPC, errno.EFBIG, _EDQUOT, errno.EROFS, errno.EIO) if e != -1)
 
 
 def output_error(exc: OSError, out: Path) -> OutputError:
     """The :class:`~hqp_tpm.errors.OutputError` of a failed write under ``out`` (``exc`` one of
     :data:`WRITE_ERRNOS`)."""
     why = {errno.ENOSPC: "no space left on the device", errno.EFBIG: "a file grew beyond the file-size limit "
-           "(ulimit -f)", getattr(errno, "EDQUOT", -1): "the disk quota is exhausted"}.get(exc.errno,
+           "(ulimit -f)", _EDQUOT: "the disk quota is exhausted"}.get(exc.errno,
                                                                                         exc.strerror or str(exc))
-    file = f" (writing {Path(exc.filename).name})" if getattr(exc, "filename", None) else ""
+    file = f" (writing {Path(exc.filename).name})" if exc.filename else ""
     return OutputError(f"cannot write the result to {str(out)!r}: {why}{file}; nothing was replaced (a previous "
                        "result there is kept)")
 

@@ -28,6 +28,7 @@ import hashlib
 import itertools
 import json
 import math
+import multiprocessing
 import os
 import signal
 import sys
@@ -351,7 +352,7 @@ def _alive(pid: int) -> bool:
 
 def stop_workers(ex: cf.ProcessPoolExecutor, timeout: float = 5.0) -> None:
     """End the worker processes of ``ex`` at once (SIGTERM, then SIGKILL after ``timeout`` s)."""
-    procs = list((getattr(ex, "_processes", None) or {}).values())
+    procs = multiprocessing.active_children()  # the pool's workers (this process starts no other children)
     ex.shutdown(wait=False, cancel_futures=True)
     for p in procs:
         with contextlib.suppress(Exception):
