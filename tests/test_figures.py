@@ -83,7 +83,7 @@ def test_wrote_line_names_every_file_written(tmp_path, capsys):
     from hqp_tpm.app.cli import main
 
     out = tmp_path / "run"
-    assert main(["run", "planar5_exact", "--steps", "200", "--out", str(out), "--quiet"]) == 0
+    assert main(["run", "planar5_exact", "--steps", "200", "--out", str(out)]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert last.startswith(f"wrote {out}/: ")
     named = set(last.split(": ", 1)[1].split(", "))

@@ -240,7 +240,7 @@ def test_controller_crosscheck_records_each_step(panda):
 # What the strategies found outside the documented ranges (kept so that a fix shows up).
 # ----------------------------------------------------------------------------------------
 @pytest.mark.xfail(strict=False, reason="TPM leaves the lower levels unmet after a level that is singular or repeats "
-                   "the one above (the recursion and the QP meet them); undamped, main 37dff08")
+                   "the one above (the recursion and the QP meet them); undamped (damping=None)")
 @pytest.mark.parametrize("case", ["repeated", "zero_row"])
 def test_tpm_after_a_singular_or_repeated_level(case):
     rng = np.random.default_rng(1)
