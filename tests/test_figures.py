@@ -88,3 +88,43 @@ def test_wrote_line_names_every_file_written(tmp_path, capsys):
     assert last.startswith(f"wrote {out}/: ")
     named = set(last.split(": ", 1)[1].split(", "))
     assert named == {p.name for p in out.iterdir()}, (named, sorted(p.name for p in out.iterdir()))
+
+
+def test_task_errors_show_which_stack_is_active_when(tmp_path):
+    """Issue 32, item 5: 0d7b885's figures did not show the active stack over time (only metrics.json's
+    time_in_stack_s). The timeline's spans add up to those times; every stack has its row, labelled."""
+    import json
+
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.cli import main
+    from hqp_tpm.app.figures import stack_spans, task_errors
+    from hqp_tpm.app.scenario import load
+
+    out = tmp_path / "run"
+    assert main(["run", "lwr_relaxed", "--steps", "2500", "--out", str(out), "--quiet", "--no-replay"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    with np.load(out / "trajectory.npz") as npz:
+        arrays = {k: npz[k] for k in ("t", "stack", "error_ee", "error_pointing")}
+    spans = stack_spans(arrays["t"], arrays["stack"])
+    assert len(spans) >= 2 and set(spans) == set(metrics["time_in_stack_s"])
+    for label, seconds in metrics["time_in_stack_s"].items():
+        assert abs(sum(w for _, w in spans[label]) - seconds) < 1e-9, label
+    ctx = build_run(load("lwr_relaxed"))
+    fig = task_errors(tmp_path / "e.png", arrays, ctx.tasks, "t")
+    panel = fig.axes[-1]
+    assert panel.get_ylabel() == "active stack"
+    texts = [t.get_text() for t in panel.texts]
+    assert all(any(t.startswith(f"{label}  (") for t in texts) for label in spans), texts
+
+
+def test_pointing_legend_says_inequality_or_equality(tmp_path):
+    """0d7b885 called alpha_d "the equality's target" in the inequality scenario lwr_relaxed as well."""
+    from hqp_tpm.app.figures import pointing_error
+
+    t = np.linspace(0.0, 1.0, 50)
+    arrays = {"t": t, "pointing_error": 0.01 * np.sin(t), "stack": np.array(["ee > pointing"] * 50)}
+    for inequality, says in ((True, "inequality's bound"), (False, "equality's target")):
+        fig = pointing_error(tmp_path / "p.png", arrays, np.deg2rad(5.0), "p", inequality=inequality)
+        legend = [x.get_text() for x in fig.axes[0].get_legend().get_texts()]
+        assert any(says in x for x in legend) and not any(
+            ("equality's target" if inequality else "inequality") in x for x in legend), legend
