@@ -128,3 +128,30 @@ def test_pointing_legend_says_inequality_or_equality(tmp_path):
         legend = [x.get_text() for x in fig.axes[0].get_legend().get_texts()]
         assert any(says in x for x in legend) and not any(
             ("equality's target" if inequality else "inequality") in x for x in legend), legend
+
+
+def test_ee_path_in_3d(tmp_path):
+    """Issue 32, item 5: the LWR run draws the EE's path in Cartesian space (0d7b885 had no such figure): the
+    red line is the recorded EE (forward kinematics of the recorded q), the green one the task's reference."""
+    import pinocchio as pin
+
+    from hqp_tpm.app import runner
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.figures import ee_path, write_all
+    from hqp_tpm.app.scenario import load
+
+    ctx = build_run(load("lwr_relaxed"))
+    rec, _ = runner.run(ctx.controller, 300, probes=ctx.probes(), recording=runner.Recording(
+        ctx.robot.joint_names, tmp_path / "rec"))
+    arrays = rec.load()
+    fig = ee_path(tmp_path / "p.png", arrays, ctx.robot, ctx.scene, "p")
+    ax = fig.axes[0]
+    assert ax.name == "3d"
+    lines = {ln.get_label(): np.array(ln.get_data_3d()).T for ln in ax.get_lines()}
+    ee, desired = lines["EE (lwr_ee)"], lines["desired (ee)"]
+    model, data = ctx.robot.model, ctx.robot.model.createData()
+    for k in (0, len(ee) - 1):
+        pin.framesForwardKinematics(model, data, np.asarray(arrays["q"][k]))
+        np.testing.assert_allclose(ee[k], data.oMf[ctx.robot.frame_id("lwr_ee")].translation, atol=1e-12)
+        np.testing.assert_allclose(desired[k], ctx.tasks["ee"].reference(float(arrays["t"][k]))[0], atol=1e-12)
+    assert "ee_path.png" in {p.name for p in write_all(tmp_path, dict(arrays), ctx)}

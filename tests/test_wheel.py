@@ -169,12 +169,12 @@ from hqp_tpm import Controller, FramePosition, Gains, JointLimits, Posture, Robo
 robot = Robot.load("romeo21")
 q0 = robot.neutral()
 hand = FramePosition(robot, "l_gripper", None, Gains(kp=10.0), name="hand")
-ctrl = Controller(robot, [hand, Posture(robot)], order=1, dt=0.01, solver="sns_tpm", q0=q0,
-                  box=JointLimits(robot, order=1, dt=0.01))
+ctrl = Controller(robot, [hand, Posture(robot)], order=1, dt=0.01, solver="tpm", q0=q0)
 for _ in range(5):
     res = ctrl.step()
 assert np.isfinite(res.command).all() and len(res.levels) == 2
-x, _ = hqp_tpm.solve("qp", res.levels, robot.nv, box=res.box)
+x, _ = hqp_tpm.solve("qp", res.levels, robot.nv, box=JointLimits(robot, order=1, dt=0.01)(ctrl.state, ctrl.t))
+assert np.isfinite(x).all()
 s = hqp_tpm.record("planar5_exact", "run", steps=20, figures=False, replay=False)
 print(hqp_tpm.__file__, s["steps"])
 """

@@ -270,6 +270,57 @@ def pointing_error(path: Path, arrays: dict, alpha_d: float | None = None, title
     return fig
 
 
+#: The 3-D EE path is drawn from at most this many samples.
+PATH_SAMPLES = 3000
+
+
+def ee_path(path: Path, arrays: dict, robot, scene, title: str = "") -> Figure | None:
+    """The EE's path in Cartesian space (3-D, from the recorded ``q``), the EE task's desired path and the
+    obstacles at t = 0 (their centres); None (nothing written) without a 3-D EE position task in ``scene``."""
+    import pinocchio as pin
+
+    task = scene.ee_task
+    frame = scene.ee_frame or (task.frame if task is not None else None)
+    if task is None or frame is None or task.dim != 3:
+        return None
+    t_all, q_all = np.asarray(arrays["t"], dtype=float), np.asarray(arrays["q"], dtype=float)
+    idx = np.unique(np.linspace(0, len(t_all) - 1, min(len(t_all), PATH_SAMPLES)).round().astype(int))
+    model, data, fid = robot.model, robot.model.createData(), robot.frame_id(frame)
+    ee = np.empty((len(idx), 3))
+    for k, i in enumerate(idx):
+        pin.framesForwardKinematics(model, data, q_all[i])
+        ee[k] = data.oMf[fid].translation
+    desired = np.array([task.reference(float(ti))[0] for ti in t_all[idx]], dtype=float)
+    fig = _figure(7, 6)
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(*desired.T, color="tab:green", lw=1.2, ls="--", label=f"desired ({task.name})")
+    ax.plot(*ee.T, color="tab:red", lw=1.0, label=f"EE ({frame})")
+    ax.scatter(*ee[0], color="k", marker="o", s=18, label="start")
+    pts = [ee, desired]
+    centres = np.array([o.placement_at(0.0).act(o.local_center) for o in scene.obstacles]).reshape(-1, 3)
+    if len(centres):
+        ax.scatter(*centres.T, color="k", marker="x", s=30, label="obstacles (t = 0)")
+        pts.append(centres)
+    allp = np.vstack(pts)
+    mid, half = (allp.max(0) + allp.min(0)) / 2, max(np.ptp(allp, axis=0).max() / 2, 1e-3)
+    for setter, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid, strict=True):
+        setter(m - half, m + half)  # equal scales: a circle looks like one
+    ax.set_box_aspect((1, 1, 1))
+    centred = desired - desired.mean(0)
+    if np.ptp(centred, axis=0).max() > 1e-6:  # the desired path's plane seen face on, from above
+        n = np.linalg.svd(centred, full_matrices=False)[2][-1]
+        n = n if n[2] >= 0 else -n
+        elev = np.degrees(np.arcsin(np.clip(n[2], -1, 1)))
+        ax.view_init(elev=elev - 30.0 if elev > 45.0 else elev + 20.0, azim=np.degrees(np.arctan2(n[1], n[0])) + 30.0)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle(title)
+    _save(fig, path)
+    return fig
+
+
 def distances(path: Path, arrays: dict, thresholds: dict, title: str = "") -> None:
     """Closest distances over time with their thresholds (Figs. 5-6 of papers/000); each threshold of an axis
     has its own colour and line style."""
@@ -366,6 +417,9 @@ def write_all(out: Path, arrays: dict, ctx: RunContext) -> list[Path]:
         task = _first_pointing(tasks)
         pointing_error(p, arrays, None if task is None else task.alpha_d, f"{name}: pointing",
                        inequality=None if task is None else bool(task.inequality))
+        written.append(p)
+    p = out / "ee_path.png"
+    if ee_path(p, arrays, ctx.robot, ctx.scene, f"{name}: EE path") is not None:
         written.append(p)
     if any(k in arrays for k in ("d_ee", "d_minimal", "d_obstacle", "d_self")):
         p = out / "distances.png"
