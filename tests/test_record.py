@@ -125,3 +125,20 @@ def test_the_readme_names_the_notebook_command_and_it_runs(tmp_path):
     out = subprocess.run(args, capture_output=True, text=True, timeout=600, env=env, cwd=tmp_path)
     assert out.returncode == 0, out.stdout + out.stderr
     assert (tmp_path / "01_compose_a_stack.ipynb").is_file()
+
+
+def test_notebook_02_embeds_the_replay_without_ipythons_iframe_warning():
+    """0d7b885's notebook 02 printed IPython's "Consider using IPython.display.IFrame instead" warning."""
+    import warnings
+    from pathlib import Path
+
+    import nbformat
+    from IPython.display import HTML
+
+    nb = nbformat.read(Path(__file__).resolve().parents[1] / "notebooks" / "02_relaxed_constraints.ipynb", 4)
+    line = next(ln for c in nb.cells if c.cell_type == "code" for ln in c.source.splitlines() if "HTML(" in ln)
+    shown = []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        eval(line, {"HTML": HTML, "display": shown.append, "html": '<p class="x">replay</p>'})  # noqa: S307
+    assert "srcdoc=" in shown[0].data and "&quot;x&quot;" in shown[0].data
