@@ -46,6 +46,8 @@ _EXPORTS = {
     **{name: "hqp_tpm.solvers" for name in (
         "Level", "tpm", "tpm_reference", "tpm_factors", "nullspace", "sns_tpm", "sns_tpm_reference", "sns",
         "cascaded_qp", "pwdls", "pinv", "solve")},
+    # results from Python (the folder ``hqp-tpm run`` writes)
+    "record": "hqp_tpm.app.record",
     # errors
     **{name: "hqp_tpm.errors" for name in (
         "HqpTpmError", "ShapeError", "NonFiniteError", "MagnitudeError", "UnknownNameError", "UnknownFrameError",

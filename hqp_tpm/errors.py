@@ -81,6 +81,10 @@ class SolverNotAvailableError(HqpTpmError):
     """A QP backend is unknown to qpsolvers or not installed."""
 
 
+class ExtraNotInstalledError(HqpTpmError, ImportError):
+    """A feature of an optional extra (e.g. figures and replays: ``pip install 'hqp-tpm[app]'``) is not installed."""
+
+
 class SolverFailedError(HqpTpmError):
     """A numerical solver did not return a solution."""
 

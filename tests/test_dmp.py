@@ -80,7 +80,7 @@ def test_dmp_target_on_the_planar_arm(tmp_path):
     s = run_scenario("planar5_dmp", tmp_path / "dmp", progress=False, figures=False, replay=False)
     a = dict(np.load(tmp_path / "dmp" / "trajectory.npz"))
     assert s["d_obstacle_min"] > 0.1 and s["ee_error_max"] < 1e-4 and s["max_dq_jump"] < 0.02
-    assert np.linalg.norm(a["ee_error"][-1]) < 1e-8
+    assert np.linalg.norm(a["error_ee"][-1]) < 1e-8
     spec = tmp_path / "plain.toml"
     spec.write_text('[scenario]\nextends = "planar5_dmp"\nname = "plain"\n\n[[tasks]]\nname = "ee"\n'
                     'target = { gamma = 0.0 }\n')

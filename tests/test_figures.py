@@ -83,8 +83,75 @@ def test_wrote_line_names_every_file_written(tmp_path, capsys):
     from hqp_tpm.app.cli import main
 
     out = tmp_path / "run"
-    assert main(["run", "planar5_exact", "--steps", "200", "--out", str(out), "--quiet"]) == 0
+    assert main(["run", "planar5_exact", "--steps", "200", "--out", str(out)]) == 0
     last = capsys.readouterr().out.strip().splitlines()[-1]
     assert last.startswith(f"wrote {out}/: ")
     named = set(last.split(": ", 1)[1].split(", "))
     assert named == {p.name for p in out.iterdir()}, (named, sorted(p.name for p in out.iterdir()))
+
+
+def test_task_errors_show_which_stack_is_active_when(tmp_path):
+    """Issue 32, item 5: 0d7b885's figures did not show the active stack over time (only metrics.json's
+    time_in_stack_s). The timeline's spans add up to those times; every stack has its row, labelled."""
+    import json
+
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.cli import main
+    from hqp_tpm.app.figures import stack_spans, task_errors
+    from hqp_tpm.app.scenario import load
+
+    out = tmp_path / "run"
+    assert main(["run", "lwr_relaxed", "--steps", "2500", "--out", str(out), "--quiet", "--no-replay"]) == 0
+    metrics = json.loads((out / "metrics.json").read_text())
+    with np.load(out / "trajectory.npz") as npz:
+        arrays = {k: npz[k] for k in ("t", "stack", "error_ee", "error_pointing")}
+    spans = stack_spans(arrays["t"], arrays["stack"])
+    assert len(spans) >= 2 and set(spans) == set(metrics["time_in_stack_s"])
+    for label, seconds in metrics["time_in_stack_s"].items():
+        assert abs(sum(w for _, w in spans[label]) - seconds) < 1e-9, label
+    ctx = build_run(load("lwr_relaxed"))
+    fig = task_errors(tmp_path / "e.png", arrays, ctx.tasks, "t")
+    panel = fig.axes[-1]
+    assert panel.get_ylabel() == "active stack"
+    texts = [t.get_text() for t in panel.texts]
+    assert all(any(t.startswith(f"{label}  (") for t in texts) for label in spans), texts
+
+
+def test_pointing_legend_says_inequality_or_equality(tmp_path):
+    """0d7b885 called alpha_d "the equality's target" in the inequality scenario lwr_relaxed as well."""
+    from hqp_tpm.app.figures import pointing_error
+
+    t = np.linspace(0.0, 1.0, 50)
+    arrays = {"t": t, "pointing_error": 0.01 * np.sin(t), "stack": np.array(["ee > pointing"] * 50)}
+    for inequality, says in ((True, "inequality's bound"), (False, "equality's target")):
+        fig = pointing_error(tmp_path / "p.png", arrays, np.deg2rad(5.0), "p", inequality=inequality)
+        legend = [x.get_text() for x in fig.axes[0].get_legend().get_texts()]
+        assert any(says in x for x in legend) and not any(
+            ("equality's target" if inequality else "inequality") in x for x in legend), legend
+
+
+def test_ee_path_in_3d(tmp_path):
+    """Issue 32, item 5: the LWR run draws the EE's path in Cartesian space (0d7b885 had no such figure): the
+    red line is the recorded EE (forward kinematics of the recorded q), the green one the task's reference."""
+    import pinocchio as pin
+
+    from hqp_tpm.app import runner
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.figures import ee_path, write_all
+    from hqp_tpm.app.scenario import load
+
+    ctx = build_run(load("lwr_relaxed"))
+    rec, _ = runner.run(ctx.controller, 300, probes=ctx.probes(), recording=runner.Recording(
+        ctx.robot.joint_names, tmp_path / "rec"))
+    arrays = rec.load()
+    fig = ee_path(tmp_path / "p.png", arrays, ctx.robot, ctx.scene, "p")
+    ax = fig.axes[0]
+    assert ax.name == "3d"
+    lines = {ln.get_label(): np.array(ln.get_data_3d()).T for ln in ax.get_lines()}
+    ee, desired = lines["EE (lwr_ee)"], lines["desired (ee)"]
+    model, data = ctx.robot.model, ctx.robot.model.createData()
+    for k in (0, len(ee) - 1):
+        pin.framesForwardKinematics(model, data, np.asarray(arrays["q"][k]))
+        np.testing.assert_allclose(ee[k], data.oMf[ctx.robot.frame_id("lwr_ee")].translation, atol=1e-12)
+        np.testing.assert_allclose(desired[k], ctx.tasks["ee"].reference(float(arrays["t"][k]))[0], atol=1e-12)
+    assert "ee_path.png" in {p.name for p in write_all(tmp_path, dict(arrays), ctx)}

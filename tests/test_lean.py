@@ -87,7 +87,7 @@ def assert_same_steps(make, steps, exact=True):
     return ref, fast
 
 
-QUALIFYING = {"romeo_tpm", "romeo_sns_tpm", "romeo_sns", "romeo_qp", "romeo_standing"}
+QUALIFYING = {"romeo_tpm", "romeo_sns_tpm", "romeo_sns", "romeo_qp", "romeo_standing", "talos_sns_tpm"}
 
 
 def _scenario_names():

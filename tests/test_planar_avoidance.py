@@ -310,8 +310,8 @@ def test_primary_and_transition_runs_figs_8_11(runs):
     tr, tr_s = runs["transition"]
     assert pr_s["d_obstacle_min"] > D_M - 0.006 and tr_s["d_obstacle_min"] > D_M - 0.001
     assert pr_s["ee_error_max"] > 0.3 and tr_s["ee_error_max"] > 0.3  # the EE goes around the obstacle
-    e_pr = np.linalg.norm(pr["ee_error"], axis=1)
-    e_tr = np.linalg.norm(tr["ee_error"], axis=1)
+    e_pr = np.linalg.norm(pr["error_ee"], axis=1)
+    e_tr = np.linalg.norm(tr["error_ee"], axis=1)
     assert e_pr[-1] > 0.04 and abs(e_pr[-1] - e_pr[-1000]) < 1e-3  # stuck: no progress in the last second
     assert e_tr[-1] < 1e-4
     assert tr_s["max_dq_jump"] < pr_s["max_dq_jump"] / 20
@@ -359,5 +359,5 @@ def test_pwdls_run_figs_12_13(runs):
     tr, tr_s = runs["transition"]
     assert 0.15 < pw_s["d_obstacle_min"] < tr_s["d_obstacle_min"] - 0.02
     assert pw_s["ee_error_max"] < 0.6 * tr_s["ee_error_max"]
-    assert np.linalg.norm(pw["ee_error"][-1]) < 5e-3
+    assert np.linalg.norm(pw["error_ee"][-1]) < 5e-3
     assert pw_s["max_dq_jump"] < 0.2

@@ -128,3 +128,24 @@ def test_existing_dask_scheduler_by_address(tmp_path, monkeypatch):
     with pytest.raises(SweepError, match="cannot connect"):
         sweep.run_sweep("planar5_exact", tmp_path / "sw2", grid={"policy.d_m": [0.15]}, steps=5, progress=False,
                         scheduler="tcp://127.0.0.1:1")
+
+
+def test_sweep_figure_is_readable(tmp_path):
+    """Issue 32, item 5: 0d7b885's sweep.png had no title or units, offset notation ("1e-7+4.4475e-2"),
+    wall_time_s plotted as a metric and the grid points of the second field indistinguishable."""
+    table = [{"variant": f"v{k}", "tasks.ee.kp": kp, "lambda_max": lam, "error": None,
+              "ee_error_max": 0.044475 + 1e-7 * k, "wall_time_s": 1.0 + k, "units": {"ee_error_max": "m"}}
+             for k, (kp, lam) in enumerate((kp, lam) for kp in (10.0, 20.0, 40.0) for lam in (0.0, 0.05))]
+    fig = sweep.figure(tmp_path / "s.png", table, ["tasks.ee.kp", "lambda_max"], ["ee_error_max", "wall_time_s"])
+    assert (tmp_path / "s.png").is_file()
+    assert fig.axes and len(fig.axes) == 2  # one metric row (no wall time) x two fields
+    assert fig._suptitle is not None and "ee_error_max" in fig._suptitle.get_text()
+    assert fig.axes[0].get_ylabel() == "ee_error_max [m]"
+    fig.canvas.draw()
+    for ax in fig.axes:
+        assert ax.yaxis.get_offset_text().get_text() == "" and ax.xaxis.get_offset_text().get_text() == ""
+        assert "1e-7" not in " ".join(t.get_text() for t in ax.get_yticklabels())
+    labels = [t.get_text() for t in fig.axes[0].get_legend().get_texts()]
+    assert labels == ["lambda_max = 0", "lambda_max = 0.05"], labels  # colour = the other field
+    colours = {tuple(ln.get_markerfacecolor()) for ln in fig.axes[0].get_lines()}
+    assert len(colours) == 2

@@ -320,3 +320,33 @@ def test_viz_keeps_the_server_until_ctrl_c(tmp_path):
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_replay_has_a_colour_legend_of_what_it_draws(tmp_path):
+    """Issue 32, item 5: 0d7b885's replay.html had no colour legend. Each drawn item has its swatch in the item's
+    colour; items not drawn have none."""
+    import re
+
+    from hqp_tpm.app import runner
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.scenario import load
+    from hqp_tpm.app.viewer import COLORS, write_replay
+
+    def legend_of(name, steps):
+        ctx = build_run(load(name))
+        rec, _ = runner.run(ctx.controller, steps, probes=ctx.probes(),
+                            recording=runner.Recording(ctx.robot.joint_names, tmp_path / name))
+        page = write_replay(tmp_path / f"{name}.html", ctx.robot, rec.load(), ctx.scene).read_text()
+        block = re.search(r'<div id="hqp-legend">(.*?)</div>\n<script>', page, re.S).group(1)
+        return dict(re.findall(r'background: (rgba\([^)]*\))"></span>([^<]+)</div>', block))
+
+    lwr = legend_of("lwr_relaxed", 60)
+    for label, key in (("point obstacle", "point_obstacle"), ("control point", "control_point"),
+                       ("desired EE path", "desired_path"), ("EE trace", "ee_trace"),
+                       ("pointing cone (alpha_d)", "cone")):
+        r, g, b, _ = COLORS[key]
+        assert any(v == label and c.startswith(f"rgba({round(255 * r)}, {round(255 * g)}, {round(255 * b)},")
+                   for c, v in lwr.items()), (label, lwr)
+    assert "operator's markers" not in lwr.values()
+    romeo = legend_of("romeo_tpm", 5)
+    assert romeo == {}, romeo  # the robot alone: no legend (the div is hidden when empty)

@@ -1,13 +1,19 @@
-"""The wheel works outside the repository (issue 11, item 7).
+"""The wheel works outside the repository (issue 11, item 7), without its extras (issue 32, item 6).
 
-A wheel is built from a copy of the sources (``pyproject.toml``, ``README.md``, ``hqp_tpm/``), installed
-with ``--no-deps`` into a new virtual environment in a temporary folder, and used from another folder:
-``hqp-tpm list``, a 200-step ``hqp-tpm run lwr_relaxed`` and ``Robot.load('romeo21')``.
+A wheel is built from a copy of the sources (``pyproject.toml``, ``README.md``, ``hqp_tpm/``) with no
+setuptools deprecation warning, and installed with ``--no-deps`` into two new virtual environments in a
+temporary folder, used from another folder:
 
-The new environment reuses this interpreter's installed dependencies (pinocchio, coal, ... are large)
-through one ``.pth`` file that lists this environment's ``site-packages`` and replays its ``.pth`` files,
-except the editable-install hook of ``hqp_tpm`` itself: ``hqp_tpm`` can only come from the wheel, which
-the test checks (``hqp_tpm.__file__`` is inside the new environment, package data included).
+- ``base``: only the distributions the base install pulls in (the closure of ``[project] dependencies``):
+  the library imports, loads robots, solves a stack and runs a scenario without figures; the application's
+  packages (matplotlib, meshcat, tqdm) are not importable and ``hqp-tpm run`` names the extra to install;
+- ``app``: the base plus the ``app`` extra: ``hqp-tpm list``, a 200-step ``hqp-tpm run lwr_relaxed``.
+
+The environments reuse this interpreter's installed distributions (pinocchio, coal, ... are large): a folder
+of links to the files of exactly the distributions of the closure, listed by one ``.pth`` file that also
+replays their ``.pth`` files; never the editable install of ``hqp_tpm`` itself: ``hqp_tpm`` can only come
+from the wheel, which the tests check (``hqp_tpm.__file__`` is inside the new environment, package data
+included).
 
 ``HQP_TPM_WHEEL_SRC`` builds another source tree instead of this checkout (e.g. an older commit).
 """
@@ -36,23 +42,67 @@ def _run(args, cwd, env, timeout=600):
     return out.stdout
 
 
-def _dependencies_pth(site_packages: Path) -> str:
-    """A ``.pth`` adding this environment's packages, without any editable install of hqp_tpm."""
-    here = Path(sysconfig.get_paths()["purelib"])
-    lines = [str(here)]
-    for pth in sorted(here.glob("*.pth")):
-        if pth.name.startswith("__editable__") or "hqp_tpm" in pth.name or "hqp-tpm" in pth.name:
+def _closure(extras: tuple[str, ...]) -> set[str]:
+    """Distributions (normalized names) a ``pip install hqp-tpm[extras]`` pulls in, from this environment's
+    metadata (pyproject.toml for hqp-tpm itself)."""
+    from importlib.metadata import PackageNotFoundError, distribution
+
+    from packaging.requirements import Requirement
+    from packaging.utils import canonicalize_name
+
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+
+    project = tomllib.loads((SRC / "pyproject.toml").read_text())["project"]
+    todo = [(Requirement(r), "") for r in project["dependencies"]]
+    todo += [(Requirement(r), "") for e in extras for r in project["optional-dependencies"][e]]
+    seen: set[str] = set()
+    while todo:
+        req, extra = todo.pop()
+        if req.marker is not None and not req.marker.evaluate({"extra": extra}):
             continue
-        for line in pth.read_text().splitlines():
-            if not line.strip() or line.startswith("#"):
+        name = canonicalize_name(req.name)
+        for wanted in sorted(req.extras):  # e.g. dask[distributed]
+            todo += [(Requirement(r), wanted) for r in (distribution(name).requires or [])]
+        if name in seen:
+            continue
+        seen.add(name)
+        try:
+            dist = distribution(name)
+        except PackageNotFoundError:
+            raise AssertionError(f"{name} (required by hqp-tpm{list(extras)}) is not installed here") from None
+        todo += [(Requirement(r), "") for r in (dist.requires or [])]
+    return seen
+
+
+def _linked_site(folder: Path, extras: tuple[str, ...]) -> str:
+    """Links in ``folder`` to the files of the distributions of the closure; the ``.pth`` text that adds them."""
+    from importlib.metadata import distribution
+
+    here = Path(sysconfig.get_paths()["purelib"]).resolve()
+    folder.mkdir()
+    pth = [str(folder)]
+    for name in sorted(_closure(extras)):
+        if name == "hqp-tpm":
+            continue
+        dist = distribution(name)
+        for top in sorted({f.parts[0] for f in dist.files or () if f.parts and f.parts[0] != ".."}):
+            src = Path(dist.locate_file(top)).resolve()
+            if not src.exists() or not src.is_relative_to(here) or (folder / top).exists():
                 continue
-            lines.append(line if line.startswith(("import ", "import\t")) else str((here / line).resolve()))
-    return "\n".join(lines) + "\n"
+            (folder / top).symlink_to(src)
+            if top.endswith(".pth"):
+                for line in src.read_text().splitlines():
+                    if line.strip() and not line.startswith("#"):
+                        pth.append(line if line.startswith(("import ", "import\t")) else str((here / line).resolve()))
+    return "\n".join(pth) + "\n"
 
 
 @pytest.fixture(scope="module")
-def installed(tmp_path_factory):
-    """(venv folder, environment for subprocesses, a working folder outside the checkout)."""
+def wheel(tmp_path_factory):
+    """(the wheel, the environment for subprocesses, the build's output)."""
     root = tmp_path_factory.mktemp("wheel")
     src = root / "src"
     src.mkdir()
@@ -62,19 +112,83 @@ def installed(tmp_path_factory):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "HQP_TPM_ROBOTS", "PYTHONHOME")}
     env.update(PIP_DISABLE_PIP_VERSION_CHECK="1", MPLBACKEND="Agg", OPENBLAS_NUM_THREADS="1")
     dist = root / "dist"
-    _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-q", "-w", dist, src], cwd=root, env=env)
+    log = _run([sys.executable, "-m", "pip", "wheel", "--no-deps", "-v", "-w", dist, src], cwd=root, env=env)
     wheels = list(dist.glob("hqp_tpm-*.whl"))
     assert len(wheels) == 1, wheels
+    return wheels[0], env, log
 
+
+def _install(wheel, root: Path, extras: tuple[str, ...]):
+    path, env, _ = wheel
     env_dir = root / "venv"
     venv.EnvBuilder(with_pip=False).create(env_dir)
     python = env_dir / "bin" / "python"
     site = Path(_run([python, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"], root, env).strip())
-    _run([sys.executable, "-m", "pip", "--python", python, "install", "--no-deps", "-q", wheels[0]], root, env)
-    (site / "zz_test_dependencies.pth").write_text(_dependencies_pth(site))
+    _run([sys.executable, "-m", "pip", "--python", python, "install", "--no-deps", "-q", path], root, env)
+    (site / "zz_test_dependencies.pth").write_text(_linked_site(root / "deps", extras))
     work = root / "elsewhere"
     work.mkdir()
     return env_dir, env, work
+
+
+@pytest.fixture(scope="module")
+def installed(wheel, tmp_path_factory):
+    """The wheel with its app extra: (venv folder, environment for subprocesses, a folder outside the checkout)."""
+    env_dir, env, work = _install(wheel, tmp_path_factory.mktemp("app"), ("app",))
+    return env_dir, {**env, "HQP_TPM_COMPILED": "0"}, work  # the kernels are compiled (once) in the base one
+
+
+@pytest.fixture(scope="module")
+def base(wheel, tmp_path_factory):
+    """The wheel without extras."""
+    return _install(wheel, tmp_path_factory.mktemp("base"), ())
+
+
+def test_the_build_has_no_deprecation_warning(wheel):
+    """0d7b885's ``license = {text = ...}`` made setuptools warn three times per build (builds stop in 2027)."""
+    log = wheel[2]
+    assert "Successfully built" in log or "Saved" in log, log[-2000:]
+    for word in ("DeprecationWarning", "BuildBackendWarning", "deprecated", "2027"):
+        assert word not in log, log[max(0, log.find(word) - 800): log.find(word) + 800]
+
+
+def test_base_install_has_no_application_packages(base):
+    env_dir, env, work = base
+    code = ("import importlib.util as u; print(*[m for m in ('matplotlib', 'meshcat', 'umsgpack', 'tqdm', 'numpy', "
+            "'pinocchio', 'coal', 'scipy', 'numba', 'qpsolvers', 'proxsuite', 'daqp') if u.find_spec(m)])")
+    found = _run([env_dir / "bin" / "python", "-c", code], work, env).split()
+    assert found == ["numpy", "pinocchio", "coal", "scipy", "numba", "qpsolvers", "proxsuite", "daqp"], found
+
+
+def test_base_install_imports_and_solves_a_stack(base):
+    env_dir, env, work = base
+    code = """
+import numpy as np
+import hqp_tpm
+from hqp_tpm import Controller, FramePosition, Gains, JointLimits, Posture, Robot
+robot = Robot.load("romeo21")
+q0 = robot.neutral()
+hand = FramePosition(robot, "l_gripper", None, Gains(kp=10.0), name="hand")
+ctrl = Controller(robot, [hand, Posture(robot)], order=1, dt=0.01, solver="tpm", q0=q0)
+for _ in range(5):
+    res = ctrl.step()
+assert np.isfinite(res.command).all() and len(res.levels) == 2
+x, _ = hqp_tpm.solve("qp", res.levels, robot.nv, box=JointLimits(robot, order=1, dt=0.01)(ctrl.state, ctrl.t))
+assert np.isfinite(x).all()
+s = hqp_tpm.record("planar5_exact", "run", steps=20, figures=False, replay=False)
+print(hqp_tpm.__file__, s["steps"])
+"""
+    path, steps = _run([env_dir / "bin" / "python", "-c", code], work, env).split()
+    assert Path(path).resolve().is_relative_to(env_dir.resolve()) and int(steps) == 20
+    assert (work / "run" / "trajectory.npz").is_file() and not (work / "run" / "replay.html").exists()
+
+
+def test_base_install_cli_names_the_app_extra(base):
+    env_dir, env, work = base
+    out = subprocess.run([env_dir / "bin" / "hqp-tpm", "run", "planar5_exact", "--steps", "5", "--out", "r"],
+                         cwd=work, env=env, capture_output=True, text=True, timeout=600)
+    assert out.returncode == 2 and "pip install 'hqp-tpm[app]'" in out.stderr, out.stdout + out.stderr
+    assert not (work / "r").exists()
 
 
 def test_package_comes_from_the_wheel(installed):

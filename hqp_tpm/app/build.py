@@ -167,21 +167,22 @@ def build_task(robot: Robot, sec: Section):
 
 
 def initial_configuration(robot: Robot, sec: Section) -> np.ndarray:
-    """``q`` (radians, full vector), ``q_deg``, or ``joints_deg = {name = value}`` on top of neutral."""
+    """``q`` (radians, full vector), ``q_deg``, or ``joints_deg = {name = value}`` on top of neutral or of the
+    robot's reference configuration ``reference = "half_sitting"`` (:meth:`Robot.reference`)."""
     if sec.has("q"):
         q = np.array(sec.vector("q", robot.nq))
     elif sec.has("q_deg"):
         q = np.deg2rad(sec.vector("q_deg", robot.nq))
     else:
-        q = robot.neutral()
         joints = sec.raw("joints_deg", {})
         if not isinstance(joints, dict):
             raise ScenarioError(f"{sec.where}.joints_deg: expected a table of joint = degrees")
         values = {k: np.deg2rad(number(v, f"{sec.where}.joints_deg.{k}")) for k, v in joints.items()}
+        where = f"{sec.where}.reference" if sec.has("reference") else f"{sec.where}.joints_deg"
         try:
-            q = robot.configuration(values, base=None)
+            q = robot.configuration(values, base=None, reference=sec.string("reference", None))
         except HqpTpmError as exc:
-            raise ScenarioError(f"{sec.where}.joints_deg: {exc}") from exc
+            raise ScenarioError(f"{where}: {exc}") from exc
     _check_within_limits(robot, q, sec.where)
     return q
 

@@ -44,8 +44,10 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     callable checked before every step; when it returns true the run ends and the steps done so far are
     written as a partial result (``summary["status"] == "partial"``; into ``<out>.partial`` when ``out``
     holds a complete result). A step that fails also leaves the steps before it as a partial result,
-    then the error is raised. ``spec``: a scenario file or name, or a parsed
-    :class:`~hqp_tpm.app.scenario.Scenario`; ``manifest``: extra entries of ``manifest.json``.
+    then the error is raised. ``spec``: a scenario file or name, a parsed
+    :class:`~hqp_tpm.app.scenario.Scenario`, or a built :class:`~hqp_tpm.app.context.RunContext` (the public
+    call for a controller built in Python is :func:`hqp_tpm.app.record.record`); ``manifest``: extra entries
+    of ``manifest.json``.
     ``viz``: show the run live in meshcat (``realtime``: paced to simulated time, True or a speed factor;
     ``serve``: keep the viewer up after the run until Ctrl-C).
     """
@@ -53,13 +55,19 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
     from threadpoolctl import threadpool_limits
 
     from hqp_tpm.app import build, results, runner, scenario
+    from hqp_tpm.app.context import RunContext
 
-    sc = spec if isinstance(spec, scenario.Scenario) else scenario.load(spec)
+    given = spec if isinstance(spec, RunContext) else None  # a controller built in Python (hqp_tpm.app.record)
+    sc = given.scenario if given else spec if isinstance(spec, scenario.Scenario) else scenario.load(spec)
     n_steps = sc.steps if steps is None else scenario.check_steps(steps, "--steps")
+    from hqp_tpm.app.extras import require  # the app extra: before any work
+
+    require(*[f for f, on in (("figures", figures), ("replay", replay), ("progress", progress), ("viewer", viz))
+              if on], what=f"running {sc.name!r} with these options")
     folder = results.ResultFolder(Path(out), force=force)
     try:
         try:
-            ctx = build.build_run(sc, solver=solver)
+            ctx = given or build.build_run(sc, solver=solver)
         except HqpTpmError as exc:  # every error of a scenario run names its file
             raise _naming_file(exc, sc.path.name) from None
         robot, ctrl, tasks = ctx.robot, ctx.controller, ctx.tasks
@@ -119,15 +127,11 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
         summary.update(steps=done, steps_requested=n_steps, status=status)
         results.finish_units(summary, tasks)
         files = rec.files()
-        for k, v in arrays.items():  # aliases (ee_error, pointing_error) and arrays added after the run
-            if k in files:
+        for k, v in arrays.items():  # arrays added after the run; an alias (ee_error = error_ee, pointing_error =
+            if k in files or any(arrays.get(f) is v for f in files):  # error_<pointing task>) is not stored twice
                 continue
-            src = next((f for f in files if arrays.get(f) is v), None)
-            if src is None:
-                files[k] = rec.folder / f"{k}.npy"
-                np.save(files[k], np.asarray(v))
-            else:
-                files[k] = files[src]
+            files[k] = rec.folder / f"{k}.npy"
+            np.save(files[k], np.asarray(v))
         results.write_npz(folder.path / "trajectory.npz", files)
         results.write_text(folder.path / "metrics.json", results.dumps(summary))
         written = ["trajectory.npz", "metrics.json"]
@@ -346,10 +350,14 @@ def _campaign(args) -> int:
     return 1 if res["failed"] or res["errors"] else 0
 
 
+#: ``hqp-tpm --help``'s description: plain text (the module docstring's RST markup would show as is).
+DESCRIPTION = "Command line: hqp-tpm run SCENARIO --out DIR (and hqp-tpm list, hqp-tpm explain RUN_DIR --t T)."
+
+
 def main(argv=None) -> int:
     from hqp_tpm import __version__
 
-    parser = argparse.ArgumentParser(prog="hqp-tpm", description=__doc__)
+    parser = argparse.ArgumentParser(prog="hqp-tpm", description=DESCRIPTION)
     parser.add_argument("--version", action="version", version=f"hqp-tpm {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     p_run = sub.add_parser("run", help="run a scenario (a TOML file, or the name of a shipped scenario)")
@@ -368,7 +376,8 @@ def main(argv=None) -> int:
     p_run.add_argument("--no-figures", action="store_true")
     p_run.add_argument("--no-replay", action="store_true")
     p_run.add_argument("--steps", type=int, default=None, help="run only this many steps (1 .. 10,000,000)")
-    p_run.add_argument("--quiet", action="store_true", help="no progress bar")
+    p_run.add_argument("--quiet", action="store_true", help="no progress bar, no metrics, no list of files "
+                       "written (metrics.json holds the metrics); errors still go to stderr")
     p_run.add_argument("--explain", action="store_true", help="record every step's account: each task's fraction "
                        "met and what blocked it (hqp-tpm explain RUN_DIR --t T prints it)")
     p_list = sub.add_parser("list", help="list the shipped scenarios")
@@ -437,6 +446,8 @@ def main(argv=None) -> int:
             print(f"hqp-tpm: interrupted ({signals.name}) after {summary['steps']} of {summary['steps_requested']} "
                   f"steps: {summary['status']} result in {summary['out']}", file=sys.stderr)
         return signals.exit_code
+    if args.quiet:
+        return 0
     from hqp_tpm.app.results import strict
 
     keys = [k for k in summary if k.endswith(("_max", "_rms", "_min")) or k in ("max_dq_jump", "wall_time_s",

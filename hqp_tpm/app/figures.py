@@ -157,9 +157,53 @@ def joint_velocities(path: Path, arrays: dict, limits=None, title: str = "", enf
     _save(fig, path)
 
 
-def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> None:
-    """Norm of each task's error over time, one log axis per unit (m, rad, N, deg, dimensionless), and the
-    SNS scale factor when there is one (Fig. 2 of papers/002)."""
+#: The stack timeline shows at most this many stacks on rows of their own (the others share one row).
+TIMELINE_ROWS = 8
+
+
+def stack_spans(t: np.ndarray, stack) -> dict[str, list[tuple[float, float]]]:
+    """Active stack label -> its ``(start, duration)`` spans (s), each step lasting until the next sample (the last
+    one a median step); the labels in the order they first become active."""
+    t = np.asarray(t, dtype=float)
+    labels = np.asarray([str(s) for s in stack])
+    if t.size == 0:
+        return {}
+    dt = float(np.median(np.diff(t))) if t.size > 1 else 0.0
+    ends = np.append(t[1:], t[-1] + dt)
+    change = np.flatnonzero(labels[1:] != labels[:-1]) + 1
+    starts, stops = np.concatenate([[0], change]), np.concatenate([change, [t.size]])
+    out: dict[str, list[tuple[float, float]]] = {}
+    for a, b in zip(starts, stops, strict=True):
+        out.setdefault(str(labels[a]), []).append((float(t[a]), float(ends[b - 1] - t[a])))
+    return out
+
+
+def stack_timeline(ax, t: np.ndarray, stack) -> list[str]:
+    """Which stack is active when: one row per stack (its label written on it), bars where it is active; the
+    rows of the :data:`TIMELINE_ROWS` longest-active stacks, the rest on one row. Returns the row labels."""
+    spans = stack_spans(t, stack)
+    total = {k: sum(w for _, w in v) for k, v in spans.items()}
+    keep = sorted(spans, key=lambda k: -total[k])[:TIMELINE_ROWS]
+    rows = [k for k in spans if k in keep]  # order of first activation
+    rest = [k for k in spans if k not in keep]
+    if rest:
+        rows.append(f"{len(rest)} other stacks")
+        spans[rows[-1]] = [sp for k in rest for sp in spans[k]]
+    for k, label in enumerate(rows):
+        ax.broken_barh(spans[label], (k - 0.35, 0.7), color=f"C{k % 10}", alpha=0.55, lw=0)
+        share = sum(w for _, w in spans[label])
+        ax.text(0.005, k, f"{label}  ({share:.3g} s)", transform=ax.get_yaxis_transform(), va="center",
+                ha="left", fontsize=7, clip_on=True)
+    ax.set_ylim(len(rows) - 0.5, -0.5)
+    ax.set_yticks([])
+    ax.set_ylabel("active stack", fontsize=8)
+    return rows
+
+
+def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> Figure:
+    """Norm of each task's error over time, one log axis per unit (m, rad, N, deg, dimensionless), the
+    SNS scale factor when there is one (Fig. 2 of papers/002), and which stack is active when
+    (:func:`stack_timeline`). Returns the figure (saved to ``path``)."""
     t = arrays["t"]
     series: dict[str, list] = {}
     for name, quantity, rows, unit in error_groups(tasks):
@@ -170,8 +214,11 @@ def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> None:
             and rows is None else f"{name} ({quantity})"
         series.setdefault(unit, []).append((label, y))
     panels = list(series) + (["scale"] if "scale" in arrays else [])
-    fig = _figure(8, 0.9 + 2.0 * max(1, len(panels)))
-    axes = np.atleast_1d(fig.subplots(max(1, len(panels)), 1, sharex=True, squeeze=False)).ravel()
+    n_rows = min(len(set(map(str, arrays["stack"]))), TIMELINE_ROWS + 1) if "stack" in arrays else 0
+    heights = [2.0] * max(1, len(panels)) + ([0.45 + 0.28 * n_rows] if n_rows else [])
+    fig = _figure(8, 0.9 + sum(heights))
+    axes = np.atleast_1d(fig.subplots(len(heights), 1, sharex=True, squeeze=False,
+                                      gridspec_kw={"height_ratios": heights})).ravel()
     for ax, unit in zip(axes, series, strict=False):
         for k, (label, y) in enumerate(series[unit]):  # alternate styles: coinciding curves stay visible
             ax.plot(t, np.where(y > 0, y, np.nan), lw=1.0, ls=("-", "--", "-.", ":")[k % 4], label=label)
@@ -185,16 +232,21 @@ def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> None:
         ax.plot(t, arrays["scale"], "k", lw=0.9)
         ax.set_ylabel("SNS scale factor s", fontsize=8)
         ax.set_ylim(-0.05, 1.05)
+    if n_rows:
+        stack_timeline(axes[-1], t, arrays["stack"])
     axes[-1].set_xlabel("t [s]")
     fig.suptitle(title)
     _save(fig, path)
+    return fig
 
 
-def pointing_error(path: Path, arrays: dict, alpha_d: float | None = None, title: str = "") -> None:
+def pointing_error(path: Path, arrays: dict, alpha_d: float | None = None, title: str = "",
+                   inequality: bool | None = None) -> Figure:
     """Angle between the pointing axis and ``z_d`` in degrees, with the cone half-angle ``alpha_d`` and the steps
     where the task is in the stack in red (Fig. 7 of papers/000, in degrees rather than cosines).
 
-    Without ``alpha_d`` the recorded ``cos(alpha_d) - p_rp`` is plotted as it is (dimensionless)."""
+    Without ``alpha_d`` the recorded ``cos(alpha_d) - p_rp`` is plotted as it is (dimensionless). ``inequality``:
+    the task keeps the axis inside the cone (True) or on it (False); the legend says which. Returns the figure."""
     t, e, stack = arrays["t"], np.asarray(arrays["pointing_error"], dtype=float), arrays["stack"]
     active = np.array(["pointing" in s for s in stack])
     fig = _figure(8, 3.2)
@@ -206,13 +258,67 @@ def pointing_error(path: Path, arrays: dict, alpha_d: float | None = None, title
         ylabel = "angle to z_d [deg]"
     ax.plot(t, y, color="tab:blue", lw=0.8, label=label)
     ax.plot(t[active], y[active], ".", color="tab:red", ms=1.5, label="pointing task in the stack")
-    ref_label = f"α_d = {ref:g}° (cone half-angle; the equality's target)" if alpha_d is not None else "cone boundary"
+    what = {True: "the inequality's bound: the axis stays inside", False: "the equality's target",
+            None: "cone half-angle"}[inequality]
+    ref_label = f"α_d = {ref:g}° ({what})" if alpha_d is not None else "cone boundary"
     ax.axhline(ref, color="k", ls="--", lw=0.7, label=ref_label)
     ax.set_xlabel("t [s]")
     ax.set_ylabel(ylabel)
     ax.legend(fontsize=8, loc="best", markerscale=6)
     fig.suptitle(title)
     _save(fig, path)
+    return fig
+
+
+#: The 3-D EE path is drawn from at most this many samples.
+PATH_SAMPLES = 3000
+
+
+def ee_path(path: Path, arrays: dict, robot, scene, title: str = "") -> Figure | None:
+    """The EE's path in Cartesian space (3-D, from the recorded ``q``), the EE task's desired path and the
+    obstacles at t = 0 (their centres); None (nothing written) without a 3-D EE position task in ``scene``."""
+    import pinocchio as pin
+
+    task = scene.ee_task
+    frame = scene.ee_frame or (task.frame if task is not None else None)
+    if task is None or frame is None or task.dim != 3:
+        return None
+    t_all, q_all = np.asarray(arrays["t"], dtype=float), np.asarray(arrays["q"], dtype=float)
+    idx = np.unique(np.linspace(0, len(t_all) - 1, min(len(t_all), PATH_SAMPLES)).round().astype(int))
+    model, data, fid = robot.model, robot.model.createData(), robot.frame_id(frame)
+    ee = np.empty((len(idx), 3))
+    for k, i in enumerate(idx):
+        pin.framesForwardKinematics(model, data, q_all[i])
+        ee[k] = data.oMf[fid].translation
+    desired = np.array([task.reference(float(ti))[0] for ti in t_all[idx]], dtype=float)
+    fig = _figure(7, 6)
+    ax = fig.add_subplot(projection="3d")
+    ax.plot(*desired.T, color="tab:green", lw=1.2, ls="--", label=f"desired ({task.name})")
+    ax.plot(*ee.T, color="tab:red", lw=1.0, label=f"EE ({frame})")
+    ax.scatter(*ee[0], color="k", marker="o", s=18, label="start")
+    pts = [ee, desired]
+    centres = np.array([o.placement_at(0.0).act(o.local_center) for o in scene.obstacles]).reshape(-1, 3)
+    if len(centres):
+        ax.scatter(*centres.T, color="k", marker="x", s=30, label="obstacles (t = 0)")
+        pts.append(centres)
+    allp = np.vstack(pts)
+    mid, half = (allp.max(0) + allp.min(0)) / 2, max(np.ptp(allp, axis=0).max() / 2, 1e-3)
+    for setter, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid, strict=True):
+        setter(m - half, m + half)  # equal scales: a circle looks like one
+    ax.set_box_aspect((1, 1, 1))
+    centred = desired - desired.mean(0)
+    if np.ptp(centred, axis=0).max() > 1e-6:  # the desired path's plane seen face on, from above
+        n = np.linalg.svd(centred, full_matrices=False)[2][-1]
+        n = n if n[2] >= 0 else -n
+        elev = np.degrees(np.arcsin(np.clip(n[2], -1, 1)))
+        ax.view_init(elev=elev - 30.0 if elev > 45.0 else elev + 20.0, azim=np.degrees(np.arctan2(n[1], n[0])) + 30.0)
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_zlabel("z [m]")
+    ax.legend(fontsize=8, loc="upper left")
+    fig.suptitle(title)
+    _save(fig, path)
+    return fig
 
 
 def distances(path: Path, arrays: dict, thresholds: dict, title: str = "") -> None:
@@ -309,7 +415,11 @@ def write_all(out: Path, arrays: dict, ctx: RunContext) -> list[Path]:
     if "pointing_error" in arrays:
         p = out / "pointing_error.png"
         task = _first_pointing(tasks)
-        pointing_error(p, arrays, None if task is None else task.alpha_d, f"{name}: pointing")
+        pointing_error(p, arrays, None if task is None else task.alpha_d, f"{name}: pointing",
+                       inequality=None if task is None else bool(task.inequality))
+        written.append(p)
+    p = out / "ee_path.png"
+    if ee_path(p, arrays, ctx.robot, ctx.scene, f"{name}: EE path") is not None:
         written.append(p)
     if any(k in arrays for k in ("d_ee", "d_minimal", "d_obstacle", "d_self")):
         p = out / "distances.png"

@@ -564,35 +564,76 @@ def _axis_value(v):
     return math.nan
 
 
-def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str]) -> None:
-    """Each chosen metric (rows) against each varied field (columns); failed variants as red crosses."""
+#: Metrics of the table that say how long a run took, not how it went: not plotted.
+TIMING_METRICS = ("wall_time_s", "mean_step_us")
+
+
+def _unit(table: list[dict], metric: str) -> str:
+    """The unit of ``metric``: from the runs' ``units`` (metrics.json), else from the metrics schema."""
+    from hqp_tpm.app.results import METRICS, schema_key
+
+    for r in table:
+        units = r.get("units")
+        if isinstance(units, dict) and metric in units:
+            return str(units[metric])
+    key = schema_key(metric)
+    return METRICS[key][0] if key is not None else ""
+
+
+def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str], title: str = ""):
+    """Each chosen metric (rows, with its unit) against each varied field (columns), coloured by another varied
+    field when there is one (its values in the legend); failed variants as red crosses at the bottom. Timing
+    metrics (:data:`TIMING_METRICS`) are left out; plain tick labels (no offset notation). Returns the figure."""
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
-    fig, axes = plt.subplots(len(metrics), len(fields), figsize=(3.2 * len(fields) + 1, 2.4 * len(metrics) + 0.5),
+    metrics = [m for m in metrics if m not in TIMING_METRICS] or list(metrics)
+    fig, axes = plt.subplots(len(metrics), len(fields), figsize=(3.6 * len(fields) + 1.2, 2.6 * len(metrics) + 0.9),
                              squeeze=False)
-    for i, m in enumerate(metrics):
-        for j, f in enumerate(fields):
+    ok = [not r.get("error") for r in table]
+    for j, f in enumerate(fields):
+        xs = np.array([_axis_value(r.get(f)) for r in table], dtype=float)
+        other = next((g for g in fields if g != f), None)
+        groups = {"": list(range(len(table)))}
+        if other is not None:
+            groups = {}
+            for k, r in enumerate(table):
+                groups.setdefault(_cell(r.get(other)), []).append(k)
+        for i, m in enumerate(metrics):
             ax = axes[i, j]
-            xs = [_axis_value(r.get(f)) for r in table]
-            ys = [r.get(m) if isinstance(r.get(m), (int, float)) else math.nan for r in table]
-            ok = [not r.get("error") for r in table]
-            ax.plot([x for x, y, k in zip(xs, ys, ok, strict=True) if k], [y for x, y, k in zip(xs, ys, ok, strict=True)
-                    if k], "o", ms=4)
+            ys = np.array([r.get(m) if isinstance(r.get(m), (int, float)) else math.nan for r in table], dtype=float)
+            for c, (value, idx) in enumerate(groups.items()):
+                idx = [k for k in idx if ok[k]]
+                label = f"{other} = {value}" if other is not None else None
+                ax.plot(xs[idx], ys[idx], "o", ms=5, mfc=f"C{c % 10}", mec="k", mew=0.4, ls="none", label=label)
             bad = [x for x, k in zip(xs, ok, strict=True) if not k]
             if bad:
                 ax.plot(bad, [ax.get_ylim()[0]] * len(bad), "rx", ms=6, label="failed")
+            for axis in (ax.xaxis, ax.yaxis):
+                fmt = ScalarFormatter(useOffset=False)
+                fmt.set_powerlimits((-3, 4))
+                axis.set_major_formatter(fmt)
+                axis.set_major_locator(MaxNLocator(5))
+            ax.tick_params(labelsize=7)
+            ax.tick_params(axis="x", labelrotation=30)
+            ax.grid(True, lw=0.3, alpha=0.6)
             if i == len(metrics) - 1:
                 ax.set_xlabel(f + (" (last element)" if any(isinstance(r.get(f), list) for r in table) else ""),
                               fontsize=8)
             if j == 0:
-                ax.set_ylabel(m, fontsize=8)
-            ax.tick_params(labelsize=7)
+                unit = _unit(table, m)
+                ax.set_ylabel(f"{m} [{unit}]" if unit else m, fontsize=8)
+            if i == 0 and (other is not None or bad):
+                ax.legend(fontsize=6, loc="best")
+    fig.suptitle(title or f"sweep: {', '.join(metrics)} against {', '.join(fields)}", fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+    return fig
 
 
 # ------------------------------------------------------------------------------------------ campaigns

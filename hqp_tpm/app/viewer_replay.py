@@ -26,6 +26,7 @@ from hqp_tpm.app.viewer_scene import (
     _TRACE_CHUNKS,
     COLORS,
     DEFAULT_VIEW,
+    FORCE_SCALE,
     LINE_RADIUS,
     Scene,
     _decompose,
@@ -48,6 +49,11 @@ body {{ margin: 0; }}
 #hqp-stack {{ position: fixed; left: 8px; top: 8px; z-index: 10; padding: 3px 8px; border-radius: 4px;
   background: rgba(255, 255, 255, 0.85); font: 14px sans-serif; }}
 #hqp-stack:empty {{ display: none; }}
+#hqp-legend {{ position: fixed; right: 8px; bottom: 8px; z-index: 10; padding: 4px 8px; border-radius: 4px;
+  background: rgba(255, 255, 255, 0.85); font: 12px sans-serif; line-height: 18px; }}
+#hqp-legend:empty {{ display: none; }}
+#hqp-legend .sw {{ display: inline-block; width: 12px; height: 12px; margin-right: 6px; vertical-align: -2px;
+  border: 1px solid rgba(0, 0, 0, 0.3); border-radius: 2px; }}
 </style></head>
 <body>
 <div id="meshcat-pane"></div>
@@ -55,6 +61,7 @@ body {{ margin: 0; }}
 <input id="hqp-time" type="range" min="0" max="{duration}" step="0.001" value="0">
 <span id="hqp-label">t = 0.000 s</span><span>{title}</span></div>
 <div id="hqp-stack"></div>
+<div id="hqp-legend">{legend}</div>
 <script>
 {mainjs}
 </script>
@@ -129,6 +136,7 @@ class _OfflineWindow:
         self.duration = 0.0
         self.t0 = 0.0
         self.stacks: list[tuple[float, str]] = []
+        self.legend: list[tuple[str, str]] = []
 
     def send(self, command) -> None:
         data = command.lower()
@@ -164,7 +172,7 @@ class _OfflineWindow:
         text = ",\n".join(f'"{base64.b64encode(c).decode("ascii")}"' for c in [*cmds, *anims])
         stacks = json.dumps([[round(t, 6), s] for t, s in self.stacks]).replace("</", "<\\/")
         return _HTML.format(title=html.escape(self.title), duration=f"{self.duration:.6f}", t0=repr(float(self.t0)),
-                            stacks=stacks,
+                            stacks=stacks, legend=legend_html(self.legend),
                             mainjs=mainjs.replace("</script", "<\\/script"), commands=text)
 
     def get_image(self):  # pragma: no cover - the offline window has no browser
@@ -258,7 +266,42 @@ def replay_html(robot: Robot, arrays: dict, items: SceneItems | None = None, *, 
     window.duration = float(t[-1] - t[0])
     window.t0 = float(t[0])
     window.stacks = stack_timeline(arrays, float(t_all[0]))
+    window.legend = legend_entries(scene, desired=len(desired) > 1, trace=bool(chunks))
     return vis.static_html()
+
+
+def legend_entries(scene: Scene, *, desired: bool, trace: bool) -> list[tuple[str, str]]:
+    """``[(COLORS key, what it shows), ...]`` of the items this replay draws (the colour legend)."""
+    out = []
+    points = [type(o.shape).__name__ == "Sphere" and o.shape.radius <= 0.0 for o in scene.obstacles]
+    if any(points):
+        out.append(("point_obstacle", "point obstacle"))
+    if not all(points):
+        out.append(("obstacle", "obstacle"))
+    if scene.cp_names:
+        out += [("control_point", "control point"), ("critical_point", "critical control point (nearest)")]
+    if scene._cp_elements is not None:
+        out.append(("distance", "distance to the nearest obstacle"))
+    if desired:
+        out.append(("desired_path", "desired EE path"))
+    if trace:
+        out.append(("ee_trace", "EE trace"))
+    if scene._pointing_params() is not None:
+        out.append(("cone", "pointing cone (alpha_d)"))
+    if scene.operator_markers is not None:
+        out += [("marker", "operator's markers"), ("target_marker", "marker it pulls towards"),
+                ("force", f"operator's force ({100 * FORCE_SCALE:g} cm/N)")]
+    return out
+
+
+def legend_html(entries) -> str:
+    """The legend's HTML: a colour swatch and a label per entry."""
+    rows = []
+    for key, label in entries:
+        r, g, b, a = COLORS[key]
+        colour = f"rgba({round(255 * r)}, {round(255 * g)}, {round(255 * b)}, {max(a, 0.6):.2f})"
+        rows.append(f'<div><span class="sw" style="background: {colour}"></span>{html.escape(label)}</div>')
+    return "".join(rows)
 
 
 #: Names of the co-manipulation stacks by ``stack_id`` (Fig. 3 of papers/003).

@@ -46,7 +46,17 @@ def _finite(*arrays: np.ndarray) -> bool:
 
 @dataclass
 class StepResult:
-    """What one step computed (before integration): the stack, the command, solver info and inputs."""
+    """What one step computed (before integration): the stack, the command, solver info and inputs.
+
+    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose at this step.
+    ``levels``: the solver's input, one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest
+    first (``Level.J``, ``Level.b`` of an equality level, ``Level.lower``/``Level.upper`` of an inequality
+    level, ``Level.name`` from the tasks), the rows the step solved at this state; pass them with ``x0`` and
+    ``box`` to :func:`~hqp_tpm.solvers.solve` or to :func:`hqp_tpm.testing.assert_solvers_agree` to solve the
+    same problem again. ``command``: the joint velocity (order 1) or acceleration (order 2), ``nv`` values.
+    ``info``: the solver's account (e.g. ``scale``, ``saturated``, ``iterations``). ``x0``: the null-space term
+    (None: none). ``box``: ``(lower, upper)`` of the command (None: no box).
+    """
 
     t: float
     stack: Stack

@@ -14,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.data import robots_dir
-from hqp_tpm.errors import RobotFileError, UnknownFrameError, unknown_name
+from hqp_tpm.errors import RobotFileError, UnknownFrameError, UnknownNameError, unknown_name
 
 #: Folder of the shipped robot descriptions (package data; override with HQP_TPM_ROBOTS).
 ROBOTS_DIR = robots_dir()
@@ -180,9 +180,27 @@ class Robot:
     def neutral(self) -> np.ndarray:
         return pin.neutral(self.model)
 
-    def configuration(self, joint_values: dict[str, float] | None = None, base=None) -> np.ndarray:
-        """A configuration from the neutral one, with named 1-DOF joints set (radians)."""
-        q = self.neutral()
+    @property
+    def references(self) -> list[str]:
+        """Names of the model's reference configurations (an SRDF's, e.g. example-robot-data's ``"half_sitting"``
+        of Talos); kept through :meth:`reduced`."""
+        return sorted(str(k.key()) for k in self.model.referenceConfigurations)
+
+    def reference(self, name: str) -> np.ndarray:
+        """The reference configuration ``name`` (a copy of ``q``); an unknown name lists the available ones."""
+        names = self.references
+        if name not in names:
+            if not names:
+                raise UnknownNameError(f"unknown reference configuration {name!r}: robot {self.name!r} has none "
+                                       "(its model came without an SRDF)")
+            raise unknown_name("reference configuration", name, names)
+        return np.array(self.model.referenceConfigurations[name], dtype=float)
+
+    def configuration(self, joint_values: dict[str, float] | None = None, base=None, *,
+                      reference: str | None = None) -> np.ndarray:
+        """A configuration from the neutral one (or the reference configuration ``reference``, see
+        :meth:`reference`), with named 1-DOF joints set (radians) and the free-flyer at ``base`` if given."""
+        q = self.neutral() if reference is None else self.reference(reference)
         for jname, val in (joint_values or {}).items():
             if not self.model.existJointName(jname):
                 raise unknown_name("joint", jname, [n for n in self.model.names[1:]])

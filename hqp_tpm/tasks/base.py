@@ -46,7 +46,10 @@ class Task(ABC):
     def __init__(self, name: str, target, gains: Gains | None = None):
         self.name = name
         self.gains = gains or Gains()
-        self.trajectory: Trajectory = as_trajectory(target, self.dim)
+        try:
+            self.trajectory: Trajectory = as_trajectory(target, self.dim)
+        except ShapeError as exc:  # name the task whose target is wrong
+            raise ShapeError(f"task {name!r}: {exc}") from None
 
     def __setattr__(self, name: str, value) -> None:
         """Every assignment (a new target, gains, trajectory) is counted
