@@ -61,7 +61,7 @@ def test_recorded_torques_replay_on_plant_xml_with_mujoco_alone(iiwa_runs):
 def test_physics_run_tracks_like_the_kinematic_run(iiwa_runs):
     """The README's stack on the plant: the EE ends within 0.5 mm of its target (measured 0.091 mm; kinematic
     0.015 mm) and its largest error is within 1.2x the kinematic run's."""
-    err = {k: np.linalg.norm(np.load(f / "trajectory.npz")["ee_error"], axis=1) for k, f in iiwa_runs.items()}
+    err = {k: np.linalg.norm(np.load(f / "trajectory.npz")["error_ee"], axis=1) for k, f in iiwa_runs.items()}
     assert err["iiwa_mujoco"][-1] < 0.5e-3
     assert err["iiwa_mujoco"].max() <= 1.2 * err["iiwa_first_controller"].max()
     assert not np.array_equal(err["iiwa_mujoco"], err["iiwa_first_controller"])  # the loop did go through MuJoCo

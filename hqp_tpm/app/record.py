@@ -15,6 +15,7 @@ import os
 from pathlib import Path
 
 from hqp_tpm.errors import ParameterError
+from hqp_tpm.robot.limits import JointLimits
 
 
 def record(source, out: str | os.PathLike, *, steps: int | None = None, name: str | None = None, tasks=None,
@@ -64,7 +65,7 @@ def run_context(ctrl, steps: int, *, name: str | None = None, tasks=None, obstac
                   period=ctrl.dt, duration=(steps - 1) * ctrl.dt, lambda_max=ctrl.lambda_max, eps=ctrl.eps,
                   nullspace_damping=ctrl.nullspace_damping, description="recorded from Python",
                   initial=Section({}, where), obstacles=[], tasks=[], policy=Section({}, where), limits=None, raw={})
-    box = ctrl.box if hasattr(ctrl.box, "velocity_limits") else None
+    box = ctrl.box if isinstance(ctrl.box, JointLimits) else None  # the figures' limit lines
     scene = ctrl.policy.scene()
     if not scene.obstacles:
         scene.obstacles = list(obstacles)
