@@ -185,9 +185,9 @@ def check_velocity(ctrl: Controller, bound: np.ndarray, step: int) -> None:
     if over.any():
         j = int(np.argmax(np.where(over, np.abs(np.nan_to_num(v, nan=np.inf)) / bound, -1.0)))
         name = ctrl.robot.joint_names[j]  # (one name per velocity column)
-        raise DivergedError(f"the run diverged: at step {step + 1} (t = {ctrl.t - ctrl.dt:.6f} s) the velocity of joint "
-                            f"{name} is {v[j]:.6g} rad/s, beyond the scenario's velocity_bound ({bound[j]:.6g} rad/s); "
-                            f"the {step} steps before it are kept")
+        raise DivergedError(f"the run diverged: at step {step + 1} (t = {ctrl.t - ctrl.dt:.6f} s) the velocity of "
+                            f"joint {name} is {v[j]:.6g} rad/s, beyond the scenario's velocity_bound "
+                            f"({bound[j]:.6g} rad/s); the {step} steps before it are kept")
 
 
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
