@@ -49,11 +49,11 @@ def test_a_run_beyond_its_velocity_bound_stops_with_its_partial_result(tmp_path)
     assert (np.abs(kept) <= bound).all()
 
 
-def test_the_default_bound_is_ten_times_the_urdf_velocity_limits():
+def test_the_default_bound_is_a_thousand_times_the_urdf_velocity_limits():
     ctx = build_run(scenario.load("lwr_relaxed"))
     v = ctx.robot.velocity_limits()
     assert np.isfinite(v).all()
-    np.testing.assert_array_equal(ctx.velocity_bound, 10.0 * v)
+    np.testing.assert_array_equal(ctx.velocity_bound, 1000.0 * v)
 
 
 def test_planar5_has_no_urdf_velocity_limits_and_gets_the_stated_value():

@@ -201,7 +201,7 @@ class Scenario:
     limits: Section | None
     raw: dict
     #: a run stops (DivergedError) when a joint velocity exceeds this multiple of its bound (context.py)
-    velocity_bound: float = 10.0
+    velocity_bound: float = 1000.0  # (romeo_tpm, TPM ignoring the limits on purpose, reaches 143x)
 
     @property
     def order(self) -> int:
@@ -322,7 +322,7 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
         limits=top.table("limits", None), raw=data,
-        velocity_bound=sc.number("velocity_bound", 10.0),
+        velocity_bound=sc.number("velocity_bound", 1000.0),
     )
     if not out.velocity_bound > 0:
         raise ScenarioError(f"{sc.where}.velocity_bound: must be > 0 (a multiple of the joint velocity "
