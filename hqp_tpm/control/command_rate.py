@@ -39,8 +39,9 @@ def shifted(level: Level, v: np.ndarray) -> Level:
 
 
 def solve_around(solver: str, levels, n: int, v: np.ndarray, box: tuple[np.ndarray, np.ndarray], *,
-                 lambda_max: float, eps: float) -> tuple[np.ndarray, dict]:
-    """``(qdot, info)``: ``levels`` solved by ``solver`` for the change from ``v`` (module doc) in ``box``."""
+                 lambda_max: float, eps: float, solve=solve) -> tuple[np.ndarray, dict]:
+    """``(qdot, info)``: ``levels`` solved by ``solver`` for the change from ``v`` (module doc) in ``box``
+    (``solve``: the registry's, or the caller's own reference to it)."""
     lo, up = box
     d, info = solve(solver, [shifted(level, v) for level in as_levels(levels, n)], n, x0=-v, box=(lo - v, up - v),
                     lambda_max=lambda_max, eps=eps)

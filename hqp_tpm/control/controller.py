@@ -173,7 +173,7 @@ class Controller:
         if box is not None and self.order == 1 and rate_limited(self.box) and self.solver not in ANALYTIC:
             def solve_levels(lv):  # the box bounds the command's rate: the stack solved for the change
                 return solve_around(self.solver, lv, self.robot.nv, self._v, box, lambda_max=self.lambda_max,
-                                    eps=self.eps)
+                                    eps=self.eps, solve=solve)
         else:
             def solve_levels(lv):
                 return solve(self.solver, lv, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
