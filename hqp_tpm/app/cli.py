@@ -75,7 +75,9 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
                 rec, timing = runner.run(ctrl, n_steps, progress=progress, crosscheck=other, probes=probes,
                                          label=sc.name, recording=rec, stop=stop,
                                          lean=explainer is None and live is None,
-                                         velocity_bound=ctx.velocity_bound)  # (DivergedError beyond it)
+                                         velocity_bound=ctx.velocity_bound,  # (DivergedError beyond it)
+                                         bound_source=f"{sc.path.name}.scenario.velocity_bound = "
+                                                      f"{sc.velocity_bound:g} x the velocity limits")
             except HqpTpmError as exc:  # the steps before the failing one are kept, as a partial result
                 failure = exc
                 rec.close()

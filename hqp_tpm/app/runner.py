@@ -177,23 +177,26 @@ def lean_stepper(ctrl: Controller):
     return None
 
 
-def check_velocity(ctrl: Controller, bound: np.ndarray, step: int) -> None:
+def check_velocity(ctrl: Controller, bound: np.ndarray, step: int,
+                   source: str = "the scenario's velocity_bound") -> None:
     """Raise :class:`~hqp_tpm.errors.DivergedError` if a joint velocity of ``ctrl`` (the state after ``step``, the
-    run's step index from 0) exceeds ``bound`` (or is not finite), naming the step, the joint and the value."""
+    run's step index from 0) exceeds ``bound`` (or is not finite), naming the step, the joint and the value (and
+    ``source``, where the bound comes from)."""
     v = ctrl.v
     over = ~(np.abs(v) <= bound)
     if over.any():
         j = int(np.argmax(np.where(over, np.abs(np.nan_to_num(v, nan=np.inf)) / bound, -1.0)))
         name = ctrl.robot.joint_names[j]  # (one name per velocity column)
         raise DivergedError(f"the run diverged: at step {step + 1} (t = {ctrl.t - ctrl.dt:.6f} s) the velocity of "
-                            f"joint {name} is {v[j]:.6g} rad/s, beyond the scenario's velocity_bound "
+                            f"joint {name} is {v[j]:.6g} rad/s, beyond {source} "
                             f"({bound[j]:.6g} rad/s); the {step} steps before it are kept")
 
 
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
         probes=(), label: str = "run", recording: Recording | None = None,
         stop: Callable[[], bool] | None = None, lean: bool = False,
-        velocity_bound: np.ndarray | None = None) -> tuple[Recording, dict]:
+        velocity_bound: np.ndarray | None = None, bound_source: str = "the scenario's velocity_bound"
+        ) -> tuple[Recording, dict]:
     """Step ``ctrl`` ``steps`` times, recording the state at each sample time and the command.
 
     ``dq`` is the joint velocity applied during the step (the command at velocity level, the
@@ -244,7 +247,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         solve_time += time.perf_counter() - t0
         if velocity_bound is not None:
             try:
-                check_velocity(ctrl, velocity_bound, done)
+                check_velocity(ctrl, velocity_bound, done, bound_source)
             except DivergedError:
                 rec.close()
                 raise
