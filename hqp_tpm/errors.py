@@ -113,6 +113,11 @@ class StateError(HqpTpmError, RuntimeError):
     """An object is used in a state that does not allow the call (e.g. a task before its pair is assigned)."""
 
 
+class DivergedError(HqpTpmError, RuntimeError):
+    """A run's joint velocity left the scenario's ``velocity_bound``: the run stops there (naming the step, the joint
+    and the value), the steps before it kept as a partial result."""
+
+
 class SweepError(HqpTpmError, ValueError):
     """A sweep or campaign is ill-defined: a field path that resolves nowhere, a bad range, an unknown executor."""
 

@@ -308,7 +308,9 @@ def test_romeo_joint_blocking_set_verified_and_minimal():
     from hqp_tpm.app import build, scenario
     from hqp_tpm.app.explain import Explainer
 
-    _, ctrl, _, _ = build.build(scenario.load("romeo_sns_tpm"))
+    data = scenario.read(scenario.resolve_path("romeo_sns_tpm"))
+    data["limits"]["command_rate"] = False  # papers/002's box: the step is the plain solve in it (re-solved below)
+    _, ctrl, _, _ = build.build(scenario.parse(data))
     res = ctrl.compute()
     acc = Explainer(ctrl).account(ctrl, res)
     box = ctrl.box(ctrl.state, res.t)

@@ -7,24 +7,36 @@ from hqp_tpm.app import build, scenario
 from hqp_tpm.solvers import sns_tpm, tpm
 
 
-def run(name, steps):
-    sc = scenario.load(name)
-    _, ctrl, _, _ = build.build(sc)
+def run(name, steps, command_rate=True):
+    data = scenario.read(scenario.resolve_path(name))
+    data["limits"]["command_rate"] = command_rate
+    _, ctrl, _, _ = build.build(scenario.parse(data))
     worst = 0.0
-    scales = []
+    scales, saturated = [], 0
     for _ in range(steps):
         lo, up = ctrl.box(ctrl.state.update(ctrl.q, ctrl.v, ctrl.t), ctrl.t)
         res = ctrl.step()
         worst = max(worst, float(np.max(np.maximum(lo - res.command, res.command - up))))
         scales.append(res.info.get("scale", 1.0))
-    return worst, np.array(scales), ctrl
+        saturated += bool(res.info.get("saturated"))
+    return worst, np.array(scales), ctrl, saturated
 
 
 @pytest.mark.parametrize("name", ["romeo_sns_tpm", "romeo_sns"])
 def test_sns_solvers_stay_in_the_joint_velocity_box(name):
-    worst, scales, _ = run(name, 1300)  # through the first hand-circle quarter, where the limits bind
+    """papers/002's box (``command_rate = false``): the boxes bind and the scale factor is used."""
+    worst, scales, _, _ = run(name, 1300, command_rate=False)  # through the first hand-circle quarter
     assert worst <= 1e-9
     assert scales.min() < 1.0  # the boxes did bind: the scale factor was used
+
+
+@pytest.mark.parametrize("name", ["romeo_sns_tpm", "romeo_sns"])
+def test_sns_solvers_stay_in_the_rate_bounded_box(name):
+    """The shipped box (``command_rate = true``, issue 31): solved for the change of the command
+    (hqp_tpm.control.command_rate), the box still holds and binds (joints saturate) through the start-up."""
+    worst, _, _, saturated = run(name, 400)
+    assert worst <= 1e-9
+    assert saturated > 0
 
 
 def test_tpm_alone_leaves_the_box_and_sns_tpm_equals_tpm_when_nothing_binds():

@@ -333,7 +333,10 @@ def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
         limits = JointLimits(robot, order=sc.order, dt=sc.period, position=lim.boolean("position", True),
                              velocity=lim.boolean("velocity", True),
                              acceleration_limit=lim.number("acceleration_limit", 50.0),
-                             velocity_scale=lim.number("velocity_scale", 1.0))
+                             velocity_scale=lim.number("velocity_scale", 1.0),
+                             # the command's change per step <= acceleration_limit * period (velocity level; at
+                             # acceleration level the box bounds qdd itself); false: papers/002's box
+                             command_rate=lim.boolean("command_rate", True) and sc.order == 1)
         lim.check_unused()
     ctrl = Controller(robot, policy, order=sc.order, dt=sc.period, solver=solver or sc.solver,
                       lambda_max=sc.lambda_max, eps=sc.eps, nullspace_damping=sc.nullspace_damping,

@@ -98,7 +98,10 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
             try:
                 rec, timing = runner.run(ctrl, n_steps, progress=progress, crosscheck=other, probes=probes,
                                          label=sc.name, recording=rec, stop=stop,
-                                         lean=explainer is None and live is None)
+                                         lean=explainer is None and live is None,
+                                         velocity_bound=ctx.velocity_bound,  # (DivergedError beyond it)
+                                         bound_source=f"{sc.path.name}.scenario.velocity_bound = "
+                                                      f"{sc.velocity_bound:g} x the velocity limits")
             except HqpTpmError as exc:  # the steps before the failing one are kept, as a partial result
                 failure = _naming_file(exc, sc.path.name, f", step {len(rec) + 1} (t = {ctrl.t:.6g} s)")
                 rec.close()
@@ -450,8 +453,8 @@ def main(argv=None) -> int:
         return 0
     from hqp_tpm.app.results import strict
 
-    keys = [k for k in summary if k.endswith(("_max", "_rms", "_min")) or k in ("max_dq_jump", "wall_time_s",
-                                                                             "crosscheck_max_diff")]
+    keys = [k for k in summary if k.endswith(("_max", "_rms", "_min")) or k in ("max_dq_jump", "chatter",
+                                                                             "wall_time_s", "crosscheck_max_diff")]
     return _print_lines([json.dumps(strict({k: summary[k] for k in keys}), indent=2), wrote_line(summary["files"])])
 
 

@@ -20,6 +20,9 @@ from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.tasks.base import Task
 
+#: rad/s: the velocity limit a run's divergence bound uses where the model gives none (``velocity_bound``).
+UNLIMITED_VELOCITY = 10.0
+
 #: ``probe(ctrl, result) -> dict``: values recorded after every successful step.
 Probe = Callable[[Controller, StepResult], dict]
 
@@ -50,6 +53,14 @@ class RunContext:
     def velocity_limits(self) -> np.ndarray | None:
         """Joint velocity limits of the box (rad/s, ``inf`` on free-flyer columns), None without ``[limits]``."""
         return self.limits.velocity_limits if self.limits is not None else None
+
+    @property
+    def velocity_bound(self) -> np.ndarray:
+        """Per velocity column, the joint velocity (rad/s) at which the run stops as diverged
+        (:class:`~hqp_tpm.errors.DivergedError`): the scenario's ``velocity_bound`` times the URDF's velocity limit,
+        or times :data:`UNLIMITED_VELOCITY` where the model gives none (also on free-flyer columns)."""
+        v = self.robot.velocity_limits()
+        return self.scenario.velocity_bound * np.where(np.isfinite(v), v, UNLIMITED_VELOCITY)
 
     @property
     def thresholds(self) -> dict[str, dict[str, float]]:

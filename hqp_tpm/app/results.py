@@ -72,6 +72,9 @@ METRICS: dict[str, tuple[str, str]] = {
     "max_dq_jump": ("rad/s", "largest change of any joint velocity between two consecutive steps"),
     "max_dq_jump_step": ("1", "step at which ``max_dq_jump`` happens"),
     "max_abs_dq": ("rad/s", "largest joint velocity (absolute value) of the run"),
+    "chatter": ("1/s", "largest over the joints of the sign changes per second of the command's rate (the change "
+                "of a joint velocity between two steps; changes of at most ``CHATTER_DEADBAND`` rad/s count as none)"),
+    "chatter_mean": ("1/s", "``chatter`` averaged over the joints"),
     "error_{task}_max": ("task unit", "largest norm of the task error ``x_d - x`` over the run"),
     "error_{task}_rms": ("task unit", "RMS over the run of the task error norm"),
     "error_{task}_{part}_max": ("m or rad", "a pose task: largest norm of its position (m) or orientation (rad) "
@@ -237,6 +240,29 @@ def _reduce(fn, values) -> float:
     return float(fn(np.array(list(values), dtype=float)))
 
 
+#: A change of a joint velocity between two steps of at most this (rad/s) has no sign for ``chatter``.
+CHATTER_DEADBAND = 1e-6
+
+
+def chatter(dq: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """Per joint: sign changes per second of the command's rate ``dq[k] - dq[k-1]`` (changes of at most
+    :data:`CHATTER_DEADBAND` are skipped: a sign is compared with the last one that counted), over ``t``'s span.
+    A smooth command changes sign a few times per motion; one that flips between its box's sides every step
+    (saturations switching, issue 31) about once per step."""
+    n, joints = dq.shape[0], dq.shape[1] if dq.ndim == 2 else 0
+    changes, last = np.zeros(joints), np.zeros(joints)
+    for _, b in blocks(dq, overlap=1):
+        r = np.diff(b, axis=0)
+        sign = np.where(r > CHATTER_DEADBAND, 1.0, np.where(r < -CHATTER_DEADBAND, -1.0, 0.0))
+        for j in range(joints):
+            seq = sign[:, j][sign[:, j] != 0.0]
+            if seq.size:
+                changes[j] += np.count_nonzero(seq[1:] != seq[:-1]) + (last[j] != 0.0 and seq[0] != last[j])
+                last[j] = seq[-1]
+    span = float(t[-1] - t[0]) if n > 1 else 0.0
+    return changes / span if span > 0 else changes
+
+
 def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
     """Summary numbers of a run (plain floats, JSON-ready), each metric once (:data:`METRICS`); ``*_settled`` ones
     from ``t >= SETTLE_S``; ``units`` gives the unit of every numeric entry.
@@ -258,6 +284,9 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
                 best, where = float(jumps[k]), lo + k + 1
         out["max_dq_jump"] = best
         out["max_dq_jump_step"] = where
+    if dq.shape[0] > 2 and dq.ndim == 2 and dq.shape[1]:
+        per_joint = chatter(dq, t)
+        out["chatter"], out["chatter_mean"] = float(per_joint.max()), float(per_joint.mean())
     out["max_abs_dq"] = _reduce(np.max, (np.abs(b).max() for _, b in blocks(dq))) if dq.size else 0.0
     for name, task in tasks.items():
         e = arrays.get(f"error_{name}")

@@ -15,7 +15,7 @@ import numpy as np
 
 from hqp_tpm.app.results import blocks
 from hqp_tpm.control.controller import Controller
-from hqp_tpm.errors import ShapeError, StateError
+from hqp_tpm.errors import DivergedError, ShapeError, StateError
 from hqp_tpm.solvers.registry import check_solver_name
 
 #: Rows a column keeps in memory before they are appended to its file (a chunk).
@@ -177,9 +177,26 @@ def lean_stepper(ctrl: Controller):
     return None
 
 
+def check_velocity(ctrl: Controller, bound: np.ndarray, step: int,
+                   source: str = "the scenario's velocity_bound") -> None:
+    """Raise :class:`~hqp_tpm.errors.DivergedError` if a joint velocity of ``ctrl`` (the state after ``step``, the
+    run's step index from 0) exceeds ``bound`` (or is not finite), naming the step, the joint and the value (and
+    ``source``, where the bound comes from)."""
+    v = ctrl.v
+    over = ~(np.abs(v) <= bound)
+    if over.any():
+        j = int(np.argmax(np.where(over, np.abs(np.nan_to_num(v, nan=np.inf)) / bound, -1.0)))
+        name = ctrl.robot.joint_names[j]  # (one name per velocity column)
+        raise DivergedError(f"the run diverged: at step {step + 1} (t = {ctrl.t - ctrl.dt:.6f} s) the velocity of "
+                            f"joint {name} is {v[j]:.6g} rad/s, beyond {source} "
+                            f"({bound[j]:.6g} rad/s); the {step} steps before it are kept")
+
+
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
         probes=(), label: str = "run", recording: Recording | None = None,
-        stop: Callable[[], bool] | None = None, lean: bool = False) -> tuple[Recording, dict]:
+        stop: Callable[[], bool] | None = None, lean: bool = False,
+        velocity_bound: np.ndarray | None = None, bound_source: str = "the scenario's velocity_bound"
+        ) -> tuple[Recording, dict]:
     """Step ``ctrl`` ``steps`` times, recording the state at each sample time and the command.
 
     ``dq`` is the joint velocity applied during the step (the command at velocity level, the
@@ -195,6 +212,9 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     ``lean``: step with the controller's lean step when it has one (:func:`lean_stepper`; not with a
     ``crosscheck``): the same numbers, and the probes get a :class:`LeanResult` (``t``, ``command``, ``info``,
     ``label``) instead of a ``StepResult`` (``timing["lean"]`` says whether it was used).
+    ``velocity_bound``: per velocity column (rad/s); a step after which a joint velocity exceeds it raises
+    :class:`~hqp_tpm.errors.DivergedError` naming the step, the joint and the value (:func:`check_velocity`), the
+    rows of the steps before it recorded and ``recording`` closed (``hqp-tpm run`` writes them as a partial result).
     """
     rec = Recording(list(ctrl.robot.joint_names)) if recording is None else recording
     bar = None
@@ -225,6 +245,12 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
             stack = fast[1]()
             res = LeanResult(t, x, fast[2](), stack)
         solve_time += time.perf_counter() - t0
+        if velocity_bound is not None:
+            try:
+                check_velocity(ctrl, velocity_bound, done, bound_source)
+            except DivergedError:
+                rec.close()
+                raise
         dq = res.command if ctrl.order == 1 else v
         if ctrl.order == 2:
             ddq = res.command

@@ -204,6 +204,8 @@ class Scenario:
     raw: dict
     #: the ``[plant]`` section (:class:`hqp_tpm.app.scenario_plant.PlantConfig`: kinematic by default)
     plant: Any = None
+    #: a run stops (DivergedError) when a joint velocity exceeds this multiple of its bound (context.py)
+    velocity_bound: float = 1000.0  # (romeo_tpm, TPM ignoring the limits on purpose, reaches 143x)
 
     @property
     def order(self) -> int:
@@ -394,7 +396,11 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
         obstacles=top.tables("obstacles"), tasks=top.tables("tasks"),
         policy=top.table("policy", None) or Section({"type": "fixed"}, f"{path.name}.policy"),
         limits=top.table("limits", None), raw=data,
+        velocity_bound=sc.number("velocity_bound", 1000.0),
     )
+    if not out.velocity_bound > 0:
+        raise ScenarioError(f"{sc.where}.velocity_bound: must be > 0 (a multiple of the joint velocity "
+                            f"limits), got {out.velocity_bound}")
     if out.limits is not None and solver in ANALYTIC:  # the analytic solvers ignore a box: say so, don't run
         raise ScenarioError(f"{out.limits.where}: a hard joint box, which solver {solver!r} ({sc.where}.solver) "
                             f"ignores; valid: a boxed solver ({', '.join(BOXED)}, qp, qp:<backend>), or no "

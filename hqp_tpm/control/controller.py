@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.policy import FunctionPolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack
@@ -179,13 +180,18 @@ class Controller:
         stack = policy(st, self.t)
         levels = stack.to_levels(st, self.t, self.order)
         x0, box = self.solve_inputs(st, self.t, self.v)
-        x, info = solve(self.solver, levels, self.robot.nv, x0=x0, box=box,
-                        lambda_max=self.lambda_max, eps=self.eps)
+        if box is not None and self.order == 1 and rate_limited(self.box) and self.solver not in ANALYTIC:
+            def solve_levels(lv):  # the box bounds the command's rate: the stack solved for the change
+                return solve_around(self.solver, lv, self.robot.nv, self._v, box, lambda_max=self.lambda_max,
+                                    eps=self.eps, solve=solve)
+        else:
+            def solve_levels(lv):
+                return solve(self.solver, lv, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
+        x, info = solve_levels(levels)
         check = crosscheck_step(self, st, stack, levels, x0, box, x) if self.crosscheck else None
         if policy.blends:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
             def resolve(other: Stack) -> np.ndarray:
-                return solve(self.solver, other.to_levels(st, self.t, self.order), self.robot.nv, x0=x0, box=box,
-                             lambda_max=self.lambda_max, eps=self.eps)[0]
+                return solve_levels(other.to_levels(st, self.t, self.order))[0]
             x = policy.blend(st, self.t, stack, x, resolve)
             if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
                 x = np.minimum(np.maximum(x, box[0]), box[1])

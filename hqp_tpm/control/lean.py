@@ -50,6 +50,7 @@ import copy
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
+from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
 from hqp_tpm.errors import SolverFailedError
@@ -58,7 +59,7 @@ from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled as _solvers_compiled
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
-from hqp_tpm.solvers.registry import solve
+from hqp_tpm.solvers.registry import ANALYTIC, solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.base import Task
@@ -120,10 +121,10 @@ class JointBox:
             res = None
         else:
             res = self._velocity(q) if self.order == 1 else self._acceleration(q, v)
-        if res is None:  # a case the fast formulas do not cover: BoxLimits itself
+        if res is None:  # a case the fast formulas do not cover (or the command-rate box): BoxLimits itself
             lim = self.limits
-            lo, up = (lim.limits.velocity_box(q[lim.qidx]) if self.order == 1 else
-                      lim.limits.acceleration_box(q[lim.qidx], v[lim.cols]))
+            lo, up = (lim.limits.velocity_box(q[lim.qidx], v[lim.cols] if lim.command_rate else None)
+                      if self.order == 1 else lim.limits.acceleration_box(q[lim.qidx], v[lim.cols]))
             self.lo[self._cols], self.up[self._cols] = lo, up
             return self.lo, self.up
         n = self._n
@@ -142,7 +143,7 @@ class JointBox:
         return bool(np.greater_equal(t, 0.0, out=self._ok[:n]).all())
 
     def _velocity(self, q):
-        if not self.fast:
+        if not self.fast or self.limits.command_rate:
             return None
         g, r = self._g, self._r
         np.take(q, self._qidx2, out=g)
@@ -205,7 +206,7 @@ class LeanStep:
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
                  "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_gathers", "_edits",
-                 "_per_step")
+                 "_per_step", "_rate")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -255,8 +256,12 @@ class LeanStep:
         # box or the joint limits' box (written into the buffer); any other solver or box: the rows only
         box = ctrl.box
         joint_box = type(box) is JointLimits and box.order == self.order
+        # the box bounds the command's rate: solve_around solves (hqp_tpm.control.command_rate), the kernel the rows
+        self._rate = joint_box and self.order == 1 and rate_limited(box) and self.solver not in ANALYTIC
         if self.solver == "tpm":
             mode = _compiled_step.TPM
+        elif self._rate:
+            mode = _compiled_step.ROWS
         elif self.solver == "sns_tpm" and not self.damping and (box is None or joint_box):
             mode = _compiled_step.SNS
         else:
@@ -393,7 +398,10 @@ class LeanStep:
         J, b = self.J, self.b
         solver = self.solver
         info = {}
-        if solver == "tpm":
+        if self._rate:  # as Controller._solve_step: the stack solved for the change of the command
+            x, info = solve_around(solver, self.levels, self.n, ctrl._v, self._box(st, t), lambda_max=self.lambda_max,
+                                   eps=self.eps)
+        elif solver == "tpm":
             if self.sizes:  # (after the fused kernel declined, its answer: tpm_stacked does not run it again)
                 declined = status in (_compiled_step.DECLINED, _compiled_step.UNDECIDED)
                 x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0,

@@ -51,6 +51,33 @@ def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
 
 
 @_njit
+def velocity_rate_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
+    """``BoxLimits.velocity_box(q, dq=v)`` (the discrete braking term, then the command-rate bound ``v +- a_max dt``;
+    ``P[5] = a_max dt > 0``)
+    into ``lo[idx[1]]``, ``up[idx[1]]``, the same operations; False if a joint's position box is empty."""
+    for j in range(P.shape[1]):
+        c = idx[1, j]
+        qj = q[idx[0, j]]
+        q_min, q_max, v_max, ad = P[0, j], P[1, j], P[2, j], P[5, j]
+        ad2 = ad * dt
+        g = max(qj - q_min, 0.0)
+        m = math.floor((math.sqrt(1.0 + 8.0 * (g / ad2)) - 1.0) * 0.5)
+        stop_lo = -((g / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0))
+        g = max(q_max - qj, 0.0)
+        m = math.floor((math.sqrt(1.0 + 8.0 * (g / ad2)) - 1.0) * 0.5)
+        stop_up = (g / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0)
+        p_lo = max((q_min - qj) / dt, stop_lo)
+        p_up = min((q_max - qj) / dt, stop_up)
+        if not p_lo <= p_up:
+            return False
+        a = min(max(p_lo, -v_max), v_max)
+        b = min(max(p_up, -v_max), v_max)
+        lo[c] = min(max(v[c] - ad, a), b)
+        up[c] = min(max(v[c] + ad, a), b)
+    return True
+
+
+@_njit
 def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
     """``BoxLimits.acceleration_box`` at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False
     for a state outside its viable set or an empty position box (the caller then uses ``BoxLimits``)."""

@@ -99,15 +99,34 @@ class BoxLimits:
         self._brake_lo, self._brake_up = ~lo_inf & (a_max != 0.0), ~up_inf & (a_max != 0.0)
         self._stop_lo, self._stop_up = np.where(lo_inf, -np.inf, 0.0), np.where(up_inf, np.inf, 0.0)
         self._minus_v = -v_max
+        self.rate_step = a_max * dt  # the largest change of a velocity-level command in one period
 
-    def velocity_box(self, q) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`velocity_box` at ``q`` (finite float vector, not validated)."""
+    def velocity_box(self, q, dq=None) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`velocity_box` at ``q`` (finite float vector, not validated).
+
+        With ``dq`` (the previous command): the box that also bounds the command's rate, for a drive that changes
+        its velocity by at most ``a_max dt`` per step. Its braking term is the discrete one: the largest ``w`` whose
+        stopping distance ``D(w) = dt (w + (w - a_max dt) + (w - 2 a_max dt) + ...)`` (positive terms) fits the gap,
+        ``w = (gap / dt + a_max dt m (m + 1) / 2) / (m + 1)`` with ``m = floor((sqrt(1 + 8 gap / (a_max dt**2)) - 1)
+        / 2)`` (``D`` is piecewise linear). ``D(w) = w dt + D(w - a_max dt)``, so one step later the term is at least
+        ``w - a_max dt``: a command inside the previous box always leaves this box and the rate box intersecting
+        (``tests/test_joint_boxes.py``; the continuous ``sqrt(2 a_max gap)`` shrinks faster than ``a_max dt`` per step
+        near a limit). ``w <= gap / dt``: the one-period term is implied. Then :func:`command_rate_box` with ``dq``.
+        """
         q_min, q_max, dt = self.q_min, self.q_max, self.dt
-        stop_lo = np.where(self._brake_lo, -np.sqrt(self._two_a * np.maximum(q - self._q_min0, 0.0)), self._stop_lo)
-        stop_up = np.where(self._brake_up, np.sqrt(self._two_a * np.maximum(self._q_max0 - q, 0.0)), self._stop_up)
+        g_lo, g_up = np.maximum(q - self._q_min0, 0.0), np.maximum(self._q_max0 - q, 0.0)
+        if dq is None:
+            r_lo, r_up = np.sqrt(self._two_a * g_lo), np.sqrt(self._two_a * g_up)
+        else:
+            ad = self.rate_step
+            with np.errstate(divide="ignore", invalid="ignore"):  # (a_max = 0: not used, the masks below)
+                r_lo, r_up = (_discrete_braking(g, ad, dt) for g in (g_lo, g_up))
+        stop_lo = np.where(self._brake_lo, -r_lo, self._stop_lo)
+        stop_up = np.where(self._brake_up, r_up, self._stop_up)
         p_lo = np.maximum((q_min - q) / dt, stop_lo)
         p_up = np.minimum((q_max - q) / dt, stop_up)
-        return _project(p_lo, p_up, self._minus_v, self.v_max, q < q_min, q > q_max)
+        lo, up = _project(p_lo, p_up, self._minus_v, self.v_max, q < q_min, q > q_max)
+        return (lo, up) if dq is None else command_rate_box(lo, up, dq, self.rate_step)
 
     def acceleration_box(self, q, dq) -> tuple[np.ndarray, np.ndarray]:
         """:func:`acceleration_box` at ``(q, dq)`` (finite float vectors, not validated)."""
@@ -140,6 +159,27 @@ def velocity_box(q, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray, np.ndar
     """
     q, _, q_min, q_max, v_max, a_max, dt = _check_limits(q, q_min, q_max, v_max, a_max, dt)
     return BoxLimits(q_min, q_max, v_max, a_max, dt).velocity_box(q)
+
+
+def command_rate_box(lo, up, dq, step) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity box ``[lo, up]`` (``lo <= up``) intersected with the command-rate box ``dq +- step``.
+
+    ``dq`` is the previous command and ``step = a_max dt``: a command in the result changes by at most
+    ``a_max dt`` from the previous one, so the drive sees an acceleration of at most ``a_max`` (issue 31). The
+    result is ``[min(max(dq - step, lo), up), min(max(dq + step, lo), up)]``: the rate box clipped into
+    ``[lo, up]``. So ``lower <= upper`` always, and where the two boxes do not intersect (the position or
+    velocity limits close in faster than ``a_max`` allows, or a state that starts too fast) the position and
+    velocity limits take precedence: both bounds are the end of ``[lo, up]`` nearest the previous command (the
+    smallest change the limits allow, larger than ``step`` on that step only).
+    """
+    return np.minimum(np.maximum(dq - step, lo), up), np.minimum(np.maximum(dq + step, lo), up)
+
+
+def _discrete_braking(gap, ad, dt):
+    """The discrete braking term of :meth:`BoxLimits.velocity_box` with ``dq`` (``ad = a_max dt``; the operations of
+    :func:`hqp_tpm.robot._compiled.velocity_rate_box`)."""
+    m = np.floor((np.sqrt(1.0 + 8.0 * (gap / (ad * dt))) - 1.0) * 0.5)
+    return (gap / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0)
 
 
 def _braking_velocity(delta, a_max, dt):

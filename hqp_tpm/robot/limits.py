@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.errors import ParameterError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.joint_boxes import BoxLimits
 from hqp_tpm.robot.model import Robot
@@ -21,11 +22,24 @@ class JointLimits:
     kernel instead where numba is available (:func:`hqp_tpm.robot._compiled.velocity_box`, ``acceleration_box``: the
     same operations, the same bits, ``tests/test_lean.py``), for joints with finite position limits and ``a_max > 0``
     inside their viable set; any other case (the recovery rules) is :meth:`reference_box`'s.
+
+    ``command_rate`` (velocity level only): the box also bounds the command's change from the previous step,
+    ``v +- a_max dt`` with ``v`` the state's velocity (the previous command), and its braking term is the discrete
+    one (:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.velocity_box` with ``dq``), so the two intersect for every
+    command the previous box allowed; where they do not (a state that starts too fast) the position and velocity
+    limits take precedence (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`). Off (the default), the box is
+    papers/002's: position and velocity limits only.
+    At acceleration level the box already bounds the command (``|qdd| <= a_max``).
     """
 
     def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
-                 acceleration_limit: float = 50.0, velocity_scale: float = 1.0):
+                 acceleration_limit: float = 50.0, velocity_scale: float = 1.0, command_rate: bool = False):
+        if command_rate and order != 1:
+            raise ParameterError(f"command_rate = {command_rate!r} needs order 1 (velocity level), got order "
+                                 f"{order!r}: at acceleration level the box bounds the command itself (|qdd| <= a_max)")
         self.robot, self.order, self.dt = robot, order, float(dt)
+        #: the box also bounds the command's change from the previous step (velocity level, ``a_max dt``)
+        self.command_rate = bool(command_rate)
         m = robot.model
         self.cols = np.array([m.joints[j].idx_v for j in range(1, m.njoints) if m.joints[j].nv == 1], dtype=int)
         self.qidx = np.array([m.joints[j].idx_q for j in range(1, m.njoints) if m.joints[j].nv == 1], dtype=int)
@@ -55,13 +69,16 @@ class JointLimits:
         return self.reference_box(state)
 
     def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> bool:
-        """The box at ``(q, v)`` by the compiled kernel into ``lo``, ``up`` (their limited columns); False when it
+        """The box at ``(q, v)`` by the compiled kernel into ``lo``, ``up`` (their limited columns; with
+        ``command_rate`` intersected with ``v +- a_max dt``); False when it
         cannot (numba off, an infinite limit or ``a_max <= 0``, or a case for the recovery rules: then
         :meth:`reference_box`)."""
         P = self.kernel_limits
         if P is None or not _compiled.ENABLED:
             return False
         if self.order == 1:
+            if self.command_rate:
+                return _compiled.velocity_rate_box(q, v, P, self.kernel_indices, self.limits.dt, lo, up)
             return _compiled.velocity_box(q, P, self.kernel_indices, self.limits.dt, lo, up)
         return _compiled.acceleration_box(q, v, P, self.kernel_indices, self.limits.dt, lo, up)
 
@@ -69,7 +86,7 @@ class JointLimits:
         """The box by :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (the readable formulas, recovery rules included)."""
         q = state.q[self.qidx]  # the state's q, v are finite and of the right sizes
         if self.order == 1:
-            lo, up = self.limits.velocity_box(q)
+            lo, up = self.limits.velocity_box(q, state.v[self.cols] if self.command_rate else None)
         else:
             lo, up = self.limits.acceleration_box(q, state.v[self.cols])
         self._lo[self.cols] = lo
