@@ -21,13 +21,15 @@ from __future__ import annotations
 
 import numpy as np
 
+from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers.levels import Level, as_levels
 from hqp_tpm.solvers.registry import solve
 
 
 def rate_limited(box) -> bool:
-    """Does the box function bound the command's rate (``JointLimits(command_rate=True)``)?"""
-    return bool(getattr(box, "command_rate", False))
+    """Does the box function bound the command's rate (``JointLimits(command_rate=True)``)? Other box functions
+    (plain callables) do not."""
+    return isinstance(box, JointLimits) and box.command_rate
 
 
 def shifted(level: Level, v: np.ndarray) -> Level:
