@@ -580,7 +580,8 @@ def _renameat2():
     return fn
 
 
-def _pid_alive(pid: int) -> bool:
+def pid_alive(pid: int) -> bool:
+    """Is process ``pid`` running (one we may not signal counts as running)?"""
     try:
         os.kill(pid, 0)
     except ProcessLookupError:
@@ -600,7 +601,7 @@ def remove_stale(parent: Path, name: str) -> None:
             pid = int(p.name[len(prefix):].split("-", 1)[0])
         except ValueError:
             continue
-        if pid != os.getpid() and not _pid_alive(pid):
+        if pid != os.getpid() and not pid_alive(pid):
             if p.is_symlink():
                 p.unlink(missing_ok=True)
             else:

@@ -331,23 +331,15 @@ def watch_parent(parent: int) -> None:
         if os.getppid() != parent:  # the parent died before prctl took effect
             os._exit(1)
 
+    from hqp_tpm.app.results import pid_alive
+
     def watch() -> None:
         while True:
             time.sleep(WATCH_PERIOD)
-            if (os.getppid() != parent) if direct else not _alive(parent):
+            if (os.getppid() != parent) if direct else not pid_alive(parent):
                 os._exit(1)
 
     threading.Thread(target=watch, name="hqp-tpm-watch-parent", daemon=True).start()
-
-
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return False
-    except PermissionError:
-        return True
-    return True
 
 
 def stop_workers(ex: cf.ProcessPoolExecutor, timeout: float = 5.0) -> None:
