@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 OUT ?= runs
 
-.PHONY: demo test test-pin-lowest lint bench bench-peers bench-venvs scenarios clean
+.PHONY: demo test test-pin-lowest lint docs bench bench-peers bench-venvs scenarios clean
 
 $(VENV)/.base: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -24,6 +24,10 @@ demo: $(VENV)/.base
 test: $(VENV)/.dev
 	$(VENV)/bin/ruff check .
 	$(PY) -m pytest -q -n 2 --dist loadfile
+
+# The documentation site (docs/ and the docstrings; mkdocs.yml): warnings are errors. Open site/index.html.
+docs: $(VENV)/.dev
+	$(VENV)/bin/mkdocs build --strict --site-dir site
 
 lint: $(VENV)/.dev
 	$(VENV)/bin/ruff check .
@@ -56,7 +60,7 @@ scenarios: $(VENV)/.base
 	for s in $$($(VENV)/bin/hqp-tpm list --names); do $(VENV)/bin/hqp-tpm run $$s --out $(OUT)/$$s || exit 1; done
 
 clean:
-	rm -rf $(VENV) $(VENV_PIN_LOWEST) $(OUT) .pytest_cache .ruff_cache
+	rm -rf $(VENV) $(VENV_PIN_LOWEST) $(OUT) site .pytest_cache .ruff_cache
 
 # Side-by-side benchmark against pink, PlaCo and TSID (benchmarks/peers/). The peers pin different
 # pinocchio versions, so each gets its own virtual environment (git-ignored), all from PyPI, each
