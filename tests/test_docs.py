@@ -33,7 +33,8 @@ def test_readme_controller_example_runs_as_written(tmp_path):
 
 
 def test_readme_quick_start_commands_exist():
-    block = (ROOT / "README.md").read_text(encoding="utf-8").split("## Two commands", 1)[1].split("Other commands", 1)[0]
+    readme = (ROOT / "README.md").read_text(encoding="utf-8")
+    block = readme.split("## Two commands", 1)[1].split("Other commands", 1)[0]
     commands = re.findall(r"^    (make \w+)", block, re.M)
     assert commands == ["make demo", "make test"]
     proc = subprocess.run(["make", "-n", "-C", str(ROOT), "demo", "test"], capture_output=True, text=True, timeout=60)
@@ -94,7 +95,7 @@ def test_shell_commands_name_existing_subcommands_options_and_targets():
     """Cheap checks of every documented command: `hqp-tpm SUB --option` exists (its --help), `make X` is a target."""
     uses: dict[str, set[str]] = {}
     targets = set()
-    for name, line in shell_lines():
+    for _, line in shell_lines():
         words = line.replace(".venv/bin/", "").split()
         if len(words) >= 2 and words[0] == "hqp-tpm":
             uses.setdefault(words[1], set()).update(w.split("=")[0] for w in words[2:] if w.startswith("--"))
