@@ -195,3 +195,15 @@ def test_crosscheck_is_explained_in_help_and_docs():
     page = (ROOT / "docs" / "cli.md").read_text(encoding="utf-8")
     for key in ("crosscheck_max_diff", "crosscheck_max_diff_same_problem", "crosscheck_steps_different_problems"):
         assert key in METRICS and key in CROSSCHECK_HELP and f"`{key}`" in page
+
+
+def test_commit_message_checker():
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        from check_commit_message import MAX_SUBJECT, problems
+    finally:
+        sys.path.pop(0)
+    assert problems("Fix the box\n\nevidence: 0 of 100 outside") == []
+    assert problems("x" * (MAX_SUBJECT + 1)) == [f"subject has {MAX_SUBJECT + 1} characters (at most {MAX_SUBJECT})"]
+    assert problems("Subject\nbody at once") == ["no blank line between the subject and the body"]
+    assert problems("# only a comment\n") == ["empty subject"]
