@@ -1,6 +1,9 @@
-"""Print the README's result tables from the runs of `make scenarios` (default folder: runs/).
+"""Print the old README's LWR and Romeo tables from the runs of `make scenarios` (default folder: runs/).
 
     python docs/results_tables.py [RUNS_DIR]
+
+The documentation's tables are generated instead (docs/reproductions.md, from benchmarks/results/scenarios.json,
+which `python tools/scenario_results.py RUNS_DIR` writes).
 """
 
 from __future__ import annotations

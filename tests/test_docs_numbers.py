@@ -50,6 +50,7 @@ def prose(text: str) -> str:
     text = re.sub(r"\]\([^)]*\)", "] ", text)
     text = re.sub(r"https?://\S+", " ", text)
     text = re.sub(r"\b10\.\d{4,}/\S+", " ", text)  # DOIs
+    text = re.sub(r"\bpp\. \d+[–-]\d+", " ", text)  # page ranges of citations
     text = re.sub(r"\(\d+[a-z]?\)(?:\s*[–-]\s*\(\d+[a-z]?\))?", " ", text)  # equation numbers (28), (5)-(6)
     text = re.sub(r"\b\d+-D\b", " ", text)  # 1-D, 3-D
     return text

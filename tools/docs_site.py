@@ -213,6 +213,25 @@ def planar_table() -> str:
                    "largest step of q̇ [rad/s]", "time below d_m [s]"], rows)
 
 
+def plant_table() -> str:
+    """Each plant scenario beside its kinematic twin."""
+    pairs = [("iiwa_first_controller", "iiwa_mujoco"), ("lwr_relaxed", "lwr_relaxed_mujoco"),
+             ("iiwa_comanipulation", "iiwa_comanipulation_mujoco")]
+    runs = scenarios()
+    rows = []
+    for kin, sim in pairs:
+        for n in (kin, sim):
+            m = runs.get(n)
+            if m is None:
+                continue
+            ee = (f"{_f(m, 'ee_error_max', '.1f', 1e3)} / {_f(m, 'ee_error_rms', '.1f', 1e3)}" if "ee_error_max" in m
+                  else f"{_f(m, 'error_position_max', '.1f', 1e3)} / {_f(m, 'error_position_rms', '.1f', 1e3)}")
+            rows.append([f"`{n}`", str(m.get("plant", "—")), ee, _f(m, "d_minimal_min", ".4f"),
+                         _f(m, "sigma_m_min", ".3f"), _f(m, "joint_limit_margin_min", ".3f"), _f(m, "tau_max", ".1f")])
+    return _table(["run", "plant", "EE position error max / RMS [mm]", "min D_minimal [m]", "σ_m min",
+                   "closest to a joint limit [rad]", "largest torque [N m]"], rows)
+
+
 def scenarios_source() -> str:
     doc = json.loads(SCENARIOS.read_text(encoding="utf-8"))
     return (f"*Generated from `benchmarks/results/scenarios.json` ({doc['date']}, code {doc['code']}; "
@@ -221,7 +240,7 @@ def scenarios_source() -> str:
 
 BLOCKS = {"speed": speed, "bench": bench, "first_call": first_call, "guarantees": guarantees,
           "lwr_table": lwr_table, "romeo_table": romeo_table, "obstacles_table": obstacles_table,
-          "comanipulation_table": comanipulation_table, "planar_table": planar_table,
+          "comanipulation_table": comanipulation_table, "planar_table": planar_table, "plant_table": plant_table,
           "scenarios_source": scenarios_source}
 
 

@@ -23,7 +23,9 @@ ROOT = Path(__file__).resolve().parents[1]
 SCENARIOS = ["lwr_relaxed", "lwr_velocity", "lwr_avoid3d", "lwr_point35_equality", "lwr_point35_inequality",
              "lwr_tracking", "romeo_tpm", "romeo_sns_tpm", "romeo_sns", "romeo_qp", "romeo_obstacles_sns_tpm",
              "romeo_obstacles_qp", "iiwa_comanipulation", "iiwa_admittance", "planar5_exact", "planar5_approximate",
-             "planar5_two_obstacles", "planar5_primary", "planar5_transition", "planar5_pwdls", "planar5_dmp"]
+             "planar5_two_obstacles", "planar5_primary", "planar5_transition", "planar5_pwdls", "planar5_dmp",
+             "iiwa_first_controller", "iiwa_mujoco", "lwr_relaxed_mujoco", "iiwa_comanipulation_mujoco",
+             "romeo_standing", "talos_sns_tpm"]
 
 
 def flatten(obj, prefix=""):
@@ -50,7 +52,7 @@ def collect(runs: Path) -> dict:
         if not path.exists():
             continue
         m = flatten(json.loads(path.read_text()))
-        if name.startswith("romeo_"):
+        if name.startswith("romeo_") and name != "romeo_standing":
             vlim = Robot.load("romeo21").velocity_limits() if vlim is None else vlim
             dq = np.load(runs / name / "trajectory.npz")["dq"]
             excess = np.abs(dq) - vlim
