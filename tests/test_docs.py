@@ -95,10 +95,13 @@ def test_shell_commands_name_existing_subcommands_options_and_targets():
     """Cheap checks of every documented command: `hqp-tpm SUB --option` exists (its --help), `make X` is a target."""
     uses: dict[str, set[str]] = {}
     targets = set()
+    scenarios = set()
     for _, line in shell_lines():
         words = line.replace(".venv/bin/", "").split()
         if len(words) >= 2 and words[0] == "hqp-tpm":
             uses.setdefault(words[1], set()).update(w.split("=")[0] for w in words[2:] if w.startswith("--"))
+            if words[1] in ("run", "sweep") and len(words) > 2 and re.fullmatch(r"[a-z0-9_]+", words[2]):
+                scenarios.add(words[2])
         if len(words) >= 2 and words[0] == "make":
             targets.add(words[1])
     assert {"run", "list", "explain", "sweep", "campaign"} <= set(uses), sorted(uses)
@@ -108,6 +111,10 @@ def test_shell_commands_name_existing_subcommands_options_and_targets():
         assert proc.returncode == 0, f"hqp-tpm {sub}: {proc.stderr[-500:]}"
         missing = {o for o in options if o not in proc.stdout}
         assert not missing, f"hqp-tpm {sub} has no option {sorted(missing)} (documented)"
+    listed = subprocess.run([sys.executable, "-m", "hqp_tpm.app.cli", "list", "--names"], capture_output=True,
+                            text=True, timeout=120, cwd=ROOT)
+    assert listed.returncode == 0, listed.stderr
+    assert len(scenarios) >= 5 and scenarios <= set(listed.stdout.split()), scenarios - set(listed.stdout.split())
     assert {"demo", "test", "docs"} <= targets, targets
     proc = subprocess.run(["make", "-n", "-C", str(ROOT), *sorted(targets)], capture_output=True, text=True,
                           timeout=60)
