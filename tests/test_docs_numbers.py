@@ -39,10 +39,34 @@ def pages() -> list[str]:
     return [n for n in names if (ROOT / n).exists() and n not in GENERATED]
 
 
+LIST_ITEM = re.compile(r"^\s*(?:[-*+]|\d+\.)\s")
+
+
+def drop_indented_code(text: str) -> str:
+    """Indented code blocks (4 spaces after a blank line, not inside a list item) blanked out."""
+    out, in_code, in_list, prev_blank = [], False, False, True
+    for line in text.split("\n"):
+        blank = not line.strip()
+        indented = line.startswith("    ") or line.startswith("\t")
+        if in_code and (indented or blank):
+            out.append("")
+            continue
+        in_code = False
+        if indented and prev_blank and not in_list:
+            in_code = True
+            out.append("")
+            continue
+        if not blank:
+            in_list = bool(LIST_ITEM.match(line)) or (in_list and line.startswith(" "))
+        out.append(line)
+        prev_blank = blank
+    return "\n".join(out)
+
+
 def prose(text: str) -> str:
     """The page without what is not prose: code, generated blocks, links' targets, HTML comments, images."""
     text = re.sub(r"```.*?```", " ", text, flags=re.S)
-    text = re.sub(r"^(?: {4}|\t).*$", " ", text, flags=re.M)  # indented code blocks
+    text = drop_indented_code(text)
     text = re.sub(r"<!--.*?-->", " ", text, flags=re.S)
     text = re.sub(r"\[\[.*?\]\]", " ", text)
     text = re.sub(r"`[^`]*`", " ", text)
@@ -135,6 +159,8 @@ def test_the_checker_catches_an_unbacked_number(tmp_path, monkeypatch):
     assert [b.split(": ")[1].split()[0] for b in unbacked("p.md")] == ["123.45"]
     page.write_text("<!-- sources: pyproject.toml -->\nThe ratio is 1.5 and 1,500 mm.\n")
     assert unbacked("p.md") == []
+    page.write_text("<!-- sources: pyproject.toml -->\n- a list\n    - nested: 77.7 s\n\nText.\n\n    code 88.8\n")
+    assert [b.split(": ")[1].split()[0] for b in unbacked("p.md")] == ["77.7"]
 
 
 def test_the_reproductions_claims_hold_in_the_results_file():
