@@ -214,3 +214,28 @@ def test_commit_message_checker():
     assert problems("x" * (MAX_SUBJECT + 1)) == [f"subject has {MAX_SUBJECT + 1} characters (at most {MAX_SUBJECT})"]
     assert problems("Subject\nbody at once") == ["no blank line between the subject and the body"]
     assert problems("# only a comment\n") == ["empty subject"]
+
+
+def test_generated_speed_page_survives_a_new_report_format(tmp_path, monkeypatch):
+    """tools/docs_site.py takes whatever `make bench-peers` writes: other columns, links, figures, no CSV."""
+    sys.path.insert(0, str(ROOT / "tools"))
+    try:
+        import docs_site
+    finally:
+        sys.path.pop(0)
+    (tmp_path / "peers").mkdir()
+    (tmp_path / "peers" / "fig.png").write_bytes(b"png")
+    (tmp_path / "peers.md").write_text("# Peers\n\nSee [the notes](../README.md).\n\n"
+                                       "![a](peers/fig.png) ![b](gone.png)\n")
+    (tmp_path / "peers.csv").write_text("problem,phase,contender,median_us,ratio_median,env\n"
+                                        "iiwa,step,hqp-tpm tpm,30.5,1,pin4\niiwa,step,PlaCo,6.0,0.2,pin38\n")
+    monkeypatch.setattr(docs_site, "RESULTS", tmp_path)
+    page = docs_site.speed()
+    assert "30.5 µs (1.00×) [pin4]" in page and "6 µs (0.20×) [pin38]" in page
+    assert "## Peers" in page and "the notes (`../README.md`)" in page
+    assert "![a](results/peers/fig.png)" in page and "gone.png` is not in benchmarks/results" in page
+    assert [p.name for p in docs_site.result_images()] == ["fig.png"]
+    (tmp_path / "peers.csv").write_text("case,time\nx,1\n")
+    assert "no `problem`/`contender` columns" in docs_site.speed()
+    (tmp_path / "peers.csv").unlink()
+    assert "peers.csv` is missing" in docs_site.speed()

@@ -25,7 +25,8 @@ def on_files(files, config):
     from mkdocs.structure.files import File
 
     for png in docs_site.result_images():
-        files.append(File.generated(config, f"results/{png.name}", abs_src_path=str(png)))
+        files.append(File.generated(config, f"results/{png.relative_to(docs_site.RESULTS).as_posix()}",
+                                    abs_src_path=str(png)))
     return files
 
 

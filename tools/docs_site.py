@@ -52,13 +52,15 @@ def include(name: str, by: int = 1) -> str:
     if not path.exists():
         return f"*`benchmarks/results/{name}` is missing: run the benchmark that writes it.*\n"
     text = _links_to_text(path.read_text(encoding="utf-8"))
-    text = re.sub(r"!\[([^\]]*)\]\((?!https?://)([^)/]+\.png)\)", r"![\1](results/\2)", text)
+    text = re.sub(r"!\[([^\]]*)\]\((?!https?://|/)([^)]+\.(?:png|svg|jpg))\)",
+                  lambda m: f"![{m.group(1)}](results/{m.group(2)})" if (RESULTS / m.group(2)).is_file()
+                  else f"*(figure `{m.group(2)}` is not in benchmarks/results)*", text)
     return _demote(text, by)
 
 
 def result_images() -> list[Path]:
     """The figures the included results files show (the site serves them as ``results/NAME.png``)."""
-    return sorted(RESULTS.glob("*.png"))
+    return sorted(p for ext in ("png", "svg", "jpg") for p in RESULTS.rglob(f"*.{ext}"))
 
 
 def _num(text: str):
