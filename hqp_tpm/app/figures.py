@@ -81,8 +81,8 @@ def error_groups(tasks: dict) -> list[tuple[str, str, slice | None, str]]:
 
 
 #: What the error of a dimensionless task is, for the legend (any other task: its class name).
-_QUANTITIES = ((QuaternionOrientation, "quaternion error (10)"), (Manipulability, "σ_m* − σ_m"),
-               (JointLimit, "−σ_l"), (Avoidance, "avoidance"))
+_QUANTITIES = ((QuaternionOrientation, "quaternion error (10)"), (Manipulability, r"$\sigma_m^* - \sigma_m$"),
+               (JointLimit, r"$-\sigma_l$"), (Avoidance, "avoidance"))
 
 _UNIT_TITLES = {"m": "position error [m]", "rad": "angle error [rad]", "N": "force error [N]",
                 "deg": "pointing angle error [deg]\n(cone: outside it only)", "1": "error (dimensionless)"}
@@ -200,8 +200,8 @@ def stack_timeline(ax, t: np.ndarray, stack) -> list[str]:
     return rows
 
 
-#: A log axis of task errors spans at most this ratio below its largest value.
-LOG_RANGE = 1e-8
+#: A log axis of task errors spans at most this ratio below its largest value (machine precision).
+LOG_RANGE = 1e-15
 
 
 def _legend_outside(ax) -> None:
@@ -236,10 +236,13 @@ def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> Figur
         for k, (label, y) in enumerate(series[unit]):  # alternate styles: coinciding curves stay visible
             ax.plot(t, np.where(y > 0, y, np.nan), lw=1.0, ls=("-", "--", "-.", ":")[k % 4], label=label)
         pos = np.concatenate([y[np.isfinite(y) & (y > 0)] for _, y in series[unit]])
+        later = np.concatenate([y[1:][np.isfinite(y[1:]) & (y[1:] > 0)] for _, y in series[unit]])
         if len(pos):
             ax.set_yscale("log")
             top = float(pos.max())
-            bottom = max(float(pos.min()), LOG_RANGE * top)  # a numerically zero sample (1e-18) would stretch it
+            # the first sample is left out of the range: a task that starts on its target has a numerically
+            # zero error there (7.7e-20 rad on Talos' feet), which stretched the axis down to 1e-20
+            bottom = max(float(later.min()) if len(later) else float(pos.min()), LOG_RANGE * top)
             ax.set_ylim(bottom / 2.0, top * 2.0)
         ax.set_ylabel(_UNIT_TITLES.get(unit, unit), fontsize=8)
         _legend_outside(ax)
@@ -398,10 +401,10 @@ def comanipulation(path: Path, runs: dict, sigma_m_bar: float = 1.5, sigma_l_bar
         axes[0].plot(a["t"], a["sigma_l"], color=c, lw=0.9, label=label)
         axes[1].plot(a["t"], a["sigma_m"], color=c, lw=0.9, label=label)
         axes[2].plot(a["t"], a["joint_deviation_max"], color=c, lw=0.9, label=label)
-    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.8, label=f"σ̄_m = {sigma_m_bar:g}")
-    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.8, label=f"σ̄_l = {sigma_l_bar:g} rad")
-    for ax, name in zip(axes, ("joint-limit index σ_l [-]", "manipulability σ_m [-]", "max |q_i − q_i*| [rad]"),
-                        strict=False):
+    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.8, label=rf"$\bar\sigma_m$ = {sigma_m_bar:g}")
+    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.8, label=rf"$\bar\sigma_l$ = {sigma_l_bar:g} rad")
+    names = (r"joint-limit index $\sigma_l$ [-]", r"manipulability $\sigma_m$ [-]", r"max $|q_i - q_i^*|$ [rad]")
+    for ax, name in zip(axes, names, strict=False):
         ax.set_ylabel(name, fontsize=8)
         ax.legend(fontsize=7, loc="best")
     if stacks:
