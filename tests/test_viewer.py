@@ -354,3 +354,26 @@ def test_replay_has_a_colour_legend_of_what_it_draws(tmp_path):
     assert sorted(romeo.values()) == ["target of left_hand, right_hand", "target path"], romeo
     planar = legend_of("planar5_primary", 5)
     assert "EE trace" in planar.values() and not any(v.startswith("target") for v in planar.values())
+
+
+def test_camera_distance_fits_every_point_in_the_view():
+    """The camera placed by ``camera_distance`` sees every point within the margin of both half-angles, and one
+    point lies on that margin (the fit is tight): a tall humanoid is framed head to feet."""
+    from hqp_tpm.app.viewer_scene import VIEW_ASPECT, VIEW_MARGIN, camera_distance
+
+    rng = np.random.default_rng(3)
+    for scale in ([0.3, 0.2, 0.8], [0.6, 0.6, 0.1], [0.05, 0.05, 0.05]):  # a humanoid, a flat scene, a small one
+        P = rng.uniform(-1, 1, (400, 3)) * scale
+        d = np.array([1.1, 0.45, 0.5]) / np.linalg.norm([1.1, 0.45, 0.5])
+        dist = camera_distance(P, d, 45.0)
+        right = np.cross(-d, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, -d)
+        depth = dist - P @ d
+        assert (depth > 0).all()
+        v, h = np.abs(P @ up) / depth, np.abs(P @ right) / depth
+        tan_v = VIEW_MARGIN * np.tan(np.radians(22.5))
+        assert (v <= tan_v + 1e-12).all() and (h <= VIEW_ASPECT * tan_v + 1e-12).all()
+        if dist > 0.5 + 1e-9:  # not the minimum distance: tight on one of the two
+            assert max(v.max() / tan_v, h.max() / (VIEW_ASPECT * tan_v)) > 0.999 or dist <= 1.05 * np.linalg.norm(
+                P, axis=1).max() + 1e-9
