@@ -46,7 +46,7 @@ def test_task_errors_one_axis_per_unit(romeo_short):
     out, summary = romeo_short
     assert {"joint_velocities.png", "task_errors.png"} <= {p.name for p in out.glob("*.png")}
     assert [f.split("/")[-1] for f in summary["files"]] == ["trajectory.npz", "metrics.json", "joint_velocities.png",
-                                                             "task_errors.png", "manifest.json"]
+                                                             "task_errors.png", "ee_path.png", "manifest.json"]
 
 
 def test_metrics_once_each_with_units(romeo_short):
@@ -155,3 +155,36 @@ def test_ee_path_in_3d(tmp_path):
         np.testing.assert_allclose(ee[k], data.oMf[ctx.robot.frame_id("lwr_ee")].translation, atol=1e-12)
         np.testing.assert_allclose(desired[k], ctx.tasks["ee"].reference(float(arrays["t"][k]))[0], atol=1e-12)
     assert "ee_path.png" in {p.name for p in write_all(tmp_path, dict(arrays), ctx)}
+
+
+def test_humanoid_figures_read_at_a_glance(tmp_path):
+    """7f723e3's figures of talos_sns_tpm: the legend of five tasks lay on their curves, a numerically zero foot
+    orientation error (1e-18 at t = 0) stretched the angle axis down to 1e-20, the active stack's label was
+    written across its bar, and no path figure was written (the hands' circles had none)."""
+    from matplotlib.transforms import Bbox
+
+    from hqp_tpm.app import runner
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.figures import task_errors, write_all
+    from hqp_tpm.app.scenario import load
+
+    ctx = build_run(load("talos_sns_tpm"))
+    rec, _ = runner.run(ctx.controller, 60, probes=ctx.probes(), recording=runner.Recording(
+        ctx.robot.joint_names, tmp_path / "rec"))
+    arrays = rec.load()
+    assert "ee_path.png" in {p.name for p in write_all(tmp_path, dict(arrays), ctx)}
+    fig = task_errors(tmp_path / "e.png", arrays, ctx.tasks, "t")
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    error_axes = [ax for ax in fig.axes if ax.get_yscale() == "log"]
+    assert len(error_axes) == 2  # m and rad
+    for ax in error_axes:
+        assert ax.get_legend().get_window_extent().x0 >= ax.get_window_extent().x1  # right of the data
+        lo, hi = ax.get_ylim()
+        assert lo >= 1e-9 * hi, (ax.get_ylabel(), lo, hi)  # at most 9 decades
+    panel = fig.axes[-1]
+    assert panel.get_ylabel() == "active stack"
+    bars = [Bbox(p.get_extents(c.get_transform()).get_points()) for c in panel.collections for p in c.get_paths()]
+    texts = [t.get_window_extent(renderer) for t in panel.texts]
+    assert bars and texts
+    assert not any(t.overlaps(b) for t in texts for b in bars), "a stack's label lies on a bar"

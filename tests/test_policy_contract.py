@@ -154,11 +154,13 @@ def test_a_third_party_policy_runs_through_figures_replay_and_explain(third_part
     ctx = build.build_run(scenario.load(third_party))
     assert type(ctx.policy) is OnlyRequired and ctx.channels == () and ctx.thresholds == {}
     assert [o.name for o in ctx.scene.obstacles] == ["o1"] and ctx.scene.ee_task is None  # the default scene()
+    assert [t.frame for t in ctx.scene.targets] == [ctx.tasks["ee"].frame]  # its frame task's moving target
     out = tmp_path / "run"
     summary = run_scenario(third_party, out, steps=120, progress=False, explain=True)
     names = {Path(f).name for f in summary["files"]}
     assert names == {"trajectory.npz", "metrics.json", "explain.png", "joint_velocities.png", "task_errors.png",
-                     "pointing_error.png", "replay.html", "manifest.json"}, names
+                     "pointing_error.png", "ee_path.png", "replay.html", "manifest.json"}, names  # ee_path: the
+    # default scene() draws the moving target of its frame task (SceneItems.targets)
     arrays = np.load(out / "trajectory.npz")
     assert (np.abs(arrays["dq"]) <= ctx.velocity_limits + 1e-9).all()  # the joint box held
     assert np.isclose(np.abs(arrays["dq"]), ctx.velocity_limits).any()  # and was reached: explain has bounds

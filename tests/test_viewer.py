@@ -208,8 +208,9 @@ def test_meshes_are_decimated_once_and_cached(tmp_path, monkeypatch):
     full = sum(g.geometry.num_tris for g in robot.visual_model.geometryObjects)
     g1 = vs.viewer_geometry(robot)
     small = [g.geometry.num_tris for g in g1.geometryObjects]
-    assert max(small) <= vs.MAX_TRIANGLES and sum(small) < 0.6 * full
-    assert len(list((tmp_path / "meshes").glob("*.npz"))) > 10  # written once to the cache
+    assert max(small) <= vs.MAX_TRIANGLES and sum(small) < 0.85 * full  # 88,433 of 107,840 at 3,000
+    big = {g.meshPath for g in robot.visual_model.geometryObjects if g.geometry.num_tris > vs.MAX_TRIANGLES}
+    assert len(list((tmp_path / "meshes").glob("*.npz"))) == len(big) > 5  # each mesh file written once
     calls = []
     monkeypatch.setattr(vs, "_DECIMATED", {})
     monkeypatch.setattr(vs, "decimate", lambda *a, **k: calls.append(1))
@@ -348,5 +349,31 @@ def test_replay_has_a_colour_legend_of_what_it_draws(tmp_path):
         assert any(v == label and c.startswith(f"rgba({round(255 * r)}, {round(255 * g)}, {round(255 * b)},")
                    for c, v in lwr.items()), (label, lwr)
     assert "operator's markers" not in lwr.values()
-    romeo = legend_of("romeo_tpm", 5)
-    assert romeo == {}, romeo  # the robot alone: no legend (the div is hidden when empty)
+    assert not any(v.startswith("target") for v in lwr.values())  # its EE task is drawn as the desired path
+    romeo = legend_of("romeo_tpm", 5)  # the robot and its two hands' moving targets
+    assert sorted(romeo.values()) == ["target of left_hand, right_hand", "target path"], romeo
+    planar = legend_of("planar5_primary", 5)
+    assert "EE trace" in planar.values() and not any(v.startswith("target") for v in planar.values())
+
+
+def test_camera_distance_fits_every_point_in_the_view():
+    """The camera placed by ``camera_distance`` sees every point within the margin of both half-angles, and one
+    point lies on that margin (the fit is tight): a tall humanoid is framed head to feet."""
+    from hqp_tpm.app.viewer_scene import VIEW_ASPECT, VIEW_MARGIN, camera_distance
+
+    rng = np.random.default_rng(3)
+    for scale in ([0.3, 0.2, 0.8], [0.6, 0.6, 0.1], [0.05, 0.05, 0.05]):  # a humanoid, a flat scene, a small one
+        P = rng.uniform(-1, 1, (400, 3)) * scale
+        d = np.array([1.1, 0.45, 0.5]) / np.linalg.norm([1.1, 0.45, 0.5])
+        dist = camera_distance(P, d, 45.0)
+        right = np.cross(-d, [0, 0, 1.0])
+        right /= np.linalg.norm(right)
+        up = np.cross(right, -d)
+        depth = dist - P @ d
+        assert (depth > 0).all()
+        v, h = np.abs(P @ up) / depth, np.abs(P @ right) / depth
+        tan_v = VIEW_MARGIN * np.tan(np.radians(22.5))
+        assert (v <= tan_v + 1e-12).all() and (h <= VIEW_ASPECT * tan_v + 1e-12).all()
+        if dist > 0.5 + 1e-9:  # not the minimum distance: tight on one of the two
+            assert max(v.max() / tan_v, h.max() / (VIEW_ASPECT * tan_v)) > 0.999 or dist <= 1.05 * np.linalg.norm(
+                P, axis=1).max() + 1e-9

@@ -154,8 +154,9 @@ def test_the_build_has_no_deprecation_warning(wheel):
 
 def test_base_install_has_no_application_packages(base):
     env_dir, env, work = base
-    code = ("import importlib.util as u; print(*[m for m in ('matplotlib', 'meshcat', 'umsgpack', 'tqdm', 'numpy', "
-            "'pinocchio', 'coal', 'scipy', 'numba', 'qpsolvers', 'proxsuite', 'daqp') if u.find_spec(m)])")
+    code = ("import importlib.util as u; print(*[m for m in ('matplotlib', 'meshcat', 'umsgpack', 'tqdm', "
+            "'fast_simplification', 'numpy', 'pinocchio', 'coal', 'scipy', 'numba', 'qpsolvers', 'proxsuite', 'daqp') "
+            "if u.find_spec(m)])")
     found = _run([env_dir / "bin" / "python", "-c", code], work, env).split()
     assert found == ["numpy", "pinocchio", "coal", "scipy", "numba", "qpsolvers", "proxsuite", "daqp"], found
 
@@ -213,6 +214,24 @@ def test_cli_run_lwr_relaxed(installed):
     _run([env_dir / "bin" / "hqp-tpm", "run", "lwr_relaxed", "--steps", "200", "--out", "run"], work, env)
     with np.load(work / "run" / "trajectory.npz") as npz:
         assert npz["q"].shape[0] >= 200 and np.all(np.isfinite(npz["q"]))
+
+
+def test_app_extra_draws_decimated_meshes(installed):
+    """The viewer's mesh decimation (fast-simplification, in the app extra) works from the installed wheel."""
+    env_dir, env, work = installed
+    code = """
+import numpy as np
+from hqp_tpm.app.viewer_scene import decimate
+u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 80), np.linspace(0, np.pi, 60))
+V = np.stack([np.cos(u) * np.sin(v), np.sin(u) * np.sin(v), np.cos(v)], axis=-1).reshape(-1, 3)
+i = np.arange(80 * 60).reshape(60, 80)
+F = np.concatenate([np.stack([i[:-1, :-1], i[1:, :-1], i[1:, 1:]], -1).reshape(-1, 3),
+                    np.stack([i[:-1, :-1], i[1:, 1:], i[:-1, 1:]], -1).reshape(-1, 3)])
+W, G = decimate(V, F, 500)
+print(len(G), float(np.abs(np.linalg.norm(W, axis=1) - 1).max()))
+"""
+    n, err = _run([env_dir / "bin" / "python", "-c", code], work, env).split()
+    assert 0 < int(n) <= 500 and float(err) < 0.1
 
 
 def test_robot_load_romeo21(installed):

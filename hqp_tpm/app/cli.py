@@ -294,13 +294,13 @@ def _bare_assignments(argv: list) -> list:
     return out
 
 
-def _executor_args(p) -> None:
+def _executor_args(p, quiet: str) -> None:
     p.add_argument("--workers", type=int, default=None, help="local worker processes (default: one per core; "
                    "0: in this process)")
     p.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT", help="run on this Dask cluster (trusted "
                    "only: Dask unpickles what the cluster sends back, so a scheduler can run code in this process)")
     p.add_argument("--cluster", default=None, metavar="local:N", help="start a Dask LocalCluster of N processes")
-    p.add_argument("--quiet", action="store_true", help="no progress lines")
+    p.add_argument("--quiet", action="store_true", help=quiet)
 
 
 def _sweep(args) -> int:
@@ -336,6 +336,10 @@ def _sweep(args) -> int:
     finally:
         signal.signal(signal.SIGTERM, old)
     failed = sum(1 for r in table if r.get("error"))
+    if args.quiet:
+        if failed:
+            print(f"hqp-tpm: sweep: {failed} of {len(table)} variants failed (see {out}/summary.md)", file=sys.stderr)
+        return 0
     return _print_lines([f"sweep: {len(table)} variants, {failed} failed; wrote {out}/summary.csv, summary.md, "
                          "sweep.png"])
 
@@ -402,7 +406,8 @@ def main(argv=None) -> int:
     p_sweep.add_argument("--metric", action="append", default=None, help="metric(s) of the table and figure")
     p_sweep.add_argument("--figures", action="store_true", help="also each variant's own figures")
     p_sweep.add_argument("--force", action="store_true")
-    _executor_args(p_sweep)
+    _executor_args(p_sweep, "no progress lines, no summary line (summary.csv holds it); failed variants are "
+                   "still counted on stderr")
     p_camp = sub.add_parser("campaign", help="long property campaigns (sns: box, fast = reference, QP residual) "
                             "through the same executors")
     p_camp.add_argument("kind", choices=("sns",))
@@ -410,7 +415,7 @@ def main(argv=None) -> int:
     p_camp.add_argument("--seed", type=int, default=0)
     p_camp.add_argument("--chunk", type=int, default=500, help="draws per task")
     p_camp.add_argument("--replay", type=int, default=None, metavar="INDEX", help="re-run one draw here")
-    _executor_args(p_camp)
+    _executor_args(p_camp, "no progress lines (the result, which no file holds, is still printed)")
     args = parser.parse_args(_bare_assignments(sys.argv[1:] if argv is None else list(argv)))
     try:
         if args.command == "sweep":

@@ -259,7 +259,7 @@ def figure(path: Path, arrays: dict, title: str = "") -> Path | None:
                                    gridspec_kw={"height_ratios": [3, max(1, 0.25 * len(used))]})
     for i, name in enumerate(tasks):
         ax.plot(t, 100 * arrays["explain_fraction"][:, i], label=name, lw=1.2)
-    ax.set_ylabel("fraction met (%)")
+    ax.set_ylabel("fraction met [%]")
     ax.set_ylim(-5, 105)
     ax.legend(loc="lower left", fontsize=8, ncol=min(4, max(1, len(tasks))))
     ax.set_title(title or "fraction of each task met")
@@ -272,7 +272,7 @@ def figure(path: Path, arrays: dict, title: str = "") -> Path | None:
     else:
         band.text(0.5, 0.5, "no joint at a bound", ha="center", va="center", transform=band.transAxes)
         band.set_yticks([])
-    band.set_xlabel("t (s)")
+    band.set_xlabel("t [s]")
     band.set_ylabel("at a bound")
     band.set_title("joints at a bound (red: upper, blue: lower)", fontsize=9)
     fig.tight_layout()

@@ -81,8 +81,8 @@ def error_groups(tasks: dict) -> list[tuple[str, str, slice | None, str]]:
 
 
 #: What the error of a dimensionless task is, for the legend (any other task: its class name).
-_QUANTITIES = ((QuaternionOrientation, "quaternion error (10)"), (Manipulability, "σ_m* − σ_m"),
-               (JointLimit, "−σ_l"), (Avoidance, "avoidance"))
+_QUANTITIES = ((QuaternionOrientation, "quaternion error (10)"), (Manipulability, r"$\sigma_m^* - \sigma_m$"),
+               (JointLimit, r"$-\sigma_l$"), (Avoidance, "avoidance"))
 
 _UNIT_TITLES = {"m": "position error [m]", "rad": "angle error [rad]", "N": "force error [N]",
                 "deg": "pointing angle error [deg]\n(cone: outside it only)", "1": "error (dimensionless)"}
@@ -189,15 +189,24 @@ def stack_timeline(ax, t: np.ndarray, stack) -> list[str]:
     if rest:
         rows.append(f"{len(rest)} other stacks")
         spans[rows[-1]] = [sp for k in rest for sp in spans[k]]
-    for k, label in enumerate(rows):
-        ax.broken_barh(spans[label], (k - 0.35, 0.7), color=f"C{k % 10}", alpha=0.55, lw=0)
+    for k, label in enumerate(rows):  # the bar in the row's lower half, its label above it (never over a bar)
+        ax.broken_barh(spans[label], (k - 0.02, 0.45), color=f"C{k % 10}", alpha=0.7, lw=0)
         share = sum(w for _, w in spans[label])
-        ax.text(0.005, k, f"{label}  ({share:.3g} s)", transform=ax.get_yaxis_transform(), va="center",
+        ax.text(0.005, k - 0.06, f"{label}  ({share:.3g} s)", transform=ax.get_yaxis_transform(), va="bottom",
                 ha="left", fontsize=7, clip_on=True)
     ax.set_ylim(len(rows) - 0.5, -0.5)
     ax.set_yticks([])
     ax.set_ylabel("active stack", fontsize=8)
     return rows
+
+
+#: A log axis of task errors spans at most this ratio below its largest value (machine precision).
+LOG_RANGE = 1e-15
+
+
+def _legend_outside(ax) -> None:
+    """The axis' legend right of it, outside the data (many tasks' legends covered their curves)."""
+    ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0, frameon=False)
 
 
 def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> Figure:
@@ -210,28 +219,43 @@ def task_errors(path: Path, arrays: dict, tasks: dict, title: str = "") -> Figur
         y = _error_norm(arrays, tasks[name], name, rows, unit)
         if y is None:
             continue
-        label = name if quantity in ("position", "orientation", "joint angles", "force", "pointing angle") \
+        label = name if quantity in ("position", "orientation", "force", "pointing angle") \
             and rows is None else f"{name} ({quantity})"
+        if quantity == "joint angles":  # a posture: the norm over its joints
+            label = f"{name} (norm over {tasks[name].dim} joints)"
         series.setdefault(unit, []).append((label, y))
-    panels = list(series) + (["scale"] if "scale" in arrays else [])
+    scale = np.asarray(arrays["scale"], dtype=float) if "scale" in arrays else None
+    flat_scale = scale is not None and bool(np.all(scale == 1.0))
     n_rows = min(len(set(map(str, arrays["stack"]))), TIMELINE_ROWS + 1) if "stack" in arrays else 0
-    heights = [2.0] * max(1, len(panels)) + ([0.45 + 0.28 * n_rows] if n_rows else [])
-    fig = _figure(8, 0.9 + sum(heights))
+    heights = [2.0] * len(series) + ([0.9 if flat_scale else 1.6] if scale is not None else []) \
+        + ([0.45 + 0.36 * n_rows] if n_rows else []) or [2.0]
+    fig = _figure(9.5, 0.9 + sum(heights))
     axes = np.atleast_1d(fig.subplots(len(heights), 1, sharex=True, squeeze=False,
                                       gridspec_kw={"height_ratios": heights})).ravel()
     for ax, unit in zip(axes, series, strict=False):
         for k, (label, y) in enumerate(series[unit]):  # alternate styles: coinciding curves stay visible
             ax.plot(t, np.where(y > 0, y, np.nan), lw=1.0, ls=("-", "--", "-.", ":")[k % 4], label=label)
-        if np.isfinite(np.concatenate([np.where(y > 0, y, np.nan) for _, y in series[unit]])).any():
+        pos = np.concatenate([y[np.isfinite(y) & (y > 0)] for _, y in series[unit]])
+        later = np.concatenate([y[1:][np.isfinite(y[1:]) & (y[1:] > 0)] for _, y in series[unit]])
+        if len(pos):
             ax.set_yscale("log")
+            top = float(pos.max())
+            # the first sample is left out of the range: a task that starts on its target has a numerically
+            # zero error there (7.7e-20 rad on Talos' feet), which stretched the axis down to 1e-20
+            bottom = max(float(later.min()) if len(later) else float(pos.min()), LOG_RANGE * top)
+            ax.set_ylim(bottom / 2.0, top * 2.0)
         ax.set_ylabel(_UNIT_TITLES.get(unit, unit), fontsize=8)
-        ax.legend(fontsize=7, loc="best")
+        _legend_outside(ax)
         ax.grid(True, which="major", lw=0.3, alpha=0.6)
-    if "scale" in arrays:
+    if scale is not None:
         ax = axes[len(series)]
-        ax.plot(t, arrays["scale"], "k", lw=0.9)
-        ax.set_ylabel("SNS scale factor s", fontsize=8)
-        ax.set_ylim(-0.05, 1.05)
+        ax.plot(t, scale, "k", lw=0.9, label="SNS scale factor s")
+        ax.set_ylabel("SNS scale\nfactor s", fontsize=8)
+        ax.set_ylim(-0.05, 1.1)
+        ax.set_yticks([0.0, 0.5, 1.0])
+        if flat_scale:
+            ax.text(0.5, 0.45, "s = 1 throughout: no task was scaled", transform=ax.transAxes, ha="center",
+                    va="center", fontsize=8, color="0.3")
     if n_rows:
         stack_timeline(axes[-1], t, arrays["stack"])
     axes[-1].set_xlabel("t [s]")
@@ -276,27 +300,39 @@ PATH_SAMPLES = 3000
 
 def ee_path(path: Path, arrays: dict, robot, scene, title: str = "") -> Figure | None:
     """The EE's path in Cartesian space (3-D, from the recorded ``q``), the EE task's desired path and the
-    obstacles at t = 0 (their centres); None (nothing written) without a 3-D EE position task in ``scene``."""
+    obstacles at t = 0 (their centres). Without an EE task, the same for each moving frame target of ``scene``
+    (:attr:`SceneItems.targets`: a humanoid's hands). None (nothing written) without any of them."""
     import pinocchio as pin
+    from matplotlib.ticker import MaxNLocator
 
     task = scene.ee_task
     frame = scene.ee_frame or (task.frame if task is not None else None)
-    if task is None or frame is None or task.dim != 3:
+    if task is not None and frame is not None and task.dim == 3:
+        pairs = [(task, frame)]
+    else:
+        pairs = [(tk, tk.frame) for tk in scene.targets if tk.frame is not None and tk.dim == 3]
+    if not pairs:
         return None
     t_all, q_all = np.asarray(arrays["t"], dtype=float), np.asarray(arrays["q"], dtype=float)
     idx = np.unique(np.linspace(0, len(t_all) - 1, min(len(t_all), PATH_SAMPLES)).round().astype(int))
-    model, data, fid = robot.model, robot.model.createData(), robot.frame_id(frame)
-    ee = np.empty((len(idx), 3))
+    model, data = robot.model, robot.model.createData()
+    fids = [robot.frame_id(f) for _, f in pairs]
+    actual = np.empty((len(pairs), len(idx), 3))
     for k, i in enumerate(idx):
         pin.framesForwardKinematics(model, data, q_all[i])
-        ee[k] = data.oMf[fid].translation
-    desired = np.array([task.reference(float(ti))[0] for ti in t_all[idx]], dtype=float)
+        for j, fid in enumerate(fids):
+            actual[j, k] = data.oMf[fid].translation
     fig = _figure(7, 6)
     ax = fig.add_subplot(projection="3d")
-    ax.plot(*desired.T, color="tab:green", lw=1.2, ls="--", label=f"desired ({task.name})")
-    ax.plot(*ee.T, color="tab:red", lw=1.0, label=f"EE ({frame})")
-    ax.scatter(*ee[0], color="k", marker="o", s=18, label="start")
-    pts = [ee, desired]
+    pts, desired_all = [], []
+    for j, (tk, f) in enumerate(pairs):
+        desired = np.array([tk.reference(float(ti))[0] for ti in t_all[idx]], dtype=float)
+        desired_all.append(desired)
+        c_des, c_act = ("tab:green", "tab:red") if j == 0 else ("tab:olive", "tab:purple")
+        ax.plot(*desired.T, color=c_des, lw=1.2, ls="--", label=f"desired ({tk.name})")
+        ax.plot(*actual[j].T, color=c_act, lw=1.0, label=f"EE ({f})" if len(pairs) == 1 else f"{f}")
+        pts += [actual[j], desired]
+    ax.scatter(*actual[:, 0].T, color="k", marker="o", s=18, label="start")
     centres = np.array([o.placement_at(0.0).act(o.local_center) for o in scene.obstacles]).reshape(-1, 3)
     if len(centres):
         ax.scatter(*centres.T, color="k", marker="x", s=30, label="obstacles (t = 0)")
@@ -306,15 +342,19 @@ def ee_path(path: Path, arrays: dict, robot, scene, title: str = "") -> Figure |
     for setter, m in zip((ax.set_xlim, ax.set_ylim, ax.set_zlim), mid, strict=True):
         setter(m - half, m + half)  # equal scales: a circle looks like one
     ax.set_box_aspect((1, 1, 1))
-    centred = desired - desired.mean(0)
+    centred = desired_all[0] - desired_all[0].mean(0)
     if np.ptp(centred, axis=0).max() > 1e-6:  # the desired path's plane seen face on, from above
         n = np.linalg.svd(centred, full_matrices=False)[2][-1]
         n = n if n[2] >= 0 else -n
         elev = np.degrees(np.arcsin(np.clip(n[2], -1, 1)))
         ax.view_init(elev=elev - 30.0 if elev > 45.0 else elev + 20.0, azim=np.degrees(np.arctan2(n[1], n[0])) + 30.0)
-    ax.set_xlabel("x [m]")
-    ax.set_ylabel("y [m]")
-    ax.set_zlabel("z [m]")
+    for axis in (ax.xaxis, ax.yaxis, ax.zaxis):
+        axis.set_major_locator(MaxNLocator(4, prune="both"))  # no end ticks: two axes' corner labels collided
+    ax.tick_params(labelsize=7, pad=1)
+    ax.set_xlabel("x [m]", labelpad=4)
+    ax.set_ylabel("y [m]", labelpad=4)
+    ax.zaxis.set_rotate_label(False)
+    ax.set_zlabel("z [m]", rotation=90, labelpad=4)
     ax.legend(fontsize=8, loc="upper left")
     fig.suptitle(title)
     _save(fig, path)
@@ -361,10 +401,10 @@ def comanipulation(path: Path, runs: dict, sigma_m_bar: float = 1.5, sigma_l_bar
         axes[0].plot(a["t"], a["sigma_l"], color=c, lw=0.9, label=label)
         axes[1].plot(a["t"], a["sigma_m"], color=c, lw=0.9, label=label)
         axes[2].plot(a["t"], a["joint_deviation_max"], color=c, lw=0.9, label=label)
-    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.8, label=f"σ̄_m = {sigma_m_bar:g}")
-    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.8, label=f"σ̄_l = {sigma_l_bar:g} rad")
-    for ax, name in zip(axes, ("joint-limit index σ_l [-]", "manipulability σ_m [-]", "max |q_i − q_i*| [rad]"),
-                        strict=False):
+    axes[1].axhline(sigma_m_bar, color="k", ls="--", lw=0.8, label=rf"$\bar\sigma_m$ = {sigma_m_bar:g}")
+    axes[2].axhline(sigma_l_bar, color="k", ls="--", lw=0.8, label=rf"$\bar\sigma_l$ = {sigma_l_bar:g} rad")
+    names = (r"joint-limit index $\sigma_l$ [-]", r"manipulability $\sigma_m$ [-]", r"max $|q_i - q_i^*|$ [rad]")
+    for ax, name in zip(axes, names, strict=False):
         ax.set_ylabel(name, fontsize=8)
         ax.legend(fontsize=7, loc="best")
     if stacks:
@@ -419,7 +459,8 @@ def write_all(out: Path, arrays: dict, ctx: RunContext) -> list[Path]:
                        inequality=None if task is None else bool(task.inequality))
         written.append(p)
     p = out / "ee_path.png"
-    if ee_path(p, arrays, ctx.robot, ctx.scene, f"{name}: EE path") is not None:
+    what = "EE path" if ctx.scene.ee_task is not None else "paths of the frames with moving targets"
+    if ee_path(p, arrays, ctx.robot, ctx.scene, f"{name}: {what}") is not None:
         written.append(p)
     if any(k in arrays for k in ("d_ee", "d_minimal", "d_obstacle", "d_self")):
         p = out / "distances.png"

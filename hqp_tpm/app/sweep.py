@@ -572,10 +572,32 @@ def _unit(table: list[dict], metric: str) -> str:
     return METRICS[key][0] if key is not None else ""
 
 
+#: Units shown with an SI prefix when a metric's values are small (``ee_error_rms`` of 6.1e-3 m: 6.1 mm).
+PREFIXED_UNITS = ("m", "rad", "s", "N", "m/s", "rad/s")
+
+
+def scaled_unit(unit: str, values) -> tuple[float, str]:
+    """``(factor, unit)``: the values times ``factor`` read in ``unit`` with at most 3 digits before the point and
+    not below 0.1 (m -> mm or µm; units outside :data:`PREFIXED_UNITS` unchanged)."""
+    import numpy as np
+
+    v = np.abs(np.asarray(values, dtype=float))
+    v = v[np.isfinite(v) & (v > 0)]
+    if unit not in PREFIXED_UNITS or not len(v) or v.max() >= 0.1:
+        return 1.0, unit
+    if v.max() >= 1e-4:
+        return 1e3, "m" + unit
+    return 1e6, "µ" + unit
+
+
 def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str], title: str = ""):
-    """Each chosen metric (rows, with its unit) against each varied field (columns), coloured by another varied
-    field when there is one (its values in the legend); failed variants as red crosses at the bottom. Timing
-    metrics (:data:`TIMING_METRICS`) are left out; plain tick labels (no offset notation). Returns the figure."""
+    """Each chosen metric (rows, with its unit, SI-prefixed when small: :func:`scaled_unit`) against each varied
+    field (columns), coloured by another varied field when there is one (its values in a legend above the
+    column; the colour groups side by side at each grid value, so equal results stay visible); failed variants
+    as red crosses at the bottom. Timing metrics (:data:`TIMING_METRICS`) are left out; plain tick labels (no
+    offset, no multiplier). Returns the figure."""
+    import textwrap
+
     import matplotlib
     import numpy as np
 
@@ -584,11 +606,13 @@ def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str],
     from matplotlib.ticker import MaxNLocator, ScalarFormatter
 
     metrics = [m for m in metrics if m not in TIMING_METRICS] or list(metrics)
-    fig, axes = plt.subplots(len(metrics), len(fields), figsize=(3.6 * len(fields) + 1.2, 2.6 * len(metrics) + 0.9),
-                             squeeze=False)
+    width = 3.6 * len(fields) + 1.2
+    fig, axes = plt.subplots(len(metrics), len(fields), figsize=(width, 2.6 * len(metrics) + 1.2), squeeze=False)
     ok = [not r.get("error") for r in table]
     for j, f in enumerate(fields):
         xs = np.array([_axis_value(r.get(f)) for r in table], dtype=float)
+        finite = xs[np.isfinite(xs)]
+        span = float(np.ptp(finite)) if len(finite) else 0.0
         other = next((g for g in fields if g != f), None)
         groups = {"": list(range(len(table)))}
         if other is not None:
@@ -598,16 +622,19 @@ def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str],
         for i, m in enumerate(metrics):
             ax = axes[i, j]
             ys = np.array([r.get(m) if isinstance(r.get(m), (int, float)) else math.nan for r in table], dtype=float)
+            factor, unit = scaled_unit(_unit(table, m), ys[np.array(ok, dtype=bool)] if any(ok) else ys)
             for c, (value, idx) in enumerate(groups.items()):
                 idx = [k for k in idx if ok[k]]
                 label = f"{other} = {value}" if other is not None else None
-                ax.plot(xs[idx], ys[idx], "o", ms=5, mfc=f"C{c % 10}", mec="k", mew=0.4, ls="none", label=label)
+                dodge = (c - (len(groups) - 1) / 2.0) * 0.025 * span  # side by side at each grid value
+                ax.plot(xs[idx] + dodge, factor * ys[idx], "o", ms=5, mfc=f"C{c % 10}", mec="k", mew=0.4, ls="none",
+                        label=label)
             bad = [x for x, k in zip(xs, ok, strict=True) if not k]
             if bad:
                 ax.plot(bad, [ax.get_ylim()[0]] * len(bad), "rx", ms=6, label="failed")
             for axis in (ax.xaxis, ax.yaxis):
                 fmt = ScalarFormatter(useOffset=False)
-                fmt.set_powerlimits((-3, 4))
+                fmt.set_scientific(False)
                 axis.set_major_formatter(fmt)
                 axis.set_major_locator(MaxNLocator(5))
             ax.tick_params(labelsize=7)
@@ -616,12 +643,14 @@ def figure(path: Path, table: list[dict], fields: list[str], metrics: list[str],
             if i == len(metrics) - 1:
                 ax.set_xlabel(f + (" (last element)" if any(isinstance(r.get(f), list) for r in table) else ""),
                               fontsize=8)
-            if j == 0:
-                unit = _unit(table, m)
+            if j == 0:  # the same metric (and factor) along the row
                 ax.set_ylabel(f"{m} [{unit}]" if unit else m, fontsize=8)
             if i == 0 and (other is not None or bad):
-                ax.legend(fontsize=6, loc="best")
-    fig.suptitle(title or f"sweep: {', '.join(metrics)} against {', '.join(fields)}", fontsize=10)
+                ax.legend(fontsize=7, loc="lower left", bbox_to_anchor=(0.0, 1.02), frameon=False, borderaxespad=0.0,
+                          ncol=min(3, len(groups) + bool(bad)), handletextpad=0.2, columnspacing=0.8)
+    what = ", ".join(metrics) if len(metrics) <= 2 else f"{len(metrics)} metrics (rows)"
+    default = f"sweep: {what} against {', '.join(fields)}" + (" (colour: the other field)" if len(fields) > 1 else "")
+    fig.suptitle(textwrap.fill(title or default, width=int(11 * width)), fontsize=10)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)

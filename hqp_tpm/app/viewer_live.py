@@ -105,6 +105,9 @@ class LiveViewer:
                 if len(path) > 1:
                     self.scene.draw_path("desired_path", path, COLORS["desired_path"], radius=0.7 * LINE_RADIUS)
                     pts += path
+            period = self.scene.target_period()
+            if period is not None:  # periodic targets (a humanoid's hands): their whole paths are known
+                pts += self.scene.draw_target_paths(t + np.linspace(0.0, period, 400))
             self.scene.frame_scene(pts, direction=self.view, floor=self.scene.floor_height(q))
             self._framed = True
         self.scene.apply(state)

@@ -215,12 +215,17 @@ def replay_html(robot: Robot, arrays: dict, items: SceneItems | None = None, *, 
         ee.append(scene.ee_position())
         if i % 5 == 0 or i == len(t) - 1:  # the robot's whole geometry, every few frames
             view_pts.extend(scene.key_points())
+            T, shown = st.get("operator_force", (None, False))
+            if shown:  # the force arrow's tip
+                view_pts.append(T[:3, 3] + T[:3, 2])
     # desired path (whole run) and EE trace (in chunks that appear as the EE reaches them)
     ts = np.linspace(t_all[0], t_all[-1], min(len(t_all), 2000))
     desired = [x for x in (scene.desired_position(s) for s in ts) if x is not None]
     if len(desired) > 1:
         scene.draw_path("desired_path", desired, COLORS["desired_path"], radius=0.7 * LINE_RADIUS)
         view_pts.extend(desired)
+    target_paths = scene.draw_target_paths(ts)
+    view_pts.extend(target_paths)
     chunks = []
     if ee and ee[0] is not None and len(ee) > 1:
         E = np.asarray(ee)
@@ -266,11 +271,12 @@ def replay_html(robot: Robot, arrays: dict, items: SceneItems | None = None, *, 
     window.duration = float(t[-1] - t[0])
     window.t0 = float(t[0])
     window.stacks = stack_timeline(arrays, float(t_all[0]))
-    window.legend = legend_entries(scene, desired=len(desired) > 1, trace=bool(chunks))
+    window.legend = legend_entries(scene, desired=len(desired) > 1, trace=bool(chunks),
+                                   target_paths=bool(target_paths))
     return vis.static_html()
 
 
-def legend_entries(scene: Scene, *, desired: bool, trace: bool) -> list[tuple[str, str]]:
+def legend_entries(scene: Scene, *, desired: bool, trace: bool, target_paths: bool = False) -> list[tuple[str, str]]:
     """``[(COLORS key, what it shows), ...]`` of the items this replay draws (the colour legend)."""
     out = []
     points = [type(o.shape).__name__ == "Sphere" and o.shape.radius <= 0.0 for o in scene.obstacles]
@@ -286,6 +292,11 @@ def legend_entries(scene: Scene, *, desired: bool, trace: bool) -> list[tuple[st
         out.append(("desired_path", "desired EE path"))
     if trace:
         out.append(("ee_trace", "EE trace"))
+    if scene.targets:
+        names = ", ".join(t.name for t in scene.targets)
+        out.append(("target", f"target of {names}"))
+    if target_paths:
+        out.append(("target_path", "target path"))
     if scene._pointing_params() is not None:
         out.append(("cone", "pointing cone (alpha_d)"))
     if scene.operator_markers is not None:

@@ -45,22 +45,27 @@ COLORS = {
     "marker": (0.6, 0.0, 0.8, 1.0),
     "target_marker": (0.0, 0.75, 0.2, 1.0),
     "force": (0.05, 0.35, 1.0, 1.0),
+    "target": (0.95, 0.0, 0.55, 0.9),
+    "target_path": (0.0, 0.55, 0.1, 1.0),
 }
 POINT_OBSTACLE_RADIUS = 0.015  #: drawn radius of a zero-radius sphere obstacle (m)
 CONTROL_POINT_RADIUS = 0.012
 CRITICAL_POINT_RADIUS = 0.016
 MARKER_RADIUS = 0.02
 TARGET_MARKER_RADIUS = 0.03  #: the marker the operator pulls towards
+TARGET_RADIUS = 0.025  #: a frame task's target (drawn over the robot: the hand holds it when tracking)
 FORCE_SCALE = 0.025  #: drawn length of the operator's force arrow per newton (m/N)
 FORCE_MIN = 0.2  #: forces below this (N) are not drawn
 #: Meshes with more triangles than this are decimated for the viewer (once, cached on disk).
-MAX_TRIANGLES = 1500
-MESH_CACHE_VERSION = 1
+MAX_TRIANGLES = 3000
+MESH_CACHE_VERSION = 2  #: 2: quadric edge collapse (1: vertex clustering)
 LINE_RADIUS = 0.003  #: radius of the tubes drawing the paths and the distance segment (m)
 CONE_HEIGHT = 0.2
 BACKGROUND = ([1.0, 1.0, 1.0], [0.86, 0.88, 0.92])  #: top and bottom colours (0-1)
 GRID_COLOR = 0xA0A4AC
 DEFAULT_VIEW = (1.1, 0.45, 0.5)  #: camera direction from the scene centre (world frame)
+VIEW_ASPECT = 4.0 / 3.0  #: the narrowest window (width / height) the framing keeps the whole scene in
+VIEW_MARGIN = 0.88  #: the scene fills at most this fraction of the half-angles (room for the labels)
 _TRACE_CHUNKS = 120
 
 
@@ -182,29 +187,23 @@ def _mesh_arrays(bvh) -> tuple[np.ndarray, np.ndarray]:
 
 
 def decimate(V: np.ndarray, F: np.ndarray, max_triangles: int = MAX_TRIANGLES) -> tuple[np.ndarray, np.ndarray]:
-    """Vertex clustering: merge the vertices of each grid cell (cell size grown until at most ``max_triangles``
-    triangles are left), drop collapsed and repeated triangles. Good enough for drawing, not for contact."""
+    """At most ``max_triangles`` triangles of the mesh (``V`` N x 3, ``F`` M x 3): quadric edge collapse
+    (fast-simplification). It keeps the surface closed and the triangles' orientation, so the shading (vertex
+    normals) stays smooth; vertex clustering left holes and shards on Talos' torso (tests/test_viewer.py)."""
     if len(F) <= max_triangles:
         return V, F
-    extent = float(np.max(np.ptp(V, axis=0))) or 1.0
-    cells = 64.0
-    while True:
-        size = extent / cells
-        key = np.floor((V - V.min(axis=0)) / size).astype(np.int64)
-        _, cluster, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-        cluster = cluster.reshape(-1)
-        W = np.zeros((len(counts), 3))
-        np.add.at(W, cluster, V)
-        W /= counts[:, None]
-        G = cluster[F]
-        keep = (G[:, 0] != G[:, 1]) & (G[:, 1] != G[:, 2]) & (G[:, 0] != G[:, 2])
-        G = G[keep]
-        _, first = np.unique(np.sort(G, axis=1), axis=0, return_index=True)
-        G = G[np.sort(first)]
-        if len(G) <= max_triangles or cells <= 4:
-            used, G = np.unique(G, return_inverse=True)
-            return W[used], G.reshape(-1, 3)
-        cells /= 1.25
+    import fast_simplification
+
+    W, G = np.asarray(V, dtype=float), np.asarray(F, dtype=np.int32)
+    for k in range(4):  # an aggressive pass may stop short of the count: once more on the result
+        if len(G) <= max_triangles:
+            break
+        W, G = fast_simplification.simplify(W, G.astype(np.int32), target_count=int(max_triangles * 0.97 ** k))
+    if len(G) > max_triangles:  # still short (a pathological mesh): keep the largest triangles
+        area = np.linalg.norm(np.cross(W[G[:, 1]] - W[G[:, 0]], W[G[:, 2]] - W[G[:, 0]]), axis=1)
+        G = G[np.sort(np.argsort(-area, kind="stable")[:max_triangles])]
+    used, G = np.unique(G, return_inverse=True)
+    return np.asarray(W[used], dtype=float), G.reshape(-1, 3).astype(np.int64)
 
 
 def _cache_dir() -> Path:
@@ -248,27 +247,48 @@ def decimated_mesh(g, max_triangles: int = MAX_TRIANGLES) -> tuple[np.ndarray, n
 
 def viewer_geometry(robot, max_triangles: int = MAX_TRIANGLES):
     """The geometry model to draw: the visual model (else the collision model) with every mesh of more than
-    ``max_triangles`` triangles replaced by its decimated copy (:func:`decimated_mesh`). Drawn from the BVH
-    itself (no mesh file embedded), so a replay of Romeo is a few MB instead of ~20 MB."""
+    ``max_triangles`` triangles replaced by its decimated copy (:func:`decimated_mesh`). Every mesh is drawn from
+    its triangles (no mesh file embedded: a COLLADA file is XML several times the size of its triangles), so a
+    replay of Romeo is a few MB instead of ~20 MB."""
     gmodel = robot.visual_model if robot.visual_model is not None else robot.collision_model
     if gmodel is None:
         return None
     out = gmodel.copy()
     for i, g in enumerate(out.geometryObjects):
         geom = g.geometry
-        if not isinstance(geom, coal.BVHModelBase) or geom.num_tris <= max_triangles:
+        if not isinstance(geom, coal.BVHModelBase):
             continue
-        V, F = decimated_mesh(g, max_triangles)
-        bvh = coal.BVHModelOBBRSS()
-        bvh.beginModel(len(F), len(V))
-        bvh.addVertices(np.asarray(V, dtype=float))
-        bvh.addTriangles(np.asarray(F, dtype=np.int64))
-        bvh.endModel()
         g2 = g.copy()
-        g2.geometry = bvh
+        if geom.num_tris > max_triangles:
+            V, F = decimated_mesh(g, max_triangles)
+            bvh = coal.BVHModelOBBRSS()
+            bvh.beginModel(len(F), len(V))
+            bvh.addVertices(np.asarray(V, dtype=float))
+            bvh.addTriangles(np.asarray(F, dtype=np.int64))
+            bvh.endModel()
+            g2.geometry = bvh
         g2.meshPath = ""  # drawn from the BVH (pinocchio's loader prefers a mesh file when there is one)
         out.geometryObjects[i] = g2
     return out
+
+
+def camera_distance(points, direction, fov_deg: float = 45.0, aspect: float = VIEW_ASPECT,
+                    margin: float = VIEW_MARGIN) -> float:
+    """Distance from the origin along ``direction`` (unit) at which a camera looking at the origin (up: +z)
+    sees every point of ``points`` (N x 3, relative to the origin) within ``margin`` of its vertical half-angle
+    ``fov_deg / 2`` and of the horizontal one (``aspect`` = width / height, the narrowest window expected)."""
+    P = np.asarray(points, dtype=float).reshape(-1, 3)
+    d = np.asarray(direction, dtype=float)
+    d = d / np.linalg.norm(d)
+    right = np.cross(-d, [0.0, 0.0, 1.0])
+    if np.linalg.norm(right) < 1e-9:  # looking straight down or up: any horizontal axis
+        right = np.array([1.0, 0.0, 0.0])
+    right /= np.linalg.norm(right)
+    up = np.cross(right, -d)
+    tan_v = margin * np.tan(np.radians(fov_deg) / 2.0)
+    need = P @ d + np.maximum(np.abs(P @ up) / tan_v, np.abs(P @ right) / (aspect * tan_v))
+    radius = float(np.max(np.linalg.norm(P, axis=1), initial=0.0))
+    return max(float(np.max(need, initial=0.0)), 1.05 * radius, 0.5)
 
 
 def _clean(name: str) -> str:
@@ -319,6 +339,7 @@ class Scene:
         self.operator_markers = None if self.operator is None else self.operator.markers.reshape(-1, 3)
         self.force_fid = None if self.operator is None else int(self.operator.fid)
         self._local_boxes = self._geometry_boxes()
+        self.targets = [t for t in items.targets if t.frame is not None and robot.model.existFrame(t.frame)]
         self.markers_fn = items.markers
         self.marker_names: list[str] = []
         self._marker_pos: dict[str, np.ndarray] = {}
@@ -344,10 +365,12 @@ class Scene:
 
     def periodic_target(self) -> float | None:
         """The period (s) of the EE task's target when it is periodic (a :class:`Harmonic`), else None."""
-        traj = None if self.ee_task is None else self.ee_task.trajectory
-        if isinstance(traj, Harmonic) and traj.omega:
-            return 2.0 * np.pi / abs(float(traj.omega))
-        return None
+        return None if self.ee_task is None else _period(self.ee_task.trajectory)
+
+    def target_period(self) -> float | None:
+        """The longest period (s) of the targets (:attr:`SceneItems.targets`) when all are periodic, else None."""
+        periods = [_period(task.trajectory) for task in self.targets]
+        return max(periods) if periods and None not in periods else None
 
     def desired_position(self, t: float) -> np.ndarray | None:
         """The EE task's desired position at ``t`` (None if there is none or it is not 3-D)."""
@@ -358,6 +381,29 @@ class Scene:
         except Exception:  # noqa: BLE001 - e.g. a relative trajectory never started
             return None
         return x if x.shape == (3,) and np.all(np.isfinite(x)) else None
+
+    @staticmethod
+    def _target_path(k: int, task) -> str:
+        return f"targets/{k}_{_clean(task.name)}"
+
+    def target_position(self, task, t: float) -> np.ndarray | None:
+        """A target task's desired 3-D position at ``t`` (None if it has none there)."""
+        try:
+            x = np.asarray(task.reference(float(t))[0], dtype=float)
+        except Exception:  # noqa: BLE001 - e.g. a relative trajectory never started
+            return None
+        return x if x.shape == (3,) and np.all(np.isfinite(x)) else None
+
+    def draw_target_paths(self, ts) -> list[np.ndarray]:
+        """Draw the path of every target over the times ``ts``; returns the points drawn (for the framing)."""
+        out = []
+        for k, task in enumerate(self.targets):
+            path = [x for x in (self.target_position(task, s) for s in ts) if x is not None]
+            if len(path) > 1:
+                self.draw_path(f"target_paths/{k}_{_clean(task.name)}", path, COLORS["target_path"],
+                               radius=0.7 * LINE_RADIUS)
+                out += path
+        return out
 
     def _pointing_params(self):
         pt = self.pointing
@@ -400,6 +446,8 @@ class Scene:
             r["target_marker"].set_object(mg.Sphere(TARGET_MARKER_RADIUS), _material(COLORS["target_marker"]))
         if self.force_fid is not None:
             r["operator_force"].set_object(arrow(), _material(COLORS["force"], xray=True))
+        for k, task in enumerate(self.targets):
+            r[self._target_path(k, task)].set_object(mg.Sphere(TARGET_RADIUS), _material(COLORS["target"], xray=True))
 
     def draw_path(self, name: str, points, rgba, visible: bool = True, radius: float = LINE_RADIUS) -> None:
         """A static polyline (tube) under ``world/<name>``."""
@@ -412,7 +460,8 @@ class Scene:
             node.set_property("visible", False)
 
     def frame_scene(self, points, direction=DEFAULT_VIEW, fov_deg: float = 45.0, floor: float | None = None) -> None:
-        """Centre the scene on the bounding box of ``points``, place the camera along ``direction``, floor grid."""
+        """Centre the scene on the bounding box of ``points``, place the camera along ``direction`` just far
+        enough that every point projects inside the view (:func:`camera_distance`), floor grid."""
         P = np.asarray(points, dtype=float).reshape(-1, 3)
         P = P[np.all(np.isfinite(P), axis=1)]
         if not len(P):
@@ -422,8 +471,7 @@ class Scene:
         radius = max(float(np.max(np.linalg.norm(P - center, axis=1))), 0.3)
         d = np.asarray(direction, dtype=float)
         d = d / np.linalg.norm(d)
-        dist = 0.9 * radius / np.sin(np.radians(fov_deg) / 2.0)  # the bounding sphere (of box corners) fits the view
-        eye = dist * d  # relative to the centre, which the shift below puts at the world origin
+        eye = camera_distance(P - center, d, fov_deg) * d  # relative to the centre, which the shift below puts at 0
         shift = np.eye(4)
         shift[:3, 3] = -center
         self.root.set_transform(shift)
@@ -554,6 +602,9 @@ class Scene:
             out["target_marker"] = (_translation(self.operator_markers[int(k)] if ok else np.zeros(3)), bool(ok))
         if self.force_fid is not None:
             out["operator_force"] = self._force_arrow(record.get("operator_force"))
+        for k, task in enumerate(self.targets):
+            x = self.target_position(task, t)
+            out[self._target_path(k, task)] = (_translation(np.zeros(3) if x is None else x), x is not None)
         return out
 
     def _force_arrow(self, f):
@@ -610,6 +661,13 @@ class Scene:
             if self._last_visible.get(path) != visible:
                 node.set_property("visible", bool(visible))
                 self._last_visible[path] = visible
+
+
+def _period(traj) -> float | None:
+    """The period (s) of a periodic trajectory (a :class:`Harmonic`), else None."""
+    if isinstance(traj, Harmonic) and traj.omega:
+        return 2.0 * np.pi / abs(float(traj.omega))
+    return None
 
 
 def _translation(p) -> np.ndarray:

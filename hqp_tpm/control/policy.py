@@ -18,7 +18,8 @@ Optional (defaults do nothing):
     ``summary(arrays) -> dict``       run summary numbers from the recorded arrays
     ``thresholds``                    recorded channel -> {threshold name: value} (for the figures)
     ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...);
-                                      default: nothing (the app adds the scenario's obstacles)
+                                      default: the frame tasks' moving targets (the app adds the
+                                      scenario's obstacles)
     ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
                                       step changes nothing (:meth:`Controller.step` is transactional)
 
@@ -29,6 +30,7 @@ field once per step in :meth:`update` and snapshots its history.
 
 from __future__ import annotations
 
+import dataclasses
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -69,6 +71,14 @@ class SceneItems:
     markers: Callable[[float, np.ndarray], list] | None = None
     #: the simulated co-manipulation operator (its markers, the flange its force acts on)
     operator: Operator | None = None
+    #: frame tasks whose 3-D target is drawn (a sphere at the target, its path over the run): the hands of a humanoid
+    targets: list[Task] = dataclasses.field(default_factory=list)  # (the name `field` is taken above)
+
+
+def moving_targets(tasks) -> list[Task]:
+    """The tasks of ``tasks`` whose target is a moving 3-D point of a robot frame (a :class:`FramePosition` on a
+    time-varying trajectory): what :attr:`SceneItems.targets` draws by default."""
+    return [t for t in tasks if t.frame is not None and t.dim == 3 and t.trajectory.time_varying]
 
 
 class Policy(ABC):
@@ -107,8 +117,8 @@ class Policy(ABC):
         return {}
 
     def scene(self) -> SceneItems:
-        """What a viewer may draw (default: nothing)."""
-        return SceneItems()
+        """What a viewer may draw (default: the moving targets of the frame tasks, :func:`moving_targets`)."""
+        return SceneItems(targets=moving_targets(self.tasks()))
 
     def snapshot(self) -> Any:
         """The state that carries over from step to step (default: none)."""

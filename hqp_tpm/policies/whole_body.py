@@ -58,7 +58,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.control.policy import DistancePolicy, SceneItems
+from hqp_tpm.control.policy import DistancePolicy, SceneItems, moving_targets
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry.distances import DistanceField
@@ -234,7 +234,7 @@ class WholeBody(DistancePolicy):
         self.field.update(state.data, None, t)
 
     def scene(self) -> SceneItems:
-        return SceneItems(self.obstacles, field=self.record_field)
+        return SceneItems(self.obstacles, field=self.record_field, targets=moving_targets(self.tasks()))
 
     # ------------------------------------------------------------------ rows
     def obstacle_pairs(self) -> list[tuple[int, int, float]]:
