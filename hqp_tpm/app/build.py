@@ -93,8 +93,10 @@ def _frame_pose(robot, sec):
 
 def _pointing(robot, sec):
     alpha = np.deg2rad(sec.number("alpha_d_deg")) if sec.has("alpha_d_deg") else sec.number("alpha_d")
+    # rad/s^2; absent or false: none, papers/000 as written (docs/pointing_drift.md)
+    limit = None if sec.raw("drift_limit", False) is False else sec.number("drift_limit", None)
     return Pointing(robot, sec.string("frame"), sec.vector("axis", 3), alpha, gains(sec),
-                    inequality=sec.boolean("inequality", True), name=sec.string("name"))
+                    inequality=sec.boolean("inequality", True), name=sec.string("name"), drift_limit=limit)
 
 
 def _com(robot, sec):

@@ -26,8 +26,9 @@ def _cross(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
 
 
 @_njit
-def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order):  # pragma: no cover - compiled
+def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order, limit):  # pragma: no cover - compiled
     """The pointing row (19) and its command into ``J`` (1 x n) and ``b`` (1); returns the error ``e`` (21).
+    ``limit``: the row's ``drift_limit`` (inf: none): the drift is added back while ``jdq^2 > limit^2 ||J||^2``.
 
     ``R`` the frame's rotation (its z column is ``z_e``), ``Jf`` its 6 x n world-aligned Jacobian, ``vel`` and
     ``acc`` its 6-vector velocity and ``J̇ q̇`` (linear, angular; order 2), ``(x_d, xd, xdd)`` the reference,
@@ -50,6 +51,12 @@ def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order):  #
     w0, w1, w2 = _cross(vel[3], vel[4], vel[5], u0, u1, u2)
     jdq = z_d[0] * (a0 + w0) + z_d[1] * (a1 + w1) + z_d[2] * (a2 + w2)
     b[0] = xdd[0] + kd * (xd[0] - rate) + kp * e - jdq
+    if limit < math.inf:
+        s = 0.0
+        for c in range(n):
+            s += J[0, c] * J[0, c]
+        if jdq * jdq > limit * limit * s:
+            b[0] = b[0] + jdq
     return e
 
 

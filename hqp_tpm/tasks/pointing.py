@@ -5,6 +5,12 @@
 Error ``e = cos(alpha_d) - p_rp``. The equality keeps ``p_rp = cos(alpha_d)``; the
 inequality ``cos(alpha_d) <= p_rp`` (21) is in the stack only while ``e > 0``, with the
 same command as lower bound (Algorithm 1 of papers/000).
+
+``drift_limit`` (rad/s^2, default None: papers/000 as written) bounds the drift compensation of the
+acceleration-level command (12): the row cancels its drift ``Jdot_rp qd`` only while the least joint
+acceleration that can do so, ``|Jdot_rp qd| / ||J_rp||``, is at most ``drift_limit``; beyond, the command is
+its feedback alone (docs/pointing_drift.md: why an uncapped compensation diverges near the cone's
+singular configurations).
 """
 
 from __future__ import annotations
@@ -35,7 +41,7 @@ class Pointing(Task):
     dim = 1
 
     def __init__(self, robot: Robot, frame: str, axis, alpha_d: float, gains: Gains | None = None, *,
-                 inequality: bool = True, name: str | None = None):
+                 inequality: bool = True, name: str | None = None, drift_limit: float | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         z_d = np.asarray(axis, dtype=float).reshape(3)
@@ -49,6 +55,11 @@ class Pointing(Task):
         self._cos = np.cos(self.alpha_d)
         self._column = None  # (state, view of its frame rotation's z column), see pointing_error
         self.inequality = inequality
+        if drift_limit is not None and not (isinstance(drift_limit, (int, float)) and not isinstance(drift_limit, bool)
+                                            and np.isfinite(drift_limit) and drift_limit > 0):
+            raise ParameterError(f"pointing drift_limit = {drift_limit!r} must be a finite number > 0 (rad/s^2) "
+                                 "or None (no limit)")
+        self.drift_limit = None if drift_limit is None else float(drift_limit)
         super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
 
     def axis(self, state: State) -> np.ndarray:
@@ -74,6 +85,17 @@ class Pointing(Task):
         alpha = state.jdot_qdot(self.fid)[3:].tolist()
         a, w = cross3(alpha, z_e), cross3(omega, cross3(omega, z_e))  # z_d^T (alpha x z_e + omega x (omega x z_e))
         return np.array([self.z_d.dot(np.array([a[0] + w[0], a[1] + w[1], a[2] + w[2]]))])
+
+    def command(self, state: State, t: float, order: int, extra=None, J: np.ndarray | None = None) -> np.ndarray:
+        """:meth:`Task.command`; at acceleration level with a ``drift_limit``, the drift ``Jdot_rp qd`` is left out of
+        the command (added back) while ``|Jdot_rp qd| > drift_limit ||J_rp||`` (module doc)."""
+        J = self.jacobian(state) if J is None else J
+        b = super().command(state, t, order, extra, J)
+        if order == 2 and self.drift_limit is not None:
+            jdq = self.jdot_qdot(state)
+            if drift_left_out(jdq[0], J[0], self.drift_limit):
+                b = b + jdq
+        return b
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
@@ -116,6 +138,7 @@ class Pointing(Task):
         if views is None:
             return readable
         R = views[1]
+        limit = np.inf if self.drift_limit is None else self.drift_limit
 
         def write(t: float) -> float:
             if not _compiled.ENABLED:
@@ -128,5 +151,15 @@ class Pointing(Task):
                 vel = pin.getFrameVelocity(model, data, fid, LWA).vector
                 acc = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
             return _compiled_rows.pointing_row(J, b, R, self.z_d, Jf, state.v, vel, acc, ref[0], ref[1], ref[2],
-                                               g.kp, g.kd, order)
+                                               g.kp, g.kd, order, limit)
         return write
+
+
+def drift_left_out(jdq: float, row: np.ndarray, limit: float) -> bool:
+    """Whether the drift ``jdq`` of a pointing row ``row`` is left out of its command: ``jdq^2 > limit^2 ||row||^2``,
+    the least joint acceleration ``|jdq| / ||row||`` that cancels it beyond ``limit`` (the sum in the order of
+    :func:`hqp_tpm.tasks._compiled_rows.pointing_row`, so both give the same answer)."""
+    s = 0.0
+    for x in row.tolist():
+        s += x * x
+    return jdq * jdq > limit * limit * s
