@@ -61,7 +61,7 @@ def test_romeo_problem(romeo):
     assert romeo.nv == 27
     for cfg in prob.configs:
         res = P.hqp_controller(romeo, prob, cfg, "tpm").compute()
-        assert _rows(res.levels) == [6, 2, 3, 6, 21]  # 38 rows > 27
+        assert _rows(res.levels) == [6, 2, 3, 3, 3, 21]  # 6 levels, 38 rows > 27
         assert np.isfinite(res.command).all()
     # the configurations differ and stay inside the position limits
     lo, up = romeo.position_limits()
@@ -80,6 +80,35 @@ def test_circle_loop(iiwa, order):
     assert len(times) == len(qs) == 100 and np.isfinite(np.array(qs)).all()
     ctrl, p0 = P.hqp_circle_controller(iiwa, order)
     assert np.allclose(P.circle_reference(p0, 0.0)[0], p0)
+
+
+def test_romeo_has_the_scenario_s_damping_and_gains(romeo):
+    """The Romeo problem is solved as the romeo_sns_tpm scenario solves it: lambda_max 0.05, eps 0.1, kp 100 (issue
+    29: the benchmark's undamped kp-10 Romeo kept the solves on the compiled path the scenarios leave)."""
+    from hqp_tpm.app import scenario
+
+    sc = scenario.load("romeo_sns_tpm")
+    prob = P.romeo_problem(romeo, n=1)
+    ctrl = P.hqp_controller(romeo, prob, prob.configs[0], "sns_tpm")
+    assert (ctrl.lambda_max, ctrl.eps) == (sc.lambda_max, sc.eps) == (0.05, 0.1)
+    assert all(t.gains.kp == 100.0 for t in ctrl.tasks() if t.name != "posture")
+
+
+@pytest.mark.parametrize("solver", ["tpm", "sns_tpm"])
+def test_the_hqp_step_feeds_the_state_and_moves_the_targets(iiwa, solver):
+    """hqp-tpm's timed step is what a user runs: the state fed in (one kinematics update per call), the targets
+    assigned again and moving (consecutive calls alternate between two target sets: two commands), and its rows +
+    solve give the command of ``compute()`` at that state."""
+    prob = P.iiwa_problem(iiwa, 1, n=2)
+    c = C.Hqp(iiwa, prob, solver)
+    c.setup(prob.configs[0])
+    updates = c.ctrl.state.updates
+    x1, x2, x3 = c.step(), c.step(), c.step()
+    assert c.ctrl.state.updates == updates + 3
+    assert np.array_equal(x1, x3) and not np.allclose(x1, x2, rtol=0.0, atol=1e-9)
+    assert np.allclose(c.rows_solve(), x3, rtol=0.0, atol=1e-9)
+    moved = P.moved(prob.configs[0].targets)
+    assert np.allclose(moved["ee"].translation - prob.configs[0].targets["ee"].translation, P.NUDGE)
 
 
 def test_reduced_urdf(tmp_path):
