@@ -124,38 +124,6 @@ def test_reduced_urdf(tmp_path):
     assert sorted(model.names[2:]) == sorted(ROMEO21_JOINTS)
 
 
-@pytest.mark.parametrize(("problem", "solver"),
-                         [("iiwa_vel", "tpm"), ("iiwa_acc", "sns_tpm"), ("romeo_vel", "sns_tpm")])
-def test_profile_step_runs_on_the_lean_step(problem, solver, tmp_path, capsys):
-    """``benchmarks/peers/profile_step.py --lean`` calls the lean step's pieces as the step does (the fused kernel
-    with its five arguments): it runs and names every phase."""
-    from benchmarks.peers import profile_step
-
-    assert profile_step.main(["--lean", "--problem", problem, "--solver", solver, "--steps", "20", "--reps", "20",
-                              "--out", str(tmp_path)]) == 0
-    out = capsys.readouterr().out
-    assert "fused kernel" in out and "LeanStep.compute" in out and "integration" in out
-
-
-def test_quick_lean_groups_the_lean_sns_step_by_passes(capsys, monkeypatch):
-    """``benchmarks/peers/quick_lean.py --by-passes`` (the README's per-saturation cost on Romeo): every configuration
-    is counted once, in its pass count or among those handed to the numpy loop, and the counter it installs on the
-    numpy loop is removed after each step."""
-    import importlib
-    import re
-
-    from benchmarks.peers import quick_lean
-
-    sns = importlib.import_module("hqp_tpm.solvers.sns")
-    numpy_loop = sns._sns_tpm
-    assert quick_lean.main(["--configs", "6", "--repeats", "3", "--problems", "romeo_vel", "--by-passes"]) == 0
-    assert sns._sns_tpm is numpy_loop
-    out = capsys.readouterr().out
-    counts = [int(n) for n in re.findall(r"passes\s+(\d+)\s", out)]
-    counts += [int(n) for n in re.findall(r"numpy loop\s+(\d+)\s", out)]
-    assert sum(counts) == 6, out
-
-
 def test_the_environment_records_how_fast_the_host_ran(monkeypatch):
     """Every benchmark's environment has the host speed probe at its start and end (the same fixed workload:
     runs whose probes differ are not comparable in µs); the probe times its workload, in µs."""

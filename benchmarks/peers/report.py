@@ -76,7 +76,7 @@ def headline(index: dict) -> tuple[str, list[dict]]:
         peer = next(iter(cells.values()))["vs_peer"]
         env = next(iter(cells.values()))["env"]
         peer_row = index.get((env, prob, phase, peer))
-        key = "median_us" if phase == "loop" else "cpu_median_us"
+        key = "median_us" if phase == "loop" else "cpu_median_us"   # (a loop's steps are timed in CPU time)
         us = [f(num(cells[s], key), 1) if s in cells else "–" for s in ("tpm", "sns_tpm")]
         us.append(f(num(peer_row, key), 1) if peer_row else "–")
         body.append([title, f"{peer} [{env}]",
@@ -231,7 +231,7 @@ def main(argv=None) -> int:
         "hqp-tpm's time divided by PlaCo's with velocity limits (velocity level, in the PlaCo environment) or",
         "TSID's (acceleration level), both measured in one process, interleaved. Median: the median over the 200",
         "configurations of the ratio of thread CPU time medians at each configuration; p99: the 99th percentile of",
-        "all of hqp-tpm's timed calls over the peer's (tail against tail). Loops: wall time per step. What a step",
+        "all of hqp-tpm's timed calls over the peer's (tail against tail). Loops: thread CPU time per step. A step",
         "is: the state fed in (`ctrl.set_state(q)`; PlaCo `state.q = q; update_kinematics()`; TSID",
         "`computeProblemData(t, q, v)`), the targets assigned again (they move every call), then the command",
         "(`ctrl.compute()`; PlaCo `solve()`; TSID's solver).",
