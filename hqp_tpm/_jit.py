@@ -230,9 +230,12 @@ class _SharedSwitch(types.ModuleType):
 # -- the cache ---------------------------------------------------------------------------------------------------
 def kernel_files() -> list[Path]:
     """The package's files whose content a compiled kernel depends on: this file, every module that imports it and
-    the package modules those import by name (their constants are compiled in)."""
+    the package modules those import by name (their constants are compiled in); the application layer (``app/``,
+    which imports this module for :func:`compile_seconds` and :func:`set_notice_writer`) holds no kernel."""
     files = {Path(__file__).resolve()}
     for folder, _, names in os.walk(PACKAGE):
+        if Path(folder).relative_to(PACKAGE).parts[:1] == ("app",):  # the application reads the compile clock only
+            continue
         for name in names:
             if not name.endswith(".py"):
                 continue

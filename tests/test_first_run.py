@@ -71,3 +71,11 @@ def test_the_progress_bar_rate_leaves_the_compile_out(compiling_controller, monk
     rec, timing = runner.run(compiling_controller, 5, progress=True, lean=False)
     rec.discard()
     assert seen and seen[0] < COMPILE_S / 2, seen
+
+
+def test_the_application_layer_is_not_a_kernel_file():
+    """The runner reads the compile clock of :mod:`hqp_tpm._jit`; that import does not make the application layer
+    part of the kernel cache's key (an edit of the runner or the results would start a fresh, cold cache)."""
+    files = [f.relative_to(_jit.PACKAGE).parts for f in _jit.kernel_files()]
+    assert ("_jit.py",) in files and ("robot", "_compiled.py") in files
+    assert not [f for f in files if f[0] == "app"], files
