@@ -113,6 +113,7 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
         for c in order:
             try:
                 c.setup(cfg)
+                c.step()   # (the moved targets: the step alternates, so the next call has the configuration's own)
                 x = np.asarray(c.step(), dtype=float)
                 timed = {ph: time_calls(getattr(c, ph), repeats) for ph in PHASES if getattr(c, ph, None)}
             except Exception as exc:  # a peer failing on a configuration is counted and reported, not fatal
