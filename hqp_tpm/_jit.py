@@ -21,6 +21,10 @@
   as the pickle stream numba reads (:mod:`pickletools`, nothing is executed); a damaged one (truncated, zeroed) is
   deleted with a one-line notice on stderr, and numba compiles that kernel again and writes it anew. Files seen
   whole are listed with their size and modification time (``checked.txt``), so a later process only stats them.
+* When numba compiles a kernel of the package (not when it loads one from the cache) a one-line notice says so on
+  stderr, once per process (:data:`COMPILING`; none when a notice above already said why they compile), through
+  :func:`set_notice_writer`'s writer (e.g. a progress bar's); :func:`compile_seconds` is the time the process
+  spent compiling kernels or loading them from the cache, so callers can keep it out of step times.
 """
 
 from __future__ import annotations
@@ -54,15 +58,72 @@ _COMPILED: set[str] = set()
 _PENDING: dict[str, dict] = {}                      # modules compiled when the switch is turned on
 _LOCK = threading.RLock()
 _CACHE: list = []                                   # [the cache directory or None], once known
+_NOTICE = [None]                                    # [a writer of notice lines, or None: stderr]
+#: The notice printed the first time in a process numba compiles a kernel of the package (not when it loads one).
+COMPILING = "compiling kernels: first run on this machine only"
+_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False}
 _IMPORTS_JIT = re.compile(r"^\s*(?:from\s+hqp_tpm\s+import\s+[^\n]*\b_jit\b|from\s+hqp_tpm\._jit\s+import|"
                           r"import\s+hqp_tpm\._jit)", re.M)
 _FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)", re.M)
 
 
 def notice(message: str) -> None:
-    """One line on stderr."""
-    sys.stderr.write("hqp_tpm: " + " ".join(message.split()) + "\n")
+    """One line on stderr (or to the writer of :func:`set_notice_writer`)."""
+    line = "hqp_tpm: " + " ".join(message.split())
+    if _NOTICE[0] is not None:
+        _NOTICE[0](line)
+        return
+    sys.stderr.write(line + "\n")
     sys.stderr.flush()
+
+
+def set_notice_writer(write=None):
+    """Send :func:`notice` lines to ``write(line)`` (None: stderr, the default); returns the previous writer (a
+    progress bar on stderr passes its own, which clears the bar, writes the line and draws the bar again)."""
+    previous, _NOTICE[0] = _NOTICE[0], write
+    return previous
+
+
+def compile_seconds() -> float:
+    """Seconds (wall clock) this process has spent in numba making its kernels: compiling them or loading them
+    from the cache (the time numba holds its compiler lock, numba's ``numba:compiler_lock`` events); 0.0 before
+    any."""
+    return _COMPILE["seconds"] + (time.perf_counter() - _COMPILE["start"] if _COMPILE["depth"] else 0.0)
+
+
+def _listen() -> None:
+    """Register the listeners of numba's events (once): the first compile of a package kernel in the process (a
+    ``numba:compile`` event, which loading from the cache does not raise) prints :data:`COMPILING`; the outermost
+    ``numba:compiler_lock`` spans add up to :func:`compile_seconds`."""
+    if _COMPILE["listening"]:
+        return
+    from numba.core import event
+
+    class Compiling(event.Listener):
+        def on_start(self, ev):
+            fn = getattr(ev.data.get("dispatcher"), "py_func", None)
+            in_memory = bool(_CACHE) and _CACHE[0] is None  # (compiled in every process: cache_dir's notice says so)
+            if not _COMPILE["noticed"] and not in_memory and getattr(fn, "__module__", "").startswith("hqp_tpm"):
+                _COMPILE["noticed"] = True
+                notice(COMPILING)
+
+        def on_end(self, ev):
+            pass
+
+    class Locked(event.Listener):
+        def on_start(self, ev):
+            if _COMPILE["depth"] == 0:
+                _COMPILE["start"] = time.perf_counter()
+            _COMPILE["depth"] += 1
+
+        def on_end(self, ev):
+            _COMPILE["depth"] = max(_COMPILE["depth"] - 1, 0)
+            if _COMPILE["depth"] == 0:
+                _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
+
+    event.register("numba:compile", Compiling())
+    event.register("numba:compiler_lock", Locked())
+    _COMPILE["listening"] = True
 
 
 def kernel(fn=None, *, inline: bool = False):
@@ -122,6 +183,7 @@ def dispatcher(fn, inline: bool = False):
             _SWITCH["available"] = _SWITCH["enabled"] = False
             notice(f"numba cannot be imported ({e}): the compiled kernels are off")
             return None
+        _listen()
         where = cache_dir()
         options = {"nogil": True, "inline": "always" if inline else "never"}
         if where is None:
@@ -168,9 +230,12 @@ class _SharedSwitch(types.ModuleType):
 # -- the cache ---------------------------------------------------------------------------------------------------
 def kernel_files() -> list[Path]:
     """The package's files whose content a compiled kernel depends on: this file, every module that imports it and
-    the package modules those import by name (their constants are compiled in)."""
+    the package modules those import by name (their constants are compiled in); the application layer (``app/``,
+    which imports this module for :func:`compile_seconds` and :func:`set_notice_writer`) holds no kernel."""
     files = {Path(__file__).resolve()}
     for folder, _, names in os.walk(PACKAGE):
+        if Path(folder).relative_to(PACKAGE).parts[:1] == ("app",):  # the application reads the compile clock only
+            continue
         for name in names:
             if not name.endswith(".py"):
                 continue
@@ -297,6 +362,7 @@ def discard_damaged(where: Path) -> list[Path]:
             continue
         damaged.append(path)
     if damaged:
+        _COMPILE["noticed"] = True  # (this notice says they are compiled again: no second line)
         notice(f"discarded {len(damaged)} damaged compiled-kernel cache file(s) in {where} "
                f"({', '.join(p.name for p in damaged[:3])}{', ...' if len(damaged) > 3 else ''}): compiled again")
     if set(checked) != seen:

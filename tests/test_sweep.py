@@ -12,7 +12,7 @@ from hqp_tpm.errors import HqpTpmError, ScenarioError, SweepError
 
 STEPS = 60
 GRID = {"policy.d_m": [0.15, 0.25], "obstacles[0].center": [[0.9, 0.5, 0.0], [0.8, 0.6, 0.0]]}
-SKIP = {"wall_time_s", "mean_step_us", "variant_wall_s", "out", "resumed"}
+SKIP = {"wall_time_s", "mean_step_us", "compile_s", "variant_wall_s", "out", "resumed"}
 
 
 def run(tmp_path, **kw):

@@ -1,10 +1,13 @@
 """The contenders: the same problem in hqp-tpm, pink, PlaCo and TSID.
 
 Every contender has ``setup(cfg)`` (targets and state of one configuration, not timed), ``step()``
-(a full step at that state: kinematics + task rows + solve; returns the joint velocity or
-acceleration in hqp-tpm's column order) and ``solve()`` (the solver alone on the problem ``step``
-built, where the library lets it be separated; ``None`` where not). Closed loops are in
-:func:`circle_loop`.
+(what a user's control step does: the state fed in, the targets assigned again -- they alternate between the
+configuration's and :func:`~benchmarks.peers.problems.moved` ones, so they move every call --, kinematics, task
+rows, solve; returns the joint velocity or acceleration in hqp-tpm's column order), ``rows_solve()`` (task rows and
+solve at the state already fed, what PlaCo's ``solve`` does; ``None`` where the library cannot separate it) and
+``solve()`` (the solver alone on the problem ``step`` built; ``None`` where not separable). Closed loops are in
+:func:`circle_loop`: each library used natively, nothing of the harness timed (the peers' circle samples are
+made before the loop).
 
 Gains: pink's task gain is ``kp dt`` (its tasks drive ``J dq = -gain e`` per step of ``dt``).
 PlaCo has no task gains (its tasks drive the whole error in one step), so its targets are set
@@ -37,52 +40,56 @@ def _hqp_cols(robot, names_q_v):
 
 # -- hqp-tpm ------------------------------------------------------------------------------------
 class Hqp:
-    """hqp-tpm through its public API: Controller(robot, Stack, solver) with ``compute()`` as the step."""
+    """hqp-tpm through its public API, as a user runs it: ``step`` feeds the state (``ctrl.set_state``), assigns
+    the targets (moved every call) and computes (``ctrl.compute()``); ``rows_solve`` is the task rows and the solve
+    at the state already set (``Stack.to_levels`` + the solver: what PlaCo's ``solve`` does); ``solve`` the solver
+    alone on the levels of the configuration."""
 
-    def __init__(self, robot, problem, solver: str, lean: bool = False):
+    def __init__(self, robot, problem, solver: str):
         from hqp_tpm.solvers import cascaded_qp, sns_tpm, tpm
 
-        self.robot, self.problem, self.solver, self.lean = robot, problem, solver, lean
-        self.name = f"hqp-tpm {solver}" + (" (lean)" if lean else "")
+        self.robot, self.problem, self.solver = robot, problem, solver
+        self.name = f"hqp-tpm {solver}"
         self._tpm, self._sns, self._qp = tpm, sns_tpm, cascaded_qp
 
     def setup(self, cfg):
-        self.ctrl = P.hqp_controller(self.robot, self.problem, cfg, self.solver)
+        tasks = P.hqp_tasks(self.robot, self.problem, cfg)
+        self.tasks = {}
+        for item in tasks:
+            for task in item if isinstance(item, tuple) else (item,):
+                self.tasks[task.name] = task
+        self.ctrl = P.hqp_controller(self.robot, self.problem, cfg, self.solver, tasks=tasks)
+        self.stack = self.ctrl.policy.stack
+        self.q, self.v = cfg.q, cfg.v
+        self.targets = (cfg.targets, P.moved(cfg.targets))
+        self.k = 0
         res = self.ctrl.compute()
         self.levels = res.levels
         st = self.ctrl.state
         self.box = self.ctrl.box(st, self.ctrl.t) if self.ctrl.box is not None else None
-        if self.lean:  # the lean step (hqp_tpm.control.lean): one preallocated J, b; no Level objects
-            from hqp_tpm.solvers.sns import sns_tpm, sns_tpm_stacked
-            from hqp_tpm.solvers.tpm import tpm_stacked
-
-            self.fast = f = self.ctrl.lean()
-            if f is None:
-                raise RuntimeError(f"no lean step: {type(f).why_not(self.ctrl)}")
-            f.compute()
-            if self.solver == "tpm":
-                self._lean_solve = lambda: tpm_stacked(f.J, f.b, f.sizes, f.n, f.lambda_max, f.eps)
-            elif self.solver == "sns_tpm":
-                lo, up = (a.copy() for a in f._box(st, self.ctrl.t))
-                self._lean_solve = (lambda: sns_tpm_stacked(f.J, f.b, f.sizes, lo, up, lambda_max=f.lambda_max,
-                                                            eps=f.eps)) if f.x0 is None else \
-                    (lambda: sns_tpm(f.levels, lo, up, lambda_max=f.lambda_max, eps=f.eps))
-            else:
-                self._lean_solve = None
 
     def step(self):
-        return self.fast.compute() if self.lean else self.ctrl.compute().command
+        self.k ^= 1
+        P.assign_targets(self.tasks, self.targets[self.k])
+        self.ctrl.set_state(self.q, self.v)
+        return self.ctrl.compute().command
 
-    def solve(self):
-        nv = self.robot.nv
-        if self.lean and self._lean_solve is not None:
-            return self._lean_solve()
+    def _solve(self, levels):
+        nv, c = self.robot.nv, self.ctrl
         if self.solver == "tpm":
-            return self._tpm(self.levels, n=nv)
+            return self._tpm(levels, n=nv, lambda_max=c.lambda_max, eps=c.eps)
         lo, up = self.box
         if self.solver == "sns_tpm":
-            return self._sns(self.levels, lo, up)
-        return self._qp(self.levels, solver=self.solver.split(":", 1)[1], lower=lo, upper=up, n=nv)
+            return self._sns(levels, lo, up, lambda_max=c.lambda_max, eps=c.eps)
+        return self._qp(levels, solver=self.solver.split(":", 1)[1], lower=lo, upper=up, n=nv,
+                        lambda_max=c.lambda_max, eps=c.eps)
+
+    def rows_solve(self):
+        c = self.ctrl
+        return self._solve(self.stack.to_levels(c.state, c.t, c.order))
+
+    def solve(self):
+        return self._solve(self.levels)
 
 
 # -- pink ---------------------------------------------------------------------------------------
@@ -119,27 +126,37 @@ class Pink:
 
         self._qp = qpsolvers.solve_problem
 
+    def _targets(self, t, q):
+        """pink's targets (task, value) of one target set ``t`` at configuration ``q``."""
+        if self.problem.robot_name == P.IIWA:
+            return [(self.ee, t["ee"]), (self.posture, t["posture"])]
+        out = [(self.frames["right_sole"], t["right_sole"])]
+        for key in ("left_foot", "left_hand", "right_hand"):
+            cur = self.conf.get_transform_frame_to_world(self.frames[key].frame)
+            out.append((self.frames[key], pin.SE3(cur.rotation, np.asarray(t[key]))))
+        com = pin.centerOfMass(self.robot.model, self.robot.model.createData(), q)
+        q_ref = q.copy()
+        q_ref[7:] = t["posture"]
+        return [*out, (self.com, np.array([t["com"][0], t["com"][1], com[2]])), (self.posture, q_ref)]
+
     def setup(self, cfg):
         self.q = cfg.q
         self.conf.update(cfg.q)
-        if self.problem.robot_name == P.IIWA:
-            self.ee.set_target(cfg.targets["ee"])
-            q_ref = cfg.targets["posture"]
-        else:
-            t = cfg.targets
-            self.frames["right_sole"].set_target(t["right_sole"])
-            for key in ("left_foot", "left_hand", "right_hand"):
-                cur = self.conf.get_transform_frame_to_world(self.frames[key].frame)
-                self.frames[key].set_target(pin.SE3(cur.rotation, np.asarray(t[key])))
-            com = pin.centerOfMass(self.robot.model, self.robot.model.createData(), cfg.q)
-            self.com.set_target(np.array([t["com"][0], t["com"][1], com[2]]))
-            q_ref = cfg.q.copy()
-            q_ref[7:] = t["posture"]
-        self.posture.set_target(q_ref)
+        self.targets = (self._targets(cfg.targets, cfg.q), self._targets(P.moved(cfg.targets), cfg.q))
+        self.k = 0
+        for task, value in self.targets[0]:
+            task.set_target(value)
         self.problem_qp = self._build(self.conf, self.tasks, P.DT, limits=self.limits, constraints=self.constraints)
 
     def step(self):
+        self.k ^= 1
+        for task, value in self.targets[self.k]:
+            task.set_target(value)
         self.conf.update(self.q)
+        return self._solve_ik(self.conf, self.tasks, P.DT, solver="daqp", limits=self.limits,
+                              constraints=self.constraints, safety_break=False)
+
+    def rows_solve(self):
         return self._solve_ik(self.conf, self.tasks, P.DT, solver="daqp", limits=self.limits,
                               constraints=self.constraints, safety_break=False)
 
@@ -244,11 +261,10 @@ class Placo:
         self.pr.state.q = qp
         self.q = qp
 
-    def setup(self, cfg):
+    def _targets(self, t, q):
+        """PlaCo's targets of one target set ``t`` at configuration ``q`` (kinematics updated there): each ``kp dt``
+        of the way from the current value (PlaCo's tasks drive the whole error in one step)."""
         a = P.KP_EE * P.DT if self.problem.robot_name == P.IIWA else P.KP_ROMEO * P.DT
-        self._set_q(cfg.q)
-        self.pr.update_kinematics()
-        t = cfg.targets
 
         def blend_pose(frame, M):   # kp dt of the way (position and world rotation vector)
             T = self.pr.get_T_world_frame(frame)
@@ -259,29 +275,48 @@ class Placo:
             return out
 
         if self.problem.robot_name == P.IIWA:
-            self.ee.T_world_frame = blend_pose(P.IIWA_EE, t["ee"])
-            q_ref, ap = t["posture"], P.KP_POSTURE * P.DT
-            q_now = cfg.q
+            poses = [(self.ee, blend_pose(P.IIWA_EE, t["ee"]))]
+            positions = []
+            q_ref, ap, q_now = t["posture"], P.KP_POSTURE * P.DT, q
         else:
-            self.sole.T_world_frame = blend_pose("r_sole", t["right_sole"])
+            poses = [(self.sole, blend_pose("r_sole", t["right_sole"]))]
             com = np.array(self.pr.com_world())
-            self.com.target_world = np.array([com[0] + a * (t["com"][0] - com[0]),
-                                              com[1] + a * (t["com"][1] - com[1]), com[2]])
+            positions = [(self.com, np.array([com[0] + a * (t["com"][0] - com[0]),
+                                              com[1] + a * (t["com"][1] - com[1]), com[2]]))]
             for k, task in self.pos.items():
                 p = self.pr.get_T_world_frame(P.ROMEO_FRAMES[k])[:3, 3]
-                task.target_world = p + a * (np.asarray(t[k]) - p)
-            q_ref, ap = t["posture"], P.KP_ROMEO_POSTURE * P.DT
-            q_now = cfg.q[7:]
-        self.joints.set_joints({n: float(q_now[i] + ap * (q_ref[i] - q_now[i]))
-                                for i, n in enumerate(self.joint_names)})
+                positions.append((task, p + a * (np.asarray(t[k]) - p)))
+            q_ref, ap, q_now = t["posture"], P.KP_ROMEO_POSTURE * P.DT, q[7:]
+        joints = {n: float(q_now[i] + ap * (q_ref[i] - q_now[i])) for i, n in enumerate(self.joint_names)}
+        return poses, positions, joints
+
+    def _assign(self, targets):
+        poses, positions, joints = targets
+        for task, T in poses:
+            task.T_world_frame = T
+        for task, p in positions:
+            task.target_world = p
+        self.joints.set_joints(joints)
+
+    def setup(self, cfg):
+        self._set_q(cfg.q)
+        self.pr.update_kinematics()
+        self.targets = (self._targets(cfg.targets, cfg.q), self._targets(P.moved(cfg.targets), cfg.q))
+        self.k = 0
+        self._assign(self.targets[0])
 
     def step(self):
+        self.k ^= 1
+        self._assign(self.targets[self.k])
         self.pr.state.q = self.q
         self.pr.update_kinematics()
         return self.solver.solve(False)[self.vi] / P.DT
 
-    def solve(self):
+    def rows_solve(self):   # PlaCo builds its task matrices inside solve
         return self.solver.solve(False)[self.vi] / P.DT
+
+    #: the solver alone on built matrices: not separable in PlaCo's API
+    solve = None
 
 
 # -- TSID ---------------------------------------------------------------------------------------
@@ -323,23 +358,39 @@ class Tsid:
         self.qp = tsid.SolverHQuadProgFast("qp")
         self.qp.resize(self.form.nVar, self.form.nEq, self.form.nIn)
 
-    def set_ee_reference(self, M, vel=None, acc=None):
+    def ee_sample(self, M, vel=None, acc=None):
+        """TSID's reference sample of an EE pose (with velocity and acceleration when given)."""
         s = self.tsid.TrajectorySE3Constant("ee_ref", M).computeNext()
         if vel is not None:
             s.derivative(np.asarray(vel))
             s.second_derivative(np.asarray(acc))
-        self.ee.setReference(s)
+        return s
+
+    def set_ee_reference(self, M, vel=None, acc=None):
+        self.ee.setReference(self.ee_sample(M, vel, acc))
+
+    def _samples(self, t):
+        return (self.ee_sample(t["ee"]),
+                self.tsid.TrajectoryEuclidianConstant("posture_ref", np.asarray(t["posture"])).computeNext())
 
     def setup(self, cfg):
         self.q, self.v = cfg.q, cfg.v
-        self.set_ee_reference(cfg.targets["ee"])
-        self.posture.setReference(self.tsid.TrajectoryEuclidianConstant("posture_ref",
-                                                                         cfg.targets["posture"]).computeNext())
+        self.targets = (self._samples(cfg.targets), self._samples(P.moved(cfg.targets)))
+        self.k = 0
+        self.ee.setReference(self.targets[0][0])
+        self.posture.setReference(self.targets[0][1])
         self.data = self.form.computeProblemData(0.0, self.q, self.v)
 
     def step(self):
+        self.k ^= 1
+        ee, posture = self.targets[self.k]
+        self.ee.setReference(ee)
+        self.posture.setReference(posture)
         data = self.form.computeProblemData(0.0, self.q, self.v)
         return self.form.getAccelerations(self.qp.solve(data))
+
+    #: task rows without the kinematics: not separable in TSID's API (computeProblemData does both)
+    rows_solve = None
 
     def solve(self):
         return self.form.getAccelerations(self.qp.solve(self.data))
@@ -360,17 +411,8 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
     p0 = data0.oMf[fid].translation.copy()
     R0 = data0.oMf[fid].rotation.copy()
     times, qs, cmds = [], [], []
-    if kind.startswith("hqp"):
+    if kind.startswith("hqp"):   # the circle is the task's own trajectory (Harmonic): nothing to assign
         ctrl, _ = P.hqp_circle_controller(robot, order, kw.get("solver", "tpm"))
-        if kw.get("lean"):
-            lean = ctrl.lean()
-            for _ in range(steps):
-                t0 = timer()
-                x = lean.step()
-                times.append(timer() - t0)
-                qs.append(ctrl.q)
-                cmds.append(x)
-            return times, qs, cmds
         for _ in range(steps):
             t0 = timer()
             res = ctrl.step()
@@ -378,6 +420,8 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
             qs.append(ctrl.q)
             cmds.append(res.command)
         return times, qs, cmds
+    # the peers have no circle trajectory of their own: its samples are made before the loop (not timed)
+    circle = [P.circle_reference(p0, k * dt) for k in range(steps + 1)]
     if kind.startswith("pink"):
         import pink
         from pink.tasks import FrameTask, PostureTask
@@ -387,10 +431,10 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
         post = PostureTask(cost=1e-3, gain=P.KP_POSTURE * dt)
         post.set_target(q0)
         tasks, limits = [ee, post], (None if kw.get("limits") else [])
+        targets = [pin.SE3(R0, p) for p, _, _ in circle]
         for k in range(steps):
             t0 = timer()
-            p, _, _ = P.circle_reference(p0, k * dt)
-            ee.set_target(pin.SE3(R0, p))
+            ee.set_target(targets[k])
             v = pink.solve_ik(conf, tasks, dt, solver="daqp", limits=limits, safety_break=False)
             conf.integrate_inplace(v, dt)
             times.append(timer() - t0)
@@ -402,13 +446,14 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
         c._set_q(q0)
         c.pr.update_kinematics()
         c.joints.set_joints({n: float(q0[i]) for i, n in enumerate(c.joint_names)})
-        T = np.eye(4)
-        T[:3, :3] = R0
+        targets = []
+        for p, _, _ in circle[1:]:   # the pose at the end of the step
+            T = np.eye(4)
+            T[:3, :3], T[:3, 3] = R0, p
+            targets.append(T)
         for k in range(steps):
             t0 = timer()
-            p, _, _ = P.circle_reference(p0, (k + 1) * dt)   # the pose at the end of the step
-            T[:3, 3] = p
-            c.ee.T_world_frame = T
+            c.ee.T_world_frame = targets[k]
             c.pr.update_kinematics()
             dq = c.solver.solve(True)   # PlaCo's usage: the whole error in one step, applied to the state
             times.append(timer() - t0)
@@ -418,16 +463,17 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
     if kind.startswith("tsid"):
         c = Tsid(robot, P.Problem("iiwa_acc", P.IIWA, 2, []))
         c.posture.setReference(c.tsid.TrajectoryEuclidianConstant("posture_ref", q0).computeNext())
+        samples = [c.ee_sample(pin.SE3(R0, p), np.r_[pd, 0.0, 0.0, 0.0], np.r_[pdd, 0.0, 0.0, 0.0])
+                   for p, pd, pdd in circle]
         q, v = q0.copy(), np.zeros(robot.nv)
-        model = robot.model
+        model, integrate = robot.model, pin.integrate
         for k in range(steps):
             t0 = timer()
-            p, pd, pdd = P.circle_reference(p0, k * dt)
-            c.set_ee_reference(pin.SE3(R0, p), np.r_[pd, 0.0, 0.0, 0.0], np.r_[pdd, 0.0, 0.0, 0.0])
+            c.ee.setReference(samples[k])
             data = c.form.computeProblemData(k * dt, q, v)
             a = c.form.getAccelerations(c.qp.solve(data))
-            q = pin.integrate(model, q, v * dt + 0.5 * a * dt * dt)
-            v = v + a * dt
+            q = integrate(model, q, (v + 0.5 * dt * a) * dt)
+            v = v + dt * a
             times.append(timer() - t0)
             qs.append(q)
             cmds.append(a)

@@ -10,9 +10,12 @@ Problems (velocity level unless said otherwise; ``dt`` = 1 ms):
 
 * ``iiwa_vel``: KUKA LBR iiwa 7, end-effector pose (6 rows) > posture (7 rows, a conflicting random
   posture). EE target: the pose at a configuration 0.05 rad (std) away; kp = 10 (EE), 1 (posture).
-* ``romeo_vel``: Romeo, 21 joints + free-flyer (nv = 27): right-sole pose (6) > CoM x-y (2) > left-foot
-  position (3) > both hand positions (3 + 3) > posture of the 21 joints; targets 0.5-2 cm (std) away, the
-  posture target the scenario's initial posture (configurations: 0.1 rad std around it).
+* ``romeo_vel``: Romeo, 21 joints + free-flyer (nv = 27), the ``romeo_sns_tpm`` scenario's stack, gains and
+  damping: right-sole pose (6) > CoM x-y (2) > left-foot position (3) > left-hand position (3) > right-hand
+  position (3), kp = 100, ``lambda_max`` = 0.05, ``eps`` = 0.1, plus a posture level of the 21 joints (kp = 1) that
+  makes m > n; targets 0.5-2 cm (std) away, the posture target the scenario's initial posture (configurations:
+  0.1 rad std around it). (The scenario's command-rate bound is left out: one configuration has no previous
+  command.)
 * ``iiwa_acc``: iiwa, acceleration level, EE pose (priority 0) + posture; kp = 100, kd = 20 (EE),
   kp = 10, kd = 2 sqrt(10) (posture); random joint velocities (std 0.3 rad/s).
 * ``iiwa_circle``: closed loop from one configuration: the EE position follows a 10 cm circle (one turn
@@ -40,7 +43,11 @@ ROMEO = "romeo21"
 KP_EE, KP_POSTURE = 10.0, 1.0                               # velocity level
 KP_EE_ACC, KD_EE_ACC = 100.0, 20.0                          # acceleration level
 KP_POSTURE_ACC, KD_POSTURE_ACC = 10.0, 2.0 * math.sqrt(10.0)
-KP_ROMEO, KP_ROMEO_POSTURE = 10.0, 1.0
+KP_ROMEO, KP_ROMEO_POSTURE = 100.0, 1.0                     # the romeo_tpm / romeo_sns_tpm scenarios' kp
+ROMEO_LAMBDA_MAX, ROMEO_EPS = 0.05, 0.1                     # ... and their damping
+#: Every timed step assigns the targets again, alternating between the configuration's targets and these moved by
+#: :data:`NUDGE` (m, rad): the targets move every step, as a user's do.
+NUDGE = 1e-4
 
 CIRCLE_RADIUS, CIRCLE_OMEGA, CIRCLE_STEPS = 0.1, 2.0 * math.pi, 2000
 
@@ -81,6 +88,8 @@ class Problem:
     order: int
     configs: list[Config]
     description: str = ""
+    lambda_max: float = 0.0   # hqp-tpm's damping of the problem (the library's own where a scenario sets it)
+    eps: float = 0.0
 
 
 # -- configurations ------------------------------------------------------------------------------
@@ -145,7 +154,20 @@ def romeo_problem(robot, n: int = N_CONFIGS, seed: int = SEED) -> Problem:
         }
         configs.append(Config(q, np.zeros(robot.nv), targets))
     return Problem("romeo_vel", ROMEO, 1, configs,
-                   "Romeo 27 nv, sole > CoM > foot > hands > posture, velocity level")
+                   "Romeo 27 nv, sole > CoM > foot > left hand > right hand > posture, velocity level",
+                   ROMEO_LAMBDA_MAX, ROMEO_EPS)
+
+
+def moved(targets: dict) -> dict:
+    """``targets`` moved by :data:`NUDGE` (every position and joint target; poses: translation and a rotation about
+    x), the second of the two target sets a timed step alternates between."""
+    out = {}
+    for k, t in targets.items():
+        if isinstance(t, pin.SE3):
+            out[k] = pin.SE3(pin.exp3(np.array([NUDGE, 0.0, 0.0])) @ t.rotation, t.translation + NUDGE)
+        else:
+            out[k] = np.asarray(t, dtype=float) + NUDGE
+    return out
 
 
 def circle_start(robot) -> np.ndarray:
@@ -180,9 +202,23 @@ def hqp_tasks(robot, problem: Problem, cfg: Config):
     return [FramePose(robot, "r_sole", t["right_sole"], g, name="right_sole"),
             CenterOfMass(t["com"], g, axes="xy", name="com"),
             FramePosition(robot, "l_sole", t["left_foot"], g, name="left_foot"),
-            (FramePosition(robot, "l_gripper", t["left_hand"], g, name="left_hand"),
-             FramePosition(robot, "r_gripper", t["right_hand"], g, name="right_hand")),
+            FramePosition(robot, "l_gripper", t["left_hand"], g, name="left_hand"),
+            FramePosition(robot, "r_gripper", t["right_hand"], g, name="right_hand"),
             Posture(robot, t["posture"], gp, name="posture")]
+
+
+def assign_targets(tasks: dict, targets: dict) -> None:
+    """Give each hqp-tpm task (by name) its target from ``targets`` (as a user moving targets does, every step): a
+    task with a ``target`` property takes it there; else a pose its SE3 placement (``FramePose`` keeps it as
+    ``_M_target``: no public setter yet), the others a new constant value of their trajectory."""
+    for name, task in tasks.items():
+        value = targets[name]
+        if isinstance(getattr(type(task), "target", None), property):
+            task.target = value
+        elif isinstance(value, pin.SE3):
+            task._M_target = value
+        else:
+            task.trajectory.value = value
 
 
 def joint_limits_box(robot, order: int):
@@ -192,13 +228,15 @@ def joint_limits_box(robot, order: int):
     return JointLimits(robot, order=order, dt=DT, position=True, velocity=True)
 
 
-def hqp_controller(robot, problem: Problem, cfg: Config, solver: str = "tpm"):
-    """A controller at ``cfg`` with the problem's stack (``solver``: ``tpm``, ``sns_tpm``, ``qp:daqp``...)."""
+def hqp_controller(robot, problem: Problem, cfg: Config, solver: str = "tpm", tasks: list | None = None):
+    """A controller at ``cfg`` with the problem's stack (``solver``: ``tpm``, ``sns_tpm``, ``qp:daqp``...) and
+    damping; ``tasks``: the stack's tasks (:func:`hqp_tasks`) when the caller keeps them."""
     from hqp_tpm import Controller, Stack
 
-    stack = Stack.of(*hqp_tasks(robot, problem, cfg))
+    stack = Stack.of(*(tasks if tasks is not None else hqp_tasks(robot, problem, cfg)))
     box = joint_limits_box(robot, problem.order) if solver != "tpm" else None
-    return Controller(robot, stack, order=problem.order, dt=DT, solver=solver, box=box, q0=cfg.q, v0=cfg.v)
+    return Controller(robot, stack, order=problem.order, dt=DT, solver=solver, box=box, q0=cfg.q, v0=cfg.v,
+                      lambda_max=problem.lambda_max, eps=problem.eps)
 
 
 def hqp_circle_controller(robot, order: int, solver: str = "tpm"):

@@ -23,9 +23,7 @@ from benchmarks import common  # noqa: E402
 ENV_ORDER = ("pin4", "pin38", "pin34")
 SUMMARY_COLUMNS = (  # (column title, contender, environments to take it from, in order of preference)
     ("hqp-tpm `tpm`", "hqp-tpm tpm", ("pin4", "pin34", "pin38")),
-    ("hqp-tpm `tpm`, lean step", "hqp-tpm tpm (lean)", ("pin4", "pin34", "pin38")),
     ("hqp-tpm `sns_tpm`", "hqp-tpm sns_tpm", ("pin4", "pin34", "pin38")),
-    ("hqp-tpm `sns_tpm`, lean step", "hqp-tpm sns_tpm (lean)", ("pin4", "pin34", "pin38")),
     ("hqp-tpm cascaded QP (daqp)", "hqp-tpm qp:daqp", ("pin4", "pin34", "pin38")),
     ("pink 4.4 (weighted QP, daqp)", "pink", ("pin4", "pin38")),
     ("pink + limits", "pink + limits", ("pin4", "pin38")),
@@ -35,15 +33,59 @@ SUMMARY_COLUMNS = (  # (column title, contender, environments to take it from, i
     ("TSID 1.7 (HQP)", "TSID", ("pin34",)),
 )
 SUMMARY_ROWS = (
-    ("iiwa_vel", "solve", "iiwa 7, EE pose (6) > posture (7), velocity level: solve alone"),
-    ("iiwa_vel", "step", "same, full step (kinematics + tasks + solve)"),
-    ("romeo_vel", "solve", "Romeo 27 nv, sole > CoM > foot > hands > posture: solve alone"),
-    ("romeo_vel", "step", "same, full step"),
-    ("iiwa_acc", "solve", "iiwa, acceleration level, EE priority 0 + posture: solve alone"),
-    ("iiwa_acc", "step", "same, full step"),
+    ("iiwa_vel", "step", "iiwa 7, EE pose (6) > posture (7), velocity level: step (state in, targets moved, "
+     "kinematics, rows, solve)"),
+    ("iiwa_vel", "rows_solve", "same: rows + solve at a state already fed in (PlaCo's `solve`)"),
+    ("iiwa_vel", "solve", "same: solver alone on built matrices"),
+    ("romeo_vel", "step", "Romeo 27 nv, sole > CoM > foot > left hand > right hand > posture, lambda_max 0.05, "
+     "eps 0.1, kp 100: step"),
+    ("romeo_vel", "rows_solve", "same: rows + solve"),
+    ("romeo_vel", "solve", "same: solver alone"),
+    ("iiwa_acc", "step", "iiwa, acceleration level, EE priority 0 + posture: step"),
+    ("iiwa_acc", "solve", "same: solver alone"),
     ("iiwa_circle_vel", "loop", "2,000-step closed loop, iiwa circle, velocity level"),
     ("iiwa_circle_acc", "loop", "2,000-step closed loop, iiwa circle, acceleration level"),
 )
+#: The headline: hqp-tpm's time over the reference peer's, measured in the peer's environment (issue 29's table).
+HEADLINE = (  # (problem, phase, title)
+    ("iiwa_vel", "step", "iiwa 7, EE pose > posture: step (state fed in, targets moved)"),
+    ("iiwa_vel", "rows_solve", "iiwa 7: rows + solve (PlaCo: its `solve`, which builds its task matrices)"),
+    ("romeo_vel", "step", "Romeo 27 nv, 6 levels, the library's damping and gains: step"),
+    ("romeo_vel", "rows_solve", "Romeo: rows + solve (PlaCo: its `solve`)"),
+    ("iiwa_circle_vel", "loop", "iiwa circle, velocity level, closed loop (per step)"),
+    ("iiwa_acc", "step", "iiwa, acceleration level: step (state fed in, targets moved)"),
+    ("iiwa_acc", "solve", "iiwa, acceleration level: solver alone"),
+    ("iiwa_circle_acc", "loop", "iiwa circle, acceleration level, closed loop (per step)"),
+)
+
+
+def headline(index: dict) -> tuple[str, list[dict]]:
+    """The table of hqp-tpm ``tpm`` and ``sns_tpm`` against the reference peer (median and p99 ratios, thread CPU
+    time; loops: wall time per step) and its rows (for the CSV)."""
+    head = ["problem", "against", "`tpm` median / p99", "`sns_tpm` median / p99", "µs: `tpm` / `sns_tpm` / peer"]
+    body, out = [], []
+    for prob, phase, title in HEADLINE:
+        cells = {}
+        for solver in ("tpm", "sns_tpm"):
+            r = next((index[k] for k in index if k[1:] == (prob, phase, f"hqp-tpm {solver}")
+                      and index[k].get("vs_peer")), None)
+            if r is not None:
+                cells[solver] = r
+        if not cells:
+            continue
+        peer = next(iter(cells.values()))["vs_peer"]
+        env = next(iter(cells.values()))["env"]
+        peer_row = index.get((env, prob, phase, peer))
+        key = "median_us" if phase == "loop" else "cpu_median_us"   # (a loop's steps are timed in CPU time)
+        us = [f(num(cells[s], key), 1) if s in cells else "–" for s in ("tpm", "sns_tpm")]
+        us.append(f(num(peer_row, key), 1) if peer_row else "–")
+        body.append([title, f"{peer} [{env}]",
+                     *[f"{num(cells[s], 'vs_ratio_median'):.2f}× / {num(cells[s], 'vs_ratio_p99'):.2f}×"
+                       if s in cells else "–" for s in ("tpm", "sns_tpm")], " / ".join(us)])
+        for s, r in cells.items():
+            out.append({"problem": prob, "phase": phase, "solver": s, "against": peer, "env": env,
+                        "ratio_median": num(r, "vs_ratio_median"), "ratio_p99": num(r, "vs_ratio_p99")})
+    return common.md_table(head, body), out
 
 
 def read(path: Path) -> tuple[dict[str, str], list[dict]]:
@@ -122,6 +164,7 @@ def main(argv=None) -> int:
         if any_:
             body.append(cells)
     summary = common.md_table(head, body)
+    top, _ = headline(index)
 
     # quality --------------------------------------------------------------------------------
     qhead = ["env", "problem", "contender", "top-level residual, own formulation (median / max)",
@@ -182,6 +225,18 @@ def main(argv=None) -> int:
         "pin 3.8.0, [pin34] = pin 3.4.0) says where a cell was measured. Closed loops: ratio of whole-loop",
         "times (median of the interleaved rounds), µs per step. Absolute times depend on the machine's",
         "load (below); compare ratios.",
+        "",
+        "## hqp-tpm against the reference peer (higher than 1: hqp-tpm is slower)",
+        "",
+        "hqp-tpm's time divided by PlaCo's with velocity limits (velocity level, in the PlaCo environment) or",
+        "TSID's (acceleration level), both measured in one process, interleaved. Median: the median over the 200",
+        "configurations of the ratio of thread CPU time medians at each configuration; p99: the 99th percentile of",
+        "all of hqp-tpm's timed calls over the peer's (tail against tail). Loops: thread CPU time per step. A step",
+        "is: the state fed in (`ctrl.set_state(q)`; PlaCo `state.q = q; update_kinematics()`; TSID",
+        "`computeProblemData(t, q, v)`), the targets assigned again (they move every call), then the command",
+        "(`ctrl.compute()`; PlaCo `solve()`; TSID's solver).",
+        "",
+        top,
         "",
         "## Time relative to hqp-tpm `tpm` (lower is faster)",
         "",

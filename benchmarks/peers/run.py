@@ -5,11 +5,14 @@
 Runs every problem of :mod:`benchmarks.peers.problems` with every contender that imports here
 (hqp-tpm ``tpm``, ``sns_tpm``, cascaded QP with daqp; pink; PlaCo; TSID), contenders interleaved:
 for each configuration every contender does 2 warm-up calls and ``--repeats`` timed calls of its
-full step, then of its solve alone, in an order rotated from one configuration to the next. Per
-configuration the median of the repeats is taken and divided by hqp-tpm ``tpm``'s median at the same
-configuration (the ratio); the summary gives the medians over configurations, the ratios' median and
-99th percentile, the 99th percentile of all calls, and the quality of each contender's command at
-each configuration (top-level residual against hqp-tpm's first level, joint-velocity box violation).
+step (state fed in, targets moved, kinematics, rows, solve), then of its rows + solve, then of its solve alone
+(where the library separates them), in an order rotated from one configuration to the next; wall and thread CPU
+time of every call. Per configuration the median of the repeats is taken and divided by hqp-tpm ``tpm``'s median
+at the same configuration (the ratio), and, for hqp-tpm, by the reference peer's (:data:`REFERENCE`: PlaCo with
+velocity limits at velocity level, TSID at acceleration level; thread CPU time) -- ``vs_ratio_median`` -- beside
+the ratio of the 99th percentiles of all calls (``vs_ratio_p99``). The summary also gives the quality of each
+contender's command at each configuration (top-level residual against hqp-tpm's first level, joint-velocity box
+violation). Closed loops (the iiwa circle): each library's loop as its users write it, the steps alone timed.
 Writes ``benchmarks/results/peers/<env>.csv`` and ``<env>.env.csv``; ``report.py`` merges them.
 """
 
@@ -54,12 +57,13 @@ def env_info(name: str) -> dict[str, str]:
     return env
 
 
+#: The peer every hqp-tpm contender is also compared with, in the environment where it runs (the issue's yardstick).
+REFERENCE = {1: "PlaCo + limits", 2: "TSID"}
+PHASES = ("step", "rows_solve", "solve")
+
+
 def contenders_for(problem, robot, quick: bool):
     out = [C.Hqp(robot, problem, s) for s in HQP_SOLVERS]
-    out.insert(1, C.Hqp(robot, problem, "tpm", lean=True))   # the lean step (hqp_tpm.control.lean)
-    if "sns_tpm" in HQP_SOLVERS:
-        out.insert(out.index(next(c for c in out if c.solver == "sns_tpm" and not c.lean)) + 1,
-                   C.Hqp(robot, problem, "sns_tpm", lean=True))
     if problem.order == 1:
         if has("pink"):
             out += [C.Pink(robot, problem, False), C.Pink(robot, problem, True),
@@ -88,12 +92,17 @@ def time_calls(fn, repeats: int) -> tuple[list[int], list[int]]:
 
 
 def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
+    """Every contender at every configuration, interleaved (the order rotated per configuration), each phase of
+    :data:`PHASES` it has timed ``repeats`` times after 2 warm-up calls."""
     cons = contenders_for(problem, robot, quick)
     names = [c.name for c in cons]
     v_max = robot.velocity_limits() if problem.order == 1 else None
-    per = {n: {"step": [], "solve": [], "step_all": [], "solve_all": [], "res": [], "viol": [], "rel": [],
-               "step_ratio": [], "solve_ratio": [], "own": [], "step_cpu": [], "solve_cpu": [],
-               "step_cpu_ratio": [], "solve_cpu_ratio": []} for n in names}
+    n_cfg = len(problem.configs)
+    per = {n: {"res": [], "viol": [], "rel": [], "own": [],
+               **{f"{ph}_{k}": [] for ph in PHASES for k in ("wall", "cpu", "all", "all_cpu")},
+               **{f"{ph}_cfg": np.full(n_cfg, np.nan) for ph in PHASES},       # wall median per configuration
+               **{f"{ph}_cfg_cpu": np.full(n_cfg, np.nan) for ph in PHASES}}   # CPU median per configuration
+           for n in names}
     failures: dict[str, str] = {}   # first error message per contender
     failed = dict.fromkeys(names, 0)  # configurations where the contender raised
     ref = C.Hqp(robot, problem, "tpm")
@@ -101,54 +110,57 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
         ref.setup(cfg)
         J0, b0 = np.array(ref.levels[0].J), np.array(ref.levels[0].b)
         order = cons[k % len(cons):] + cons[:k % len(cons)]
-        here = {}
         for c in order:
             try:
                 c.setup(cfg)
+                c.step()   # (the moved targets: the step alternates, so the next call has the configuration's own)
                 x = np.asarray(c.step(), dtype=float)
-                ts, ts_cpu = time_calls(c.step, repeats)
-                tv, tv_cpu = time_calls(c.solve, repeats)
+                timed = {ph: time_calls(getattr(c, ph), repeats) for ph in PHASES if getattr(c, ph, None)}
             except Exception as exc:  # a peer failing on a configuration is counted and reported, not fatal
                 failures.setdefault(c.name, f"{type(exc).__name__}: {exc}"[:160])
                 failed[c.name] += 1
                 continue
             d = per[c.name]
-            d["step"].append(np.median(ts))
-            d["solve"].append(np.median(tv))
-            d["step_cpu"].append(np.median(ts_cpu))
-            d["solve_cpu"].append(np.median(tv_cpu))
-            d["step_all"] += ts
-            d["solve_all"] += tv
+            for ph, (tw, tc) in timed.items():
+                d[f"{ph}_wall"].append(np.median(tw))
+                d[f"{ph}_cpu"].append(np.median(tc))
+                d[f"{ph}_all"] += tw
+                d[f"{ph}_all_cpu"] += tc
+                d[f"{ph}_cfg"][k] = np.median(tw)
+                d[f"{ph}_cfg_cpu"][k] = np.median(tc)
             res, viol = P.quality(J0, b0, x, v_max)
             own = getattr(c, "own_residual", None)
             d["own"].append(own(x) if own is not None else res)
             d["res"].append(res)
             d["rel"].append(res / max(np.linalg.norm(b0), 1e-12))
             d["viol"].append(viol)
-            here[c.name] = {key: d[key][-1] for key in ("step", "solve", "step_cpu", "solve_cpu")}
-        if "hqp-tpm tpm" in here:  # per-configuration ratios to hqp-tpm tpm at the same configuration
-            base = here["hqp-tpm tpm"]
-            for n, vals in here.items():
-                for key, val in vals.items():
-                    per[n][f"{key}_ratio"].append(val / base[key] if base[key] > 0 else float("nan"))
+
+    def ratios(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        ok = np.isfinite(a) & np.isfinite(b) & (b > 0)
+        return a[ok] / b[ok]
+
+    peer = REFERENCE[problem.order] if REFERENCE[problem.order] in names else None
     rows = []
     for n in names:
         d = per[n]
-        for phase in ("step", "solve"):
-            if not d[phase]:
-                rows.append({"problem": problem.name, "phase": phase, "contender": n, "configs": 0,
-                             "failed_configs": failed[n], "failed": failures.get(n, "")})
+        for phase in PHASES:
+            if not d[f"{phase}_wall"]:
+                if phase == "step" and failed[n]:   # (a phase the library does not separate: no row)
+                    rows.append({"problem": problem.name, "phase": phase, "contender": n, "configs": 0,
+                                 "failed_configs": failed[n], "failed": failures.get(n, "")})
                 continue
-            t = np.array(d[phase]) / 1e3
-            ratio = np.array(d[f"{phase}_ratio"])
-            cpu_ratio = np.array(d[f"{phase}_cpu_ratio"])
+            t = np.array(d[f"{phase}_wall"]) / 1e3
+            base = per["hqp-tpm tpm"]
+            ratio = ratios(d[f"{phase}_cfg"], base[f"{phase}_cfg"])
+            cpu_ratio = ratios(d[f"{phase}_cfg_cpu"], base[f"{phase}_cfg_cpu"])
             viol = np.array(d["viol"])
-            rows.append({
+            row = {
                 "problem": problem.name, "phase": phase, "contender": n, "configs": len(t),
                 "median_us": float(np.median(t)), "p99_us": float(np.percentile(np.array(d[f"{phase}_all"]) / 1e3, 99)),
                 "p99_cfg_us": float(np.percentile(t, 99)),
                 "ratio_median": float(np.median(ratio)), "ratio_p99": float(np.percentile(ratio, 99)),
                 "cpu_median_us": float(np.median(d[f"{phase}_cpu"]) / 1e3),
+                "cpu_p99_us": float(np.percentile(np.array(d[f"{phase}_all_cpu"]) / 1e3, 99)),
                 "cpu_ratio_median": float(np.nanmedian(cpu_ratio)),
                 "cpu_ratio_p99": float(np.nanpercentile(cpu_ratio, 99)),
                 "top_residual_median": float(np.median(d["res"])), "top_residual_max": float(np.max(d["res"])),
@@ -157,14 +169,21 @@ def run_problem(problem, robot, repeats: int, quick: bool) -> list[dict]:
                 "box_violation_max": float(np.nanmax(viol)) if np.isfinite(viol).any() else float("nan"),
                 "box_violated_configs": int(np.sum(viol > 1e-9)) if np.isfinite(viol).any() else -1,
                 "failed_configs": failed[n], "failed": failures.get(n, ""),
-            })
+            }
+            # against the reference peer, the same phase (PlaCo's solve builds its task matrices: its rows_solve,
+            # compared with hqp-tpm's rows_solve), thread CPU time per configuration and of all calls' p99
+            if peer is not None and per[peer][f"{phase}_all_cpu"] and n.startswith("hqp-tpm"):
+                vs = ratios(d[f"{phase}_cfg_cpu"], per[peer][f"{phase}_cfg_cpu"])
+                row.update(vs_peer=peer, vs_ratio_median=float(np.median(vs)),
+                           vs_ratio_cfg_p99=float(np.percentile(vs, 99)),
+                           vs_ratio_p99=float(np.percentile(d[f"{phase}_all_cpu"], 99)
+                                              / np.percentile(per[peer][f"{phase}_all_cpu"], 99)))
+            rows.append(row)
     return rows
 
 
 def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
-    kinds = [("hqp-tpm tpm", "hqp", {"solver": "tpm"}), ("hqp-tpm tpm (lean)", "hqp", {"solver": "tpm", "lean": True}),
-             ("hqp-tpm sns_tpm", "hqp", {"solver": "sns_tpm"}),
-             ("hqp-tpm sns_tpm (lean)", "hqp", {"solver": "sns_tpm", "lean": True})]
+    kinds = [("hqp-tpm tpm", "hqp", {"solver": "tpm"}), ("hqp-tpm sns_tpm", "hqp", {"solver": "sns_tpm"})]
     if order == 1:
         if has("pink"):
             kinds += [("pink", "pink", {}), ("pink + limits", "pink", {"limits": True})]
@@ -190,7 +209,9 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
             try:
                 c0 = time.thread_time_ns()
                 t0 = time.perf_counter_ns()
-                times, qs, cmds = C.circle_loop(kind, robot, order, steps, time.perf_counter_ns, **kw)
+                # each step's thread CPU time: the steps are short, and a core taken by another process for a
+                # while (this machine is shared) would otherwise make the p99 of whoever ran then
+                times, qs, cmds = C.circle_loop(kind, robot, order, steps, time.thread_time_ns, **kw)
                 total = time.perf_counter_ns() - t0
                 total_cpu = time.thread_time_ns() - c0
             except Exception as exc:
@@ -213,23 +234,32 @@ def run_circle(robot, order: int, steps: int, rounds: int) -> list[dict]:
                     a["viol_steps"] = int(np.sum((np.abs(cm) - v_max > 1e-9).any(axis=1)))
     rows = []
     name = "iiwa_circle_vel" if order == 1 else "iiwa_circle_acc"
-    base = np.median(acc["hqp-tpm tpm"]["total"]) if acc["hqp-tpm tpm"]["total"] else float("nan")
-    base_cpu = np.median(acc["hqp-tpm tpm"]["cpu"]) if acc["hqp-tpm tpm"]["cpu"] else float("nan")
+
+    def loop_time(a):   # the steps alone, thread CPU time (the loop's set-up and the harness between steps not counted)
+        return np.median([sum(a["steps"][r * steps:(r + 1) * steps]) for r in range(len(a["total"]))])
+
+    base = loop_time(acc["hqp-tpm tpm"]) if acc["hqp-tpm tpm"]["total"] else float("nan")
+    peer = REFERENCE[order] if acc.get(REFERENCE[order], {}).get("total") else None
     for n, a in acc.items():
         if not a["total"]:
             rows.append({"problem": name, "phase": "loop", "contender": n, "failed": failures.get(n, "")})
             continue
         st = np.array(a["steps"]) / 1e3
-        rows.append({
+        row = {
             "problem": name, "phase": "loop", "contender": n, "configs": len(a["total"]),
             "median_us": float(np.median(st)), "p99_us": float(np.percentile(st, 99)),
-            "loop_ms": float(np.median(a["total"]) / 1e6),
-            "ratio_median": float(np.median(a["total"]) / base), "ratio_p99": float("nan"),
-            "cpu_ratio_median": float(np.median(a["cpu"]) / base_cpu),
+            "loop_ms": float(loop_time(a) / 1e6),
+            "ratio_median": float(loop_time(a) / base), "ratio_p99": float("nan"),
             "tracking_rms_mm": 1e3 * a["track"][0], "tracking_max_mm": 1e3 * a["track"][1],
             "box_violation_max": a["viol"] if a["viol"] is not None else float("nan"),
             "box_violated_configs": a.get("viol_steps", -1), "failed": failures.get(n, ""),
-        })
+        }
+        if peer is not None and n.startswith("hqp-tpm"):
+            ps = np.array(acc[peer]["steps"]) / 1e3
+            row.update(vs_peer=peer, vs_ratio_median=float(np.median(st) / np.median(ps)),
+                       vs_ratio_p99=float(np.percentile(st, 99) / np.percentile(ps, 99)),
+                       vs_loop_ratio=float(loop_time(a) / loop_time(acc[peer])))
+        rows.append(row)
     return rows
 
 

@@ -66,8 +66,11 @@ METRICS: dict[str, tuple[str, str]] = {
     "steps_requested": ("1", "control steps asked for (more than ``steps`` in a partial run)"),
     "status": ("-", "``complete``, or ``partial`` when the run was stopped (signal) or a step failed"),
     "{metric}_reason": ("-", "why ``{metric}`` is null: it was not finite (NaN or inf); metrics.json is strict JSON"),
-    "wall_time_s": ("s", "wall-clock time of the whole loop (recording included)"),
-    "mean_step_us": ("µs", "mean time of one control step (state update, policy, solve, integration)"),
+    "wall_time_s": ("s", "wall-clock time of the whole loop (recording included, compiling kernels left out)"),
+    "mean_step_us": ("µs", "mean time of one control step (state update, policy, solve, integration; compiling "
+                     "kernels left out: ``compile_s``)"),
+    "compile_s": ("s", "time spent making the compiled kernels during the run: compiling them (the first run on a "
+                  "machine) or loading them from the cache; left out of ``wall_time_s`` and ``mean_step_us``"),
     "lean": ("1", "1 if the run stepped with the controller's lean step (the same numbers in fewer calls), else 0"),
     "max_dq_jump": ("rad/s", "largest change of any joint velocity between two consecutive steps"),
     "max_dq_jump_step": ("1", "step at which ``max_dq_jump`` happens"),

@@ -557,7 +557,7 @@ def _axis_value(v):
 
 
 #: Metrics of the table that say how long a run took, not how it went: not plotted.
-TIMING_METRICS = ("wall_time_s", "mean_step_us")
+TIMING_METRICS = ("wall_time_s", "mean_step_us", "compile_s")
 
 
 def _unit(table: list[dict], metric: str) -> str:
