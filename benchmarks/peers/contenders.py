@@ -37,7 +37,8 @@ def _hqp_cols(robot, names_q_v):
 
 # -- hqp-tpm ------------------------------------------------------------------------------------
 class Hqp:
-    """hqp-tpm through its public API: Controller(robot, Stack, solver) with ``compute()`` as the step."""
+    """hqp-tpm through its public API: Controller(robot, Stack, solver) with ``compute()`` as the step (``lean``: its
+    compiled step; else ``compute(record=True)``, the readable path)."""
 
     def __init__(self, robot, problem, solver: str, lean: bool = False):
         from hqp_tpm.solvers import cascaded_qp, sns_tpm, tpm
@@ -48,18 +49,19 @@ class Hqp:
 
     def setup(self, cfg):
         self.ctrl = P.hqp_controller(self.robot, self.problem, cfg, self.solver)
-        res = self.ctrl.compute()
+        res = self.ctrl.compute(record=True)
         self.levels = res.levels
         st = self.ctrl.state
         self.box = self.ctrl.box(st, self.ctrl.t) if self.ctrl.box is not None else None
-        if self.lean:  # the lean step (hqp_tpm.control.lean): one preallocated J, b; no Level objects
+        if self.lean:  # the compiled step (hqp_tpm.control._lean): one preallocated J, b; no Level objects
+            from hqp_tpm.control._lean import LeanStep
             from hqp_tpm.solvers.sns import sns_tpm, sns_tpm_stacked
             from hqp_tpm.solvers.tpm import tpm_stacked
 
-            self.fast = f = self.ctrl.lean()
+            self.fast = f = self.ctrl._compiled_step()
             if f is None:
-                raise RuntimeError(f"no lean step: {type(f).why_not(self.ctrl)}")
-            f.compute()
+                raise RuntimeError(f"no compiled step: {LeanStep.why_not(self.ctrl)}")
+            self.ctrl.compute()
             if self.solver == "tpm":
                 self._lean_solve = lambda: tpm_stacked(f.J, f.b, f.sizes, f.n, f.lambda_max, f.eps)
             elif self.solver == "sns_tpm":
@@ -71,7 +73,7 @@ class Hqp:
                 self._lean_solve = None
 
     def step(self):
-        return self.fast.compute() if self.lean else self.ctrl.compute().command
+        return self.ctrl.compute(record=not self.lean).command
 
     def solve(self):
         nv = self.robot.nv
@@ -362,18 +364,10 @@ def circle_loop(kind: str, robot, order: int, steps: int, timer, **kw):
     times, qs, cmds = [], [], []
     if kind.startswith("hqp"):
         ctrl, _ = P.hqp_circle_controller(robot, order, kw.get("solver", "tpm"))
-        if kw.get("lean"):
-            lean = ctrl.lean()
-            for _ in range(steps):
-                t0 = timer()
-                x = lean.step()
-                times.append(timer() - t0)
-                qs.append(ctrl.q)
-                cmds.append(x)
-            return times, qs, cmds
+        record = not kw.get("lean")  # the compiled step, or the readable path
         for _ in range(steps):
             t0 = timer()
-            res = ctrl.step()
+            res = ctrl.step(record)
             times.append(timer() - t0)
             qs.append(ctrl.q)
             cmds.append(res.command)

@@ -2,7 +2,8 @@
 
     python benchmarks/peers/profile_step.py [--problem iiwa_vel|romeo_vel|iiwa_acc] [--solver tpm] [--steps N] [--lean]
 
-``--lean`` profiles the lean step (:mod:`hqp_tpm.control.lean`) instead of ``Controller.compute``; its phases are
+``--lean`` profiles the compiled step (:mod:`hqp_tpm.control._lean`) instead of ``Controller.compute(record=True)``;
+its phases are
 the partial state update, each task's row writer, the joint box, the finiteness test and the solver call (with
 numba: each task's row-program gather or row writer and the fused kernel call, which also solves with ``tpm``),
 and the readable
@@ -146,12 +147,13 @@ def phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
 def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
     """Median µs of the phases of one lean step (``LeanStep.compute``) and of the readable step beside it."""
     from hqp_tpm.control import _compiled_step
-    from hqp_tpm.control import lean as lean_mod
+    from hqp_tpm.control import _lean as lean_mod
 
-    fast = ctrl.lean()
+    fast = ctrl._compiled_step()
     st, t = ctrl.state, ctrl.t
     out = [("LeanStep.compute (whole lean step)", _median_us(fast.compute, reps)),
-           ("Controller.compute (readable step, for the ratio)", _median_us(ctrl.compute, reps)),
+           ("Controller.compute(record=True) (readable step, for the ratio)",
+            _median_us(lambda: ctrl.compute(record=True), reps)),
            ("  state update (partial: the writers' frames; no velocity pass at order 1)", _median_us(
                lambda: st.update(ctrl.q, ctrl.v, t, validate=False, frames=fast.frames, velocities=ctrl.order == 2),
                reps))]
@@ -204,7 +206,7 @@ def main(argv=None) -> int:
     ap.add_argument("--steps", type=int, default=2000)
     ap.add_argument("--reps", type=int, default=3000)
     ap.add_argument("--out", type=Path, default=common.RESULTS / "peers")
-    ap.add_argument("--lean", action="store_true", help="profile the lean step (hqp_tpm.control.lean)")
+    ap.add_argument("--lean", action="store_true", help="profile the compiled step (hqp_tpm.control._lean)")
     args = ap.parse_args(argv)
     with common.one_blas_thread():
         if args.problem == "romeo_vel":
@@ -216,7 +218,7 @@ def main(argv=None) -> int:
         ctrls = [P.hqp_controller(robot, prob, cfg, args.solver) for cfg in prob.configs]
         for c in ctrls:
             c.compute()
-        steps = [c.lean().compute if args.lean else c.compute for c in ctrls]
+        steps = [c._compiled_step().compute if args.lean else (lambda c=c: c.compute(record=True)) for c in ctrls]
         for step in steps:  # (a lean step's first call also copies its constant references: traced below, the next)
             step()
         phases = lean_phase_times(ctrls[0], args.reps) if args.lean else phase_times(ctrls[0], args.reps)

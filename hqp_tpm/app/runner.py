@@ -9,7 +9,6 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -151,32 +150,6 @@ class Recording:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
-class LeanResult(NamedTuple):
-    """What the runner keeps of a lean step (the probes' ``res``): time, command, solver info, stack label."""
-
-    t: float
-    command: np.ndarray
-    info: dict
-    label: str
-
-
-def lean_stepper(ctrl: Controller):
-    """``step() -> command``, ``label() -> str`` and ``info() -> dict`` (the solver's info of the last command, as
-    ``StepResult.info``) of the lean step of ``ctrl`` (same numbers as ``ctrl.step()``): :meth:`Controller.lean`
-    for a fixed stack, :class:`~hqp_tpm.policies.planned_step.PlannedStep` for a policy that plans (Algorithm 1,
-    solved by ``tpm``: no info); None when neither applies."""
-    from hqp_tpm.policies.planned_step import PlannedStep
-
-    planned = PlannedStep.of(ctrl)
-    if planned is not None:
-        return planned.step, planned.label, dict
-    lean = ctrl.lean()
-    if lean is not None:
-        text = ctrl.policy.stack.label()
-        return lean.step, lambda: text, lambda: lean.info
-    return None
-
-
 def check_velocity(ctrl: Controller, bound: np.ndarray, step: int,
                    source: str = "the scenario's velocity_bound") -> None:
     """Raise :class:`~hqp_tpm.errors.DivergedError` if a joint velocity of ``ctrl`` (the state after ``step``, the
@@ -194,7 +167,7 @@ def check_velocity(ctrl: Controller, bound: np.ndarray, step: int,
 
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
         probes=(), label: str = "run", recording: Recording | None = None,
-        stop: Callable[[], bool] | None = None, lean: bool = False,
+        stop: Callable[[], bool] | None = None, record: bool = False,
         velocity_bound: np.ndarray | None = None, bound_source: str = "the scenario's velocity_bound"
         ) -> tuple[Recording, dict]:
     """Step ``ctrl`` ``steps`` times, recording the state at each sample time and the command.
@@ -209,9 +182,9 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     ``recording``: where to stream the rows (default: a new :class:`Recording` in a temporary folder);
     it is returned closed. ``stop``: checked before each step; when it returns true the run ends there
     (``timing["steps"]`` says how many steps were done, ``timing["stopped"]`` is true).
-    ``lean``: step with the controller's lean step when it has one (:func:`lean_stepper`; not with a
-    ``crosscheck``): the same numbers, and the probes get a :class:`LeanResult` (``t``, ``command``, ``info``,
-    ``label``) instead of a ``StepResult`` (``timing["lean"]`` says whether it was used).
+    ``record``: step with ``ctrl.step(record=True)`` (the readable path, every ``StepResult`` field computed with
+    the step); else ``ctrl.step()``, compiled where the set-up has a compiled step (``timing["lean"]`` says whether
+    it had), its fields computed when a probe reads them.
     ``velocity_bound``: per velocity column (rad/s); a step after which a joint velocity exceeds it raises
     :class:`~hqp_tpm.errors.DivergedError` naming the step, the joint and the value (:func:`check_velocity`), the
     rows of the steps before it recorded and ``recording`` closed (``hqp-tpm run`` writes them as a partial result).
@@ -227,7 +200,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     own_check = ctrl.crosscheck
     if crosscheck:  # solved by the controller at every step, through the same path as the command
         ctrl.crosscheck = check_solver_name(crosscheck)
-    fast = lean_stepper(ctrl) if lean and ctrl.crosscheck is None else None
+    compiled = not record and ctrl.compiled()
     t_start = time.perf_counter()
     done = 0
     stopped = False
@@ -237,13 +210,8 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
             break
         q, v, t = ctrl.q.copy(), ctrl.v.copy(), ctrl.t
         t0 = time.perf_counter()
-        if fast is None:
-            res = ctrl.step()
-            stack = res.stack.label()
-        else:
-            x = fast[0]()
-            stack = fast[1]()
-            res = LeanResult(t, x, fast[2](), stack)
+        res = ctrl.step(record)
+        stack = res.label()
         solve_time += time.perf_counter() - t0
         if velocity_bound is not None:
             try:
@@ -281,7 +249,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     wall = time.perf_counter() - t_start
     rec.close()
     timing = {"wall_time_s": wall, "steps": done, "mean_step_us": 1e6 * solve_time / max(done, 1),
-              "lean": fast is not None}
+              "lean": compiled}
     if stopped:
         timing["stopped"] = True
     return rec, timing

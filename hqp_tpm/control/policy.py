@@ -19,6 +19,7 @@ Optional (defaults do nothing):
     ``thresholds``                    recorded channel -> {threshold name: value} (for the figures)
     ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...);
                                       default: nothing (the app adds the scenario's obstacles)
+    ``compiled_step(ctrl)``           the policy's compiled step (Algorithm 1's), or None
     ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
                                       step changes nothing (:meth:`Controller.step` is transactional)
 
@@ -40,8 +41,8 @@ from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Task
 
 if TYPE_CHECKING:
-    from hqp_tpm.control.controller import StepResult
     from hqp_tpm.control.stack import Stack
+    from hqp_tpm.control.step_result import StepResult
     from hqp_tpm.geometry.distances import DistanceField
     from hqp_tpm.geometry.obstacles import Obstacle
     from hqp_tpm.references.operator import Operator
@@ -109,6 +110,12 @@ class Policy(ABC):
     def scene(self) -> SceneItems:
         """What a viewer may draw (default: nothing)."""
         return SceneItems()
+
+    def compiled_step(self, ctrl: Any) -> Any:
+        """The compiled step of this policy under ``ctrl``'s settings (the readable step's numbers in fewer calls:
+        ``compute() -> command``, ``result(t, q, v, command) -> StepResult``, ``current() -> bool``), or None (this
+        default): :meth:`Controller.step` then steps through the readable path."""
+        return None
 
     def snapshot(self) -> Any:
         """The state that carries over from step to step (default: none)."""

@@ -20,7 +20,7 @@ _edits = 0
 
 def edits() -> int:
     """How many assignments to a trajectory's public attribute or to a task's attribute were made so far in this
-    process: a lean step (:mod:`hqp_tpm.control.lean`) copies the references of time-invariant trajectories
+    process: a lean step (:mod:`hqp_tpm.control._lean`) copies the references of time-invariant trajectories
     (:attr:`Trajectory.time_varying` False) into its program again only when this changed."""
     return _edits
 

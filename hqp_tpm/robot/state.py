@@ -66,7 +66,7 @@ class State:
         ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the
         controller's ``q``, ``v``): float vectors of the right sizes, finite, not modified afterwards.
 
-        The lean step (:mod:`hqp_tpm.control.lean`) may ask for less: ``frames`` (frame ids) places only
+        The lean step (:mod:`hqp_tpm.control._lean`) may ask for less: ``frames`` (frame ids) places only
         those frames, ``velocities=False`` runs the position pass only. The rest is then computed by the
         first method of this class that needs it (reading ``state.data`` directly sees only what was asked).
         """

@@ -11,6 +11,7 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache, partial
 
 import numpy as np
 
@@ -114,7 +115,7 @@ class Task(ABC):
     row_writer_takes_extra: bool = False
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
-        """``write(t)`` for the lean step (:mod:`hqp_tpm.control.lean`): this task's rows at ``state``'s current
+        """``write(t)`` for the lean step (:mod:`hqp_tpm.control._lean`): this task's rows at ``state``'s current
         kinematics written in place into ``J`` (``dim x n``) and ``b`` (``dim``), views of the stacked arrays.
 
         The numbers of :meth:`jacobian` and :meth:`command` (without an extra command); built once, called
@@ -158,6 +159,29 @@ class Gather:
     def skippable(self) -> bool:
         """Whether a step without edits may leave :attr:`run` out (now: the task's trajectory may be replaced)."""
         return self.refresh_only and not self.task.trajectory.time_varying
+
+
+#: The methods a row writer or row program repeats (:func:`own_rows`).
+_REPEATED = ("value", "jacobian", "jdot_qdot", "error", "reference", "command", "level")
+
+
+@cache
+def own_rows(kind: type[Task]) -> bool:
+    """Whether the row writer and row program of task class ``kind`` repeat its own methods: no class below the one
+    that defines them overrides one of the methods they repeat (a subclass that changes ``jacobian`` only, say, is
+    written by the default :meth:`Task.row_writer`, which calls it)."""
+    def owner(name: str) -> type:
+        return next(k for k in kind.__mro__ if name in vars(k))
+
+    writer = owner("row_writer"), owner("row_program")
+    return all(issubclass(w, owner(name)) for name in _REPEATED for w in writer)
+
+
+def row_writer(task: Task, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
+    """``task``'s row writer (:meth:`Task.row_writer`) where it repeats the task's own methods (:func:`own_rows`),
+    else the default one, which calls them."""
+    kind = task.row_writer if own_rows(type(task)) else partial(Task.row_writer, task)
+    return kind(state, order, J, b)
 
 
 def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: np.ndarray | None = None,

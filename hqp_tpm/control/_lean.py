@@ -45,14 +45,13 @@ rows are not finite is handed to the readable path, which raises the same typed 
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
+from hqp_tpm.control.step_result import LAZY, Kept, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.references import trajectories
 from hqp_tpm.robot import _compiled
@@ -62,7 +61,7 @@ from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
 from hqp_tpm.solvers.registry import ANALYTIC, solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
-from hqp_tpm.tasks.base import Task
+from hqp_tpm.tasks.base import Task, own_rows, row_writer
 
 
 def _columns(idx: np.ndarray) -> slice | np.ndarray:
@@ -206,7 +205,7 @@ class LeanStep:
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
                  "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_gathers", "_edits",
-                 "_per_step", "_rate")
+                 "_per_step", "_rate", "_stack", "_levels", "_spans", "_label")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -252,6 +251,8 @@ class LeanStep:
                 spans.append((slice(a, a + m), "+".join(task.name for task in level)))
             a += m
         self.tasks, self.rows, self.sizes = tuple(tasks), tuple(rows), tuple(sizes)
+        stack = self._stack = ctrl.policy.stack
+        self._levels, self._spans, self._label = list(stack.levels), tuple(spans), stack.label()
         # what the fused kernel solves (hqp_tpm.control._compiled_step): TPM; SNS-TPM without the x0 level, in no
         # box or the joint limits' box (written into the buffer); any other solver or box: the rows only
         box = ctrl.box
@@ -273,8 +274,8 @@ class LeanStep:
         self.b = self._flat[a * n:]
         self._out = self._buf[a * n + a + n: a * n + a + 2 * n]
         st = ctrl.state
-        self.writers = tuple(task.row_writer(st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
-                                                                                                      strict=True))
+        self.writers = tuple(row_writer(task, st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
+                                                                                                        strict=True))
         # the solver's levels, built once: views of J and b (their rows change in place every step)
         levels = [Level(self.J[r], self.b[r], name=name, defer_finite=True) for r, name in spans]
         self.x0 = self._buf[a * n + a: a * n + a + n] if self.damping else None
@@ -283,7 +284,8 @@ class LeanStep:
         self.levels = tuple(levels)
         # the frames the row writers read (the others are placed if a task asks the state for them)
         self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks
-                                          if type(task).row_writer is not Task.row_writer and task.frame is not None))
+                                          if type(task).row_writer is not Task.row_writer and own_rows(type(task))
+                                          and task.frame is not None))
         lo_up = (self._buf[a * n + a + 2 * n: a * n + a + 3 * n], self._buf[a * n + a + 3 * n: a * n + a + 4 * n])
         if mode == _compiled_step.SNS:
             lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)
@@ -301,7 +303,7 @@ class LeanStep:
                                              self.x0 is not None, solve=mode)
             fused, gathers, written = [], [], set()
             for task, r, write in zip(tasks, rows, self.writers, strict=True):
-                gather = task.row_program(st, self.order, program, r.start)
+                gather = task.row_program(st, self.order, program, r.start) if own_rows(type(task)) else None
                 fused.append(write if gather is None else gather.run)
                 gathers.append(gather)
                 if gather is None and task.frame is not None:
@@ -318,14 +320,22 @@ class LeanStep:
             self._kernel = _compiled_step.kernel(mode)
         return self
 
-    def __deepcopy__(self, memo) -> LeanStep:
-        """The lean step of a copy of the controller, built again: its fused program reads its own controller's
-        arrays by address, which a copied program would still point at."""
-        return LeanStep.of(copy.deepcopy(self.ctrl, memo))
+    def current(self) -> bool:
+        """Whether the controller's stack is still the one this step was planned for (no level replaced or added)."""
+        stack = self.ctrl.policy.stack
+        return stack is self._stack and stack.levels == self._levels and not stack.extras
 
-    def __reduce__(self):
-        """Pickled as its controller: unpickling builds the lean step again (:meth:`__deepcopy__`)."""
-        return LeanStep.of, (self.ctrl,)
+    def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
+        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``: the levels from a copy of the
+        stacked rows (the readable step's levels, bit for bit), read when asked."""
+        rows, spans, m, n = self._flat.copy(), self._spans, self.b.size, self.n
+        J, b = rows[: m * n].reshape(m, n), rows[m * n:]
+
+        def levels() -> list[Level]:
+            return [Level(J[r], b[r], name=name, defer_finite=True) for r, name in spans]
+
+        return StepResult(t, self._stack, LAZY, x, self.info, LAZY, LAZY,
+                          Kept(self.ctrl, t, q, v, None, levels, self._label))
 
     @property
     def info(self) -> dict:
@@ -426,6 +436,3 @@ class LeanStep:
         self._info = info  # the solver's info of this command, as the readable step's StepResult.info
         return x
 
-    def step(self) -> np.ndarray:
-        """One control step (as :meth:`Controller.step`, transactional); returns the command."""
-        return self.ctrl.advance(self.compute)

@@ -1,0 +1,93 @@
+"""What one control step computed: :class:`StepResult`, and :class:`Kept`, what a compiled step keeps to fill
+the result's costly fields on demand (:meth:`hqp_tpm.control.controller.Controller.step`)."""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from hqp_tpm.control.controller import Controller
+    from hqp_tpm.control.stack import Stack
+
+LAZY = object()  # a StepResult field not computed yet
+
+
+class StepResult:
+    """What one step computed (before integration): the stack, the command, solver info and inputs.
+
+    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose at this step.
+    ``levels``: the solver's input, one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest
+    first (``Level.J``, ``Level.b`` of an equality level, ``Level.lower``/``Level.upper`` of an inequality
+    level, ``Level.name`` from the tasks), the rows the step solved at this state; pass them with ``x0`` and
+    ``box`` to :func:`~hqp_tpm.solvers.solve` or to :func:`hqp_tpm.testing.assert_solvers_agree` to solve the
+    same problem again. ``command``: the joint velocity (order 1) or acceleration (order 2), ``nv`` values.
+    ``info``: the solver's account (e.g. ``scale``, ``saturated``, ``iterations``). ``x0``: the null-space term
+    (None: none). ``box``: ``(lower, upper)`` of the command (None: no box).
+
+    A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from
+    what it kept of the step (its stacked rows, the state it started from): the numbers of the readable step.
+    """
+
+    __slots__ = ("t", "command", "info", "_stack", "_levels", "_x0", "_box", "_kept")
+
+    def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
+                 kept=None):
+        """``kept``: what computes the fields passed as ``LAZY`` (``stack()``, ``levels()``, ``x0()``, ``box()``)."""
+        self.t, self.command, self.info = t, command, {} if info is None else info
+        self._stack, self._levels, self._x0, self._box, self._kept = stack, levels, x0, box, kept
+
+    @property
+    def stack(self) -> Stack:
+        if self._stack is LAZY:
+            self._stack = self._kept.stack()
+        return self._stack
+
+    @property
+    def levels(self) -> list:
+        if self._levels is LAZY:
+            self._levels = self._kept.levels()
+        return self._levels
+
+    @property
+    def x0(self) -> np.ndarray | None:
+        if self._x0 is LAZY:
+            self._x0 = self._kept.x0()
+        return self._x0
+
+    @property
+    def box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        if self._box is LAZY:
+            self._box = self._kept.box()
+        return self._box
+
+    def label(self) -> str:
+        """``"a > b+c"``: the stack as text (:meth:`Stack.label`)."""
+        return self.stack.label() if self._kept is None else self._kept.label
+
+    def __repr__(self) -> str:
+        cmd = np.asarray(self.command, dtype=float)
+        info = f", info: {', '.join(self.info)}" if self.info else ""
+        return (f"StepResult(t={self.t:.4f}, stack={self.label()!r}, |command|={np.linalg.norm(cmd):.4g} "
+                f"({cmd.size} values){info})")
+
+
+class Kept:
+    """What a compiled step keeps for its :class:`StepResult`'s fields read on demand: the state it started from
+    (``q``, ``v``, ``t``; the controller replaces, never writes, its arrays), ``stack() -> Stack`` (None: given),
+    ``levels() -> list[Level]`` (from the rows the step kept) and the stack's ``label``."""
+
+    __slots__ = ("ctrl", "t", "q", "v", "stack", "levels", "label")
+
+    def __init__(self, ctrl: Controller, t: float, q: np.ndarray, v: np.ndarray, stack, levels, label: str):
+        self.ctrl, self.t, self.q, self.v, self.stack, self.levels, self.label = ctrl, t, q, v, stack, levels, label
+
+    def x0(self) -> np.ndarray | None:
+        return self.ctrl.null_space_term(self.v)
+
+    def box(self) -> tuple[np.ndarray, np.ndarray] | None:
+        ctrl = self.ctrl
+        if ctrl.box is None:
+            return None
+        return ctrl.box(ctrl.scratch_state().update(self.q, self.v, self.t, validate=False), self.t)
