@@ -51,7 +51,7 @@ from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
-from hqp_tpm.control.step_result import LAZY, Kept, StepResult
+from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.references import trajectories
 from hqp_tpm.robot import _compiled
@@ -193,13 +193,12 @@ class JointBox:
         return g
 
 
-class LeanStep:
+class LeanStep(CompiledStep):
     """The lean step of a :class:`~hqp_tpm.control.controller.Controller` (build it with :meth:`of`).
 
-    :meth:`step` advances the controller exactly like ``ctrl.step()`` and returns the command;
-    :meth:`compute` returns the command at the current state without integrating. The controller stays
-    the owner of the state (``ctrl.q``, ``ctrl.v``, ``ctrl.t``, ``ctrl.steps``): lean and readable steps
-    can be mixed.
+    :meth:`compute` returns the command at the controller's state (``ctrl.step()`` runs it:
+    :class:`~hqp_tpm.control.step_result.CompiledStep`). The controller stays the owner of the state (``ctrl.q``,
+    ``ctrl.v``, ``ctrl.t``, ``ctrl.steps``): compiled and readable steps can be mixed.
     """
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
@@ -326,16 +325,17 @@ class LeanStep:
         return stack is self._stack and stack.levels == self._levels and not stack.extras
 
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
-        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``: the levels from a copy of the
-        stacked rows (the readable step's levels, bit for bit), read when asked."""
-        rows, spans, m, n = self._flat.copy(), self._spans, self.b.size, self.n
+        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the stacked rows
+        (the readable step's levels, bit for bit, built when asked)."""
+        return StepResult(t, self._stack, LAZY, x, self.info, LAZY, LAZY, (self, q, v, self._flat.copy()))
+
+    def levels_of(self, kept: tuple) -> list[Level]:
+        rows, m, n = kept[3], self.b.size, self.n
         J, b = rows[: m * n].reshape(m, n), rows[m * n:]
+        return [Level(J[r], b[r], name=name, defer_finite=True) for r, name in self._spans]
 
-        def levels() -> list[Level]:
-            return [Level(J[r], b[r], name=name, defer_finite=True) for r, name in spans]
-
-        return StepResult(t, self._stack, LAZY, x, self.info, LAZY, LAZY,
-                          Kept(self.ctrl, t, q, v, None, levels, self._label))
+    def label_of(self, kept: tuple) -> str:
+        return self._label
 
     @property
     def info(self) -> dict:

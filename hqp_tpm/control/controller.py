@@ -271,7 +271,7 @@ class Controller:
 
     def set_state(self, q, v=None) -> None:
         """Replace the state after validation (nothing changes if it is rejected)."""
-        self._q, self._v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)
+        self._q, self._v = self.state.check(q, v)
 
 
 def as_policy(policy) -> Policy:

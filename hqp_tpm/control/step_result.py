@@ -33,38 +33,39 @@ class StepResult:
     __slots__ = ("t", "command", "info", "_stack", "_levels", "_x0", "_box", "_kept")
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
-                 kept=None):
-        """``kept``: what computes the fields passed as ``LAZY`` (``stack()``, ``levels()``, ``x0()``, ``box()``)."""
+                 kept: tuple | None = None):
+        """``kept``: ``(step, q, v, rows)`` of a compiled step (:class:`CompiledStep`), which computes the fields
+        passed as ``LAZY``."""
         self.t, self.command, self.info = t, command, {} if info is None else info
         self._stack, self._levels, self._x0, self._box, self._kept = stack, levels, x0, box, kept
 
     @property
     def stack(self) -> Stack:
         if self._stack is LAZY:
-            self._stack = self._kept.stack()
+            self._stack = self._kept[0].stack_of(self._kept)
         return self._stack
 
     @property
     def levels(self) -> list:
         if self._levels is LAZY:
-            self._levels = self._kept.levels()
+            self._levels = self._kept[0].levels_of(self._kept)
         return self._levels
 
     @property
     def x0(self) -> np.ndarray | None:
         if self._x0 is LAZY:
-            self._x0 = self._kept.x0()
+            self._x0 = self._kept[0].ctrl.null_space_term(self._kept[2])
         return self._x0
 
     @property
     def box(self) -> tuple[np.ndarray, np.ndarray] | None:
         if self._box is LAZY:
-            self._box = self._kept.box()
+            self._box = self._kept[0].box_of(self.t, self._kept)
         return self._box
 
     def label(self) -> str:
         """``"a > b+c"``: the stack as text (:meth:`Stack.label`)."""
-        return self.stack.label() if self._kept is None else self._kept.label
+        return self.stack.label() if self._kept is None else self._kept[0].label_of(self._kept)
 
     def __repr__(self) -> str:
         cmd = np.asarray(self.command, dtype=float)
@@ -73,21 +74,22 @@ class StepResult:
                 f"({cmd.size} values){info})")
 
 
-class Kept:
-    """What a compiled step keeps for its :class:`StepResult`'s fields read on demand: the state it started from
-    (``q``, ``v``, ``t``; the controller replaces, never writes, its arrays), ``stack() -> Stack`` (None: given),
-    ``levels() -> list[Level]`` (from the rows the step kept) and the stack's ``label``."""
+class CompiledStep:
+    """Base of a controller's compiled steps (:class:`hqp_tpm.control._lean.LeanStep`, Algorithm 1's
+    :class:`hqp_tpm.policies._planned_step.PlannedStep`): the readable step's numbers in fewer calls.
 
-    __slots__ = ("ctrl", "t", "q", "v", "stack", "levels", "label")
+    ``compute() -> command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it,
+    keeping ``(step, q, v, rows)`` (``q``, ``v``: the state it started from; the controller replaces, never writes,
+    its arrays), from which ``stack_of``, ``levels_of``, ``label_of`` and :meth:`box_of` compute the result's fields
+    on demand; ``current()``: whether the controller's policy is still the one planned for.
+    """
 
-    def __init__(self, ctrl: Controller, t: float, q: np.ndarray, v: np.ndarray, stack, levels, label: str):
-        self.ctrl, self.t, self.q, self.v, self.stack, self.levels, self.label = ctrl, t, q, v, stack, levels, label
+    __slots__ = ()
+    ctrl: Controller
 
-    def x0(self) -> np.ndarray | None:
-        return self.ctrl.null_space_term(self.v)
-
-    def box(self) -> tuple[np.ndarray, np.ndarray] | None:
+    def box_of(self, t: float, kept: tuple) -> tuple[np.ndarray, np.ndarray] | None:
+        """The controller's box at the kept state (in :meth:`Controller.scratch_state`)."""
         ctrl = self.ctrl
         if ctrl.box is None:
             return None
-        return ctrl.box(ctrl.scratch_state().update(self.q, self.v, self.t, validate=False), self.t)
+        return ctrl.box(ctrl.scratch_state().update(kept[1], kept[2], t, validate=False), t)

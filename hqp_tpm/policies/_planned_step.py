@@ -40,7 +40,7 @@ import numpy as np
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.control.step_result import LAZY, Kept, StepResult
+from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
@@ -67,11 +67,11 @@ class PlanningPolicy(Policy):
         return PlannedStep.of(ctrl)
 
 
-class PlannedStep:
+class PlannedStep(CompiledStep):
     """The lean step of a :class:`~hqp_tpm.control.controller.Controller` whose policy plans (build it with :meth:`of`).
 
-    :meth:`step` advances the controller exactly like ``ctrl.step()`` and returns the command; :meth:`label` is the
-    stack of the last step as text (``StepResult.stack.label()``). The controller stays the owner of the state.
+    :meth:`compute` gives the command of the readable step at the controller's state (``ctrl.step()`` runs it:
+    :class:`~hqp_tpm.control.step_result.CompiledStep`). The controller stays the owner of the state.
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
@@ -134,14 +134,6 @@ class PlannedStep:
             w = False
         self._placed[(id(task), a)] = w
         return w
-
-    def label(self) -> str:
-        """``"a > b"``: the last step's stack as text."""
-        key = tuple(task.name for task in self.tasks)
-        text = self._labels.get(key)
-        if text is None:
-            text = self._labels[key] = " > ".join(key)
-        return text
 
     def _rows(self, st, t: float, tasks, extras) -> tuple[int, tuple[int, ...]]:
         """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
@@ -252,22 +244,30 @@ class PlannedStep:
         return True
 
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
-        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``: its stack and levels (from a copy
-        of the rows written, the readable step's levels) built when asked."""
-        tasks, extras, made = self.tasks, self._extras, self._made
+        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written
+        (its stack and levels, the readable step's, built when asked)."""
+        made = self._made
         m = made[-1][1] + made[-1][2] if made else 0
-        J, b = self.J[:m].copy(), self.b[:m].copy()
+        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras)
+        return StepResult(t, LAZY, LAZY, x, {}, LAZY, LAZY, (self, q, v, rows))
 
-        def levels() -> list[Level]:
-            out = []
-            for task, a, k, lv in made:
-                if lv is False:
-                    lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
-                elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
-                    lv = task.cone_level(J[a:a + k], b[a:a + k], True)
-                out.append(lv)
-            return out
+    def stack_of(self, kept: tuple) -> Stack:
+        return Stack([(task,) for task in kept[3][3]], kept[3][4])
 
-        return StepResult(t, LAZY, LAZY, x, {}, LAZY, LAZY,
-                          Kept(self.ctrl, t, q, v, lambda: Stack([(task,) for task in tasks], extras), levels,
-                               self.label()))
+    def levels_of(self, kept: tuple) -> list[Level]:
+        J, b, made = kept[3][:3]
+        out = []
+        for task, a, k, lv in made:
+            if lv is False:
+                lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
+            elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
+                lv = task.cone_level(J[a:a + k], b[a:a + k], True)
+            out.append(lv)
+        return out
+
+    def label_of(self, kept: tuple) -> str:
+        key = tuple(task.name for task in kept[3][3])
+        text = self._labels.get(key)
+        if text is None:
+            text = self._labels[key] = " > ".join(key)
+        return text
