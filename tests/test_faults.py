@@ -148,7 +148,6 @@ def test_typed_errors_name_the_file_and_the_field(tmp_path, old, new, match):
 
 
 def test_an_error_at_step_time_names_the_file_and_the_step(tmp_path, monkeypatch):
-    from hqp_tpm.app import runner
     from hqp_tpm.control.controller import Controller
 
     calls = [0]
