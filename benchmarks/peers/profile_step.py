@@ -163,11 +163,9 @@ def lean_phase_times(ctrl, reps: int) -> list[tuple[str, float]]:
                        "pass)", _median_us(lambda: st.update_positions(ctrl.q, ctrl.v, t, fast._fused_frames,
                                                                        fast._com), reps))
         prog = fast._program
-        fast.compute()  # (the gathers that rest between edits: fast._per_step leaves them out)
+        fast.compute()
         for task, write, own in zip(fast.tasks, fast._fused, fast.writers, strict=True):
             what = "row writer" if write is own else "row program's gather"
-            if write not in fast._per_step:
-                what += " (rests: a constant reference, copied again only after an edit)"
             out.append((f"  {type(task).__name__}({task.name}) {what}", _median_us(lambda w=write: w(t), reps)))
         what = {_compiled_step.TPM: "TPM, finiteness of x",
                 _compiled_step.SNS: f"box ({'given' if prog.box_given else 'in the kernel'}), SNS-TPM, finiteness of x",

@@ -68,7 +68,7 @@ METRICS: dict[str, tuple[str, str]] = {
     "{metric}_reason": ("-", "why ``{metric}`` is null: it was not finite (NaN or inf); metrics.json is strict JSON"),
     "wall_time_s": ("s", "wall-clock time of the whole loop (recording included)"),
     "mean_step_us": ("µs", "mean time of one control step (state update, policy, solve, integration)"),
-    "lean": ("1", "1 if the run stepped with the controller's lean step (the same numbers in fewer calls), else 0"),
+    "lean": ("1", "1 if ctrl.step() ran its compiled step (the readable step's numbers in fewer calls), else 0"),
     "max_dq_jump": ("rad/s", "largest change of any joint velocity between two consecutive steps"),
     "max_dq_jump_step": ("1", "step at which ``max_dq_jump`` happens"),
     "max_abs_dq": ("rad/s", "largest joint velocity (absolute value) of the run"),

@@ -7,7 +7,7 @@ import numpy as np
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, row_selector, select_axes
 
 
 class CenterOfMass(Task):
@@ -44,26 +44,17 @@ class CenterOfMass(Task):
         views = state.com_views()
         if views is None:
             return super().row_writer(state, order, J, b)
-        com, Jcom, acom = views
-        sel = self._sel
-        e = np.zeros(self.dim)
-        rate = np.zeros(self.dim)
-
+        com, Jcom, _ = views
         rows, none = self.rows, np.zeros(0)
+        readable = super().row_writer(state, order, J, b)
 
         def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
-            state.com_kinematics(order)
-            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
-                _compiled.rows1(J, Jcom, rows, b, ref[0], com, rows, none, ref[1], self.gains.kp)
+            if order != 1 or not _compiled.ENABLED:
+                readable(t)
                 return
-            J[...] = Jcom[sel]
-            np.subtract(ref[0], com[self.rows], out=e)
-            if order == 1:
-                feedback(b, e, ref, self.gains, 1)
-            else:
-                np.dot(J, state.v, out=rate)
-                feedback(b, e, ref, self.gains, 2, rate, acom[sel])
+            ref = self.trajectory.reference(t)  # one compiled call, the same operations
+            state.com_kinematics(order)
+            _compiled.rows1(J, Jcom, rows, b, ref[0], com, rows, none, ref[1], self.gains.kp)
         return write
 
     def row_program(self, state: State, order: int, program, row: int):
@@ -85,4 +76,4 @@ class CenterOfMass(Task):
         def gather(t: float) -> None:
             refresh(t)
             state.com_kinematics(1)  # (nothing when the lean step's state update computed them: com_in_update)
-        return Gather(gather, self, refresh_only=True)
+        return gather

@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, kernel_placement
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
 
 
 class FrameOrientation(Task):
@@ -52,27 +52,17 @@ class FrameOrientation(Task):
         if views is None:
             return super().row_writer(state, order, J, b)
         R = views[1]
-        e = np.zeros(3)
-        rate = np.zeros(3)
-
         rows, none, no_rows = np.arange(3, 6), np.zeros(0), np.zeros(0, dtype=np.int64)
+        readable = super().row_writer(state, order, J, b)
 
         def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
-            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
-                w = pin.log3(self._R_target.dot(R.T))
-                _compiled.rows1(J, pin.getFrameJacobian(model, data, fid, LWA), rows, b, none, none, no_rows, w,
-                                ref[1], self.gains.kp)
+            if order != 1 or not _compiled.ENABLED:
+                readable(t)
                 return
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)[3:]
-            J[...] = Jt
-            e[...] = pin.log3(self._R_target.dot(R.T))
-            if order == 1:
-                feedback(b, e, ref, self.gains, 1)
-            else:
-                np.dot(Jt, state.v, out=rate)
-                feedback(b, e, ref, self.gains, 2, rate,
-                         pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:])
+            ref = self.trajectory.reference(t)  # one compiled call, the same operations
+            w = pin.log3(self._R_target.dot(R.T))
+            _compiled.rows1(J, pin.getFrameJacobian(model, data, fid, LWA), rows, b, none, none, no_rows, w, ref[1],
+                            self.gains.kp)
         return write
 
     def row_program(self, state: State, order: int, program, row: int):
@@ -109,4 +99,4 @@ class FrameOrientation(Task):
                     np.dot(S[3:], state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
-        return Gather(gather, self, refresh_only=inside and order == 1)
+        return gather

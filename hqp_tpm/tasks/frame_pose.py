@@ -9,7 +9,7 @@ from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, kernel_placement
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
 
 
 class FramePose(Task):
@@ -54,38 +54,29 @@ class FramePose(Task):
         if views is None:
             return super().row_writer(state, order, J, b)
         p, R = views
-        e = np.zeros(6)
-        e_p = e[:3]
         rate = np.zeros(6)
+        readable = super().row_writer(state, order, J, b)
         target = [None, None, None]  # the target placement and views of its translation and rotation
 
         rows, xrows = np.arange(6), np.arange(3)
 
         def write(t: float) -> None:
+            if not _compiled.ENABLED:
+                readable(t)
+                return
             ref = self.trajectory.reference(t)
             Jt = pin.getFrameJacobian(model, data, fid, LWA)
             M = self._M_target
             if M is not target[0]:
                 target[:] = M, M.translation, M.rotation
-            w = pin.log3(target[2].dot(R.T))
-            if _compiled.ENABLED:  # one compiled call, the same operations
-                g = self.gains
-                if order == 1:
-                    _compiled.rows1(J, Jt, rows, b, target[1], p, xrows, w, ref[1], g.kp)
-                else:
-                    np.dot(Jt, state.v, out=rate)
-                    jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-                    _compiled.rows2(J, Jt, rows, b, target[1], p, xrows, w, rate, jdq, ref[1], ref[2], g.kp, g.kd)
-                return
-            J[...] = Jt
-            np.subtract(target[1], p, out=e_p)
-            e[3:] = w
+            w = pin.log3(target[2].dot(R.T))  # one compiled call, the same operations
+            g = self.gains
             if order == 1:
-                feedback(b, e, ref, self.gains, 1)
+                _compiled.rows1(J, Jt, rows, b, target[1], p, xrows, w, ref[1], g.kp)
             else:
                 np.dot(Jt, state.v, out=rate)
                 jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-                feedback(b, e, ref, self.gains, 2, rate, jdq)
+                _compiled.rows2(J, Jt, rows, b, target[1], p, xrows, w, rate, jdq, ref[1], ref[2], g.kp, g.kd)
         return write
 
     def row_program(self, state: State, order: int, program, row: int):
@@ -126,4 +117,4 @@ class FramePose(Task):
                     np.dot(S, state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-        return Gather(gather, self, refresh_only=inside and order == 1)
+        return gather
