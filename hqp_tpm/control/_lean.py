@@ -175,10 +175,8 @@ class LeanStep(CompiledStep):
         if self.x0 is not None and self.solver == "sns_tpm":  # as the registry does: one more level
             levels.append(Level(np.eye(n), self.x0, name="x0", defer_finite=True))
         self.levels = tuple(levels)
-        # the frames the row writers read (the others are placed if a task asks the state for them)
-        self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks
-                                          if type(task).row_writer is not Task.row_writer and own_rows(type(task))
-                                          and task.frame is not None))
+        # the frames of the frame tasks, placed by the state update (but those the fused kernel places, below)
+        self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks if task.frame is not None))
         lo_up = (self._buf[a * n + a + 2 * n: a * n + a + 3 * n], self._buf[a * n + a + 3 * n: a * n + a + 4 * n])
         if mode == _compiled_step.SNS:
             lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)

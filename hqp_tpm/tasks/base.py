@@ -125,7 +125,8 @@ class Task(ABC):
         (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the
         step's pinocchio outputs into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array
         is bound with ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel
-        then writes the numbers of :meth:`row_writer`. None (this default): the task's row writer runs instead."""
+        then writes the numbers of :meth:`jacobian` and :meth:`command`. None (this default): the task's row writer runs
+        instead."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -149,8 +150,8 @@ def own_rows(kind: type[Task]) -> bool:
     def owner(name: str) -> type:
         return next(k for k in kind.__mro__ if name in vars(k))
 
-    writer = owner("row_writer"), owner("row_program")
-    return all(issubclass(w, owner(name)) for name in _REPEATED for w in writer)
+    writers = [k for k in (owner("row_writer"), owner("row_program")) if k is not Task]  # (Task's: the methods)
+    return all(issubclass(w, owner(name)) for name in _REPEATED for w in writers)
 
 
 def row_writer(task: Task, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:

@@ -10,7 +10,6 @@ import numpy as np
 
 from hqp_tpm.errors import ShapeError
 from hqp_tpm.references.trajectories import Trajectory
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task
@@ -66,18 +65,10 @@ class Posture(Task):
         return np.zeros(self.dim)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: the constant selection rows once, then ``b`` from ``q[joints]`` per step."""
+        """:meth:`Task.row_writer`, with the constant selection rows written at once (the row program's kernel writes
+        ``b`` only)."""
         J[...] = self._J
-        angles, cols = self.angles, self.cols
-
-        def write(t: float) -> None:
-            if not (angles._plain and _compiled.ENABLED):
-                b[...] = self.command(state, t, order, None, self._J)
-                return
-            ref = self.trajectory.reference(t)  # one compiled call, the same operations
-            g = self.gains
-            _compiled.posture_rows(b, state.q, state.v, angles.idx, cols, ref[0], ref[1], ref[2], g.kp, g.kd, order)
-        return write
+        return super().row_writer(state, order, J, b)
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: revolute/prismatic joints only (the kernel writes ``b`` from ``q``, ``v``)."""
