@@ -19,9 +19,9 @@ Optional (defaults do nothing):
     ``thresholds``                    recorded channel -> {threshold name: value} (for the figures)
     ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...);
                                       default: nothing (the app adds the scenario's obstacles)
-    ``compiled_step(ctrl)``           the policy's compiled step (Algorithm 1's), or None
     ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
                                       step changes nothing (:meth:`Controller.step` is transactional)
+    ``compiled_step(ctrl)``           the policy's compiled step (Algorithm 1's), or None
 
 :class:`DistancePolicy` is the shared base of the policies driven by a
 :class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body): it updates the

@@ -41,6 +41,9 @@ class Trajectory:
 
     #: the array fields kept as read-only copies (see the class doc)
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin",)
+    #: ``reference(t)`` depends on ``t`` (False: constant between assignments and starts)
+    time_varying: ClassVar[bool] = True
+
     relative: bool = False
     origin: np.ndarray | None = field(default=None, repr=False)
 
@@ -68,6 +71,7 @@ class Constant(Trajectory):
     """``x_d = value`` (plus the start value when relative), zero derivatives."""
 
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin", "value")
+    time_varying: ClassVar[bool] = False
 
     value: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
@@ -91,6 +95,7 @@ class Constant(Trajectory):
 class Hold(Trajectory):
     """Hold the value the task had at the start (``relative`` by construction)."""
 
+    time_varying: ClassVar[bool] = False
     relative: bool = True
 
     def __post_init__(self):
