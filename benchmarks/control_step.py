@@ -8,9 +8,9 @@
    the motion), and ``romeo_obstacles_sns_tpm`` (whole-body avoidance with coal distances, its own solver),
    and where the time goes (the controller's own calls wrapped with timers: state update,
    pre-policy hooks = distances, policy, task levels, box, solve, integration).
-2. The complete ``lwr_relaxed`` run (18,850 steps): wall time of ``ctrl.step()`` in a loop and of the lean
-   step (:func:`hqp_tpm.app.runner.lean_stepper`) in a loop (nothing recorded), and of
-   :func:`hqp_tpm.app.runner.run` with the lean step (recording every step, as ``hqp-tpm run``).
+2. The complete ``lwr_relaxed`` run (18,850 steps): wall time of ``ctrl.step(record=True)`` (the readable path) in
+   a loop and of ``ctrl.step()`` (its compiled step) in a loop (nothing recorded), and of
+   :func:`hqp_tpm.app.runner.run` (recording every step, as ``hqp-tpm run``).
 3. A 7-DOF SNS-TPM velocity solve: one 6-D task (LWR IV end-effector pose Jacobian at random
    configurations) with joint velocity boxes small enough that joints saturate; tpm and the cascaded
    QP (proxqp, same box) on the same problems for the ratio.
@@ -172,25 +172,24 @@ def step_timing(name: str, solver: str | None, steps: int | None, warmup: int) -
 
 
 def whole_run(name: str, steps: int | None) -> dict:
-    """Wall time of the complete run: ``ctrl.step()`` loop, the lean step's loop (``runner.lean_stepper``: what
-    ``hqp-tpm run`` steps with), then ``runner.run`` with the lean step (fresh controllers; the kernels compiled or
+    """Wall time of the complete run: ``ctrl.step(record=True)`` loop (the readable path), ``ctrl.step()`` loop (its
+    compiled step, what ``hqp-tpm run`` steps with), then ``runner.run`` (fresh controllers; the kernels compiled or
     loaded by a few steps of another one first)."""
     from hqp_tpm.app import runner
 
     _, _, warm, _ = build(name)  # compile or load the compiled kernels first (benchmarks/first_call.py times that)
-    warm_step = runner.lean_stepper(warm)[0]
     for _ in range(20):
+        warm.step(record=True)
         warm.step()
-        warm_step()
     sc, _, ctrl, _ = build(name)
     n = steps or sc.steps
     c0, t0 = time.process_time(), time.perf_counter()
     for _ in range(n):
-        ctrl.step()
+        ctrl.step(record=True)
     loop = time.perf_counter() - t0
     loop_cpu = time.process_time() - c0
     _, _, ctrl, _ = build(name)
-    step = runner.lean_stepper(ctrl)[0]
+    step = ctrl.step
     c0, t0 = time.process_time(), time.perf_counter()
     for _ in range(n):
         step()
@@ -198,7 +197,7 @@ def whole_run(name: str, steps: int | None) -> dict:
     lean_cpu = time.process_time() - c0
     _, _, ctrl, _ = build(name)
     t0 = time.perf_counter()
-    rec, timing = runner.run(ctrl, n, lean=True)
+    rec, timing = runner.run(ctrl, n)
     recorded = time.perf_counter() - t0
     rec.discard()
     return {"scenario": name, "steps": n, "loop_s": loop, "loop_cpu_s": loop_cpu, "runner_s": recorded,

@@ -5,7 +5,7 @@
 Each measurement is a fresh Python process with ``NUMBA_CACHE_DIR`` set to a directory of its own: an empty one
 (the first use on a machine: every kernel a step calls is compiled), then the same one again (a later process:
 the kernels are loaded from numba's disk cache). In that process: the import of ``hqp_tpm``, building the
-controller, then the first lean step (``ctrl.lean().step()``, or Algorithm 1's planned step) the median of the
+controller, then the first lean step (``ctrl.step()``: its compiled step) the median of the
 next 200 (compiled: the steady state). Cases: the iiwa EE pose > posture with ``tpm``
 and with ``sns_tpm`` under the joint box (the fused kernel), Romeo's five levels with ``sns_tpm``, and
 ``lwr_relaxed`` (the planned step: distance, row and TPM kernels).
@@ -38,16 +38,15 @@ case = {case!r}
 if case == "lwr_relaxed":
     from hqp_tpm.app.build import build
     from hqp_tpm.app.scenario import load
-    from hqp_tpm.app.runner import lean_stepper
     ctrl = build(load("lwr_relaxed"))[1]
-    step = lean_stepper(ctrl)[0]
+    step = ctrl.step
 else:
     from benchmarks.peers import problems as P
     kind, solver = case.split(":")
     robot = P.load_robot(P.ROMEO if kind == "romeo_vel" else P.IIWA)
     prob = P.romeo_problem(robot, n=1) if kind == "romeo_vel" else P.iiwa_problem(robot, order=1, n=1)
     ctrl = P.hqp_controller(robot, prob, prob.configs[0], solver)
-    step = ctrl.lean().step
+    step = ctrl.step
 t1, c1 = time.perf_counter(), time.process_time()
 step()
 t2, c2 = time.perf_counter(), time.process_time()

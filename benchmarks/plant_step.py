@@ -28,13 +28,14 @@ PARTS = ("controller step", "torque law", "MuJoCo step + sensors", "set_state")
 
 
 def measure(name: str, steps: int, warmup: int) -> dict:
-    from hqp_tpm.app import build, plant_run, runner, scenario
+    from hqp_tpm.app import build, plant_run, scenario
 
     ctx = build.build_run(scenario.load(name))
     ctrl = ctx.controller
     plant = plant_run.build_plant(ctx)
-    fast = runner.lean_stepper(ctrl)
-    step = fast[0] if fast is not None else (lambda: ctrl.step().command)
+    def step():
+        return ctrl.step().command
+
     operator = ctx.scene.operator
     samples: dict[str, list] = {p: [] for p in PARTS}
     cpu: dict[str, list] = {p: [] for p in PARTS}
@@ -49,7 +50,7 @@ def measure(name: str, steps: int, warmup: int) -> dict:
             for p, w, c in zip(PARTS, (w0, w1, w2, w3), (c0, c1, c2, c3), strict=True):
                 samples[p].append(w)
                 cpu[p].append(c)
-    out = {"scenario": name, "level": ctx.scenario.level, "lean": fast is not None, "steps": steps}
+    out = {"scenario": name, "level": ctx.scenario.level, "lean": ctrl.compiled(), "steps": steps}
     for p in PARTS:
         st = common.stats_us(samples[p], cpu[p])
         out[f"{p} median_us"], out[f"{p} p99_us"], out[f"{p} cpu_median_us"] = (st["median_us"], st["p99_us"],

@@ -83,7 +83,10 @@ def _romeo(name, steps, lean):
     sc = scenario.load(name)
     _, ctrl, _, _ = build.build(sc)
     assert ctrl.box.command_rate  # on by default in the shipped boxed scenarios
-    step = ctrl.lean().step if lean else (lambda: ctrl.step().command)
+
+    def step():
+        return ctrl.step(record=not lean).command
+
     out, worst_box, worst_rate = [], 0.0, 0.0
     lim = ctrl.box
     for _ in range(steps):

@@ -148,20 +148,18 @@ def test_typed_errors_name_the_file_and_the_field(tmp_path, old, new, match):
 
 
 def test_an_error_at_step_time_names_the_file_and_the_step(tmp_path, monkeypatch):
-    from hqp_tpm.app import runner
     from hqp_tpm.control.controller import Controller
 
     calls = [0]
     step = Controller.step
 
-    def failing(self):
+    def failing(self, record=False):
         calls[0] += 1
         if calls[0] == 4:
             raise SolverFailedError("the solver gave up")
-        return step(self)
+        return step(self, record)
 
     monkeypatch.setattr(Controller, "step", failing)
-    monkeypatch.setattr(runner, "lean_stepper", lambda ctrl: None)
     path = write(tmp_path, shipped("planar5_exact"))
     with pytest.raises(SolverFailedError, match=r"^s\.toml, step 4 \(t = 0\.003 s\): the solver gave up") as err:
         run_scenario(path, tmp_path / "out", steps=10, **RUN)

@@ -1,7 +1,8 @@
-"""The lean step (hqp_tpm.control.lean) equals the readable step (Task -> Level -> solver), step by step.
+"""The compiled step of a fixed stack (hqp_tpm.control._lean) equals the readable step (Task -> Level -> solver).
 
-Two controllers built alike from the same state, one stepped by ``Controller.step()``, the other by
-``LeanStep.step()``: commands, ``q`` and ``v`` compared at every step (1e-12; they are in fact equal to
+Two controllers built alike from the same state, one stepped by ``Controller.step(record=True)`` (the readable
+path, the oracle), the other by ``Controller.step()`` (its compiled step, :class:`Lean`): commands, ``q`` and ``v``
+compared at every step (1e-12; they are in fact equal to
 the last bit where the solver is deterministic, except the fused kernel's rotation error ``log3(R_d R^T)``,
 which rounds within a few ulps of pinocchio's: those steps agree to ``ROUNDING``), on every set-up the lean step
 supports:
@@ -21,10 +22,46 @@ import numpy as np
 import pytest
 
 from hqp_tpm.control import _compiled_step
-from hqp_tpm.control.lean import LeanStep
+from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
 
 TOL = 1e-12
+
+
+class Lean:
+    """``ctrl.step()`` through its compiled step (a LeanStep): :meth:`step`, :meth:`compute` give the command of
+    ``ctrl.step()``, ``ctrl.compute()`` (asserting that the compiled step planned for it ran), :attr:`info` the last
+    result's; any other name is the LeanStep's (its internals)."""
+
+    def __init__(self, ctrl, fast):
+        self.__dict__.update(ctrl=ctrl, fast=fast, res=None)
+
+    @classmethod
+    def of(cls, ctrl):
+        """The compiled step of ``ctrl`` if it is a LeanStep, else None."""
+        fast = ctrl._compiled_step()
+        return cls(ctrl, fast) if type(fast) is LeanStep else None
+
+    def _ran(self, res):
+        assert self.ctrl._fast is self.fast and res._kept is not None  # (the compiled step ran, not a new one)
+        self.res = res
+        return res.command
+
+    def step(self):
+        return self._ran(self.ctrl.step())
+
+    def compute(self):
+        return self._ran(self.ctrl.compute())
+
+    @property
+    def info(self):
+        return self.res.info
+
+    def __getattr__(self, name):
+        return getattr(self.fast, name)
+
+    def __setattr__(self, name, value):
+        setattr(self.fast, name, value) if name in type(self.fast).__slots__ else self.__dict__.update({name: value})
 
 #: Both paths of the lean step's arithmetic: the compiled kernels (hqp_tpm.robot._compiled) and numpy.
 PATHS = [pytest.param(True, id="compiled"), pytest.param(False, id="numpy")]
@@ -72,11 +109,11 @@ QP_TOL = 1e-9
 
 def assert_same_steps(make, steps, exact=True):
     ref, fast = make(), make()
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     assert lean is not None, LeanStep.why_not(fast)
     tol = TOL if exact else QP_TOL
     for _ in range(steps):
-        x_ref = ref.step().command
+        x_ref = ref.step(record=True).command
         x = lean.step()
         assert rel_diff(x, x_ref) <= tol
         assert rel_diff(fast.q, ref.q) <= tol and rel_diff(fast.v, ref.v) <= tol
@@ -106,7 +143,7 @@ def test_every_qualifying_scenario(name):
     why = LeanStep.why_not(built[0])
     assert (why is None) == (name in QUALIFYING), why
     if why is not None:
-        assert LeanStep.of(built[0]) is None and isinstance(why, str) and why
+        assert Lean.of(built[0]) is None and isinstance(why, str) and why
         return
     qp = built[0].solver.startswith("qp")  # the cascaded QP is not reproducible to the bit (README, known problems)
     ref, _ = assert_same_steps(lambda: built.pop() if built else build(load(name))[1], 20 if qp else 30, exact=not qp)
@@ -157,12 +194,12 @@ def test_nullspace_damping_and_mixed_steps():
                           lambda_max=0.05, eps=0.1, q0=ctrl0.q, v0=np.full(7, 0.2))
 
     ref, fast = make(), make()
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     for i in range(200):
-        x_ref = ref.step().command
+        x_ref = ref.step(record=True).command
         x = lean.step() if i % 3 else fast.step().command  # the two paths mix on one controller
         assert rel_diff(x, x_ref) <= TOL and rel_diff(fast.v, ref.v) <= TOL
-    assert rel_diff(lean.compute(), ref.compute().command) <= TOL
+    assert rel_diff(lean.compute(), ref.compute(record=True).command) <= TOL
 
 
 @pytest.mark.parametrize("solver", ["sns_tpm", "sns"])
@@ -186,16 +223,16 @@ def test_unsupported_setups_are_named():
     from hqp_tpm.app.scenario import load
 
     tracking = build(load("lwr_tracking"))[1]      # a pointing cone: inequality rows
-    assert LeanStep.of(tracking) is None and "pointing" in LeanStep.why_not(tracking)
+    assert Lean.of(tracking) is None and "pointing" in LeanStep.why_not(tracking)
     avoid = build(load("lwr_avoid3d"))[1]           # Algorithm 1 rebuilds the stack every step
-    assert LeanStep.of(avoid) is None and "Algorithm1" in LeanStep.why_not(avoid)
+    assert Lean.of(avoid) is None and "Algorithm1" in LeanStep.why_not(avoid)
     from benchmarks.peers import problems as P
 
     robot = P.load_robot(P.IIWA)
     prob = P.iiwa_problem(robot, 1, n=1)
     cross = P.hqp_controller(robot, prob, prob.configs[0])
     cross.crosscheck = "sns_tpm"
-    assert LeanStep.of(cross) is None and "crosscheck" in LeanStep.why_not(cross)
+    assert Lean.of(cross) is None and "crosscheck" in LeanStep.why_not(cross)
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
@@ -210,7 +247,7 @@ def test_non_finite_rows_raise_like_the_readable_step_and_change_nothing(solver,
     robot = P.load_robot(P.IIWA)
     prob = P.iiwa_problem(robot, 1, n=1)
     ctrl = P.hqp_controller(robot, prob, prob.configs[0], solver)
-    lean = LeanStep.of(ctrl)
+    lean = Lean.of(ctrl)
     lean.step()
     q, v, t = ctrl.q.copy(), ctrl.v.copy(), ctrl.t
     posture = ctrl.policy.stack.levels[1][0]
@@ -271,7 +308,10 @@ def test_row_writers_equal_jacobian_and_command(order, compiled):
             a += task.dim
         writers = [task.row_writer(st, order, J[r], b[r]) for task, r in zip(tasks, rows, strict=True)]
         own = [type(task).row_writer is not Task.row_writer for task in tasks]
-        assert all(own)  # every task class here has its own writer
+        # FramePosition and JointVelocity write their own rows (Posture its constant J once); the other classes'
+        # writer is jacobian and command (their compiled copy is their row program, compared with the readable step)
+        assert {type(task).__name__ for task, o in zip(tasks, own, strict=True) if o} == \
+            {"FramePosition", "JointVelocity", "Posture"} & {type(task).__name__ for task in tasks}
         frames = tuple(robot.frame_id(task.frame) for task in tasks if task.frame is not None)
         for k in range(20):
             q = pin.integrate(robot.model, q0, rng.normal(0.0, 0.4, robot.nv))
@@ -294,12 +334,12 @@ def test_row_writers_equal_jacobian_and_command(order, compiled):
 @pytest.mark.parametrize("order", [1, 2])
 @pytest.mark.parametrize("robot_name", ["iiwa7", "romeo21"])
 def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compiled):
-    """The lean box and JointLimits' (both one compiled call where they can) equal JointLimits.reference_box (its
-    BoxLimits formulas) to the last bit: inside the limits, on them, beyond them, fast or not."""
+    """The lean box and JointLimits' (both one compiled call where they can, else BoxLimits) equal
+    JointLimits.reference_box (its BoxLimits formulas) to the last bit: inside the limits, on them, beyond them."""
     import pinocchio as pin
 
     from hqp_tpm import JointLimits
-    from hqp_tpm.control.lean import JointBox
+    from hqp_tpm.control._lean import JointBox
     from hqp_tpm.robot.model import Robot
     from hqp_tpm.robot.state import State
 
@@ -321,7 +361,7 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
         v = rng.normal(0.0, (0.05, 0.5, 3.0)[k % 3], robot.nv)
         st.update(q, v)
         want = limits.reference_box(st)
-        for got in (box(st.q, st.v), limits(st, 0.0)):
+        for got in (box(st), limits(st, 0.0)):
             np.testing.assert_array_equal(got[0], want[0])
             np.testing.assert_array_equal(got[1], want[1])
         if compiled and box.fast:
@@ -330,9 +370,7 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
             lo_k, up_k = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
             fast += (_compiled.velocity_box(st.q, box._P, box._idx, 1e-3, lo_k, up_k) if order == 1 else
                      _compiled.acceleration_box(st.q, st.v, box._P, box._idx, 1e-3, lo_k, up_k))
-        else:
-            fast += box.fast and (box._velocity(st.q) if order == 1 else box._acceleration(st.q, st.v)) is not None
-    assert (fast > 100) == position  # the fast formulas do the common case
+    assert (fast > 100) == (position and compiled)  # the kernels do the common case (without numba: BoxLimits)
 
 
 def test_partial_state_update_completes_on_demand():
@@ -402,7 +440,7 @@ def test_fused_tpm_step_under_every_switch(kind, rows, solve, monkeypatch):
         P.iiwa_problem(robot, order=1 if kind == "iiwa_vel" else 2, n=2)
     for cfg in prob.configs:
         _, fast = assert_same_steps(lambda cfg=cfg: P.hqp_controller(robot, prob, cfg, "tpm"), 15)
-        lean = LeanStep.of(fast)
+        lean = Lean.of(fast)
         assert (lean._kernel is not None) == solve
         if solve:  # every task of these stacks has a row program (the CoM's at velocity level)
             assert lean._program.ints[5] == len(lean.tasks)
@@ -410,11 +448,11 @@ def test_fused_tpm_step_under_every_switch(kind, rows, solve, monkeypatch):
     from hqp_tpm.solvers import _compiled as _solvers_compiled
 
     ref, fast = (P.hqp_controller(robot, prob, prob.configs[0], "tpm") for _ in range(2))
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     for i in range(24):  # the switches flipped between steps, on one lean step
         monkeypatch.setattr(_compiled, "ENABLED", rows and i % 2 == 0)
         monkeypatch.setattr(_solvers_compiled, "ENABLED", solve and i % 3 != 0)
-        assert_equal_steps(lean.step(), ref.step().command)
+        assert_equal_steps(lean.step(), ref.step(record=True).command)
         assert_equal_steps(fast.q, ref.q)
 
 
@@ -430,7 +468,7 @@ def test_fused_rows_for_other_solvers(kind, solver, monkeypatch):
     prob = P.iiwa_problem(robot, order=1 if kind == "iiwa_vel" else 2, n=2)
     for cfg in prob.configs:
         _, fast = assert_same_steps(lambda cfg=cfg: P.hqp_controller(robot, prob, cfg, solver), 15)
-        lean = LeanStep.of(fast)
+        lean = Lean.of(fast)
         fused_sns = solver == "sns_tpm" and not lean.damping  # SNS-TPM without the x0 level: solved in the kernel
         mode = _compiled_step.SNS if fused_sns else _compiled_step.ROWS
         assert lean._kernel is not None and lean._program.ints[6] == mode and lean._program.ints[5] == 2
@@ -438,7 +476,7 @@ def test_fused_rows_for_other_solvers(kind, solver, monkeypatch):
 
 def _sns_spy(monkeypatch):
     """Counts the lean step's calls of sns_tpm_stacked (the path after the fused kernel hands back)."""
-    from hqp_tpm.control import lean as lean_mod
+    from hqp_tpm.control import _lean as lean_mod
 
     calls = []
     real = lean_mod.sns_tpm_stacked
@@ -463,10 +501,10 @@ def test_fused_sns_tpm_equals_the_readable_step(kind, monkeypatch):
         ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
         for c in (ref, fast):  # the iiwa's velocity limits at 5 % of the URDF's (Romeo's URDF limits bind already)
             c.box = JointLimits(robot, order=1, dt=P.DT, velocity_scale=1.0 if kind == "romeo_vel" else 0.05)
-        lean = LeanStep.of(fast)
+        lean = Lean.of(fast)
         assert lean._program.solve == _compiled_step.SNS
         for _ in range(12 if kind == "romeo_vel" else 30):
-            res = ref.step()
+            res = ref.step(record=True)
             assert_equal_steps(lean.step(), res.command)
             assert_equal_steps(fast.q, ref.q)
             assert_same_info(lean.info, res.info)
@@ -490,12 +528,12 @@ def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     q[1] = robot.model.upperPositionLimit[1] + 0.5  # too far to stop inside: an empty position box
     cfg = dataclasses.replace(prob.configs[0], q=q)
     ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     box = lean.box
     assert not lean._program.box_given  # the kernel computes the box, and declines here
     assert not _compiled.velocity_box(q, box._P, box._idx, box._dt, np.zeros(7), np.zeros(7))
     for _ in range(5):
-        res = ref.step()
+        res = ref.step(record=True)
         assert_equal_steps(lean.step(), res.command)
         assert_equal_steps(fast.q, ref.q)
         assert_same_info(lean.info, res.info)
@@ -528,9 +566,9 @@ def test_fused_sns_tpm_hands_back_to_the_numpy_path(monkeypatch):
     real_loop = _compiled_sns.sns_tpm_loop
     monkeypatch.setattr(_compiled_sns, "sns_tpm_loop", lambda *a: loops.append(1) or real_loop(*a))
     ref, fast = _singular_damped_pair("sns_tpm")
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     for _ in range(5):
-        res = ref.step()
+        res = ref.step(record=True)
         loops.clear()
         assert_equal_steps(lean.step(), res.command)
         assert not loops, len(loops)  # the fused kernel's loop handed back; numpy only from there
@@ -564,9 +602,9 @@ def test_fused_sns_tpm_resumes_where_the_kernel_stopped(monkeypatch):
     resumed = 0
     for cfg in prob.configs:
         ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
-        lean = LeanStep.of(fast)
+        lean = Lean.of(fast)
         assert lean._program.solve == _compiled_step.SNS
-        res = ref.step()
+        res = ref.step(record=True)
         loops.clear(), states.clear(), passes.clear()
         assert_equal_steps(lean.step(), res.command)
         assert_equal_steps(fast.q, ref.q)
@@ -624,7 +662,7 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
                           v0=np.full(7, 0.3) if order == 2 else None)
 
     ref, fast = make(), make()
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     assert lean._kernel is not None and lean._program.ints[5] >= 2
     harmonic = [t for t in fast.policy.stack.tasks() if type(t) is FramePosition and type(t.trajectory) is Harmonic]
     for task in harmonic:  # its row writer, not a program
@@ -646,24 +684,29 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
                     task.trajectory = wave
                 if i == 35 and type(task) is Posture:  # a field of the trajectory, not the task's attribute
                     task.trajectory.value = np.full(task.dim, -0.1)
-        assert_equal_steps(lean.step(), ref.step().command)
+        assert_equal_steps(lean.step(), ref.step(record=True).command)
         assert_equal_steps(fast.q, ref.q)
         assert_equal_steps(fast.v, ref.v)
 
 
-def test_gathers_of_constant_references_rest_until_an_edit():
-    """A lean step runs the row programs' gathers that only copy a time-invariant reference (Gather.refresh_only)
-    again only after an assignment to a task's or a trajectory's attribute (anywhere in the process: here the
-    readable controller's start counts too); a gather reading the state (order 2) or a moving reference runs every
-    step. Commands equal the readable step's throughout (to ROUNDING: the pose's log3)."""
-    from hqp_tpm import Controller, FramePose, FramePosition, Gains, Harmonic, Posture, Stack
+def test_targets_assigned_every_step_are_followed_without_edit_counters():
+    """Assignments to tasks and trajectories are plain (no process-wide edit counter: ``Task`` has no
+    ``__setattr__``, ``Trajectory.__setattr__`` only stores its arrays read-only); the row programs copy a reference
+    or gains when they are not the ones they hold (compared by identity). Targets and gains assigned between every
+    two steps, as a user's loop does, give the readable step's commands (to ROUNDING: the pose's log3)."""
+    import pinocchio as pin
+
+    from hqp_tpm import Controller, FramePose, FramePosition, Gains, Posture, Stack
     from hqp_tpm.references import trajectories
     from hqp_tpm.robot.model import Robot
+    from hqp_tpm.tasks.base import Task
 
+    assert Task.__setattr__ is object.__setattr__ and "edits" not in vars(trajectories)
     if not _compiled_step._compiled.AVAILABLE:
         pytest.skip("numba is not installed")
     robot = Robot.load("iiwa7")
     g = Gains(5.0, 2.0)
+    rng = np.random.default_rng(8)
 
     def make(order):
         stack = Stack.of(FramePose(robot, "iiwa_ee", None, g),
@@ -672,28 +715,21 @@ def test_gathers_of_constant_references_rest_until_an_edit():
 
     for order in (1, 2):
         ref, fast = make(order), make(order)
-        lean = LeanStep.of(fast)
-        runs = [0] * len(lean._fused)
-        lean._fused = tuple((lambda t, w=w, k=k, runs=runs: (runs.__setitem__(k, runs[k] + 1), w(t))[1])
-                            for k, w in enumerate(lean._fused))
-        for _ in range(2):  # (both controllers start: edits)
-            assert_equal_steps(lean.step(), ref.step().command)
-        runs[:] = [0, 0, 0]
-        for _ in range(3):
-            assert_equal_steps(lean.step(), ref.step().command)
-        assert runs == ([0, 0, 0] if order == 1 else [3, 3, 0])  # (order 2: the frames' gathers read J-dot q-dot)
-        assert lean._edits == trajectories.edits()
-        for ctrl in (ref, fast):
-            ctrl.policy.stack.tasks()[2].gains = Gains(3.0, 1.0)
-        assert_equal_steps(lean.step(), ref.step().command)
-        assert runs == ([1, 1, 1] if order == 1 else [4, 4, 1])
-        wave = Harmonic(center=np.array([0.1, 0.3]), cos_amplitude=np.array([0.02, 0.0]),
-                        sin_amplitude=np.array([0.0, 0.02]), omega=3.0)
-        for ctrl in (ref, fast):  # a moving reference: its gather runs every step from now on
-            ctrl.policy.stack.tasks()[1].trajectory = wave
-        for _ in range(3):
-            assert_equal_steps(lean.step(), ref.step().command)
-        assert runs[1:] == ([4, 2] if order == 1 else [7, 2])
+        lean = Lean.of(fast)
+        assert all(w is not v for w, v in zip(lean._fused, lean.writers, strict=True))  # every task: a row program
+        for i in range(30):
+            M = pin.SE3(pin.rpy.rpyToMatrix(*rng.uniform(-0.3, 0.3, 3)), rng.uniform(0.2, 0.6, 3))
+            x, q_d, kp = rng.uniform(-0.2, 0.4, 2), rng.uniform(-1, 1, 7), float(rng.uniform(1, 9))
+            for ctrl in (ref, fast):
+                pose, point, posture = ctrl.policy.stack.tasks()
+                if i % 3:
+                    pose._M_target = M.copy()
+                point.trajectory.value = x
+                posture.trajectory.value = q_d
+                if i % 4 == 0:
+                    posture.gains = Gains(kp, 1.0)
+            assert_equal_steps(lean.step(), ref.step(record=True).command)
+            assert_equal_steps(fast.q, ref.q)
 
 
 @pytest.mark.parametrize("solver", ["tpm", "sns_tpm"])
@@ -720,11 +756,11 @@ def test_rows_without_rotation_error_are_bit_identical(order, solver, monkeypatc
                           box=JointLimits(robot, order=order, dt=1e-3, velocity_scale=0.1) if solver != "tpm" else None)
 
     ref, fast = make(), make()
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     assert lean._kernel is not None and lean._program.ints[5] == (4 if order == 1 else 3)  # (the CoM: order 1)
     same = np.testing.assert_array_equal if order == 1 else assert_equal_steps
     for _ in range(40):
-        res = ref.step()
+        res = ref.step(record=True)
         same(lean.step(), res.command)
         same(fast.q, ref.q)
         same(fast.v, ref.v)
@@ -852,10 +888,10 @@ def test_row_programs_without_pinocchio_views(order, which, monkeypatch):
                           v0=np.full(7, 0.3) if order == 2 else None)
 
     ref, fast = make(), make()
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     assert lean._kernel is not None and lean._program.ints[5] >= 2
     for _ in range(20):
-        np.testing.assert_array_equal(lean.step(), ref.step().command)
+        np.testing.assert_array_equal(lean.step(), ref.step(record=True).command)
         np.testing.assert_array_equal(fast.q, ref.q)
         np.testing.assert_array_equal(fast.v, ref.v)
 
@@ -898,9 +934,9 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
     real_r = _solvers_compiled.recursion
     monkeypatch.setattr(_solvers_compiled, "recursion", lambda *a, **k: recursions.append(1) or real_r(*a, **k))
     ref, fast = _singular_damped_pair("tpm")
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     for _ in range(5):
-        want = ref.step().command
+        want = ref.step(record=True).command
         again.clear()
         factorizations.clear()
         recursions.clear()
@@ -909,9 +945,9 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
 
 
 def test_copied_and_pickled_lean_steps_step_their_own_controller():
-    """A lean step's fused program reads its controller's arrays (pinocchio's data) by address: a deep copy or an
-    unpickled lean step is built again for the copied controller, so it steps that controller with the readable
-    step's numbers, and the original goes on with its own; the program itself refuses to be copied."""
+    """A lean step's fused program reads its controller's arrays (pinocchio's data) by address: a deep-copied or an
+    unpickled controller plans its own compiled step, which steps that controller with the readable step's numbers,
+    and the original goes on with its own; the program itself refuses to be copied."""
     import copy
     import pickle
 
@@ -920,17 +956,18 @@ def test_copied_and_pickled_lean_steps_step_their_own_controller():
     robot = P.load_robot(P.IIWA)
     prob = P.iiwa_problem(robot, order=1, n=1)
     ref, fast = (P.hqp_controller(robot, prob, prob.configs[0], "sns_tpm") for _ in range(2))
-    lean = LeanStep.of(fast)
+    lean = Lean.of(fast)
     for _ in range(5):
-        assert_equal_steps(lean.step(), ref.step().command)
-    for twin in (copy.deepcopy(lean), pickle.loads(pickle.dumps(lean))):
-        assert type(twin) is LeanStep and twin.ctrl is not fast and twin._program is not lean._program
+        assert_equal_steps(lean.step(), ref.step(record=True).command)
+    for copied in (copy.deepcopy(fast), pickle.loads(pickle.dumps(fast))):
+        twin = Lean.of(copied)
+        assert twin.ctrl is not fast and twin.fast.ctrl is copied and twin._program is not lean._program
         ref2 = copy.deepcopy(ref)
         for _ in range(10):
-            assert_equal_steps(twin.step(), ref2.step().command)
+            assert_equal_steps(twin.step(), ref2.step(record=True).command)
             assert_equal_steps(twin.ctrl.q, ref2.q)
     for _ in range(5):  # the original, untouched by its copies' steps
-        assert_equal_steps(lean.step(), ref.step().command)
+        assert_equal_steps(lean.step(), ref.step(record=True).command)
         assert_equal_steps(fast.q, ref.q)
     if lean._program is not None:
         with pytest.raises(TypeError, match="addresses"):
@@ -968,16 +1005,16 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
         stack = Stack.of(*levels, Posture(robot, None, g))
         ref, fast, placed_by_state = (Controller(robot, stack, order=1, dt=1e-3, q0=q0, solver="tpm")
                                       for _ in range(3))
-        lean = LeanStep.of(fast)
+        lean = Lean.of(fast)
         with monkeypatch.context() as m:               # (no views: the state update places every frame)
             m.setattr(State, "frame_placement_source", lambda self, fid: None)
-            other = LeanStep.of(placed_by_state)
+            other = Lean.of(placed_by_state)
         assert lean._program.placed == set(fids) and not other._program.placed
         assert lean._fused_frames == ((fids[2],) if harmonic else ())
         for _ in range(5):
             x = lean.step()
             np.testing.assert_array_equal(x, other.step())
-            np.testing.assert_allclose(x, ref.step().command, rtol=0.0, atol=1e-12)  # (log3: a few ulps)
+            np.testing.assert_allclose(x, ref.step(record=True).command, rtol=0.0, atol=1e-12)  # (log3: a few ulps)
             full = fast.robot.model.createData()
             pin.framesForwardKinematics(fast.robot.model, full, fast.state.q)
             for fid in fids:

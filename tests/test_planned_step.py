@@ -1,7 +1,9 @@
-"""The planned step (hqp_tpm.policies.planned_step) equals the readable step (Stack -> Level -> solver).
+"""The compiled step of a planning policy (hqp_tpm.policies._planned_step) equals the readable step.
 
-Two controllers built alike, one stepped by ``Controller.step()``, the other by ``PlannedStep.step()``:
-commands, ``q``, ``v`` and the stack labels are equal at every step of ``lwr_relaxed`` (Algorithm 1 with coal
+Two controllers built alike, one stepped by ``Controller.step(record=True)`` (the readable path: Stack -> Level ->
+solver, the oracle), the other by ``Controller.step()`` (its compiled step, :class:`Planned`): commands, ``q``,
+``v``, the stack labels and the fields the compiled step's result computes on demand (levels, stack, box, x0) are
+equal at every step of ``lwr_relaxed`` (Algorithm 1 with coal
 distances, acceleration level, damped TPM, null-space damping), in two windows that together cover every stack
 the run goes through. Equal means within 1e-12 of the readable numbers' scale (:func:`close`): the compiled row
 kernels sum 3-vectors in a fixed order, numpy's BLAS in the order of the CPU's kernel (bit for bit on one
@@ -14,7 +16,7 @@ import pytest
 from hqp_tpm.app.build import build
 from hqp_tpm.app.scenario import load
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
-from hqp_tpm.policies.planned_step import PlannedStep
+from hqp_tpm.policies._planned_step import PlannedStep
 
 #: The state of the recorded lwr_relaxed run at step 17,890 (t = 17.89 s): the avoidance goes above the EE
 #: task some 30 steps later (the run's only "avoid > ee > pointing" steps).
@@ -35,14 +37,66 @@ def lwr():
     return build(load("lwr_relaxed"))[1]
 
 
+class Planned:
+    """``ctrl.step()`` through its compiled step (a PlannedStep): :meth:`step` gives the command of ``ctrl.step()``
+    (asserting that the compiled step planned for it ran), :meth:`label` the last result's stack label; any other
+    name is the PlannedStep's."""
+
+    def __init__(self, ctrl, fast):
+        self.__dict__.update(ctrl=ctrl, fast=fast, res=None)
+
+    @classmethod
+    def of(cls, ctrl):
+        fast = ctrl._compiled_step()
+        return cls(ctrl, fast) if type(fast) is PlannedStep else None
+
+    def step(self):
+        self.res = self.ctrl.step()
+        assert self.ctrl._fast is self.fast and self.res._kept is not None
+        return self.res.command
+
+    def label(self):
+        return self.res.label()
+
+    def __getattr__(self, name):
+        return getattr(self.fast, name)
+
+    def __setattr__(self, name, value):
+        setattr(self.fast, name, value) if name in type(self.fast).__slots__ else self.__dict__.update({name: value})
+
+
+def same_record(res, want):
+    """A compiled step's result (its fields computed on demand) against the readable step's record."""
+    assert res.label() == res.stack.label() == want.stack.label()
+    assert [lv.name for lv in res.levels] == [lv.name for lv in want.levels]
+    for lv, lw in zip(res.levels, want.levels, strict=True):
+        close(lv.J, lw.J, err_msg=lw.name)
+        for part in ("b", "lower", "upper"):
+            if getattr(lw, part) is None:
+                assert getattr(lv, part) is None
+            else:
+                close(getattr(lv, part), getattr(lw, part), err_msg=f"{lw.name}.{part}")
+        np.testing.assert_array_equal(lv.active_rows(), lw.active_rows())
+    assert res.stack.extras.keys() == want.stack.extras.keys()
+    for k in want.stack.extras:
+        close(res.stack.extras[k], want.stack.extras[k])
+    for a, b in ((res.x0, want.x0), *zip(res.box or (), want.box or (), strict=True)):
+        assert (a is None) == (b is None)
+        if b is not None:
+            close(a, b)
+    assert (res.box is None) == (want.box is None) and res.info == want.info and res.t == want.t
+
+
 def same_steps(ref, fast, steps) -> set[str]:
-    planned = PlannedStep.of(fast)
+    planned = Planned.of(fast)
     assert planned is not None, PlannedStep.why_not(fast)
     labels = set()
-    for _ in range(steps):
-        res = ref.step()
+    for i in range(steps):
+        res = ref.step(record=True)
         x = planned.step()
         close(x, res.command)
+        if i % 7 == 0 or res.stack.label() not in labels:
+            same_record(planned.res, res)
         close(fast.q, ref.q)
         close(fast.v, ref.v)
         close(fast.a, ref.a)
@@ -68,10 +122,10 @@ def test_lwr_relaxed_avoidance_above_the_ee_task_equal():
 
 def test_planned_and_readable_steps_mix_on_one_controller():
     ref, fast = lwr(), lwr()
-    planned = PlannedStep.of(fast)
+    planned = Planned.of(fast)
     for i in range(400):
-        x_ref = ref.step().command
-        x = planned.step() if i % 3 else fast.step().command
+        x_ref = ref.step(record=True).command
+        x = planned.step() if i % 3 else fast.step(record=True).command
         close(x, x_ref)
     close(fast.q, ref.q)
 
@@ -82,7 +136,7 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
     """A NaN in the end effector's reference, or one so large that the rows' sum of squares exceeds ``MAX_SUMSQ``
     or overflows: the readable step's typed error (MagnitudeError for the large ones), nothing changed."""
     ctrl = lwr()
-    planned = PlannedStep.of(ctrl)
+    planned = Planned.of(ctrl)
     for _ in range(50):
         planned.step()
     q, v, t, steps = ctrl.q.copy(), ctrl.v.copy(), ctrl.t, ctrl.steps
@@ -106,23 +160,24 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
 def test_unsupported_set_ups_say_why(change, why):
     ctrl = lwr()
     change(ctrl)
-    assert PlannedStep.of(ctrl) is None
+    assert PlannedStep.of(ctrl) is None and not ctrl.compiled()
     assert why in PlannedStep.why_not(ctrl)
 
 
 @pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm", "romeo_sns_tpm", "romeo_sns"])
-def test_runner_lean_run_records_the_same_arrays(name):
-    """``runner.run(..., lean=True)`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what the
-    readable run records (floats within 1e-12: close), probes and the SNS solvers' scale, iterations and saturated
+def test_runner_compiled_run_records_the_same_arrays(name):
+    """``runner.run`` with ``ctrl.step()`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what
+    the readable run (``record=True``) records (floats within 1e-12: close), probes and the SNS solvers' scale,
+    iterations and saturated
     joints included (the lean run once dropped them: notebook 03 plots ``scale``)."""
     from hqp_tpm.app.build import build_run
     from hqp_tpm.app.runner import run
 
     out = []
-    for lean in (False, True):
+    for record in (True, False):
         ctx = build_run(load(name))
-        rec, timing = run(ctx.controller, 300, probes=ctx.probes(), lean=lean)
-        assert timing["lean"] is lean
+        rec, timing = run(ctx.controller, 300, probes=ctx.probes(), record=record)
+        assert timing["lean"] is not record
         out.append(rec.arrays())
         rec.discard()
     assert out[0].keys() == out[1].keys()
@@ -230,10 +285,10 @@ def test_planned_step_grows_its_stacked_rows_mid_step():
     """The row writers write straight into the stacked rows; when the stack outgrows them mid-step the rows are
     reallocated (the rows written so far kept) and the writers placed again: the readable numbers still."""
     ref, fast = lwr(), lwr()
-    planned = PlannedStep.of(fast)
+    planned = Planned.of(fast)
     planned.J, planned.b = np.zeros((3, fast.robot.nv)), np.zeros(3)  # the EE task's rows only
     for _ in range(400):
-        res = ref.step()
+        res = ref.step(record=True)
         close(planned.step(), res.command)
         assert planned.label() == res.stack.label()
     assert planned.J.shape[0] > 3

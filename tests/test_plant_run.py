@@ -75,7 +75,7 @@ def test_comanipulation_operator_force_acts_on_the_flange():
     plant = plant_run.build_plant(ctx)
     assert plant.order == 1
     probes = [*ctx.probes(), plant_run.plant_probe(ctx, plant)]
-    rec, _ = runner.run(ctx.controller, 900, probes=probes, lean=True)
+    rec, _ = runner.run(ctx.controller, 900, probes=probes)
     arrays = rec.arrays()
     rec.discard()
     op = ctx.scene.operator

@@ -24,7 +24,7 @@ arrays = {}
 for item in sys.argv[2:]:
     name, steps = item.split(":")
     ctx = build.build_run(scenario.load(name))
-    rec, _ = runner.run(ctx.controller, int(steps), lean=True)  # (the CLI's path: the lean step)
+    rec, _ = runner.run(ctx.controller, int(steps))  # (the CLI's path: the compiled step)
     arrays.update({f"{name}/{k}": v for k, v in rec.load().items() if v.dtype.kind == "f"})
 np.savez(sys.argv[1], **arrays)
 """

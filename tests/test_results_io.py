@@ -197,7 +197,7 @@ def test_metrics_in_blocks_equal_whole_column_metrics(tmp_path, monkeypatch):
     from hqp_tpm.app.scenario import load
 
     ctx = build_run(load("lwr_relaxed"))
-    rec, timing = runner.run(ctx.controller, 2500, probes=ctx.probes(), lean=True,
+    rec, timing = runner.run(ctx.controller, 2500, probes=ctx.probes(),
                              recording=runner.Recording(ctx.robot.joint_names, tmp_path / "rec"))
     arrays = rec.load()
     results.standard_aliases(arrays, ctx.tasks)

@@ -3,7 +3,10 @@
 Faults are injected at several steps (the first step, an early one, the first stack switches, and
 in the co-manipulation scenarios steps with the simulated operator at work, iiwa_comanipulation's
 switch at t = 0.513 s among them): a NaN Jacobian, a solver error at the main solve or at
-a blend's re-solve (eq. (8) of papers/003, eqs. (19), (30) of papers/004), a non-finite integration.
+a blend's re-solve (eq. (8) of papers/003, eqs. (19), (30) of papers/004), a non-finite integration, a failure
+after the compiled step's solve (the policy updated, the rows written and solved).
+The NaN Jacobian and the solver errors are injected into the readable path (``ctrl.step(record=True)``), the other
+two into ``ctrl.step()`` (the compiled step where the scenario has one), which also takes every other step.
 Each faulty attempt must raise a typed error; after it, the run must go on bit-identical to a twin
 controller that never saw a fault (state, command, stack and every recorded channel) for >= 300 steps.
 """
@@ -31,8 +34,10 @@ SCAN = 400  #: stack switches looked for in the first SCAN steps
 #: both co-manipulation scenarios: steps after the simulated operator starts (t_start = 0.5 s)
 EXTRA = {"iiwa_comanipulation": [513, 700], "iiwa_admittance": [513, 700]}
 #: Faults tried in turn at a fault step; the blend re-solves (solve calls 1, 2) exist only on some steps.
-FAULTS = ("nan_jacobian", "solve_0", "nonfinite_integration", "solve_1", "solve_2")
+FAULTS = ("nan_jacobian", "solve_0", "nonfinite_integration", "compiled", "solve_1", "solve_2")
 OPTIONAL = {"solve_1", "solve_2"}
+#: the faults injected into the readable path (the others: into ``ctrl.step()``)
+READABLE = {"nan_jacobian", "solve_0", "solve_1", "solve_2"}
 #: romeo_qp is not reproducible to the bit even without faults: two fault-free twins in one process (one BLAS
 #: thread) already differ by ~4e-15 rad/s from step 4 on, as two CLI runs of the same code do (proxqp path).
 #: Its twin comparison allows that drift; a state change left by a rejected step would show up far above it.
@@ -59,6 +64,15 @@ def inject(ctrl, fault: str, monkeypatch):
                 fired["fired"] = True
                 return np.full_like(q, np.nan), np.full_like(v, np.nan)
             m.setattr(st, "integrate", integrate, raising=False)
+        elif fault == "compiled":
+            kind = type(ctrl._compiled_step())
+            compute = kind.compute
+
+            def failing_compute(self):
+                compute(self)
+                fired["fired"] = True
+                raise SolverFailedError("injected failure after the compiled step's solve")
+            m.setattr(kind, "compute", failing_compute)
         else:
             k, calls, solve = int(fault.split("_")[1]), [0], controller_module.solve
 
@@ -125,10 +139,13 @@ def test_a_rejected_step_changes_nothing(name, monkeypatch):
     for k in range(n):
         done = None
         if k in fault_steps:
+            compiled = ctrl.compiled()
             for fault in FAULTS:
+                if (fault == "compiled" and not compiled) or (fault in OPTIONAL and compiled):
+                    continue  # (a compiled step does not blend: no re-solves)
                 with inject(ctrl, fault, monkeypatch) as fired:
                     try:
-                        res = ctrl.step()
+                        res = ctrl.step(record=fault in READABLE)
                     except HqpTpmError:
                         assert fired["fired"], (f"{name}: step {k} failed before the injected {fault} was hit "
                                                 f"(state left behind by an earlier rejected attempt)")

@@ -98,7 +98,7 @@ def run_scenario(spec, out: Path, *, solver: str | None = None, crosscheck: bool
             try:
                 rec, timing = runner.run(ctrl, n_steps, progress=progress, crosscheck=other, probes=probes,
                                          label=sc.name, recording=rec, stop=stop,
-                                         lean=explainer is None and live is None,
+                                         record=explainer is not None or live is not None,
                                          velocity_bound=ctx.velocity_bound,  # (DivergedError beyond it)
                                          bound_source=f"{sc.path.name}.scenario.velocity_bound = "
                                                       f"{sc.velocity_bound:g} x the velocity limits")

@@ -440,7 +440,7 @@ def _rerun(run_dir: Path, step: int):
     for _ in range(step):
         ctrl.step()
     ex = Explainer(ctrl)
-    rec, _ = runner.run(ctrl, 1, probes=[ex.probe])
+    rec, _ = runner.run(ctrl, 1, probes=[ex.probe], record=True)  # (the full record: the readable step)
     arrays = rec.arrays()
     ex.finish(arrays)
     return arrays, ctrl.solver

@@ -10,7 +10,6 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
-from typing import NamedTuple
 
 import numpy as np
 
@@ -153,32 +152,6 @@ class Recording:
             shutil.rmtree(self.folder, ignore_errors=True)
 
 
-class LeanResult(NamedTuple):
-    """What the runner keeps of a lean step (the probes' ``res``): time, command, solver info, stack label."""
-
-    t: float
-    command: np.ndarray
-    info: dict
-    label: str
-
-
-def lean_stepper(ctrl: Controller):
-    """``step() -> command``, ``label() -> str`` and ``info() -> dict`` (the solver's info of the last command, as
-    ``StepResult.info``) of the lean step of ``ctrl`` (same numbers as ``ctrl.step()``): :meth:`Controller.lean`
-    for a fixed stack, :class:`~hqp_tpm.policies.planned_step.PlannedStep` for a policy that plans (Algorithm 1,
-    solved by ``tpm``: no info); None when neither applies."""
-    from hqp_tpm.policies.planned_step import PlannedStep
-
-    planned = PlannedStep.of(ctrl)
-    if planned is not None:
-        return planned.step, planned.label, dict
-    lean = ctrl.lean()
-    if lean is not None:
-        text = ctrl.policy.stack.label()
-        return lean.step, lambda: text, lambda: lean.info
-    return None
-
-
 def check_velocity(ctrl: Controller, bound: np.ndarray, step: int,
                    source: str = "the scenario's velocity_bound") -> None:
     """Raise :class:`~hqp_tpm.errors.DivergedError` if a joint velocity of ``ctrl`` (the state after ``step``, the
@@ -196,7 +169,7 @@ def check_velocity(ctrl: Controller, bound: np.ndarray, step: int,
 
 def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str | None = None,
         probes=(), label: str = "run", recording: Recording | None = None,
-        stop: Callable[[], bool] | None = None, lean: bool = False,
+        stop: Callable[[], bool] | None = None, record: bool = False,
         velocity_bound: np.ndarray | None = None, bound_source: str = "the scenario's velocity_bound"
         ) -> tuple[Recording, dict]:
     """Step ``ctrl`` ``steps`` times, recording the state at each sample time and the command.
@@ -211,9 +184,9 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
     ``recording``: where to stream the rows (default: a new :class:`Recording` in a temporary folder);
     it is returned closed. ``stop``: checked before each step; when it returns true the run ends there
     (``timing["steps"]`` says how many steps were done, ``timing["stopped"]`` is true).
-    ``lean``: step with the controller's lean step when it has one (:func:`lean_stepper`; not with a
-    ``crosscheck``): the same numbers, and the probes get a :class:`LeanResult` (``t``, ``command``, ``info``,
-    ``label``) instead of a ``StepResult`` (``timing["lean"]`` says whether it was used).
+    ``record``: step with ``ctrl.step(record=True)`` (the readable path, every ``StepResult`` field computed with
+    the step); else ``ctrl.step()``, compiled where the set-up has a compiled step (``timing["lean"]`` says whether
+    it had), its fields computed when a probe reads them.
     ``velocity_bound``: per velocity column (rad/s); a step after which a joint velocity exceeds it raises
     :class:`~hqp_tpm.errors.DivergedError` naming the step, the joint and the value (:func:`check_velocity`), the
     rows of the steps before it recorded and ``recording`` closed (``hqp-tpm run`` writes them as a partial result).
@@ -229,7 +202,7 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
         bar = tqdm(total=steps, desc=label, unit="step", mininterval=0.5)
         writer = _jit.set_notice_writer(lambda line: tqdm.write(line, file=sys.stderr))
     try:
-        return _run(ctrl, steps, bar, compiled_before, crosscheck, probes, rec, stop, lean, velocity_bound,
+        return _run(ctrl, steps, bar, compiled_before, crosscheck, probes, rec, stop, record, velocity_bound,
                     bound_source)
     finally:
         if bar is not None:
@@ -237,13 +210,13 @@ def run(ctrl: Controller, steps: int, *, progress: bool = False, crosscheck: str
             _jit.set_notice_writer(writer)
 
 
-def _run(ctrl, steps, bar, compiled_before, crosscheck, probes, rec, stop, lean, velocity_bound, bound_source):
+def _run(ctrl, steps, bar, compiled_before, crosscheck, probes, rec, stop, record, velocity_bound, bound_source):
     prev_dq = None
     solve_time = 0.0
     own_check = ctrl.crosscheck
     if crosscheck:  # solved by the controller at every step, through the same path as the command
         ctrl.crosscheck = check_solver_name(crosscheck)
-    fast = lean_stepper(ctrl) if lean and ctrl.crosscheck is None else None
+    compiled_path = not record and ctrl.compiled()
     compiling = 0.0   # seconds spent making kernels inside the loop (out of the step times and the bar's rate)
     t_start = time.perf_counter()
     done = 0
@@ -255,13 +228,8 @@ def _run(ctrl, steps, bar, compiled_before, crosscheck, probes, rec, stop, lean,
         q, v, t = ctrl.q.copy(), ctrl.v.copy(), ctrl.t
         c0 = _jit.compile_seconds()
         t0 = time.perf_counter()
-        if fast is None:
-            res = ctrl.step()
-            stack = res.stack.label()
-        else:
-            x = fast[0]()
-            stack = fast[1]()
-            res = LeanResult(t, x, fast[2](), stack)
+        res = ctrl.step(record)
+        stack = res.label()
         step_time = time.perf_counter() - t0
         compiled = _jit.compile_seconds() - c0
         if compiled > 0.0:
@@ -305,7 +273,7 @@ def _run(ctrl, steps, bar, compiled_before, crosscheck, probes, rec, stop, lean,
     wall = time.perf_counter() - t_start - compiling
     rec.close()
     timing = {"wall_time_s": wall, "steps": done, "mean_step_us": 1e6 * solve_time / max(done, 1),
-              "lean": fast is not None, "compile_s": _jit.compile_seconds() - compiled_before}
+              "lean": compiled_path, "compile_s": _jit.compile_seconds() - compiled_before}
     if stopped:
         timing["stopped"] = True
     return rec, timing

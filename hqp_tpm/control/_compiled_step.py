@@ -1,4 +1,4 @@
-"""The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control.lean`).
+"""The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._lean`).
 
 :func:`kernel` does what the lean step did in several calls, one kernel per thing solved (:data:`ROWS`,
 :data:`TPM`, :data:`SNS`: each compiles only what it calls). All three write the program's rows (the right-hand
@@ -17,7 +17,7 @@ read) in one array, the floats ``[lambda_max, eps, unit, margin, cond, ...]`` in
 With ``sns_tpm`` (a program built with ``solve=SNS``) the kernel runs the SNS-TPM loop of
 :mod:`hqp_tpm.solvers._compiled_sns` (``_sns_loop``, the kernel :func:`hqp_tpm.solvers.sns.sns_tpm_stacked`
 calls) on ``J``, ``b`` and the box ``lo``, ``up`` in ``buf`` after ``x`` (the joint limits' box computed here by the
-kernels of :class:`~hqp_tpm.control.lean.JointBox`, :func:`hqp_tpm.robot._compiled.velocity_box` and
+kernels of :class:`~hqp_tpm.control._lean.JointBox`, :func:`hqp_tpm.robot._compiled.velocity_box` and
 ``acceleration_box``, given with :meth:`Program.set_box`; else written by the caller); it writes the saturated
 joints, their count, the iterations and feasibility into the tail of ``ints`` and the scale factor into the tail of
 ``floats`` (:meth:`Program.sns_info`).
@@ -242,7 +242,7 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
 
 
 def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
-    """The planned step's solve (:mod:`hqp_tpm.policies.planned_step`) on its stacked ``J`` (``m x n``), ``b``:
+    """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``), ``b``:
     their finiteness, ``x0 = -damping v`` when ``damping`` (eq. (15) of papers/000), the TPM kernel
     ``tpm_stacked`` would call, ``x``'s finiteness; the statuses of :func:`kernel`."""
     m, n = J.shape
@@ -441,7 +441,7 @@ class Program:
     def set_box(self, kind: int, limits: np.ndarray, idx: np.ndarray, dt: float) -> None:
         """With :data:`SNS`: the kernel computes the box (:data:`BOX_VELOCITY` or :data:`BOX_ACCELERATION`) from
         ``limits`` (the rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``) and ``idx`` (configuration and
-        velocity indices, 2 x joints), as :class:`~hqp_tpm.control.lean.JointBox`'s kernels."""
+        velocity indices, 2 x joints), as :class:`~hqp_tpm.control._lean.JointBox`'s kernels."""
         if self.solve != SNS or kind not in (BOX_VELOCITY, BOX_ACCELERATION) or limits.shape != (6, idx.shape[1]):
             raise ValueError("set_box: an SNS program, BOX_VELOCITY or BOX_ACCELERATION, 6 x k limits, 2 x k indices")
         self.mats.append(np.ascontiguousarray(limits, dtype=float))

@@ -18,14 +18,15 @@ distance-field history: :meth:`Policy.snapshot`) are left exactly as they were b
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass, field
 
 import numpy as np
 
+from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.policy import FunctionPolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.control.step_result import StepResult
 from hqp_tpm.errors import NonFiniteError, ParameterError, SolverFailedError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
@@ -43,35 +44,6 @@ def _finite(*arrays: np.ndarray) -> bool:
         if not all_finite(a):
             return False
     return True
-
-
-@dataclass
-class StepResult:
-    """What one step computed (before integration): the stack, the command, solver info and inputs.
-
-    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose at this step.
-    ``levels``: the solver's input, one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest
-    first (``Level.J``, ``Level.b`` of an equality level, ``Level.lower``/``Level.upper`` of an inequality
-    level, ``Level.name`` from the tasks), the rows the step solved at this state; pass them with ``x0`` and
-    ``box`` to :func:`~hqp_tpm.solvers.solve` or to :func:`hqp_tpm.testing.assert_solvers_agree` to solve the
-    same problem again. ``command``: the joint velocity (order 1) or acceleration (order 2), ``nv`` values.
-    ``info``: the solver's account (e.g. ``scale``, ``saturated``, ``iterations``). ``x0``: the null-space term
-    (None: none). ``box``: ``(lower, upper)`` of the command (None: no box).
-    """
-
-    t: float
-    stack: Stack
-    levels: list
-    command: np.ndarray
-    info: dict = field(default_factory=dict)
-    x0: np.ndarray | None = None  # the null-space term the solve used (:meth:`Controller.solve_inputs`)
-    box: tuple[np.ndarray, np.ndarray] | None = None  # the hard box the solve used
-
-    def __repr__(self) -> str:
-        cmd = np.asarray(self.command, dtype=float)
-        info = f", info: {', '.join(self.info)}" if self.info else ""
-        return (f"StepResult(t={self.t:.4f}, stack={self.stack.label()!r}, |command|={np.linalg.norm(cmd):.4g} "
-                f"({cmd.size} values){info})")
 
 
 class Controller:
@@ -107,6 +79,12 @@ class Controller:
         self.t = float(t0)
         self.steps = 0
         self._started = False
+        self._fast = self._fast_key = self._scratch = None  # the compiled step and what it was planned for
+
+    def __getstate__(self) -> dict:
+        """Copied and pickled without its compiled step (it reads this controller's arrays by address): the copy
+        plans its own at its first step."""
+        return {**self.__dict__, "_fast": None, "_fast_key": None}
 
     def __repr__(self) -> str:
         level = "velocity" if self.order == 1 else "acceleration"
@@ -155,9 +133,19 @@ class Controller:
     def solve_inputs(self, state: State, t: float, v: np.ndarray):
         """``(x0, box)`` of the solve at ``state``: the null-space damping term ``-D qd`` (acceleration
         level, eq. (15) of papers/000) and the hard box of the command (None when unused)."""
-        x0 = -self.nullspace_damping * v if (self.order == 2 and self.nullspace_damping) else None
         box = self.box(state, t) if self.box is not None else None
-        return x0, box
+        return self.null_space_term(v), box
+
+    def null_space_term(self, v: np.ndarray) -> np.ndarray | None:
+        """``x0 = -D qd`` at acceleration level (eq. (15) of papers/000), None without damping or at velocity level."""
+        return -self.nullspace_damping * v if (self.order == 2 and self.nullspace_damping) else None
+
+    def scratch_state(self) -> State:
+        """A second :class:`State` of the robot (the fields a compiled step's :class:`StepResult` computes on demand
+        are computed there, leaving :attr:`state` as the step left it)."""
+        if self._scratch is None:
+            self._scratch = State(self.robot)
+        return self._scratch
 
     def _where(self) -> str:
         """Where a step failed: the time and the size of the state it started from (a run that diverged
@@ -201,22 +189,53 @@ class Controller:
             info = {**info, "crosscheck": check.compare(x)}
         return StepResult(self.t, stack, levels, x, info, x0, box)
 
-    def compute(self) -> StepResult:
+    def _compiled_step(self):
+        """The compiled step of the policy under this controller's settings (None: the readable step), planned on
+        first use and again when the policy, a setting or the structure of the policy's stack changed.
+
+        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; a policy that plans its
+        stack: its own (:meth:`Policy.compiled_step`, e.g. Algorithm 1's)."""
+        key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
+               self.nullspace_damping)
+        fast = self._fast
+        if key != self._fast_key or (fast is not None and not fast.current()):
+            fast = self._fast = LeanStep.of(self) or self._policy.compiled_step(self)
+            self._fast_key = key
+        return fast
+
+    def compiled(self) -> bool:
+        """Whether :meth:`step` runs a compiled step under the current set-up (else the readable path)."""
+        return self._compiled_step() is not None
+
+    def compute(self, record: bool = False) -> StepResult:
         """State update, policy, solve: the command at the current state (no integration).
 
+        ``record``: the step through the readable path (Task -> Level -> solver), every field computed at once;
+        else the compiled step where the set-up has one (the same numbers, fields computed on demand).
         The policy's state advances as in a step; on an error it is restored.
         """
+        t, q, v = self.t, self._q, self._v
         started, saved = self._started, self.policy.snapshot()
         try:
-            return self._compute()
+            fast = None if record else self._compiled_step()
+            if fast is None:
+                return self._compute()
+            return fast.result(t, q, v, fast.compute())
         except BaseException:
             self.policy.restore(saved)
             self._started = started
             raise
 
-    def step(self) -> StepResult:
-        """One control step, transactional: on any error the controller and its policy keep their state."""
-        t, out = self.t, []
+    def step(self, record: bool = False) -> StepResult:
+        """One control step, transactional: on any error the controller and its policy keep their state.
+
+        ``record``: as in :meth:`compute` (the readable path; ``--explain`` and the crosscheck read its record).
+        """
+        t, q, v = self.t, self._q, self._v
+        fast = None if record else self._compiled_step()
+        if fast is not None:
+            return fast.result(t, q, v, self.advance(fast.compute))
+        out = []
 
         def command() -> np.ndarray:
             out.append(self._compute())
@@ -250,16 +269,9 @@ class Controller:
         self.steps += 1
         return x
 
-    def lean(self):
-        """The lean step of this controller (:class:`hqp_tpm.control.lean.LeanStep`: the same numbers in far
-        fewer calls), or None when its set-up is not supported (``LeanStep.why_not(ctrl)`` says why)."""
-        from hqp_tpm.control.lean import LeanStep
-
-        return LeanStep.of(self)
-
     def set_state(self, q, v=None) -> None:
         """Replace the state after validation (nothing changes if it is rejected)."""
-        self._q, self._v = self.state.check(q, np.zeros(self.robot.nv) if v is None else v)
+        self._q, self._v = self.state.check(q, v)
 
 
 def as_policy(policy) -> Policy:

@@ -22,6 +22,7 @@ Optional (defaults do nothing):
                                       scenario's obstacles)
     ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
                                       step changes nothing (:meth:`Controller.step` is transactional)
+    ``compiled_step(ctrl)``           the policy's compiled step (Algorithm 1's), or None
 
 :class:`DistancePolicy` is the shared base of the policies driven by a
 :class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body): it updates the
@@ -42,8 +43,8 @@ from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Task
 
 if TYPE_CHECKING:
-    from hqp_tpm.control.controller import StepResult
     from hqp_tpm.control.stack import Stack
+    from hqp_tpm.control.step_result import StepResult
     from hqp_tpm.geometry.distances import DistanceField
     from hqp_tpm.geometry.obstacles import Obstacle
     from hqp_tpm.references.operator import Operator
@@ -119,6 +120,12 @@ class Policy(ABC):
     def scene(self) -> SceneItems:
         """What a viewer may draw (default: the moving targets of the frame tasks, :func:`moving_targets`)."""
         return SceneItems(targets=moving_targets(self.tasks()))
+
+    def compiled_step(self, ctrl: Any) -> Any:
+        """The compiled step of this policy under ``ctrl``'s settings (the readable step's numbers in fewer calls:
+        ``compute() -> command``, ``result(t, q, v, command) -> StepResult``, ``current() -> bool``), or None (this
+        default): :meth:`Controller.step` then steps through the readable path."""
+        return None
 
     def snapshot(self) -> Any:
         """The state that carries over from step to step (default: none)."""

@@ -14,22 +14,6 @@ import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 
-#: Assignments so far to the public attributes of trajectories and to the attributes of tasks (:func:`edits`).
-_edits = 0
-
-
-def edits() -> int:
-    """How many assignments to a trajectory's public attribute or to a task's attribute were made so far in this
-    process: a lean step (:mod:`hqp_tpm.control.lean`) copies the references of time-invariant trajectories
-    (:attr:`Trajectory.time_varying` False) into its program again only when this changed."""
-    return _edits
-
-
-def note_edit() -> None:
-    """Count one assignment (:func:`edits`): called by ``Trajectory.__setattr__`` and ``Task.__setattr__``."""
-    global _edits
-    _edits += 1
-
 
 def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
     """The arrays made read-only: a constant reference is computed once and shared by every step."""
@@ -51,14 +35,13 @@ class Trajectory:
 
     The numbers of the fields in ``FROZEN_FIELDS`` are stored as read-only copies: to change them, assign new
     ones (``traj.center = [...]``; ``traj.center[0] = ...`` raises). A change is then a new object, which the
-    cached constant references and the compiled row writers (they key on identity) see; an assignment also drops
-    the cached reference, and any assignment to a public attribute is counted (:func:`edits`).
+    cached constant references and the compiled row writers and programs (they compare identities) see; an
+    assignment also drops the cached reference.
     """
 
     #: the array fields kept as read-only copies (see the class doc)
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin",)
-    #: ``reference(t)`` depends on ``t`` (a subclass whose reference does not, between assignments to its public
-    #: attributes and starts, sets it False: a lean step then copies it into its program only after an edit)
+    #: ``reference(t)`` depends on ``t`` (False: constant between assignments and starts)
     time_varying: ClassVar[bool] = True
 
     relative: bool = False
@@ -70,8 +53,6 @@ class Trajectory:
                 value = np.array(value, dtype=float)  # a copy: the caller's array stays theirs
                 value.flags.writeable = False
             object.__setattr__(self, "_ref", None)
-        if name[0] != "_":
-            note_edit()
         object.__setattr__(self, name, value)
 
     def start(self, x0: np.ndarray) -> None:

@@ -1,4 +1,4 @@
-"""Compiled (numba) kernels of the lean step's arithmetic around pinocchio (private; :mod:`hqp_tpm.control.lean`).
+"""Compiled (numba) kernels of the lean step's arithmetic around pinocchio (private; :mod:`hqp_tpm.control._lean`).
 
 One call each instead of 10-30 small numpy calls: the joint box of
 :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (velocity and acceleration level, the common case of a state

@@ -14,6 +14,7 @@ import pinocchio as pin
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
+from hqp_tpm.solvers.levels import all_finite
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
 #: joint models whose configuration is a vector their velocity is added to (pinocchio's VectorSpace Lie group:
@@ -47,16 +48,25 @@ class State:
         return (f"State({self.robot.name!r}, t={self.t:.4f}, q={_short(self.q)}, v={_short(self.v)}, "
                 f"updates={self.updates})")
 
-    def check(self, q, v) -> tuple[np.ndarray, np.ndarray]:
-        """Validated copies of ``q`` and ``v`` (shape and finiteness), without touching the state."""
-        q = np.array(q, dtype=float).reshape(-1)
-        v = np.array(v, dtype=float).reshape(-1)
-        if q.shape != (self.model.nq,):
-            raise ShapeError(f"q has {q.size} entries, the robot {self.robot.name!r} has nq = {self.model.nq}")
-        if v.shape != (self.model.nv,):
-            raise ShapeError(f"v has {v.size} entries, the robot {self.robot.name!r} has nv = {self.model.nv}")
+    def check(self, q, v=None) -> tuple[np.ndarray, np.ndarray]:
+        """Validated copies of ``q`` and ``v`` (shape and finiteness; ``v`` None: zeros), without touching the
+        state."""
+        nq, nv = self.model.nq, self.model.nv
+        q = np.array(q, dtype=float)
+        if q.shape != (nq,):
+            q = q.reshape(-1)
+            if q.shape != (nq,):
+                raise ShapeError(f"q has {q.size} entries, the robot {self.robot.name!r} has nq = {nq}")
+        if v is None:
+            v = np.zeros(nv)
+        else:
+            v = np.array(v, dtype=float)
+            if v.shape != (nv,):
+                v = v.reshape(-1)
+                if v.shape != (nv,):
+                    raise ShapeError(f"v has {v.size} entries, the robot {self.robot.name!r} has nv = {nv}")
         for arr, what in ((q, "q"), (v, "v")):
-            if not np.isfinite(arr).all():
+            if not all_finite(arr):
                 raise NonFiniteError(f"{what} holds non-finite values at {np.flatnonzero(~np.isfinite(arr)).tolist()}")
         return q, v
 
@@ -66,7 +76,7 @@ class State:
         ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the
         controller's ``q``, ``v``): float vectors of the right sizes, finite, not modified afterwards.
 
-        The lean step (:mod:`hqp_tpm.control.lean`) may ask for less: ``frames`` (frame ids) places only
+        The lean step (:mod:`hqp_tpm.control._lean`) may ask for less: ``frames`` (frame ids) places only
         those frames, ``velocities=False`` runs the position pass only. The rest is then computed by the
         first method of this class that needs it (reading ``state.data`` directly sees only what was asked).
         """

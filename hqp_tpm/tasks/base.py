@@ -11,12 +11,12 @@ from __future__ import annotations
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cache, partial
 
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
-from hqp_tpm.references.trajectories import Trajectory, as_trajectory, note_edit
-from hqp_tpm.robot import _compiled
+from hqp_tpm.references.trajectories import Trajectory, as_trajectory
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 
@@ -50,13 +50,6 @@ class Task(ABC):
             self.trajectory: Trajectory = as_trajectory(target, self.dim)
         except ShapeError as exc:  # name the task whose target is wrong
             raise ShapeError(f"task {name!r}: {exc}") from None
-
-    def __setattr__(self, name: str, value) -> None:
-        """Every assignment (a new target, gains, trajectory) is counted
-        (:func:`~hqp_tpm.references.trajectories.edits`): a lean step copies what its row programs hold into the
-        program again after one (:class:`Gather`)."""
-        note_edit()
-        object.__setattr__(self, name, value)
 
     # robot-side quantities --------------------------------------------------------------
     @abstractmethod
@@ -114,7 +107,7 @@ class Task(ABC):
     row_writer_takes_extra: bool = False
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
-        """``write(t)`` for the lean step (:mod:`hqp_tpm.control.lean`): this task's rows at ``state``'s current
+        """``write(t)`` for the lean step (:mod:`hqp_tpm.control._lean`): this task's rows at ``state``'s current
         kinematics written in place into ``J`` (``dim x n``) and ``b`` (``dim``), views of the stacked arrays.
 
         The numbers of :meth:`jacobian` and :meth:`command` (without an extra command); built once, called
@@ -127,12 +120,13 @@ class Task(ABC):
             b[...] = self.command(state, t, order, None, Jt)
         return write
 
-    def row_program(self, state: State, order: int, program, row: int) -> Gather | None:
+    def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
         """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows
-        (starting at stacked row ``row``) with ``program`` and return a :class:`Gather`, whose ``run(t)`` writes the
+        (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the
         step's pinocchio outputs into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array
         is bound with ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel
-        then writes the numbers of :meth:`row_writer`. None (this default): the task's row writer runs instead."""
+        then writes the numbers of :meth:`jacobian` and :meth:`command`. None (this default): the task's row writer runs
+        instead."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -144,43 +138,27 @@ class Task(ABC):
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
 
 
-@dataclass(frozen=True)
-class Gather:
-    """What :meth:`Task.row_program` returns: ``run(t)``, called before the kernel, and whether it only copies what
-    ``task`` holds (its reference, targets, gains) into the program, nothing from the state (``refresh_only``).
-    Such a run may be left out of a lean step while no trajectory or task attribute was assigned since it last ran
-    (:func:`~hqp_tpm.references.trajectories.edits`) and the task's trajectory does not depend on time."""
-
-    run: Callable[[float], None]
-    task: Task
-    refresh_only: bool = False
-
-    def skippable(self) -> bool:
-        """Whether a step without edits may leave :attr:`run` out (now: the task's trajectory may be replaced)."""
-        return self.refresh_only and not self.task.trajectory.time_varying
+#: The methods a row writer or row program repeats (:func:`own_rows`).
+_REPEATED = ("value", "jacobian", "jdot_qdot", "error", "reference", "command", "level")
 
 
-def feedback(b: np.ndarray, e: np.ndarray, ref, gains: Gains, order: int, rate: np.ndarray | None = None,
-             jdq: np.ndarray | None = None) -> None:
-    """:meth:`Task.command` from the error ``e`` written into ``b`` (row writers; ``e`` and ``rate`` are scratch).
+@cache
+def own_rows(kind: type[Task]) -> bool:
+    """Whether the row writer and row program of task class ``kind`` repeat its own methods: no class below the one
+    that defines them overrides one of the methods they repeat (a subclass that changes ``jacobian`` only, say, is
+    written by the default :meth:`Task.row_writer`, which calls it)."""
+    def owner(name: str) -> type:
+        return next(k for k in kind.__mro__ if name in vars(k))
 
-    ``ref = (x_d, xd_d, xdd_d)``; at order 2 ``rate = J qd`` and ``jdq = Jdot qd`` (None: zero). The same
-    operations in the same order as :meth:`Task.command`, so the same numbers to the last bit.
-    """
-    if order == 1:                                   # b = xd_d + kp e
-        np.multiply(e, gains.kp, out=b)
-        np.add(ref[1], b, out=b)
-        return
-    if jdq is not None and _compiled.ENABLED:        # one compiled call, the same operations
-        _compiled.feedback2(b, e, ref[1], ref[2], rate, jdq, gains.kp, gains.kd)
-        return
-    np.subtract(ref[1], rate, out=rate)              # b = xdd_d + kd (xd_d - J qd) + kp e - Jdot qd
-    np.multiply(rate, gains.kd, out=rate)
-    np.add(ref[2], rate, out=b)
-    np.multiply(e, gains.kp, out=e)
-    np.add(b, e, out=b)
-    if jdq is not None:
-        np.subtract(b, jdq, out=b)
+    writers = [k for k in (owner("row_writer"), owner("row_program")) if k is not Task]  # (Task's: the methods)
+    return all(issubclass(w, owner(name)) for name in _REPEATED for w in writers)
+
+
+def row_writer(task: Task, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
+    """``task``'s row writer (:meth:`Task.row_writer`) where it repeats the task's own methods (:func:`own_rows`),
+    else the default one, which calls them."""
+    kind = task.row_writer if own_rows(type(task)) else partial(Task.row_writer, task)
+    return kind(state, order, J, b)
 
 
 def kernel_placement(state: State, fid: int, order: int, inside: bool):
@@ -195,8 +173,9 @@ def kernel_placement(state: State, fid: int, order: int, inside: bool):
 
 class ReferenceSlots:
     """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused
-    program's floats (:meth:`Task.row_program`) when they changed: a constant reference is one read-only tuple
-    between starts (copied once); any other is copied every step."""
+    program's floats (:meth:`Task.row_program`) when they are not the ones copied last (compared by identity): a
+    constant reference is one read-only tuple between starts and assignments (copied once); any other is copied
+    every step."""
 
     __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task")
 

@@ -4,10 +4,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, row_selector, select_axes
 
 
 class CenterOfMass(Task):
@@ -38,40 +37,12 @@ class CenterOfMass(Task):
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.com_jdot_qdot()[self._sel]
 
-    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: pinocchio's CoM Jacobian and ``b``, the same numbers (``jacobianCenterOfMass``
-        computes the CoM the readable path reads, after ``centerOfMass`` at acceleration level for order 2)."""
-        views = state.com_views()
-        if views is None:
-            return super().row_writer(state, order, J, b)
-        com, Jcom, acom = views
-        sel = self._sel
-        e = np.zeros(self.dim)
-        rate = np.zeros(self.dim)
-
-        rows, none = self.rows, np.zeros(0)
-
-        def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
-            state.com_kinematics(order)
-            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
-                _compiled.rows1(J, Jcom, rows, b, ref[0], com, rows, none, ref[1], self.gains.kp)
-                return
-            J[...] = Jcom[sel]
-            np.subtract(ref[0], com[self.rows], out=e)
-            if order == 1:
-                feedback(b, e, ref, self.gains, 1)
-            else:
-                np.dot(J, state.v, out=rate)
-                feedback(b, e, ref, self.gains, 2, rate, acom[sel])
-        return write
-
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program` at velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the
         kernel's slots, filled by ``jacobianCenterOfMass`` every step (in the lean step's state update,
         :meth:`State.update_positions` with ``com``, else :meth:`State.com_kinematics`), and the reference into its
-        floats; the kernel then writes :meth:`row_writer`'s numbers. At acceleration level: None (the row
-        writer runs)."""
+        floats; the kernel then writes the numbers of :meth:`jacobian` and :meth:`command`. At acceleration level:
+        None (the row writer runs)."""
         views = state.com_views()
         if views is None or order != 1:
             return None
@@ -85,4 +56,4 @@ class CenterOfMass(Task):
         def gather(t: float) -> None:
             refresh(t)
             state.com_kinematics(1)  # (nothing when the lean step's state update computed them: com_in_update)
-        return Gather(gather, self, refresh_only=True)
+        return gather

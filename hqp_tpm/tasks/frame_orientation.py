@@ -6,10 +6,9 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.references.trajectories import Constant, Hold
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, kernel_placement
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
 
 
 class FrameOrientation(Task):
@@ -45,36 +44,6 @@ class FrameOrientation(Task):
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)[3:]
 
-    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: the angular rows of the frame Jacobian and ``b``, the same numbers."""
-        model, data, fid = state.model, state.data, self.fid
-        views = state.frame_views(fid)
-        if views is None:
-            return super().row_writer(state, order, J, b)
-        R = views[1]
-        e = np.zeros(3)
-        rate = np.zeros(3)
-
-        rows, none, no_rows = np.arange(3, 6), np.zeros(0), np.zeros(0, dtype=np.int64)
-
-        def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
-            if order == 1 and _compiled.ENABLED:  # one compiled call, the same operations
-                w = pin.log3(self._R_target.dot(R.T))
-                _compiled.rows1(J, pin.getFrameJacobian(model, data, fid, LWA), rows, b, none, none, no_rows, w,
-                                ref[1], self.gains.kp)
-                return
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)[3:]
-            J[...] = Jt
-            e[...] = pin.log3(self._R_target.dot(R.T))
-            if order == 1:
-                feedback(b, e, ref, self.gains, 1)
-            else:
-                np.dot(Jt, state.v, out=rate)
-                feedback(b, e, ref, self.gains, 2, rate,
-                         pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:])
-        return write
-
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: the frame Jacobian and ``w = log3(R_d R^T)`` (at order 2 also the angular
         ``J qd`` and ``Jdot qd``) into the kernel's slots; the reference into its floats."""
@@ -109,4 +78,4 @@ class FrameOrientation(Task):
                     np.dot(S[3:], state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[3:]
-        return Gather(gather, self, refresh_only=inside and order == 1)
+        return gather

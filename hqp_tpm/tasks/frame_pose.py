@@ -6,10 +6,9 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.references.trajectories import Hold
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback, kernel_placement
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
 
 
 class FramePose(Task):
@@ -46,47 +45,6 @@ class FramePose(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)
-
-    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: the frame Jacobian and ``b`` from pinocchio's data, the same numbers."""
-        model, data, fid = state.model, state.data, self.fid
-        views = state.frame_views(fid)
-        if views is None:
-            return super().row_writer(state, order, J, b)
-        p, R = views
-        e = np.zeros(6)
-        e_p = e[:3]
-        rate = np.zeros(6)
-        target = [None, None, None]  # the target placement and views of its translation and rotation
-
-        rows, xrows = np.arange(6), np.arange(3)
-
-        def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)
-            M = self._M_target
-            if M is not target[0]:
-                target[:] = M, M.translation, M.rotation
-            w = pin.log3(target[2].dot(R.T))
-            if _compiled.ENABLED:  # one compiled call, the same operations
-                g = self.gains
-                if order == 1:
-                    _compiled.rows1(J, Jt, rows, b, target[1], p, xrows, w, ref[1], g.kp)
-                else:
-                    np.dot(Jt, state.v, out=rate)
-                    jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-                    _compiled.rows2(J, Jt, rows, b, target[1], p, xrows, w, rate, jdq, ref[1], ref[2], g.kp, g.kd)
-                return
-            J[...] = Jt
-            np.subtract(target[1], p, out=e_p)
-            e[3:] = w
-            if order == 1:
-                feedback(b, e, ref, self.gains, 1)
-            else:
-                np.dot(Jt, state.v, out=rate)
-                jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-                feedback(b, e, ref, self.gains, 2, rate, jdq)
-        return write
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: ``p`` and the target translation (at order 2 also ``Jdot qd``) into the kernel's
@@ -126,4 +84,4 @@ class FramePose(Task):
                     np.dot(S, state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-        return Gather(gather, self, refresh_only=inside and order == 1)
+        return gather

@@ -12,10 +12,8 @@ from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks import _compiled_rows
 from hqp_tpm.tasks.base import (
     Gains,
-    Gather,
     ReferenceSlots,
     Task,
-    feedback,
     kernel_placement,
     row_selector,
     select_axes,
@@ -64,8 +62,6 @@ class FramePosition(Task):
                     self._write_readable(state, t, order, extra, J, b)
             return write_plain
         p = views[0]
-        p_sel = p[sel] if isinstance(sel, slice) else None  # a view pinocchio updates (else indexed per step)
-        e = np.zeros(self.dim)
         rate = np.zeros(self.dim)
 
         rows, none = self.rows, np.zeros(0)
@@ -89,28 +85,17 @@ class FramePosition(Task):
                 _compiled_rows.harmonic_position_rows(J, b, Jt, rows, p, rate, acc, harmonic.of(tr), t, g.kp, g.kd,
                                                       zero if extra is None else extra, extra is not None, order)
                 return
-            if extra is not None:
+            if extra is not None or not _compiled.ENABLED:
                 self._write_readable(state, t, order, extra, J, b)
                 return
-            ref = tr.reference(t)
-            if _compiled.ENABLED:  # one compiled call, the same operations
-                g, Jt = self.gains, pin.getFrameJacobian(model, data, fid, LWA)
-                if order == 1:
-                    _compiled.rows1(J, Jt, rows, b, ref[0], p, rows, none, ref[1], g.kp)
-                else:
-                    np.dot(Jt[sel], state.v, out=rate)
-                    jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
-                    _compiled.rows2(J, Jt, rows, b, ref[0], p, rows, none, rate, jdq, ref[1], ref[2], g.kp, g.kd)
-                return
-            Jt = pin.getFrameJacobian(model, data, fid, LWA)[sel]
-            J[...] = Jt
-            np.subtract(ref[0], p[sel] if p_sel is None else p_sel, out=e)
+            ref = tr.reference(t)  # one compiled call, the same operations
+            g, Jt = self.gains, pin.getFrameJacobian(model, data, fid, LWA)
             if order == 1:
-                feedback(b, e, ref, self.gains, 1)
+                _compiled.rows1(J, Jt, rows, b, ref[0], p, rows, none, ref[1], g.kp)
             else:
-                np.dot(Jt, state.v, out=rate)
-                feedback(b, e, ref, self.gains, 2, rate,
-                         pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel])
+                np.dot(Jt[sel], state.v, out=rate)
+                jdq = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
+                _compiled.rows2(J, Jt, rows, b, ref[0], p, rows, none, rate, jdq, ref[1], ref[2], g.kp, g.kd)
         return write
 
     def _write_readable(self, state: State, t: float, order: int, extra, J: np.ndarray, b: np.ndarray) -> None:
@@ -138,6 +123,8 @@ class FramePosition(Task):
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
         S = program.mats[mat]  # the program's arrays (written here if not inside)
         rate, jdq = (program.vecs[vec + 1][:d], program.vecs[vec + 2][:d]) if order == 2 else (None, None)
+        if inside and order == 1:
+            return refresh  # (the kernel computes the rest)
 
         def gather(t: float) -> None:
             refresh(t)
@@ -147,7 +134,7 @@ class FramePosition(Task):
                     np.dot(S[sel], state.v, out=rate)
             if order == 2:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
-        return Gather(gather, self, refresh_only=inside and order == 1)
+        return gather
 
 
 class _HarmonicParams:

@@ -118,8 +118,12 @@ class Pointing(Task):
         b = self.command(state, t, order, extra, J)
         if not self.inequality:
             return Level(J, b, name=self.name, defer_finite=True)
-        active = _ACTIVE if self.pointing_error(state) > 0.0 else _INACTIVE
-        return Level(J, lower=b, upper=_NO_UPPER, active=active, name=self.name, defer_finite=True)
+        return self.cone_level(J, b, self.pointing_error(state) > 0.0)
+
+    def cone_level(self, J: np.ndarray, b: np.ndarray, active: bool) -> Level:
+        """The inequality (21) as a level: ``J x >= b``, active while the pointing error is positive."""
+        return Level(J, lower=b, upper=_NO_UPPER, active=_ACTIVE if active else _INACTIVE, name=self.name,
+                     defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
         """``write(t) -> e``: the row of :meth:`jacobian` and :meth:`command` (no extra command) written into ``J``

@@ -10,10 +10,9 @@ import numpy as np
 
 from hqp_tpm.errors import ShapeError
 from hqp_tpm.references.trajectories import Trajectory
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Gather, ReferenceSlots, Task, feedback
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task
 from hqp_tpm.tasks.manipulability import JointAngles
 
 
@@ -66,29 +65,10 @@ class Posture(Task):
         return np.zeros(self.dim)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: the constant selection rows once, then ``b`` from ``q[joints]`` per step."""
+        """:meth:`Task.row_writer`, with the constant selection rows written at once (the row program's kernel writes
+        ``b`` only)."""
         J[...] = self._J
-        angles, cols = self.angles, self.cols
-        e = np.zeros(self.dim)
-        rate = np.zeros(self.dim)
-
-        def write(t: float) -> None:
-            ref = self.trajectory.reference(t)
-            if angles._plain and _compiled.ENABLED:  # one compiled call, the same operations
-                g = self.gains
-                _compiled.posture_rows(b, state.q, state.v, angles.idx, cols, ref[0], ref[1], ref[2], g.kp, g.kd, order)
-                return
-            if angles._plain:
-                np.take(state.q, angles.idx, out=e)
-                np.subtract(ref[0], e, out=e)
-            else:
-                e[...] = angles.difference(ref[0], angles.of(state.q))
-            if order == 1:
-                feedback(b, e, ref, self.gains, 1)
-            else:
-                np.take(state.v, cols, out=rate)  # J qd of a selection matrix
-                feedback(b, e, ref, self.gains, 2, rate)
-        return write
+        return super().row_writer(state, order, J, b)
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: revolute/prismatic joints only (the kernel writes ``b`` from ``q``, ``v``)."""
@@ -97,4 +77,4 @@ class Posture(Task):
         g, d = self.gains, self.dim
         at = program.add_selection(row, self.angles.idx, self.cols, g.kp, g.kd)
         slots = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d)))
-        return Gather(slots.refresh, self, refresh_only=True)
+        return slots.refresh

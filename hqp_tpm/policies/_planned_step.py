@@ -40,13 +40,14 @@ import numpy as np
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
+from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
-from hqp_tpm.solvers.levels import MAX_SUMSQ, all_finite, sumsq
+from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
-from hqp_tpm.tasks.base import Task
+from hqp_tpm.tasks.base import Task, own_rows
 from hqp_tpm.tasks.pointing import Pointing
 
 
@@ -61,16 +62,20 @@ class PlanningPolicy(Policy):
         tasks, extras = self.plan(state, t)
         return Stack([(task,) for task in tasks], extras)
 
+    def compiled_step(self, ctrl) -> PlannedStep | None:
+        """:class:`PlannedStep` (solved by ``tpm`` without a box), else None (the readable step)."""
+        return PlannedStep.of(ctrl)
 
-class PlannedStep:
+
+class PlannedStep(CompiledStep):
     """The lean step of a :class:`~hqp_tpm.control.controller.Controller` whose policy plans (build it with :meth:`of`).
 
-    :meth:`step` advances the controller exactly like ``ctrl.step()`` and returns the command; :meth:`label` is the
-    stack of the last step as text (``StepResult.stack.label()``). The controller stays the owner of the state.
+    :meth:`compute` gives the command of the readable step at the controller's state (``ctrl.step()`` runs it:
+    :class:`~hqp_tpm.control.step_result.CompiledStep`). The controller stays the owner of the state.
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_own", "_placed", "_kernel", "_x0")
+                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -101,12 +106,15 @@ class PlannedStep:
         self.J = np.zeros((8, self.n))
         self.b = np.zeros(8)
         self.tasks: tuple[Task, ...] = ()
+        self._extras: dict = {}
+        self._made: list = []  # per level of the last step: (task, first row, rows, its Level or None: equality rows)
         self._labels: dict[tuple[str, ...], str] = {}
         # equality tasks with their own row writer (hqp_tpm.tasks.base.Task.row_writer: the numbers of jacobian and
         # command in fewer calls), the pointing and the avoidance tasks write straight into the stacked rows: one
         # writer per (task, first row), built on first use (_place)
         self._own = {id(task) for task in ctrl.policy.tasks()
-                     if type(task).level is Task.level and type(task).row_writer is not Task.row_writer}
+                     if type(task).level is Task.level and type(task).row_writer is not Task.row_writer
+                     and own_rows(type(task))}
         self._placed: dict[tuple[int, int], tuple | bool] = {}
         self._kernel, self._x0 = None, np.zeros(self.n)
         return self
@@ -127,17 +135,10 @@ class PlannedStep:
         self._placed[(id(task), a)] = w
         return w
 
-    def label(self) -> str:
-        """``"a > b"``: the last step's stack as text."""
-        key = tuple(task.name for task in self.tasks)
-        text = self._labels.get(key)
-        if text is None:
-            text = self._labels[key] = " > ".join(key)
-        return text
-
     def _rows(self, st, t: float, tasks, extras) -> tuple[int, tuple[int, ...]]:
         """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
         order, a, sizes, placed = self.order, 0, [], self._placed
+        made = self._made = []
         for task in tasks:
             extra = extras.get(task.name) if extras else None
             w = placed.get((id(task), a))
@@ -154,10 +155,12 @@ class PlannedStep:
                 m = w[3]
                 if not m:
                     continue
+                made.append((task, a, m, w[1]))
                 a += m
                 sizes.append(m)
                 continue
             kind = type(task)
+            lv = False                    # (the level of the result: False, equality rows; True, the cone row)
             if kind.level is Task.level:  # an equality task: its own rows, no Level object
                 Jt = task.jacobian(st)
                 bt = task.command(st, t, order, extra, Jt)
@@ -168,6 +171,7 @@ class PlannedStep:
                     continue
                 Jt = task.jacobian(st)
                 bt = task.command(st, t, order, extra, Jt)
+                lv = True
             else:
                 lv = task.level(st, t, order, extra)
                 Jt, bt = (lv.J, lv.b) if lv.b is not None else lv.check_finite().as_equality()
@@ -178,6 +182,7 @@ class PlannedStep:
                 self._grow(a + m)
             self.J[a:a + m] = Jt
             self.b[a:a + m] = bt
+            made.append((task, a, m, lv))
             a += m
             sizes.append(m)
         return a, tuple(sizes)
@@ -197,7 +202,7 @@ class PlannedStep:
         st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False)
         policy.update(st, t)
         tasks, extras = policy.plan(st, t)
-        self.tasks = tasks
+        self.tasks, self._extras = tasks, extras
         m, sizes = self._rows(st, t, tasks, extras)
         J, b = self.J[:m], self.b[:m]
         status = None  # (the compiled kernel's answer, if it ran and declined)
@@ -234,6 +239,35 @@ class PlannedStep:
         self._kernel = _compiled_step.stacked_kernel()
         return self._kernel
 
-    def step(self) -> np.ndarray:
-        """One control step (as :meth:`Controller.step`, transactional); returns the command."""
-        return self.ctrl.advance(self.compute)
+    def current(self) -> bool:
+        """Always: the stack is planned at every step."""
+        return True
+
+    def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
+        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written
+        (its stack and levels, the readable step's, built when asked)."""
+        made = self._made
+        m = made[-1][1] + made[-1][2] if made else 0
+        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras)
+        return StepResult(t, LAZY, LAZY, x, {}, LAZY, LAZY, (self, q, v, rows))
+
+    def stack_of(self, kept: tuple) -> Stack:
+        return Stack([(task,) for task in kept[3][3]], kept[3][4])
+
+    def levels_of(self, kept: tuple) -> list[Level]:
+        J, b, made = kept[3][:3]
+        out = []
+        for task, a, k, lv in made:
+            if lv is False:
+                lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
+            elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
+                lv = task.cone_level(J[a:a + k], b[a:a + k], True)
+            out.append(lv)
+        return out
+
+    def label_of(self, kept: tuple) -> str:
+        key = tuple(task.name for task in kept[3][3])
+        text = self._labels.get(key)
+        if text is None:
+            text = self._labels[key] = " > ".join(key)
+        return text

@@ -12,8 +12,8 @@ once, at construction, and per step does only:
    (:meth:`hqp_tpm.tasks.base.Task.row_writer`: pinocchio's data read through views, no Level objects;
    the arithmetic in one compiled call per task where numba is available, :mod:`hqp_tpm.robot._compiled`);
 3. the joint box, if any, into preallocated arrays (:class:`JointBox` for
-   :class:`~hqp_tpm.robot.limits.JointLimits`, one compiled call; any other box function is called as the
-   controller does);
+   :class:`~hqp_tpm.robot.limits.JointLimits`, one compiled call where it can; any other box function is called
+   as the controller does);
 4. one finiteness check of ``J`` and ``b`` and one solver call: ``tpm`` through the TPM kernel
    (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), ``sns_tpm`` through :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` on
    ``J`` and ``b`` (its loop compiled for ``m > n``), any other solver through the registry on levels built once
@@ -22,9 +22,9 @@ once, at construction, and per step does only:
 
 With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.control._compiled_step`): the tasks that have a row program
 (:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture
-of revolute/prismatic joints) only refresh their changed references (and at order 2 gather ``Jdot qd``), and
-a refresh of a time-invariant reference (:class:`~hqp_tpm.tasks.base.Gather`) runs only after an assignment to a
-task's or a trajectory's attribute (:func:`hqp_tpm.references.trajectories.edits`); the kernel reads pinocchio's
+of revolute/prismatic joints) only copy their references and gains into the program where they are not the ones it
+holds (:class:`~hqp_tpm.tasks.base.ReferenceSlots`: a comparison of identities; and at order 2 gather
+``Jdot qd``); the kernel reads pinocchio's
 data in place (the joint Jacobians, frame placements, the CoM Jacobian) and computes the
 frame Jacobians (pinocchio's operations) and rotation errors ``log3(R_d R^T)`` itself; the other tasks write their
 rows; one compiled call writes the programs' rows, tests ``J`` and ``b`` for finiteness and, with ``tpm`` or
@@ -45,16 +45,14 @@ rows are not finite is handed to the readable path, which raises the same typed 
 
 from __future__ import annotations
 
-import copy
-
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
+from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
-from hqp_tpm.references import trajectories
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled as _solvers_compiled
@@ -62,151 +60,45 @@ from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
 from hqp_tpm.solvers.registry import ANALYTIC, solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
-from hqp_tpm.tasks.base import Task
-
-
-def _columns(idx: np.ndarray) -> slice | np.ndarray:
-    """``idx`` as a slice when it is a contiguous increasing range (assignments through it are views)."""
-    if idx.size and np.array_equal(idx, np.arange(idx[0], idx[0] + idx.size)):
-        return slice(int(idx[0]), int(idx[0]) + idx.size)
-    return idx
+from hqp_tpm.tasks.base import Task, own_rows, row_writer
 
 
 class JointBox:
-    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays.
+    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays: by the
+    compiled kernel (:meth:`JointLimits.kernel_box`, the same operations as ``BoxLimits``, the same bits) where it
+    can, else by :meth:`JointLimits.reference_box` (the readable formulas, recovery rules included)."""
 
-    The same numbers as ``JointLimits.__call__`` (:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.velocity_box`,
-    :meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.acceleration_box`) in about half the numpy calls: both sides
-    are computed at once on a ``2n`` array whose lower half is negated (``-(a - b) = b - a`` and
-    ``-max(a, b) = min(-a, -b)`` hold exactly in floating point, and the velocity box is symmetric). This
-    covers joints with finite position limits and ``a_max > 0`` inside their viable set; any other case
-    (an infinite limit, a joint beyond its limits whose box the recovery rules decide) is computed by
-    ``BoxLimits`` itself and copied.
-    """
-
-    __slots__ = ("limits", "order", "lo", "up", "fast", "_qidx2", "_cols2", "_cols", "_sgn", "_B", "_two_a",
-                 "_V", "_A", "_ad2", "_mad", "_n", "_g", "_r", "_t", "_ok", "_L", "_dt", "_lo_c", "_up_c", "_P", "_idx")
+    __slots__ = ("limits", "order", "lo", "up", "fast", "_P", "_idx", "_dt")
 
     def __init__(self, limits: JointLimits, out: tuple[np.ndarray, np.ndarray] | None = None):
         """``out``: the two arrays to write the box into (default: new ones)."""
-        L = limits.limits
         self.limits, self.order = limits, limits.order
         nv = limits.robot.nv
         self.lo, self.up = (np.empty(nv), np.empty(nv)) if out is None else out
         self.lo[...], self.up[...] = -np.inf, np.inf
-        n = self._n = limits.cols.size
-        self._cols = _columns(limits.cols)
-        self._lo_c = self.lo[self._cols] if isinstance(self._cols, slice) else None
-        self._up_c = self.up[self._cols] if isinstance(self._cols, slice) else None
         self.fast = limits.kernel_limits is not None  # (finite position limits, a_max > 0)
-        two = np.concatenate
-        self._qidx2, self._cols2 = two([limits.qidx, limits.qidx]), two([limits.cols, limits.cols])
-        self._sgn = two([-np.ones(n), np.ones(n)])
-        self._B = two([L.q_min, L.q_max])
-        self._two_a = two([L._two_a, L._two_a])
-        self._V, self._A = two([L.v_max, L.v_max]), two([L.a_max, L.a_max])
-        ad = L.a_max * L.dt
-        self._ad2, self._mad = two([ad * ad, ad * ad]), two([-ad, -ad])
-        self._dt = L.dt
-        self._g, self._r, self._t, self._L = np.zeros(2 * n), np.zeros(2 * n), np.zeros(n), np.zeros(2 * n)
-        self._ok = np.zeros(2 * n, dtype=bool)
         # the compiled kernels' inputs (hqp_tpm.robot._compiled): the limits as rows, the joint indices (JointLimits')
-        self._P, self._idx = limits.kernel_limits, limits.kernel_indices
+        self._P, self._idx, self._dt = limits.kernel_limits, limits.kernel_indices, limits.limits.dt
 
-    def __call__(self, q: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(lower, upper)`` at ``(q, v)`` (the arrays are this object's, overwritten by the next call)."""
-        if self.fast and _compiled.ENABLED:  # one compiled call, the same operations as BoxLimits
-            if self.limits.kernel_box(q, v, self.lo, self.up):
-                return self.lo, self.up
-            res = None
-        else:
-            res = self._velocity(q) if self.order == 1 else self._acceleration(q, v)
-        if res is None:  # a case the fast formulas do not cover (or the command-rate box): BoxLimits itself
-            lim = self.limits
-            lo, up = (lim.limits.velocity_box(q[lim.qidx], v[lim.cols] if lim.command_rate else None)
-                      if self.order == 1 else lim.limits.acceleration_box(q[lim.qidx], v[lim.cols]))
-            self.lo[self._cols], self.up[self._cols] = lo, up
-            return self.lo, self.up
-        n = self._n
-        if self._lo_c is not None:
-            np.negative(res[:n], out=self._lo_c)
-            self._up_c[...] = res[n:]
-        else:
-            self.lo[self._cols] = -res[:n]
-            self.up[self._cols] = res[n:]
+    def __call__(self, state) -> tuple[np.ndarray, np.ndarray]:
+        """``(lower, upper)`` at ``state`` (the arrays are this object's, overwritten by the next call)."""
+        if not self.limits.kernel_box(state.q, state.v, self.lo, self.up):
+            self.lo[...], self.up[...] = self.limits.reference_box(state)
         return self.lo, self.up
 
-    def _ordered(self, p: np.ndarray) -> bool:
-        """``p_lo <= p_up`` for every joint, with ``p`` the negated-lower/upper array (else the recovery rules)."""
-        n, t = self._n, self._t
-        np.add(p[:n], p[n:], out=t)  # -p_lo + p_up: its sign is exact
-        return bool(np.greater_equal(t, 0.0, out=self._ok[:n]).all())
 
-    def _velocity(self, q):
-        if not self.fast or self.limits.command_rate:
-            return None
-        g, r = self._g, self._r
-        np.take(q, self._qidx2, out=g)
-        np.subtract(self._B, g, out=g)
-        np.multiply(g, self._sgn, out=g)            # [q - q_min, q_max - q]
-        np.maximum(g, 0.0, out=r)
-        np.multiply(self._two_a, r, out=r)
-        np.sqrt(r, out=r)                           # braking terms (the lower one negated)
-        np.divide(g, self._dt, out=g)               # one-period position terms (the lower one negated)
-        np.minimum(g, r, out=g)
-        if not self._ordered(g):
-            return None
-        np.maximum(g, -self._V, out=g)              # into [-v_max, v_max] (symmetric: negation commutes)
-        np.minimum(g, self._V, out=g)
-        return g
-
-    def _acceleration(self, q, v):
-        if not self.fast:
-            return None
-        g, r, L, dt = self._g, self._r, self._L, self._dt
-        n = self._n
-        D = np.take(v, self._cols2)
-        np.multiply(D, self._sgn, out=D)            # [-dq, dq]
-        np.subtract(self._V, D, out=r)
-        np.divide(r, dt, out=r)
-        np.maximum(r, -self._A, out=r)
-        np.minimum(r, self._A, out=r)               # velocity-limit terms [-lo_v, up_v]
-        np.negative(r[n:], out=L[:n])
-        np.negative(r[:n], out=L[n:])               # [-up_v, lo_v]: the other side's bound
-        np.take(q, self._qidx2, out=g)
-        np.subtract(self._B, g, out=g)
-        np.multiply(g, self._sgn, out=g)            # [q - q_min, q_max - q]
-        h = np.multiply(D, 0.5)
-        np.multiply(h, dt, out=h)
-        np.subtract(g, h, out=g)                    # delta_lo, delta_up of BoxLimits.acceleration_box
-        if not np.greater_equal(g, 0.0, out=self._ok).all():
-            return None                             # a state outside its viable set: the recovery rules
-        np.multiply(self._two_a, g, out=g)
-        np.add(self._ad2, g, out=g)
-        np.sqrt(g, out=g)
-        np.add(self._mad, g, out=g)                 # braking velocities w (the lower one negated)
-        np.subtract(g, D, out=g)
-        np.divide(g, dt, out=g)
-        if not self._ordered(g):
-            return None
-        np.maximum(g, L, out=g)
-        np.minimum(g, r, out=g)
-        return g
-
-
-class LeanStep:
+class LeanStep(CompiledStep):
     """The lean step of a :class:`~hqp_tpm.control.controller.Controller` (build it with :meth:`of`).
 
-    :meth:`step` advances the controller exactly like ``ctrl.step()`` and returns the command;
-    :meth:`compute` returns the command at the current state without integrating. The controller stays
-    the owner of the state (``ctrl.q``, ``ctrl.v``, ``ctrl.t``, ``ctrl.steps``): lean and readable steps
-    can be mixed.
+    :meth:`compute` returns the command at the controller's state (``ctrl.step()`` runs it:
+    :class:`~hqp_tpm.control.step_result.CompiledStep`). The controller stays the owner of the state (``ctrl.q``,
+    ``ctrl.v``, ``ctrl.t``, ``ctrl.steps``): compiled and readable steps can be mixed.
     """
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
-                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_gathers", "_edits",
-                 "_per_step", "_rate")
+                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack", "_levels", "_spans",
+                 "_label")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -252,6 +144,8 @@ class LeanStep:
                 spans.append((slice(a, a + m), "+".join(task.name for task in level)))
             a += m
         self.tasks, self.rows, self.sizes = tuple(tasks), tuple(rows), tuple(sizes)
+        stack = self._stack = ctrl.policy.stack
+        self._levels, self._spans, self._label = list(stack.levels), tuple(spans), stack.label()
         # what the fused kernel solves (hqp_tpm.control._compiled_step): TPM; SNS-TPM without the x0 level, in no
         # box or the joint limits' box (written into the buffer); any other solver or box: the rows only
         box = ctrl.box
@@ -273,17 +167,16 @@ class LeanStep:
         self.b = self._flat[a * n:]
         self._out = self._buf[a * n + a + n: a * n + a + 2 * n]
         st = ctrl.state
-        self.writers = tuple(task.row_writer(st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
-                                                                                                      strict=True))
+        self.writers = tuple(row_writer(task, st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
+                                                                                                        strict=True))
         # the solver's levels, built once: views of J and b (their rows change in place every step)
         levels = [Level(self.J[r], self.b[r], name=name, defer_finite=True) for r, name in spans]
         self.x0 = self._buf[a * n + a: a * n + a + n] if self.damping else None
         if self.x0 is not None and self.solver == "sns_tpm":  # as the registry does: one more level
             levels.append(Level(np.eye(n), self.x0, name="x0", defer_finite=True))
         self.levels = tuple(levels)
-        # the frames the row writers read (the others are placed if a task asks the state for them)
-        self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks
-                                          if type(task).row_writer is not Task.row_writer and task.frame is not None))
+        # the frames of the frame tasks, placed by the state update (but those the fused kernel places, below)
+        self.frames = tuple(dict.fromkeys(ctrl.robot.frame_id(task.frame) for task in tasks if task.frame is not None))
         lo_up = (self._buf[a * n + a + 2 * n: a * n + a + 3 * n], self._buf[a * n + a + 3 * n: a * n + a + 4 * n])
         if mode == _compiled_step.SNS:
             lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)
@@ -292,21 +185,19 @@ class LeanStep:
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
-        self._kernel = self._program = self._fused = self._gathers = self._per_step = None
+        self._kernel = self._program = self._fused = None
         self._fused_frames = self.frames
         self._com = False
-        self._edits = -1  # (trajectories.edits() when every gather last ran: none yet)
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
                                              self.x0 is not None, solve=mode)
-            fused, gathers, written = [], [], set()
+            fused, written = [], set()
             for task, r, write in zip(tasks, rows, self.writers, strict=True):
-                gather = task.row_program(st, self.order, program, r.start)
-                fused.append(write if gather is None else gather.run)
-                gathers.append(gather)
+                gather = task.row_program(st, self.order, program, r.start) if own_rows(type(task)) else None
+                fused.append(write if gather is None else gather)
                 if gather is None and task.frame is not None:
                     written.add(ctrl.robot.frame_id(task.frame))
-            self._fused, self._gathers = tuple(fused), tuple(gathers)
+            self._fused = tuple(fused)
             # the frames the kernel places itself are left out of the state update (unless a row writer, which
             # runs before the kernel, reads one)
             self._fused_frames = tuple(f for f in self.frames if f not in program.placed or f in written)
@@ -318,14 +209,23 @@ class LeanStep:
             self._kernel = _compiled_step.kernel(mode)
         return self
 
-    def __deepcopy__(self, memo) -> LeanStep:
-        """The lean step of a copy of the controller, built again: its fused program reads its own controller's
-        arrays by address, which a copied program would still point at."""
-        return LeanStep.of(copy.deepcopy(self.ctrl, memo))
+    def current(self) -> bool:
+        """Whether the controller's stack is still the one this step was planned for (no level replaced or added)."""
+        stack = self.ctrl.policy.stack
+        return stack is self._stack and stack.levels == self._levels and not stack.extras
 
-    def __reduce__(self):
-        """Pickled as its controller: unpickling builds the lean step again (:meth:`__deepcopy__`)."""
-        return LeanStep.of, (self.ctrl,)
+    def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
+        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the stacked rows
+        (the readable step's levels, bit for bit, built when asked)."""
+        return StepResult(t, self._stack, LAZY, x, self.info, LAZY, LAZY, (self, q, v, self._flat.copy()))
+
+    def levels_of(self, kept: tuple) -> list[Level]:
+        rows, m, n = kept[3], self.b.size, self.n
+        J, b = rows[: m * n].reshape(m, n), rows[m * n:]
+        return [Level(J[r], b[r], name=name, defer_finite=True) for r, name in self._spans]
+
+    def label_of(self, kept: tuple) -> str:
+        return self._label
 
     @property
     def info(self) -> dict:
@@ -340,7 +240,7 @@ class LeanStep:
         if box is None:
             return None
         if type(box) is JointBox:
-            return box(st.q, st.v)
+            return box(st)
         return box(st, t)
 
     def compute(self) -> np.ndarray:
@@ -358,23 +258,15 @@ class LeanStep:
         else:
             st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
         if fused:  # the program's tasks gather their arrays, the others write their rows
-            edits = trajectories.edits()
-            if edits == self._edits:  # no assignment since: the gathers that only copy constant references rest
-                for write in self._per_step:
-                    write(t)
-            else:
-                for write in self._fused:
-                    write(t)
-                self._edits = edits
-                self._per_step = tuple(write for write, g in zip(self._fused, self._gathers, strict=True)
-                                       if g is None or not g.skippable())
+            for write in self._fused:
+                write(t)
             x0 = self.x0
             if x0 is not None:
                 np.multiply(ctrl._v, -self.damping, out=x0)
             program = self._program
             sns = program.solve == _compiled_step.SNS
             if sns and self.box is not None and program.box_given:
-                self.box(st.q, st.v)  # the JointBox writes into the buffer's lo, up (else the kernel does)
+                self.box(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
             status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v)
             if status == 0:  # SOLVED
                 self._info = None if sns else {}  # (None: the program's, read by the info property)
@@ -426,6 +318,3 @@ class LeanStep:
         self._info = info  # the solver's info of this command, as the readable step's StepResult.info
         return x
 
-    def step(self) -> np.ndarray:
-        """One control step (as :meth:`Controller.step`, transactional); returns the command."""
-        return self.ctrl.advance(self.compute)
