@@ -28,7 +28,7 @@ from benchmarks.peers import problems as P  # noqa: E402
 
 
 def contenders(robot, prob) -> list:
-    out = [C.Hqp(robot, prob, "tpm", lean=True), C.Hqp(robot, prob, "sns_tpm", lean=True)]
+    out = [C.Hqp(robot, prob, "tpm"), C.Hqp(robot, prob, "sns_tpm")]
     if prob.order == 1 and importlib.util.find_spec("pink"):
         out.append(C.Pink(robot, prob, False))
     if prob.order == 1 and importlib.util.find_spec("placo"):

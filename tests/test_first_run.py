@@ -31,12 +31,12 @@ def compiling_controller(monkeypatch):
     monkeypatch.setattr(_jit, "compile_seconds", lambda: clock["s"] + real())
     step = ctrl.step
 
-    def first_step_compiles():
+    def first_step_compiles(record=False):
         if ctrl.steps == 0:
             _jit.notice(_jit.COMPILING)
             time.sleep(COMPILE_S)
             clock["s"] += COMPILE_S
-        return step()
+        return step(record)
 
     ctrl.step = first_step_compiles
     return ctrl
@@ -47,7 +47,7 @@ def test_compile_time_is_not_in_the_step_times(compiling_controller, progress, c
     steps = 5
     capsys.readouterr()
     t0 = time.perf_counter()
-    rec, timing = runner.run(compiling_controller, steps, progress=progress, lean=False)
+    rec, timing = runner.run(compiling_controller, steps, progress=progress)
     elapsed = time.perf_counter() - t0
     rec.discard()
     assert timing["steps"] == steps and timing["compile_s"] >= COMPILE_S - 1e-9
@@ -70,7 +70,7 @@ def test_the_progress_bar_rate_leaves_the_compile_out(compiling_controller, monk
         close(bar)
 
     monkeypatch.setattr(tqdm, "close", record)
-    rec, timing = runner.run(compiling_controller, 5, progress=True, lean=False)
+    rec, timing = runner.run(compiling_controller, 5, progress=True)
     rec.discard()
     assert seen and seen[0] < COMPILE_S / 2, seen
 

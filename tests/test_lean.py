@@ -834,9 +834,10 @@ def test_state_update_with_the_com_is_the_two_passes_in_one(robot_name, monkeypa
         from benchmarks.peers.contenders import Hqp
 
         prob = P.romeo_problem(robot, 1)
-        h = Hqp(robot, prob, "sns_tpm", lean=True)
+        h = Hqp(robot, prob, "sns_tpm")
         h.setup(prob.configs[0])
-        assert h.fast._com and h.fast.ctrl.state._com_update == h.fast.ctrl.state.updates
+        fast = h.ctrl._compiled_step()
+        assert fast._com and fast.ctrl.state._com_update == fast.ctrl.state.updates
 
 
 @pytest.mark.parametrize("robot_name", ["iiwa7", "lwr4", "romeo21"])
