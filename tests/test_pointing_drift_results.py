@@ -125,3 +125,15 @@ def test_the_file_is_this_codes(data, tmp_path):
     dq = np.load(tmp_path / "run" / "trajectory.npz")["dq"]
     assert dq.shape[0] == pre["steps"]
     assert np.abs(dq).max() == pytest.approx(pre["max_abs_dq"], rel=0, abs=1e-12)
+
+
+def test_the_scenarios_extending_lwr_relaxed_are_unchanged_by_the_limit(data):
+    """lwr_point35_equality, lwr_point35_inequality and lwr_relaxed_mujoco inherit the limit; it never acts there
+    (same trajectories both ways), so their benchmarked numbers are papers/000's law's."""
+    bench = json.loads((ROOT / "benchmarks" / "results" / "scenarios.json").read_text())["scenarios"]
+    assert set(data["extending"]) == {"lwr_point35_equality", "lwr_point35_inequality", "lwr_relaxed_mujoco"}
+    for name, e in data["extending"].items():
+        assert e["identical"] and e["limited"]["status"] == "complete" and e["limited"]["steps"] == STEPS, name
+        assert e["limited"] == e["paper"], name
+        for key in ("pointing_violation_max_deg", "d_minimal_min", "stack_changes"):
+            assert e["limited"][key] == pytest.approx(bench[name][key], rel=1e-9, abs=1e-12), (name, key)

@@ -14,6 +14,8 @@ reads it):
 * ``reference``: the largest ``|Jdot_rp qdot| / ||J_rp||`` (rad/s^2) over the recorded states of the shipped
   lwr_relaxed run, the joint acceleration its drift compensation asks for (below ``drift_limit``, so the limit never
   acts there);
+* ``extending``: the scenarios that extend lwr_relaxed and keep its limit (``EXTENDING``), each run with the limit
+  and with the law as written, and whether the two trajectories are the same bit for bit;
 * ``avoid3d``: lwr_avoid3d (shipped with ``drift_limit = false``) run with ``drift_limit = 40``;
 * ``seed16_v009``: variant v009 of the three-obstacle sweep (``--random 10 --seed 16``, o1, o2, o3 moved), both laws;
 * ``summary``: the counts and extremes docs/pointing_drift.md quotes (runs complete per law, variants identical,
@@ -21,7 +23,7 @@ reads it):
 * ``prefix``: v003's largest ``|qdot|`` over its first ``PREFIX`` steps with the limit (the test recomputes it).
 
 Usage: ``PYTHONPATH=$PWD python tools/pointing_drift_report.py [--out DIR] [--workers N]`` (DIR keeps the runs;
-a complete sweep there is reused). About 3 minutes on one core.
+a complete sweep there is reused). About 5 minutes on one core of a shared two.
 """
 
 from __future__ import annotations
@@ -44,6 +46,8 @@ RANGES16 = {"obstacles.o1.center": ([0.07, 0.47, 0.07], [0.13, 0.53, 0.13]),
             "obstacles.o2.center": ([-0.23, 0.27, 0.17], [-0.17, 0.33, 0.23]),
             "obstacles.o3.center": ([-0.13, 0.37, -0.13], [-0.07, 0.43, -0.07])}
 PAPER = {"tasks.pointing.drift_limit": False}
+#: the shipped scenarios that extend lwr_relaxed and inherit its drift_limit
+EXTENDING = ("lwr_point35_equality", "lwr_point35_inequality", "lwr_relaxed_mujoco")
 #: v003's first steps (past where papers/000's law leaves the bound, step 5,619) are recorded for the test
 PREFIX = 5700
 
@@ -134,6 +138,15 @@ def main(argv=None) -> None:
     reference = {**run_one(variant_scenario(base, SCENARIO, Variant("reference", {})), ref_dir, vlim),
                  "max_drift_acceleration": max_drift_acceleration(shipped, ref_dir)}
 
+    extending = {}
+    for name in EXTENDING:
+        data = scenario.read(scenario.resolve_path(name))
+        e_vlim = build_run(scenario.parse(data, scenario.resolve_path(name))).robot.velocity_limits()
+        runs = {law: run_one(variant_scenario(data, name, Variant(law, extra)), out / f"{name}_{law}", e_vlim)
+                for law, extra in (("limited", {}), ("paper", PAPER))}
+        extending[name] = {**runs, "identical": same(out / f"{name}_limited", out / f"{name}_paper")}
+        print(f"{name}: identical {extending[name]['identical']}")
+
     a3 = scenario.read(scenario.resolve_path("lwr_avoid3d"))
     a3_dir = out / "lwr_avoid3d_limited"
     a3_vlim = build_run(scenario.parse(a3, scenario.resolve_path("lwr_avoid3d"))).robot.velocity_limits()
@@ -169,7 +182,8 @@ def main(argv=None) -> None:
         "sweep": {"scenario": SCENARIO, "random": N_RANDOM, "seed": SEED,
                   "ranges": {k: list(v) for k, v in RANGES.items()}, "drift_limit": limit,
                   "velocity_bound": bound, "velocity_limits": vlim.tolist()},
-        "variants": variants, "reference": reference, "avoid3d": avoid3d, "seed16_v009": seed16,
+        "variants": variants, "reference": reference, "extending": extending,
+        "avoid3d": avoid3d, "seed16_v009": seed16,
         "prefix": prefix, "summary": summary}, indent=1) + "\n")
     print(f"wrote {RESULTS}")
 
