@@ -63,3 +63,23 @@ def test_the_file_is_this_codes(runs, tmp_path):
     dq = np.load(tmp_path / "run" / "trajectory.npz")["dq"][:, cols]
     assert dq.shape[0] == r["prefix_steps"]
     assert np.abs(np.diff(dq, axis=0)).max() == pytest.approx(r["prefix_max_change"], rel=0, abs=1e-12)
+
+
+@pytest.mark.parametrize("name", SCENARIOS)
+def test_the_left_legs_jumps_are_papers_boxs(runs, name):
+    """docs/command_rate_results.md: with papers/002's box the left leg's commands jump (in the hundreds of steps);
+    with the rate box they, like every joint's, change by at most ``a_max dt``."""
+    rate, paper = runs[(name, True)], runs[(name, False)]
+    assert rate["left_leg"]["max_change"] <= rate["bound"] + 1e-9 and rate["left_leg"]["steps_beyond"] == 0
+    assert paper["left_leg"]["max_change"] > 50 * paper["bound"] and paper["left_leg"]["steps_beyond"] > 500
+    assert paper["left_leg"]["max_change"] <= paper["max_change"]
+    assert paper["left_leg"]["steps_beyond"] <= paper["steps_beyond"]
+    for r in (rate, paper):
+        assert 0.0 <= r["left_foot_error_max_t"] <= (r["steps"] - 1) * 1e-3 + 1e-9
+
+
+def test_sns_tpm_with_the_rate_box_saturates_and_never_scales(runs):
+    rate, paper = runs[("romeo_sns_tpm", True)], runs[("romeo_sns_tpm", False)]
+    assert rate["scale_min"] == 1.0 and paper["scale_min"] < 1e-3
+    assert rate["saturated_median"] > paper["saturated_median"]
+    assert rate["saturated_max"] <= 21 and paper["saturated_max"] <= 21

@@ -10,7 +10,12 @@ runs the whole scenario (``hqp-tpm run``, lean step) and writes what the issue a
 * ``velocity_violations`` / ``position_violations``: (step, joint) pairs beyond the URDF limits (+1e-9);
 * the task errors: max and RMS of each task's error norm (m, rad), as ``metrics.json`` gives them;
 * ``prefix_max_change``: ``max_change`` over the first ``PREFIX`` steps (the test recomputes it);
-* ``chatter`` (sign changes of the command's rate per joint and second, largest joint) and the wall time.
+* ``chatter`` (sign changes of the command's rate per joint and second, largest joint) and the wall time;
+* ``left_leg``: the same largest change and steps beyond over the left leg's joints (``L{Hip,Knee,Ankle}*``);
+* ``left_foot_error_max_t``: when the left foot's error is largest (s), and ``legs_max_abs_dq_there`` the legs'
+  largest ``|qdot|`` at that step (rad/s);
+* ``saturated_median`` / ``saturated_max`` (joints at a bound of the box per step) and ``scale_min`` (the SNS
+  scale factor), where the solver records them.
 
 Usage: ``PYTHONPATH=$PWD python tools/command_rate_report.py [--out DIR [--reuse]]`` (DIR keeps the runs).
 """
@@ -55,6 +60,18 @@ def measure(run_dir: Path, name: str, rate: bool) -> dict:
     lo, up = lim.robot.position_limits()
     pos_viol = int(((qa < lo[cols] - TOL) | (qa > up[cols] + TOL)).sum())
     v_lim = lim.robot.velocity_limits()[cols]
+    names = [str(n) for n in traj["joint_names"]]
+    leg = [i for i, n in enumerate(names) if n[1:].startswith(("Hip", "Knee", "Ankle"))]
+    left = [i for i, n in enumerate(names) if n.startswith(("LHip", "LKnee", "LAnkle"))]
+    left_change = np.abs(np.diff(traj["dq"][:, left], axis=0))
+    foot = np.linalg.norm(traj["error_left_foot"], axis=1)
+    at = int(foot.argmax())
+    solver = {}
+    if "saturated" in traj.files:
+        sat = traj["saturated"][:, cols].sum(axis=1)
+        solver.update(saturated_median=float(np.median(sat)), saturated_max=int(sat.max()))
+    if "scale" in traj.files:
+        solver["scale_min"] = float(traj["scale"].min())
     errors = {k: v for k, v in metrics.items() if k.startswith("error_") and (k.endswith("_max") or k.endswith("_rms"))}
     return {
         "scenario": name, "command_rate": rate, "steps": int(dq.shape[0]), "bound": a_dt,
@@ -64,6 +81,11 @@ def measure(run_dir: Path, name: str, rate: bool) -> dict:
         "velocity_violations": int((np.abs(dq) > v_lim + TOL).sum()), "position_violations": pos_viol,
         "max_abs_dq": float(np.abs(dq).max()), "chatter": metrics.get("chatter"),
         "errors": errors, "wall_time_s": round(metrics["wall_time_s"], 1),
+        "left_leg": {"max_change": float(left_change.max()),
+                     "steps_beyond": int((left_change > a_dt + TOL).any(axis=1).sum())},
+        "left_foot_error_max_t": float(traj["t"][at]),
+        "legs_max_abs_dq_there": float(np.abs(traj["dq"][at, leg]).max()),
+        **solver,
     }
 
 
