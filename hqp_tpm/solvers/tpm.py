@@ -187,13 +187,5 @@ def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float =
     a pivot is singular). ``kernel_status``: what the factorization's kernel already answered on these arrays
     (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with other work): the recursion runs."""
     if kernel_status is None:
-        if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
-            x = past_rank(J, b, sizes, n, lambda_max, eps)
-        elif _compiled.ENABLED:  # m <= n: x = Q R^-T F b in one compiled call
-            x = _compiled.general(J, b, sizes, n, lambda_max, eps, x0)
-        else:
-            fac = Factorization(J, sizes, n, lambda_max, eps)
-            x = None if fac.singular else fac.solve(b, x0)
-        if x is not None:
-            return x
+        return _compiled.tpm(J, b, sizes, n, lambda_max, eps, x0)
     return _compiled.recursion(J, b, sizes, n, lambda_max, eps, x0)
