@@ -5,9 +5,9 @@
 The stacks are those of :mod:`benchmarks.peers.problems`' ``romeo_vel`` (6 levels, m > n) with kp = 100 and
 ``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute``). Prints, per solver, the median and p99 of
 the solve alone (thread CPU time, ``sns_tpm_stacked`` / ``tpm_stacked`` on the captured arrays, one BLAS
-thread), the SNS passes (median, max), and how many solves left the compiled kernel (``sns_tpm``: the compiled loop
-handed back; ``tpm``: the factorization kernel did not answer alone). ``--warm``: the warm-start experiment (a
-closed loop; module :func:`warm_start`).
+thread), the SNS passes (median, max), how many ``sns_tpm`` solves left the compiled loop and how many ``tpm``
+solves its kernel answered by the recursion. ``--warm``: the warm-start experiment (closed loops;
+:func:`warm_start`).
 """
 
 from __future__ import annotations
@@ -120,49 +120,53 @@ def main(argv=None) -> int:
     return 0
 
 
-def warm_start(robot, prob, steps: int = 200):
-    """Closed loops from 10 configurations: passes per step, cold vs warm-started from the previous step's
-    saturated joints (the warm start only proposes; the full algorithm then decides: see the module
-    :mod:`hqp_tpm.solvers._compiled_sns`'s ``warm`` argument)."""
-    from hqp_tpm.solvers import _compiled, _compiled_sns
+def warm_start(robot, prob, runs: int = 10, steps: int = 20):
+    """Closed loops (``runs`` configurations, ``steps`` control steps each): passes per solve, cold vs warm-started
+    from the previous step's saturated joints (``_compiled_sns.sns_tpm_loop(..., warm=...)``: at the first
+    saturation the previous joints that are beyond a bound are saturated at once, then the full algorithm goes on
+    and decides), and how often the warm start changes the command."""
+    from hqp_tpm.solvers import _compiled_sns
 
     S = importlib.import_module("hqp_tpm.solvers.sns")
+    real = S.sns_tpm
+    seen = []
 
-    cold_p, warm_p, same, diffs = [], [], 0, []
-    for cfg in prob.configs[:10]:
-        ctrl = controller(robot, prob, cfg)
-        prev = ()
-        real = S.sns_tpm
-        seen = []
+    def capture(levels, lo, up, **kw):
+        lv, J, b, sizes = S._stacked(levels, lo.shape[0])
+        seen.append((J.copy(), b.copy(), tuple(sizes), np.array(lo, float), np.array(up, float)))
+        return real(levels, lo, up, **kw)
 
-        def capture(levels, lo, up, **kw):
-            lv, J, b, sizes = S._stacked(levels, lo.shape[0])
-            seen.append((J.copy(), b.copy(), tuple(sizes), np.array(lo, float), np.array(up, float)))
-            return real(levels, lo, up, **kw)
-
-        S.sns_tpm = capture
-        try:
-            for _ in range(steps // 10):
+    cold_p, warm_p, same, diffs, t_cold, t_warm = [], [], 0, [], [], []
+    S.sns_tpm = capture
+    try:
+        for cfg in prob.configs[:runs]:
+            ctrl = controller(robot, prob, cfg)
+            prev = ()
+            for _ in range(steps):
                 seen.clear()
+                ctrl.compute()                        # (the readable step: its sns_tpm call is captured)
+                J, b, sizes, lo, up = seen[0]
                 ctrl.step()
-                J, b, sizes, lo, up = seen[-1]
-                cold = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS, _compiled.MARGIN,
-                                                  _compiled.COND)
-                warm = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS, _compiled.MARGIN,
-                                                  _compiled.COND, warm=prev)
-                if type(cold) is tuple and type(warm) is tuple:
-                    cold_p.append(cold[3])
-                    warm_p.append(warm[3])
-                    d = float(np.max(np.abs(cold[0] - warm[0])))
-                    diffs.append(d)
-                    same += d <= 1e-9 * max(1.0, float(np.max(np.abs(cold[0]))))
-                    prev = cold[1]
-        finally:
-            S.sns_tpm = real
+                t0 = time.thread_time_ns()
+                cold = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+                t1 = time.thread_time_ns()
+                warm = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS, warm=prev)
+                t_cold.append(t1 - t0)
+                t_warm.append(time.thread_time_ns() - t1)
+                cold_p.append(cold[4])
+                warm_p.append(warm[4])
+                d = float(np.max(np.abs(cold[1] - warm[1])))
+                diffs.append(d)
+                same += d <= 1e-9 * max(1.0, float(np.max(np.abs(cold[1]))))
+                prev = cold[2]
+    finally:
+        S.sns_tpm = real
     cold_p, warm_p = np.array(cold_p), np.array(warm_p)
-    print(f"  warm start, {len(cold_p)} closed-loop steps (10 runs): passes cold median {np.median(cold_p):.0f} "
-          f"mean {cold_p.mean():.2f}, warm median {np.median(warm_p):.0f} mean {warm_p.mean():.2f}; "
-          f"same command (1e-9) {same} of {len(cold_p)}, largest difference {max(diffs):.2e}")
+    print(f"  warm start, {len(cold_p)} closed-loop steps ({runs} runs x {steps}): passes cold median "
+          f"{np.median(cold_p):.0f} mean {cold_p.mean():.2f}, warm median {np.median(warm_p):.0f} mean "
+          f"{warm_p.mean():.2f}; solve median cold {np.median(t_cold) / 1e3:.1f} us, warm "
+          f"{np.median(t_warm) / 1e3:.1f} us; same command (1e-9) {same} of {len(cold_p)}, largest difference "
+          f"{max(diffs):.2e}")
 
 
 if __name__ == "__main__":

@@ -164,11 +164,9 @@ def test_whole_body_stacks_without_posture(sizes, outcomes):
 def test_damped_pivots_of_several_rows(sizes, outcomes):
     """``m <= n`` stacks whose later levels are nearly in the span of the levels above (the obstacle scenario's
     hand and foot levels near a singularity): damped pivots of several rows, so ``F != I``. The compiled loop
-    solves them (``F xd`` and ``F J xN`` in each pass) with the numpy loop's decisions; before, it handed every
-    such stack back."""
-    from test_compiled import nearly_spanned_levels
-
-    from hqp_tpm.solvers._kernels import Factorization
+    solves them (``F xd`` and ``F J xN`` in each pass) with Algorithm 1's decisions (an earlier kernel handed every
+    such stack back)."""
+    from test_compiled import damped_pivots, nearly_spanned_levels
 
     n = 27 if sum(sizes) > 10 else 12
     rng = np.random.default_rng(sum(sizes) + 7)
@@ -177,8 +175,7 @@ def test_damped_pivots_of_several_rows(sizes, outcomes):
     for _ in range(30):
         levels = nearly_spanned_levels(rng, random_stack(rng, n, sizes), share=0.8, rows=(2, 3))
         _, J, _, sizes_, _ = stacked(levels, n)
-        damped += any(not p.regular and k > 1 for p, k in zip(Factorization(J, sizes_, n, **damping).pivots, sizes_,
-                                                                    strict=True))
+        damped += damped_pivots(J, sizes_, n, **damping) > 0
         lo, up = cutting_box(rng, levels, n, damping)
         check(levels, lo, up, outcomes, damping)
     assert damped >= 15 and outcomes[_compiled_sns.DONE] >= 60, (damped, outcomes)
@@ -187,10 +184,9 @@ def test_damped_pivots_of_several_rows(sizes, outcomes):
 def test_obstacle_scenario_stacks(outcomes):
     """``romeo_obstacles_sns_tpm``'s own solves with the paper's box (17-19 rows on 27 joints, hand and foot pivots
     damped near the obstacles): the compiled loop answers every step of the first 0.9 s, and on every 6th step's
-    stack it takes the numpy loop's and Algorithm 1's decisions (``check``). Before, it handed 94 % of the run's
-    steps back. (With the scenario's default command-rate bound the stack gains a final level pulling the change
-    of the command to 0, m > n with damped upper pivots: the compiled shortcut declines and the numpy pass loop
-    runs, over the compiled recursion; issue 29.)"""
+    stack it takes Algorithm 1's decisions (``check``). An earlier kernel handed 94 % of the run's steps back.
+    (With the scenario's default command-rate bound the stack gains a final level pulling the change of the command
+    to 0, m > n with damped upper pivots: the shortcut declines and the recursion answers inside the kernel.)"""
     from hqp_tpm.app.build import build
     from hqp_tpm.app.scenario import merge, parse, read, resolve_path
 

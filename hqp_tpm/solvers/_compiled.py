@@ -1,18 +1,17 @@
-"""Compiled (numba) kernels of the solvers' hot paths (private to :mod:`hqp_tpm.solvers`).
+"""The solvers' kernels (private to :mod:`hqp_tpm.solvers`): compiled by numba when :data:`hqp_tpm._jit.ENABLED`,
+else the same source runs as Python. They are the implementation of TPM (``tpm``/``tpm_stacked``: :func:`_tpm`, one
+call) and of the recursion (``nullspace``, and TPM where a pivot is singular); the paper-literal oracles are
+``tpm_reference`` and ``sns_tpm_reference``:
 
-The numpy code stays the readable reference; each kernel makes its decisions (the same certificates, margins,
-rank tolerances of :mod:`hqp_tpm.solvers.damping` and damping law) in one call into compiled code instead of
-~6-14 calls of scipy's LAPACK wrappers, and hands back to the reference whatever its certificates cannot decide:
+* :func:`_past_rank` (``m > n``, rank ``n`` reached before the last level: the shortcut of
+  :mod:`hqp_tpm.solvers._fullrank`), also inside SNS-TPM's kernel for the stack and its free-column stacks;
+* :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular or, when the
+  certificate cannot tell, decided and damped by the SVD of its block; Steps 2-4 on the pivot blocks,
+  ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion;
+* :func:`_recursion_cols` / :func:`_recursion`: eqs. (5)-(6), (14) of papers/000 on orthonormal bases.
 
-* :func:`past_rank`: :func:`hqp_tpm.solvers._fullrank.solve_past_rank` (stacks with ``m > n`` that reach rank
-  ``n`` before their last level), used by ``tpm``/``tpm_stacked`` and SNS-TPM (its free-column stacks too);
-* :func:`general`: :meth:`hqp_tpm.solvers._kernels.Factorization.solve` for ``m <= n`` when no pivot is
-  singular (the Householder QR; each pivot certified regular or, when the certificate cannot tell, decided and
-  damped by the SVD of its block as ``pivot``; Steps 2-4 on the pivot blocks, ``x = Q R^{-T} F b``, ``x0``
-  term); a singular pivot: ``Factorization`` (the SVD of ``R``).
-
-``tests/test_compiled.py`` proves kernels and references equal (1e-12; on ill-conditioned draws both against a
-50-digit reference).
+``tests/test_compiled.py`` proves them equal to the oracles (1e-12; on ill-conditioned draws against a 50-digit
+reference).
 
 How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._fullrank`):
 
@@ -22,15 +21,15 @@ How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hq
   give ``J_k x1``, the others are ``A = J_k Z``;
 * ``A = Q_A R_A`` (Householder): ``||A#||_F = ||R_A^{-1}||_F`` exactly, and ``1/||R_A^{-1}||_F <= sigma_min(A)
   <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide (``sigma_min`` within
-  a factor ``sqrt(r)`` of a threshold), the numpy reference runs instead (its SVD decides);
+  a factor ``sqrt(r)`` of a threshold), the recursion answers instead;
 * the crossing level's least squares ``y = A# r`` from ``R_A`` (undamped) or from the QR of ``[R_A; lambda I]``
   (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``; :func:`_damped_qr` walks only its
   nonzeros, once per factorization, for every right-hand side);
 * ``x = Q [z; y]`` (the reflectors applied once more).
 
-Dispatch: the solvers call these kernels when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this
-module's :data:`ENABLED` and :data:`AVAILABLE` are that switch). :mod:`hqp_tpm._jit` compiles them on the first
-call of a process (~2-5 s) or loads them from its disk cache (~0.1-1 s).
+Dispatch: compiled when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED`
+and :data:`AVAILABLE` are that switch). :mod:`hqp_tpm._jit` compiles them on the first call of a process (~2-5 s)
+or loads them from its disk cache (~0.1-1 s).
 """
 
 from __future__ import annotations
@@ -41,21 +40,15 @@ import numpy as np
 
 from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _kernel  # the package's one kernel decorator
+from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
 
-#: Kernel outcomes: ``x`` computed; declined (the general path decides, as the reference declines); the
-#: certificates cannot decide (the numpy reference runs: it needs ``sigma_min`` from an SVD).
+#: Factorization outcomes: ``x`` computed; declined (the shortcut does not apply); the certificates cannot decide
+#: (``sigma_min`` itself would); a singular pivot (``_general_factors`` with ``singular_ok``). The last three: the
+#: recursion answers.
 SOLVED, DECLINED, UNDECIDED, SINGULAR = 0, 1, 2, 3
 #: :func:`_tpm`'s report: the factorization's kernel answered, or the recursion did.
 FACTORED, RECURSION = 0, 1
-
-#: Decisions of the full-rank shortcut are taken only with this margin over a tolerance (the recursion decides the
-#: rest).
-MARGIN = 16.0
-#: The shortcut is taken only for well-conditioned pivots: (lower bound of) ``sigma_min >= COND * ||rows||_F`` for
-#: the upper levels' pivots, ``A`` and the stack. Nearer to a rank loss two exact formulas differ by ``cond * eps``
-#: in rounding; the recursion decides there.
-COND = 1e-5
 
 _READY = False
 
@@ -450,7 +443,7 @@ def _damped_solve(DV, tau, R2, c):
 
 
 # ----------------------------------------------------------------------------------------
-# solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
+# The full-rank shortcut (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
 # ----------------------------------------------------------------------------------------
 @_inlined
 def _crossing_level(sizes, n):
@@ -594,8 +587,8 @@ def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lam
 
 @_kernel
 def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
-    """``out <- x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`; returns :data:`SOLVED`, :data:`DECLINED`
-    or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the reference).
+    """``out <- x`` of the full-rank shortcut (:mod:`hqp_tpm.solvers._fullrank`); returns :data:`SOLVED`,
+    :data:`DECLINED` or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the recursion).
 
     ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
     reference's ``MARGIN`` and ``COND``.
@@ -608,12 +601,12 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
 
 
 # ----------------------------------------------------------------------------------------
-# The general TPM path (hqp_tpm.solvers._kernels.Factorization.solve) when m <= n.
+# The general TPM path when m <= n.
 # ----------------------------------------------------------------------------------------
 @_kernel
 def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
-    """:func:`hqp_tpm.solvers._kernels.pivot` of the pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its
-    certificate did not decide, by the SVD of the block (LAPACK's ``gesdd``, as ``pivot``): 0 regular, 1 damped
+    """The pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its certificate did not decide, by the SVD of the block
+    (LAPACK's ``gesdd``; ``damping.inverted_singular_values``' law): 0 regular, 1 damped
     (``D[a:e, a:e]`` gets the damped inverse ``V diag(s / (s^2 + lambda^2)) U^T``), -1 singular; with
     ``singular_ok`` a singular block gets its truncated (damped) inverse too (``s <= tol``: 0) and 2."""
     k = e - a
@@ -641,13 +634,13 @@ def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
 
 @_inlined
 def _general_factors(J, sizes, lambda_max, eps, unit, singular_ok):
-    """The factorization of :class:`hqp_tpm.solvers._kernels.Factorization` for ``m <= n`` (eq. (8) of
-    papers/000): ``(status, damped, V, tau, R, Fb)``, the Householder QR of ``J^T`` and, when some pivot is
-    damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4 (``F = Fbar^T``); otherwise ``F = I`` and
-    ``Fb`` is empty (nothing allocated for it). Each pivot is certified regular (``1/||R_ii^{-1}||_F``,
-    ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block (:func:`_damped_block`). A singular pivot:
-    :data:`UNDECIDED` (``J#`` then needs the SVD of ``R``: the caller runs the recursion), or with ``singular_ok``
-    :data:`SINGULAR` and ``Fb`` with that pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the recursion)."""
+    """The factorization of TPM for ``m <= n`` (eq. (8) of papers/000): ``(status, damped, V, tau, R, Fb)``, the
+    Householder QR of ``J^T`` and, when some pivot is damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4
+    (``F = Fbar^T``); otherwise ``F = I`` and ``Fb`` is empty (nothing allocated for it). Each pivot is certified
+    regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block
+    (:func:`_damped_block`). A singular pivot: :data:`UNDECIDED` (the caller runs the recursion), or with
+    ``singular_ok`` :data:`SINGULAR` and ``Fb`` with that pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the
+    recursion)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
@@ -744,9 +737,9 @@ def _f_times(Fb, b, out):
 @_kernel
 def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
-    :meth:`hqp_tpm.solvers._kernels.Factorization.solve` when no pivot is singular (:func:`_general_factors`:
-    each pivot certified regular or decided, and damped, by the SVD of its block). Returns :data:`SOLVED`, or
-    :data:`UNDECIDED` for a singular pivot: the caller runs ``Factorization``.
+    when no pivot is singular (:func:`_general_factors`: each pivot certified regular or decided, and damped, by the
+    SVD of its block). Returns :data:`SOLVED`, or :data:`UNDECIDED` for a singular pivot: the caller runs the
+    recursion.
     """
     m, n = J.shape
     status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit, False)

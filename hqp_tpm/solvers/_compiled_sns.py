@@ -15,8 +15,8 @@ clip into the exact box at the end:
 * ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
   :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
   when a pivot is singular), ``(J W)#`` by the QR of ``(D J W)^T`` and the rank test ``rank(J W) < m`` of
-  ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol`` keeps it; between the two, the SVD of
-  ``D J W`` decides and applies ``(J W)#``).
+  Algorithm 1 on ``D J W`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol`` keeps it; between the two,
+  the SVD of ``D J W`` decides and applies ``(J W)#``).
 
 Each pass after a saturation solves one right-hand side, ``x = (J W)# (xd - J xN) + xN``; ``a = (J W)# xd`` (and
 ``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two.
@@ -79,7 +79,7 @@ def _q_rinv_t(V, tau, R, c, out):
 
 @_kernel
 def _svd_solve(U, sv, Vt, c, out):
-    """``out <- V diag(1/sv) U^T c`` (``(D J W)# c`` from the SVD of ``D J W``, as ``FreeColumns.times``)."""
+    """``out <- V diag(1/sv) U^T c`` (``(D J W)# c`` from the SVD of ``D J W``)."""
     k = sv.shape[0]
     t = np.empty(k)
     for j in range(k):
@@ -118,7 +118,7 @@ def _saturated_rows(J, order, nsat, xN, c):
 
 @_kernel
 def _free_columns(J, free, nf, tol, V, tau, R, rw):
-    """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(D J W)^T`` into ``V`` (``m x nf``), ``tau``,
+    """The rank test ``rank(J W) = m`` (module doc): the QR of ``(D J W)^T`` into ``V`` (``m x nf``), ``tau``,
     ``R``, ``D = diag(rw)`` the rows' level weights (``row_weights``). Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``),
     0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an SVD decides: hand back)."""
     m = J.shape[0]
@@ -348,16 +348,19 @@ def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
 
 
 @_kernel
-def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, order, state):
+def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, order, state, nwarm=0):
     """SNS-TPM of a stack ``J`` under ``lo <= x <= up``: ``x``, ``order[:nsat]`` the saturated joints (module doc:
     ``m > n`` the extension, each ``J W`` by the full-rank shortcut or the recursion; ``m <= n`` the paper's loop).
 
     Returns ``(status, scale, nsat, iterations, feasible, nrec)``; ``status`` :data:`DONE`, :data:`BAD_BOX` or
     :data:`SHIFT` (``iterations``: the passes made); ``nrec``: the passes whose TPM (or ``(J W)#``) the recursion
     (or an SVD) gave, where the factorization's certificates did not decide (before, the kernel handed those
-    stacks back to numpy). ``state``: not used (the callers' buffer of earlier versions).
+    stacks back to numpy). ``state``: not used (the callers' buffer of earlier versions). ``nwarm``: the measurement
+    of a warm start (benchmarks/romeo_damped.py; not used by the solvers): at the first saturation, the joints
+    ``order[:nwarm]`` (a previous call's) that are beyond a bound are saturated at once, then the algorithm goes on.
     """
     m, n = J.shape
+    warm = order[:nwarm].copy()
     for j in range(n):                                 # _box's test (NaN fails it): else the typed error
         if not (lo[j] <= up[j] and lo[j] < math.inf and up[j] > -math.inf):
             return BAD_BOX, 0.0, 0, 0, False, 0
@@ -544,16 +547,29 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             best_b[:] = b
         stop = j < 0
         if j >= 0:
-            free[j] = False
-            xN[j] = up[j] if x[j] > up[j] else lo[j]
-            order[nsat] = j
-            nsat += 1
+            if nsat == 0 and nwarm > 0:                # (warm start: the previous call's joints beyond a bound)
+                for t in range(nwarm):
+                    jj = warm[t]
+                    if free[jj] and viol[jj]:
+                        free[jj] = False
+                        xN[jj] = up[jj] if x[jj] > up[jj] else lo[jj]
+                        order[nsat] = jj
+                        nsat += 1
+                if nsat > 1:
+                    downdating = False
+                if nsat:
+                    j = order[nsat - 1]
+            if free[j]:
+                free[j] = False
+                xN[j] = up[j] if x[j] > up[j] else lo[j]
+                order[nsat] = j
+                nsat += 1
             nf = n - nsat
             if not extended:
                 rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R, rw)
                 use_svd = rank < 0
                 nrec += use_svd
-                if use_svd:                            # only an SVD decides rank(J W) (FreeColumns.of)
+                if use_svd:                            # only an SVD decides rank(J W)
                     A = np.empty((m, nf))
                     _gather_free(J, free, A)
                     for i in range(m):
@@ -611,11 +627,12 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             return DONE, best_s, best_nsat, iterations, feasible, nrec
 
 
-def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin=_compiled.MARGIN, cond=_compiled.COND):
+def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin=_compiled.MARGIN, cond=_compiled.COND, warm=()):
     """``(status, x, saturated, scale, iterations, feasible, nrec)`` of SNS-TPM by :func:`_sns_loop`, compiled when
     :data:`hqp_tpm._jit.ENABLED` (else the same source as Python); ``status`` :data:`DONE`, or :data:`BAD_BOX` /
     :data:`SHIFT` (the caller raises the box's typed error / solves around the box point); ``nrec``: the passes
-    the recursion (or an SVD) answered inside the kernel."""
+    the recursion (or an SVD) answered inside the kernel. ``warm``: joints to saturate at once at the first
+    saturation (the warm-start measurement of benchmarks/romeo_damped.py)."""
     if _jit.ENABLED and not _READY and _compiled._sizes(sizes) is not None:
         try:
             _compile()
@@ -625,8 +642,10 @@ def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin=_compiled.MARGIN,
     n = lo.shape[0]
     x = np.empty(n)
     order = np.empty(n, dtype=np.int64)
+    order[:len(warm)] = warm
     status, scale, nsat, iterations, feasible, nrec = (_sns_loop if _jit.ENABLED else _sns_loop_py)(
-        J, xd, s, lo, up, float(lambda_max), float(eps), _compiled._UNIT, margin, cond, x, order, _NO_STATE)
+        J, xd, s, lo, up, float(lambda_max), float(eps), _compiled._UNIT, margin, cond, x, order, _NO_STATE,
+        len(warm))
     return status, x, tuple(order[:nsat].tolist()), scale, iterations, feasible, nrec
 
 

@@ -5,10 +5,10 @@
   (computed once, :func:`hqp_tpm.solvers.tpm.tpm_factors`), ``W = diag(0/1)`` marks the saturated
   joints and one scale factor ``s`` applies to *all* tasks. Without an active bound the result
   is exactly :func:`hqp_tpm.solvers.tpm.tpm`. The reference path follows the algorithm line by
-  line with ``n x n`` matrices; the fast path starts from :func:`tpm` itself, computes ``F`` only
-  once a bound is exceeded and then works on the columns of the free joints, one QR per
-  saturation (rank test and ``(J W)#`` at once; an SVD only when the QR cannot decide the rank).
-  ``tests/test_sns.py`` proves them equal.
+  line with ``n x n`` matrices; :func:`sns_tpm` runs every pass in one kernel
+  (:mod:`hqp_tpm.solvers._compiled_sns`: the TPM factorization of the stack, then the columns of the
+  free joints, one QR per saturation, the recursion or an SVD where the QR's certificates cannot
+  decide). ``tests/test_sns.py`` and ``tests/test_compiled_sns.py`` prove them equal.
 * :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
   first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
   least amount); a lower level moves only in the null space of the higher ones (an orthonormal
