@@ -918,18 +918,22 @@ def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
 
 
 def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
-    """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm` compiled when
-    :data:`ENABLED`; else the recursion, the same source as Python (the factorization kernels' loops are made
-    for the compiler; the recursion gives the same answer by numpy's SVDs)."""
+    """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm`, compiled when
+    :data:`ENABLED`, else the same source as Python (its loops are made for the compiler: ~2-8 ms a solve)."""
     use = x0 is not None
     x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
+    out = np.empty(n)
     if _jit.ENABLED:
         s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
         if s is not None or (s := _sizes(sizes)) is not None:
-            out = np.empty(n)
             _tpm(J, b, s, n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use, out)
             return out
-    return recursion(J, b, sizes, n, lambda_max, eps, x0 if use else None)
+    _tpm_py(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use,
+            out)
+    return out
+
+
+_tpm_py = _tpm  # the Python source (the name _tpm becomes the dispatcher when compiled)
 
 
 _jit.share_switch(__name__)  # ENABLED, AVAILABLE: hqp_tpm._jit's

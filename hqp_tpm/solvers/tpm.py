@@ -7,7 +7,7 @@
   is on): the factorization's kernels (``m <= n``: the Householder QR of ``J^T``, each pivot certified regular or
   decided and damped by the SVD of its block, ``x = Q R^{-T} F b``; ``m > n`` with rank ``n`` reached before the
   last level: the shortcut of :mod:`hqp_tpm.solvers._fullrank`) and, on a stack they do not take, the recursion.
-  ``HQP_TPM_COMPILED=0``: the recursion's source as Python (the same answer).
+  ``HQP_TPM_COMPILED=0``: the same source as Python.
 
 **Exact on every stack.** Steps 2-4 on the pivots are a forward substitution: with every pivot invertible
 (regular, or damped with ``sigma_min > tol``), ``x = Q R^{-T} F b = Q y`` with ``y_i = D_i^T (b_i - sum_{j<i}
