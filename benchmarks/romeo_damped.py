@@ -42,11 +42,12 @@ def stacks(n_configs: int):
     """``(J, b, sizes, lo, up)`` of each configuration (the arrays the controller's solve sees)."""
     S = importlib.import_module("hqp_tpm.solvers.sns")  # (the package exports the function ``sns``)
 
-    P.KP_ROMEO, P.KP_ROMEO_POSTURE = KP, KP
     robot = P.load_robot(P.ROMEO)
     prob = P.romeo_problem(robot, n_configs)
     out = []
     real = S.sns_tpm
+    gains = P.KP_ROMEO, P.KP_ROMEO_POSTURE
+    P.KP_ROMEO, P.KP_ROMEO_POSTURE = KP, KP           # (the problem module's gains, restored below)
 
     def capture(levels, lo, up, **kw):
         lv, J, b, sizes = S._stacked(levels, lo.shape[0])
@@ -59,6 +60,7 @@ def stacks(n_configs: int):
             controller(robot, prob, cfg).compute()
     finally:
         S.sns_tpm = real
+        P.KP_ROMEO, P.KP_ROMEO_POSTURE = gains
     return robot, prob, out
 
 
@@ -138,6 +140,8 @@ def warm_start(robot, prob, runs: int = 10, steps: int = 20):
 
     cold_p, warm_p, same, diffs, t_cold, t_warm = [], [], 0, [], [], []
     S.sns_tpm = capture
+    gains = P.KP_ROMEO, P.KP_ROMEO_POSTURE
+    P.KP_ROMEO, P.KP_ROMEO_POSTURE = KP, KP
     try:
         for cfg in prob.configs[:runs]:
             ctrl = controller(robot, prob, cfg)
@@ -161,6 +165,7 @@ def warm_start(robot, prob, runs: int = 10, steps: int = 20):
                 prev = cold[2]
     finally:
         S.sns_tpm = real
+        P.KP_ROMEO, P.KP_ROMEO_POSTURE = gains
     cold_p, warm_p = np.array(cold_p), np.array(warm_p)
     print(f"  warm start, {len(cold_p)} closed-loop steps ({runs} runs x {steps}): passes cold median "
           f"{np.median(cold_p):.0f} mean {cold_p.mean():.2f}, warm median {np.median(warm_p):.0f} mean "
