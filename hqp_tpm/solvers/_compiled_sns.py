@@ -297,7 +297,8 @@ def _refactored_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, 
 
 @_kernel
 def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
-    """``_scale_and_pick`` of :mod:`hqp_tpm.solvers.sns` (the same operations): ``(factor, j)``."""
+    """``(factor, j)``: the task scale factor and the most critical joint, joint by joint (the numbers of the
+    reference's ``sns._scaling`` then ``sns._critical_joint``; ``tests/test_sns.py`` holds them equal)."""
     n = a.shape[0]
     for j in range(n):
         smax[j] = math.inf
