@@ -7,8 +7,8 @@ acceleration level, Romeo sole > CoM > foot > hands > posture), per configuratio
 
 * ``tpm_stacked`` with the compiled kernel (``hqp_tpm.solvers._compiled``), the lean step's solve;
 * ``tpm_stacked`` on the numpy path (``_compiled.ENABLED = False``): the readable reference;
-* the general TPM path (``Factorization(...).solve``): what ``tpm`` did on these stacks before the full-rank
-  shortcut (padded ``J``, SVD of ``R^T``);
+* ``tpm_reference``: the paper's steps (padded ``J``, SVD of ``R^T``), what ``tpm`` did on these stacks before the
+  full-rank shortcut;
 * the same stack without its posture level (``m <= n``: the general path's kernel), compiled and numpy;
 * ``tpm(levels)`` and ``sns_tpm(levels, box)`` (URDF velocity limits at velocity level; validation included),
   compiled and numpy.
@@ -52,10 +52,9 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     t0, c0 = time.perf_counter(), time.process_time()
     from hqp_tpm.solvers import _compiled
-    from hqp_tpm.solvers._kernels import Factorization
     from hqp_tpm.solvers.levels import stacked
     from hqp_tpm.solvers.sns import sns_tpm
-    from hqp_tpm.solvers.tpm import tpm, tpm_stacked
+    from hqp_tpm.solvers.tpm import tpm, tpm_reference, tpm_stacked
 
     J = np.vstack([np.random.default_rng(0).standard_normal((6, 7)), np.eye(7)])
     tpm_stacked(J, np.ones(13), (6, 7), 7)
@@ -82,8 +81,7 @@ def main(argv=None) -> int:
                 cand = {
                     "tpm_stacked, compiled": (True, lambda J=J, b=b, s=sizes, n=n: tpm_stacked(J, b, s, n)),
                     "tpm_stacked, numpy": (False, lambda J=J, b=b, s=sizes, n=n: tpm_stacked(J, b, s, n)),
-                    "general path (before the shortcut)": (False, lambda J=J, b=b, s=sizes, n=n:
-                                                           Factorization(J, s, n, 0.0, 0.0).solve(b)),
+                    "tpm_reference (the paper's steps)": (False, lambda lv=levels, n=n: tpm_reference(lv, n=n)),
                     "tpm(levels), compiled": (True, lambda lv=levels, n=n: tpm(lv, n=n)),
                     "tpm(levels), numpy": (False, lambda lv=levels, n=n: tpm(lv, n=n)),
                     "sns_tpm(levels, box), compiled": (True, lambda lv=levels, lo=lo, up=up: sns_tpm(lv, lo, up)),

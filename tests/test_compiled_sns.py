@@ -1,15 +1,16 @@
-"""The compiled SNS-TPM loop (hqp_tpm.solvers._compiled_sns) equals the numpy fast path and Algorithm 1.
+"""The SNS-TPM kernel (hqp_tpm.solvers._compiled_sns) equals Algorithm 1, compiled and as Python.
 
-Every draw is solved four ways: the compiled loop (``sns_tpm``, kernels on), the numpy loop on the same compiled
-TPM kernels (the loop handed back), everything numpy (``_compiled.ENABLED = False``, as
-``HQP_TPM_COMPILED=0``) and ``sns_tpm_reference`` (papers/002 Algorithm 1 as written). They take the same
-decisions (saturated joints in the same order, iteration count, feasibility) and give the same command and
-scale factor: 1e-12 relative between the fast paths, 1e-9 against the reference (its ``n x n`` SVDs, as
-tests/test_sns.py). Draws: the suite's SNS draws as they are (mostly ``m <= n``) and with a posture level (more
-rows than joints), boxes with and without 0, Romeo-sized whole-body stacks (38 x 27 with a posture level on the
-21 actuated joints, and without it), ill-conditioned stacks (cond up to 1e10) and units from 1e-6 to 1e6. The
-kernel's hand-overs (a declined shortcut or damped pivot, the box-point shift, an invalid box) are counted: each
-is exercised.
+Every draw is solved three ways: the kernel compiled (``sns_tpm``), the same kernel's source as Python
+(``_compiled.ENABLED = False``, as ``HQP_TPM_COMPILED=0``) and ``sns_tpm_reference`` (papers/002 Algorithm 1 as
+written). They take the same decisions (saturated joints in the same order, iteration count, feasibility) and give
+the same command and scale factor: 1e-12 relative between the kernel's two runs, 1e-9 against the reference (its
+``n x n`` SVDs, as tests/test_sns.py). Draws: the suite's SNS draws as they are (mostly ``m <= n``) and with a
+posture level (more rows than joints), boxes with and without 0, Romeo-sized whole-body stacks (38 x 27 with a
+posture level on the 21 actuated joints, and without it), damped Romeo-like stacks with a damped pivot above the
+crossing level, ill-conditioned, rank-deficient and repeated stacks, and units from 1e-6 to 1e6 (per level too).
+The kernel's outcomes are counted: it solves every stack itself (``DONE``; the box-point shift ``SHIFT`` and an
+invalid box ``BAD_BOX`` are the only returns of another kind), and it reports the passes the recursion (or an SVD)
+answered inside it, which the earlier kernel handed back to a numpy loop.
 """
 
 import numpy as np
@@ -20,7 +21,6 @@ from threadpoolctl import threadpool_limits
 
 from hqp_tpm.errors import BoxError
 from hqp_tpm.solvers import _compiled, _compiled_sns
-from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import stacked
 from hqp_tpm.solvers.sns import sns_tpm, sns_tpm_reference, sns_tpm_stacked
 from hqp_tpm.testing.stacks import (
@@ -45,9 +45,9 @@ def _one_blas_thread():
 
 @pytest.fixture
 def outcomes(monkeypatch):
-    """The compiled loop's outcomes (DONE or the hand-over status), counted; ``ENABLED`` restored after."""
-    counts = {_compiled_sns.DONE: 0, _compiled_sns.BAD_BOX: 0, _compiled_sns.DECLINED: 0, _compiled_sns.SHIFT: 0,
-              _compiled_sns.RESUME: 0}
+    """The kernel's outcomes (``DONE``, ``SHIFT``, ``BAD_BOX``) and, under ``"recursion"``, its passes answered by
+    the recursion or an SVD, counted; ``ENABLED`` restored after."""
+    counts = {_compiled_sns.DONE: 0, _compiled_sns.BAD_BOX: 0, _compiled_sns.SHIFT: 0, "recursion": 0}
     run = _compiled_sns.sns_tpm_loop
     monkeypatch.setattr(_compiled_sns, "sns_tpm_loop", outcomes_wrapper(counts, run))
     monkeypatch.setattr(_compiled, "ENABLED", True)
@@ -63,35 +63,28 @@ def same_decisions(info, other, scale_tol):
 
 
 def check(levels, lo, up, outcomes, damping=None, tol=TOL, ref_tol=REF_TOL, reference=True):
-    """The four solutions agree (module doc); returns the compiled one's info. With ``m <= n`` the compiled loop
-    solves with its own QR, LAPACK's on the numpy path: there the bound is ``max(tol, 100 eps cond(J W))``,
-    ``W`` the returned saturation (the round-off ``(J W)#`` amplifies)."""
+    """The three solutions agree (module doc); returns the compiled one's info. The bound between the kernel's two
+    runs is ``max(tol, 100 eps cond(J W))``, ``W`` the returned saturation (numba's and numpy's matrix products
+    may round differently; ``(J W)#`` amplifies it)."""
     damping = damping or {}
     x, info = sns_tpm(levels, lo, up, return_info=True, **damping)
     n = lo.shape[0]
     _, J, b, sizes, _ = stacked(levels, n)
-    if J.shape[0] <= n and info.saturated:
+    if info.saturated:
         free = np.ones(n, dtype=bool)
         free[list(info.saturated)] = False
-        tol = max(tol, 100 * np.finfo(float).eps * np.linalg.cond(J[:, free]))
+        if free.any():
+            tol = max(tol, 100 * np.finfo(float).eps * np.linalg.cond(J[:, free]))
     xs, info_s = sns_tpm_stacked(J, b, sizes, lo, up, return_info=True, **damping)
     np.testing.assert_array_equal(xs, x)                          # the stacked entry: the same call
     assert info_s == info
-    run = outcomes["run"]
-    _compiled_sns.sns_tpm_loop = lambda *a: _compiled_sns.DECLINED  # the numpy loop on the compiled TPM kernels
+    _compiled.ENABLED = False                                     # the kernel's source as Python
     try:
         x_py, info_py = sns_tpm(levels, lo, up, return_info=True, **damping)
     finally:
-        _compiled_sns.sns_tpm_loop = outcomes_wrapper(outcomes, run)
+        _compiled.ENABLED = True
     same_decisions(info, info_py, tol)
     assert rel_diff(x, x_py) <= tol, rel_diff(x, x_py)
-    _compiled.ENABLED = False                                     # all numpy (HQP_TPM_COMPILED=0)
-    try:
-        x_np, info_np = sns_tpm(levels, lo, up, return_info=True, **damping)
-    finally:
-        _compiled.ENABLED = True
-    same_decisions(info, info_np, tol)
-    assert rel_diff(x, x_np) <= tol, rel_diff(x, x_np)
     if reference:
         xr, info_r = sns_tpm_reference(levels, lo, up, return_info=True, **damping)
         same_decisions(info, info_r, ref_tol)
@@ -100,12 +93,12 @@ def check(levels, lo, up, outcomes, damping=None, tol=TOL, ref_tol=REF_TOL, refe
 
 
 def outcomes_wrapper(counts, run):
-    """``run`` counting its outcomes into ``counts``."""
+    """``run`` counting its outcomes into ``counts`` (the compiled runs only)."""
     def counted(*args):
         out = run(*args)
-        kind = type(out)
-        counts[_compiled_sns.DONE if kind is tuple else _compiled_sns.RESUME if kind is _compiled_sns.LoopState
-               else out] += 1
+        if _compiled.ENABLED:
+            counts[out[0]] += 1
+            counts["recursion"] += out[6]
         return out
     return counted
 
@@ -171,11 +164,9 @@ def test_whole_body_stacks_without_posture(sizes, outcomes):
 def test_damped_pivots_of_several_rows(sizes, outcomes):
     """``m <= n`` stacks whose later levels are nearly in the span of the levels above (the obstacle scenario's
     hand and foot levels near a singularity): damped pivots of several rows, so ``F != I``. The compiled loop
-    solves them (``F xd`` and ``F J xN`` in each pass) with the numpy loop's decisions; before, it handed every
-    such stack back."""
-    from test_compiled import nearly_spanned_levels
-
-    from hqp_tpm.solvers._kernels import Factorization
+    solves them (``F xd`` and ``F J xN`` in each pass) with Algorithm 1's decisions (an earlier kernel handed every
+    such stack back)."""
+    from test_compiled import damped_pivots, nearly_spanned_levels
 
     n = 27 if sum(sizes) > 10 else 12
     rng = np.random.default_rng(sum(sizes) + 7)
@@ -184,8 +175,7 @@ def test_damped_pivots_of_several_rows(sizes, outcomes):
     for _ in range(30):
         levels = nearly_spanned_levels(rng, random_stack(rng, n, sizes), share=0.8, rows=(2, 3))
         _, J, _, sizes_, _ = stacked(levels, n)
-        damped += any(not p.regular and k > 1 for p, k in zip(Factorization(J, sizes_, n, **damping).pivots, sizes_,
-                                                                    strict=True))
+        damped += damped_pivots(J, sizes_, n, **damping) > 0
         lo, up = cutting_box(rng, levels, n, damping)
         check(levels, lo, up, outcomes, damping)
     assert damped >= 15 and outcomes[_compiled_sns.DONE] >= 60, (damped, outcomes)
@@ -194,10 +184,9 @@ def test_damped_pivots_of_several_rows(sizes, outcomes):
 def test_obstacle_scenario_stacks(outcomes):
     """``romeo_obstacles_sns_tpm``'s own solves with the paper's box (17-19 rows on 27 joints, hand and foot pivots
     damped near the obstacles): the compiled loop answers every step of the first 0.9 s, and on every 6th step's
-    stack it takes the numpy loop's and Algorithm 1's decisions (``check``). Before, it handed 94 % of the run's
-    steps back. (With the scenario's default command-rate bound the stack gains a final level pulling the change
-    of the command to 0, m > n with damped upper pivots: the compiled shortcut declines and the numpy pass loop
-    runs, over the compiled recursion; issue 29.)"""
+    stack it takes Algorithm 1's decisions (``check``). An earlier kernel handed 94 % of the run's steps back.
+    (With the scenario's default command-rate bound the stack gains a final level pulling the change of the command
+    to 0, m > n with damped upper pivots: the shortcut declines and the recursion answers inside the kernel.)"""
     from hqp_tpm.app.build import build
     from hqp_tpm.app.scenario import merge, parse, read, resolve_path
 
@@ -278,8 +267,8 @@ def test_badly_scaled(units, outcomes):
 
 
 def test_ill_conditioned(outcomes):
-    """Nearly dependent levels (cond up to 1e10) with a posture level: where the shortcut declines the kernel
-    hands back, elsewhere the same decisions as numpy and Algorithm 1."""
+    """Nearly dependent levels (cond up to 1e10) with a posture level: where the shortcut declines the recursion
+    answers inside the kernel; the same decisions compiled and as Python."""
     rng = np.random.default_rng(1010)
     conds = []
     for _ in range(80):
@@ -293,25 +282,16 @@ def test_ill_conditioned(outcomes):
         check(levels, lo, up, outcomes, tol=max(TOL, 1e3 * np.finfo(float).eps * cond), reference=False)
         conds.append(cond)
     assert max(conds) > 1e8 and outcomes[_compiled_sns.DONE] >= 40, (outcomes, max(conds))
-    assert outcomes[_compiled_sns.DECLINED] >= 5, outcomes
+    assert outcomes["recursion"] >= 5, outcomes                  # (handed back to numpy before)
 
 
-def test_numpy_loop_resumes_where_the_compiled_loop_stopped(monkeypatch):
-    """A free-column stack ``J W`` the kernels' certificates cannot decide, met after some saturations: the compiled
-    loop hands back its state (:class:`~hqp_tpm.solvers._compiled_sns.LoopState`) and the numpy loop goes on from
-    that pass, with ``m > n`` (the extension: ``J W`` by the padded factorization) and ``m <= n`` (``F`` from the
-    stack's factorization, ``(J W)#`` by the SVD). The same decisions and command as the numpy loop from the start
-    (1e-12, or ``1e3 eps cond(J)`` on these ill-conditioned draws), and ``(J W)#`` built only for the passes
-    from there (the numpy loop built it for every saturation again before)."""
-    import importlib
-
-    sns_mod = importlib.import_module("hqp_tpm.solvers.sns")  # (the package exports the function ``sns``)
-    monkeypatch.setattr(_compiled, "ENABLED", True)
-    passes = []
-    real_free = sns_mod._free_solver
-    monkeypatch.setattr(sns_mod, "_free_solver", lambda *a: passes.append(1) or real_free(*a))
+def test_stacks_the_old_kernel_handed_back_at_a_pass(outcomes):
+    """Free-column stacks ``J W`` the factorization's certificates cannot decide, met after some saturations (the
+    old kernel stopped there, RESUME, and a numpy loop went on): with ``m > n`` the recursion gives ``J W``'s TPM,
+    with ``m <= n`` the SVD of ``D J W`` decides its rank and applies ``(J W)#``, inside the kernel. The same
+    decisions and command compiled and as Python (``1e3 eps cond(J)`` on these ill-conditioned draws)."""
     rng = np.random.default_rng(2)
-    resumed = {True: 0, False: 0}                      # by m > n
+    inside = {True: 0, False: 0}                       # by m > n: solves with a pass the old kernel handed back
     for i in range(400):
         if i % 2:
             levels, cond = nearly_dependent_stack(rng, 1e12)
@@ -322,32 +302,94 @@ def test_numpy_loop_resumes_where_the_compiled_loop_stopped(monkeypatch):
             levels = with_posture(levels, n, rng)
         lo, up = cutting_box(rng, levels, n)
         _, J, b, sizes, _ = stacked(levels, n)
-        state = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, 0.0, 0.0, MARGIN, COND)
-        if type(state) is not _compiled_sns.LoopState:
-            continue
-        resumed[J.shape[0] > n] += 1
-        passes.clear()
-        x, info = sns_tpm_stacked(J, b, sizes, lo, up, return_info=True)
-        assert len(passes) <= info.iterations - state.iterations + 1, (len(passes), info, state.iterations)
-        from_resume = len(passes)
-        passes.clear()
-        x_start, info_start = sns_tpm_stacked(J, b, sizes, lo, up, return_info=True, compiled=False)
-        tol = max(TOL, 1e3 * np.finfo(float).eps * cond)
-        same_decisions(info, info_start, tol)
-        assert rel_diff(x, x_start) <= tol, rel_diff(x, x_start)
-        assert len(passes) == from_resume + len(state.order) - 1, (len(passes), from_resume, state.order)
-    assert resumed[True] >= 3 and resumed[False] >= 3, resumed
+        status, *_, nrec = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, 0.0, 0.0)
+        assert status == _compiled_sns.DONE
+        if nrec and inside[J.shape[0] > n] < 6:
+            inside[J.shape[0] > n] += 1
+            check(levels, lo, up, outcomes, tol=max(TOL, 1e3 * np.finfo(float).eps * cond), reference=False)
+    assert inside[True] >= 3 and inside[False] >= 3, inside
 
 
-def test_dependent_stacks_hand_back(outcomes):
-    """Repeated and dependent tasks above a posture level: the shortcut declines, the numpy path solves."""
+def test_dependent_stacks_stay_in_the_kernel(outcomes):
+    """Repeated and dependent tasks above a posture level (the shortcut declines: the old kernel handed these back
+    from the start), and the same stacks without it (``m <= n``, singular pivots: ``F`` with their truncated
+    inverses, the first pass by the recursion): solved in the kernel, equal to Algorithm 1."""
     rng = np.random.default_rng(31)
     for within in (False, True):
         for _ in range(10):
-            levels = with_posture(dependent_stack(rng, 12, within), 12, rng)
-            lo, up = cutting_box(rng, levels, 12)
-            check(levels, lo, up, outcomes)
-    assert outcomes[_compiled_sns.DECLINED] >= 10, outcomes
+            base = dependent_stack(rng, 12, within)
+            lo, up = cutting_box(rng, base, 12)
+            check(with_posture(base, 12, rng), lo, up, outcomes)
+            check(base, lo, up, outcomes)
+    assert outcomes[_compiled_sns.DONE] >= 40 and outcomes["recursion"] >= 40, outcomes
+
+
+def damped_romeo_like(rng, n=27):
+    """A Romeo-shaped stack (sole 6 > CoM 2 > foot 3 > hands 6 > posture on the 21 actuated joints: 38 x 27) whose
+    CoM, foot or hand levels are nearly in the span of the levels above (pivots below ``eps = 0.1``: damped, above
+    the crossing level, as on the benchmark's damped Romeo)."""
+    from test_compiled import nearly_spanned_levels
+
+    levels = nearly_spanned_levels(rng, random_stack(rng, n, [6, 2, 3, 6]), share=0.9, rows=(2, 3, 6))
+    return levels + [(np.hstack([np.zeros((21, 6)), np.eye(21)]), rng.standard_normal(21))]
+
+
+def test_damped_romeo_like_stacks_stay_in_the_kernel(outcomes):
+    """m > n, a damped pivot above the crossing level (lambda_max 0.05, eps 0.1): the full-rank shortcut declines
+    and the old kernel handed every such solve back to the numpy pass loop. Now every solve returns DONE from the
+    kernel, which reports the passes the recursion answered; the same decisions and command as Algorithm 1 and as
+    the kernel's source run as Python."""
+    rng = np.random.default_rng(77)
+    damping = {"lambda_max": 0.05, "eps": 0.1}
+    iterations = []
+    for _ in range(20):
+        levels = damped_romeo_like(rng)
+        lo, up = cutting_box(rng, levels, 27, damping)
+        _, J, b, sizes, _ = stacked(levels, 27)
+        status, x, sat, scale, its, feasible, nrec = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, 0.05, 0.1)
+        assert status == _compiled_sns.DONE and nrec >= 1, (status, nrec)
+        iterations.append(check(levels, lo, up, outcomes, damping).iterations)
+    assert outcomes[_compiled_sns.DONE] >= 20 and max(iterations) >= 5, (outcomes, iterations)
+
+
+def test_benchmark_damped_romeo_configurations_stay_in_the_kernel():
+    """The side-by-side benchmark's Romeo problem with the library's damping (kp 100, lambda_max 0.05, eps 0.1):
+    the controller's own stacks (6 levels, 38 x 27), each solved in the kernel to the end (DONE, the recursion's
+    passes counted inside it), equal to Algorithm 1. (On the old kernel every one was handed back.)"""
+    from benchmarks.romeo_damped import EPS, LAMBDA_MAX, stacks
+
+    cases = stacks(6)[2]
+    for J, b, sizes, lo, up in cases:
+        status, x, sat, scale, its, feasible, nrec = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX,
+                                                                                  EPS)
+        assert status == _compiled_sns.DONE and nrec >= 1 and len(sat) >= 3, (status, nrec, sat)
+        off = np.cumsum((0, *sizes))
+        levels = [(J[a:e], b[a:e]) for a, e in zip(off, off[1:], strict=False)]
+        xr, info_r = sns_tpm_reference(levels, lo, up, lambda_max=LAMBDA_MAX, eps=EPS, return_info=True)
+        assert sat == info_r.saturated and its == info_r.iterations, (sat, info_r)
+        assert rel_diff(x, xr) <= REF_TOL, rel_diff(x, xr)
+
+
+@pytest.mark.parametrize("damping", [{}, {"lambda_max": 0.05, "eps": 0.1}])
+def test_levels_in_their_own_units_stay_in_the_kernel(damping, outcomes):
+    """Each level's ``(J_i, b_i)`` in its own units (10^U(-6, 6)), rank-deficient and repeated levels among them,
+    ``m > n`` and ``m <= n``: the kernel equals Algorithm 1 and, undamped (the damping law is in the levels' units),
+    its decisions do not move with the units (the same saturations and command as the unscaled stack)."""
+    rng = np.random.default_rng(555 + len(damping))
+    for i in range(30):
+        n = int(rng.integers(6, 14))
+        base = dependent_stack(rng, n, bool(i % 2)) if i % 3 == 0 else random_stack(
+            rng, n, [int(rng.integers(1, 4)) for _ in range(int(rng.integers(2, 5)))])
+        if i % 2:
+            base = with_posture(base, n, rng)
+        lo, up = cutting_box(rng, base, n, damping)
+        x0, info0 = sns_tpm(base, lo, up, return_info=True, **damping)
+        scaled = [(u * J, u * b) for (J, b), u in zip(base, 10.0 ** rng.uniform(-6, 6, len(base)), strict=True)]
+        info = check(scaled, lo, up, outcomes, damping)
+        if not damping:                                          # (the damping law is in the levels' units)
+            x = sns_tpm(scaled, lo, up)
+            assert info.saturated == info0.saturated and rel_diff(x, x0) <= 1e-6, (info, info0, rel_diff(x, x0))
+    assert outcomes[_compiled_sns.DONE] >= 30, outcomes
 
 
 def test_invalid_box_is_handed_back(outcomes):
@@ -371,7 +413,7 @@ def test_downdated_factorization_equals_the_free_columns():
     J = np.vstack([rng.standard_normal((17, n)), np.hstack([np.zeros((21, 6)), np.eye(21)])])
     _compiled._sizes(sizes)                                     # compiles the kernels
     status, m1, mk, r, V, tau, R1, BT, *_ = _compiled._past_rank_factor(
-        J, np.array(sizes), n, 0.0, 0.0, _compiled._UNIT, MARGIN, COND)
+        J, np.array(sizes), n, 0.0, 0.0, _compiled._UNIT, _compiled.MARGIN, _compiled.COND)
     assert status == _compiled.SOLVED and (m1, mk) == (17, 21)
     CT, Rt = BT.copy(), np.zeros((n, m1))
     Rt[:m1] = R1

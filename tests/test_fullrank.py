@@ -1,28 +1,21 @@
 """The shortcut for stacks that reach rank n before their last level equals the readable TPM path.
 
-:func:`hqp_tpm.solvers._fullrank.solve_past_rank` (taken by :func:`tpm` and by :func:`sns_tpm` when
-``m > n``) against :func:`tpm_reference` (padded QR, Steps 2-4, SVD pseudo-inverse of ``R^T``) at
-1e-12: random stacks exact and damped, ill-conditioned upper levels and crossing levels, dependent
-stacks with a posture level, ``x0`` (no effect at rank n), and the side-by-side benchmark's stacks and
-closed loops (no bundled scenario's stack goes past rank n: they keep the general path).
-These tests hold the numpy shortcut (the compiled kernel is off here; tests/test_compiled.py holds the kernel
-to this one).
+:func:`hqp_tpm.solvers._compiled.past_rank` (the kernel of :mod:`hqp_tpm.solvers._fullrank`, taken by
+:func:`tpm` and by :func:`sns_tpm` when ``m > n``) against :func:`tpm_reference` (padded QR, Steps 2-4, SVD
+pseudo-inverse of ``R^T``) at 1e-12: random stacks exact and damped, ill-conditioned upper levels and crossing
+levels, dependent stacks with a posture level, ``x0`` (no effect at rank n), and the side-by-side benchmark's
+stacks and closed loops (no bundled scenario's stack goes past rank n: they keep the general path).
 """
 
 import numpy as np
 import pytest
 
 from hqp_tpm.solvers import _compiled, nullspace, sns_tpm, sns_tpm_reference, tpm, tpm_reference
-from hqp_tpm.solvers._fullrank import solve_past_rank
 from hqp_tpm.solvers.levels import stacked
 from hqp_tpm.testing.stacks import dependent_stack
 
 TOL = 1e-12
 
-
-@pytest.fixture(autouse=True)
-def _numpy_path(monkeypatch):
-    monkeypatch.setattr(_compiled, "ENABLED", False)
 DAMPING = [{}, {"lambda_max": 0.05, "eps": 0.1}, {"lambda_max": 0.1, "eps": 0.5}]
 
 
@@ -32,7 +25,7 @@ def rel_diff(a, b) -> float:
 
 def shortcut(levels, n, lambda_max=0.0, eps=0.0):
     _, J, b, sizes, n = stacked(levels, n)
-    return solve_past_rank(J, b, sizes, n, lambda_max, eps)
+    return _compiled.past_rank(J, b, sizes, n, lambda_max, eps)
 
 
 def past_rank_stack(rng, n=None):
@@ -158,7 +151,7 @@ def test_benchmark_stacks_equal_reference(kind):
         ctrl = P.hqp_controller(robot, prob, cfg)
         levels = ctrl.compute().levels
         _, J, b, sizes, _ = stacked(levels, n)
-        assert J.shape[0] > n and solve_past_rank(J, b, sizes, n, 0.0, 0.0) is not None
+        assert J.shape[0] > n and _compiled.past_rank(J, b, sizes, n, 0.0, 0.0) is not None
         for damp in DAMPING:
             assert rel_diff(tpm(levels, n=n, **damp), tpm_reference(levels, n=n, **damp)) <= TOL
 

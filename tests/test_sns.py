@@ -106,9 +106,9 @@ def test_qp_first_level_residual_is_never_larger(p):
 @FEW
 @given(st.integers(0, 2**32 - 1))
 def test_sns_tpm_fast_equals_reference_above_the_scalar_size(seed):
-    """n > SCALAR_MAX_N: the fast path's numpy scale factor, same numbers as the reference."""
+    """n > 40 joints: the kernel's loop, same numbers as the reference."""
     rng = np.random.default_rng(seed)
-    n = sns_module.SCALAR_MAX_N + int(rng.integers(1, 30))
+    n = 40 + int(rng.integers(1, 30))
     levels = random_stack(rng, n, [int(rng.integers(1, 7)) for _ in range(int(rng.integers(1, 5)))])
     c = np.abs(tpm(levels)).max()
     lo, up = -rng.uniform(0.2, 1.2, n) * c, rng.uniform(0.2, 1.2, n) * c
@@ -387,7 +387,8 @@ def test_empty_stack_returns_the_zero_command_projected_on_the_box():
 @SETTINGS
 @given(st.integers(0, 2**32 - 1))
 def test_scalar_scale_factor_equals_the_numpy_one(seed):
-    """The fast path's float loop (n <= SCALAR_MAX_N) and the numpy version pick the same factor and joint."""
+    """The kernel's joint-by-joint loop (``_compiled_sns._pick``) and the numpy version (the reference's
+    ``_scaling`` and ``_critical_joint``) pick the same factor and joint."""
     rng = np.random.default_rng(seed)
     n = int(rng.integers(1, 12))
     lo, up = -rng.uniform(0.0, 2.0, n), rng.uniform(0.0, 2.0, n)
@@ -405,8 +406,9 @@ def test_scalar_scale_factor_equals_the_numpy_one(seed):
     viol = box.violated(x)
     factor, smax = sns_module._scaling(a, b, box, free)
     j = sns_module._critical_joint(smax, free, viol)
-    assert sns_module._scale_and_pick(a.tolist(), b.tolist(), sns_module._ScalarBox(box), free.tolist(),
-                                      viol.tolist()) == (factor, j)
+    from hqp_tpm.solvers import _compiled_sns
+
+    assert _compiled_sns._pick(a, b, lo, up, box.wlo, box.wup, free, viol, np.empty(n)) == (factor, j)
 
 
 def test_task_scaling_factor():

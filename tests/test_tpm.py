@@ -212,45 +212,6 @@ def test_deferred_levels_checked_once_stacked(bad):
         tpm(levels)
 
 
-def test_padded_factorization_svd_of_the_first_n_rows():
-    """``m > n``: ``J^T`` is padded with zero rows, so the rows of ``R`` below ``n`` are exactly zero (every
-    reflector is zero there) and ``pinv(R^T) y`` is the SVD of the first ``n`` rows' ``R_n^T`` (``m x n``) padded with
-    zeros, taken once per factorization; a pivot block of those zero rows is inverted as zero without an SVD.
-    Checked against the ``m x m`` SVD it replaces, on stacks that cross rank with nearly dependent levels (the
-    SNS loop's ``J W`` that the full-rank shortcut declines)."""
-    from hqp_tpm.solvers._kernels import Factorization, pivot
-    from hqp_tpm.solvers.damping import inverted_singular_values
-
-    rng = np.random.default_rng(17)
-    checked = 0
-    for _ in range(60):
-        n = int(rng.integers(4, 12))
-        sizes = (int(rng.integers(1, n)), int(rng.integers(1, 4)), n)
-        J = rng.standard_normal((sum(sizes), n))
-        J[sizes[0]] = rng.standard_normal(sizes[0]) @ J[: sizes[0]] + 1e-9 * rng.standard_normal(n)
-        fac = Factorization(J, sizes, n, 0.0, 0.0)
-        assert not fac.qr[n:].any()                    # R's rows below n: exactly zero
-        if not fac.singular:
-            continue
-        checked += 1
-        Y = rng.standard_normal((J.shape[0], 3))
-        U, s, Vt = np.linalg.svd(fac.R().T)               # the m x m SVD
-        want = Vt.T @ (inverted_singular_values(s, tol=fac.tol)[:, None] * (U.T @ Y))
-        got = fac._RT_solve(Y)
-        assert rel_diff(got, want) <= 1e-12 * np.linalg.cond(J), rel_diff(got, want)
-        assert fac._svd is not None and fac._svd[0].shape == (J.shape[0], n)  # taken once, on m x n
-        assert rel_diff(fac._RT_solve(Y[:, 0]), got[:, 0]) <= 1e-14            # (the cached SVD, a vector)
-        x = fac.solve(Y[:, 0])
-        ref = tpm_reference([(J[a:e], Y[a:e, 0]) for a, e in zip(np.cumsum((0,) + sizes[:-1]), np.cumsum(sizes),
-                                                                     strict=True)])
-        assert rel_diff(x, ref) <= 1e-9, rel_diff(x, ref)
-    assert checked >= 40, checked
-    Z = np.zeros((4, 4))
-    for lam, eps in ((0.0, 0.0), (0.1, 0.05)):        # a zero block: D = 0, singular, as the SVD gives
-        p = pivot(Z, 1e-15, lam, eps)
-        assert p.singular and not p.regular and not p.D.any() and p.D.shape == (4, 4)
-
-
 def test_sumsq_is_the_sum_of_squares():
     """``levels.sumsq`` (BLAS ``ddot``, the finiteness and magnitude tests' sum): ``a @ a`` of the entries for
     contiguous, strided, 2-D and empty arrays; inf on overflow without numpy's warning; NaN and inf propagate."""

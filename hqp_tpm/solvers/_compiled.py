@@ -1,18 +1,17 @@
-"""Compiled (numba) kernels of the solvers' hot paths (private to :mod:`hqp_tpm.solvers`).
+"""The solvers' kernels (private to :mod:`hqp_tpm.solvers`): compiled by numba when :data:`hqp_tpm._jit.ENABLED`,
+else the same source runs as Python. They are the implementation of TPM (``tpm``/``tpm_stacked``: :func:`_tpm`, one
+call) and of the recursion (``nullspace``, and TPM where a pivot is singular); the paper-literal oracles are
+``tpm_reference`` and ``sns_tpm_reference``:
 
-The numpy code stays the readable reference; each kernel makes its decisions (the same certificates, margins,
-rank tolerances of :mod:`hqp_tpm.solvers.damping` and damping law) in one call into compiled code instead of
-~6-14 calls of scipy's LAPACK wrappers, and hands back to the reference whatever its certificates cannot decide:
+* :func:`_past_rank` (``m > n``, rank ``n`` reached before the last level: the shortcut of
+  :mod:`hqp_tpm.solvers._fullrank`), also inside SNS-TPM's kernel for the stack and its free-column stacks;
+* :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular or, when the
+  certificate cannot tell, decided and damped by the SVD of its block; Steps 2-4 on the pivot blocks,
+  ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion;
+* :func:`_recursion_cols` / :func:`_recursion`: eqs. (5)-(6), (14) of papers/000 on orthonormal bases.
 
-* :func:`past_rank`: :func:`hqp_tpm.solvers._fullrank.solve_past_rank` (stacks with ``m > n`` that reach rank
-  ``n`` before their last level), used by ``tpm``/``tpm_stacked`` and SNS-TPM (its free-column stacks too);
-* :func:`general`: :meth:`hqp_tpm.solvers._kernels.Factorization.solve` for ``m <= n`` when no pivot is
-  singular (the Householder QR; each pivot certified regular or, when the certificate cannot tell, decided and
-  damped by the SVD of its block as ``pivot``; Steps 2-4 on the pivot blocks, ``x = Q R^{-T} F b``, ``x0``
-  term); a singular pivot: ``Factorization`` (the SVD of ``R``).
-
-``tests/test_compiled.py`` proves kernels and references equal (1e-12; on ill-conditioned draws both against a
-50-digit reference).
+``tests/test_compiled.py`` proves them equal to the oracles (1e-12; on ill-conditioned draws against a 50-digit
+reference).
 
 How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._fullrank`):
 
@@ -22,15 +21,15 @@ How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hq
   give ``J_k x1``, the others are ``A = J_k Z``;
 * ``A = Q_A R_A`` (Householder): ``||A#||_F = ||R_A^{-1}||_F`` exactly, and ``1/||R_A^{-1}||_F <= sigma_min(A)
   <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide (``sigma_min`` within
-  a factor ``sqrt(r)`` of a threshold), the numpy reference runs instead (its SVD decides);
+  a factor ``sqrt(r)`` of a threshold), the recursion answers instead;
 * the crossing level's least squares ``y = A# r`` from ``R_A`` (undamped) or from the QR of ``[R_A; lambda I]``
   (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``; :func:`_damped_qr` walks only its
   nonzeros, once per factorization, for every right-hand side);
 * ``x = Q [z; y]`` (the reflectors applied once more).
 
-Dispatch: the solvers call these kernels when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this
-module's :data:`ENABLED` and :data:`AVAILABLE` are that switch). :mod:`hqp_tpm._jit` compiles them on the first
-call of a process (~2-5 s) or loads them from its disk cache (~0.1-1 s).
+Dispatch: compiled when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED`
+and :data:`AVAILABLE` are that switch). :mod:`hqp_tpm._jit` compiles them on the first call of a process (~2-5 s)
+or loads them from its disk cache (~0.1-1 s).
 """
 
 from __future__ import annotations
@@ -41,12 +40,15 @@ import numpy as np
 
 from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _kernel  # the package's one kernel decorator
-from hqp_tpm.solvers._fullrank import solve_past_rank
+from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
 
-#: Kernel outcomes: ``x`` computed; declined (the general path decides, as the reference declines); the
-#: certificates cannot decide (the numpy reference runs: it needs ``sigma_min`` from an SVD).
-SOLVED, DECLINED, UNDECIDED = 0, 1, 2
+#: Factorization outcomes: ``x`` computed; declined (the shortcut does not apply); the certificates cannot decide
+#: (``sigma_min`` itself would); a singular pivot (``_general_factors`` with ``singular_ok``). The last three: the
+#: recursion answers.
+SOLVED, DECLINED, UNDECIDED, SINGULAR = 0, 1, 2, 3
+#: :func:`_tpm`'s report: the factorization's kernel answered, or the recursion did.
+FACTORED, RECURSION = 0, 1
 
 _READY = False
 
@@ -441,7 +443,7 @@ def _damped_solve(DV, tau, R2, c):
 
 
 # ----------------------------------------------------------------------------------------
-# solve_past_rank (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
+# The full-rank shortcut (hqp_tpm.solvers._fullrank): TPM of a stack that reaches rank n before its last level.
 # ----------------------------------------------------------------------------------------
 @_inlined
 def _crossing_level(sizes, n):
@@ -585,8 +587,8 @@ def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lam
 
 @_kernel
 def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
-    """``out <- x`` of :func:`hqp_tpm.solvers._fullrank.solve_past_rank`; returns :data:`SOLVED`, :data:`DECLINED`
-    or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the reference).
+    """``out <- x`` of the full-rank shortcut (:mod:`hqp_tpm.solvers._fullrank`); returns :data:`SOLVED`,
+    :data:`DECLINED` or :data:`UNDECIDED` (only ``sigma_min(A)`` itself can decide: the caller runs the recursion).
 
     ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
     reference's ``MARGIN`` and ``COND``.
@@ -599,13 +601,14 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
 
 
 # ----------------------------------------------------------------------------------------
-# The general TPM path (hqp_tpm.solvers._kernels.Factorization.solve) when m <= n.
+# The general TPM path when m <= n.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _damped_block(R, a, e, tol, lambda_max, eps, D):
-    """:func:`hqp_tpm.solvers._kernels.pivot` of the pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its
-    certificate did not decide, by the SVD of the block (LAPACK's ``gesdd``, as ``pivot``): 0 regular, 1 damped
-    (``D[a:e, a:e]`` gets the damped inverse ``V diag(s / (s^2 + lambda^2)) U^T``), -1 singular."""
+def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
+    """The pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its certificate did not decide, by the SVD of the block
+    (LAPACK's ``gesdd``; ``damping.inverted_singular_values``' law): 0 regular, 1 damped
+    (``D[a:e, a:e]`` gets the damped inverse ``V diag(s / (s^2 + lambda^2)) U^T``), -1 singular; with
+    ``singular_ok`` a singular block gets its truncated (damped) inverse too (``s <= tol``: 0) and 2."""
     k = e - a
     B = np.zeros((k, k))
     for i in range(k):
@@ -613,60 +616,72 @@ def _damped_block(R, a, e, tol, lambda_max, eps, D):
             B[i, j] = R[a + i, a + j]
     U, sv, Vt = np.linalg.svd(B)
     smin = sv[k - 1]
-    if smin <= tol:
+    singular = smin <= tol
+    if singular and not singular_ok:
         return -1
-    if not (lambda_max > 0.0 and smin < eps):
+    if not singular and not (lambda_max > 0.0 and smin < eps):
         return 0
-    lam2 = (1.0 - (smin / eps) ** 2) * lambda_max**2    # damping.inverted_singular_values
-    for i in range(k):
+    lam2 = (1.0 - (smin / eps) ** 2) * lambda_max**2 if lambda_max > 0.0 and smin < eps else 0.0
+    for i in range(k):                                  # damping.inverted_singular_values
         for j in range(k):
             s = 0.0
             for t in range(k):
-                s += Vt[t, i] * (sv[t] / (sv[t] * sv[t] + lam2)) * U[j, t]
+                if sv[t] > tol:
+                    s += Vt[t, i] * (sv[t] / (sv[t] * sv[t] + lam2)) * U[j, t]
             D[a + i, a + j] = s
-    return 1
+    return 2 if singular else 1
 
 
 @_inlined
-def _general_factors(J, sizes, lambda_max, eps, unit):
-    """The factorization of :class:`hqp_tpm.solvers._kernels.Factorization` for ``m <= n`` (eq. (8) of
-    papers/000): ``(status, damped, V, tau, R, Fb)``, the Householder QR of ``J^T`` and, when some pivot is
-    damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4 (``F = Fbar^T``); otherwise ``F = I`` and
-    ``Fb`` is empty (nothing allocated for it). Each pivot is certified regular (``1/||R_ii^{-1}||_F``,
-    ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block (:func:`_damped_block`). :data:`UNDECIDED`
-    for a singular pivot (``J#`` then needs the SVD of ``R``: the caller runs ``Factorization``)."""
+def _general_factors(J, sizes, lambda_max, eps, unit, singular_ok):
+    """The factorization of TPM for ``m <= n`` (eq. (8) of papers/000): ``(status, damped, V, tau, R, Fb)``, the
+    Householder QR of ``J^T`` and, when some pivot is damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4
+    (``F = Fbar^T``); otherwise ``F = I`` and ``Fb`` is empty (nothing allocated for it). Each pivot is certified
+    regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block
+    (:func:`_damped_block`). A singular pivot: :data:`UNDECIDED` (the caller runs the recursion), or with
+    ``singular_ok`` :data:`SINGULAR` and ``Fb`` with that pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the
+    recursion)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
     V, tau, R = _rows_qr(J, m)
     Fb = np.empty((0, 0))
+    zero = False
     for i in range(m):
         if R[i, i] == 0.0:
-            return UNDECIDED, False, V, tau, R, Fb
-    Rinv = _triangular_inverse(R)
+            if not singular_ok:
+                return UNDECIDED, False, V, tau, R, Fb
+            zero = True
+    Rinv = np.empty((0, 0)) if zero else _triangular_inverse(R)
     kind = np.empty(0, dtype=np.int64)                 # 0: regular (solved with R_ii), 1: damped (D_ii applied)
     D = np.empty((0, 0))                               # block diagonal: the damped inverses of the damped pivots
     damped = False
+    singular = False
     a = 0
     for lev in range(nlev):
         e = a + sizes[lev]
         tol = unit * size * _fro_block(J, a, e, 0, n)
-        bound = abs(R[a, a]) if e - a == 1 else 1.0 / _fro_upper(Rinv, a, e)
+        bound = abs(R[a, a]) if e - a == 1 else (0.0 if zero else 1.0 / _fro_upper(Rinv, a, e))
         if not (bound > tol and not (lambda_max > 0.0 and bound < eps)):
             if kind.shape[0] == 0:                     # the first pivot not certified: allocated now
                 kind = np.zeros(nlev, dtype=np.int64)
                 D = np.zeros((m, m))
             if e - a == 1:
-                if bound <= tol:                       # a singular pivot
-                    return UNDECIDED, False, V, tau, R, Fb
-                inv = bound / (bound * bound + (1.0 - (bound / eps) ** 2) * lambda_max**2)
-                D[a, a] = inv if R[a, a] >= 0.0 else -inv
-                kind[lev] = 1
+                if bound <= tol:                       # a singular pivot (its inverse: 0)
+                    if not singular_ok:
+                        return UNDECIDED, False, V, tau, R, Fb
+                    singular = True
+                    kind[lev] = 1
+                else:
+                    inv = bound / (bound * bound + (1.0 - (bound / eps) ** 2) * lambda_max**2)
+                    D[a, a] = inv if R[a, a] >= 0.0 else -inv
+                    kind[lev] = 1
             else:
-                k = _damped_block(R, a, e, tol, lambda_max, eps, D)
+                k = _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D)
                 if k < 0:
                     return UNDECIDED, False, V, tau, R, Fb
-                kind[lev] = k
+                singular = singular or k == 2
+                kind[lev] = 0 if k == 0 else 1
             damped = damped or kind[lev] == 1
         a = e
     if not damped:
@@ -705,7 +720,7 @@ def _general_factors(J, sizes, lambda_max, eps, unit):
                     s += mult[t - a] * Fb[t, col]
                 Fb[i, col] -= s
         a = e
-    return SOLVED, True, V, tau, R, Fb
+    return (SINGULAR if singular else SOLVED), True, V, tau, R, Fb
 
 
 @_kernel
@@ -722,12 +737,12 @@ def _f_times(Fb, b, out):
 @_kernel
 def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
-    :meth:`hqp_tpm.solvers._kernels.Factorization.solve` when no pivot is singular (:func:`_general_factors`:
-    each pivot certified regular or decided, and damped, by the SVD of its block). Returns :data:`SOLVED`, or
-    :data:`UNDECIDED` for a singular pivot: the caller runs ``Factorization``.
+    when no pivot is singular (:func:`_general_factors`: each pivot certified regular or decided, and damped, by the
+    SVD of its block). Returns :data:`SOLVED`, or :data:`UNDECIDED` for a singular pivot: the caller runs the
+    recursion.
     """
     m, n = J.shape
-    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit)
+    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit, False)
     if status != SOLVED:
         return status
     c = np.empty(m)
@@ -775,27 +790,24 @@ def _sizes(sizes) -> np.ndarray | None:
     return s
 
 
-def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float,
-              cond: float):
-    """The compiled :func:`hqp_tpm.solvers._fullrank.solve_past_rank`: ``x`` or None (declined)."""
+def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, margin: float = MARGIN,
+              cond: float = COND):
+    """``x`` of the full-rank shortcut (:func:`_past_rank`), or None (declined or undecided: the recursion
+    answers); compiled when :data:`ENABLED`, else the same source as Python."""
     s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
     if s is None and (s := _sizes(sizes)) is None:
-        return solve_past_rank(J, b, sizes, n, lambda_max, eps)
+        s = np.asarray(sizes, dtype=np.int64)
     x = np.empty(n)
     status = _past_rank(J, b, s, n, float(lambda_max), float(eps), _UNIT, margin, cond, x)
-    if status == SOLVED:
-        return x
-    if status == DECLINED:
-        return None
-    return solve_past_rank(J, b, sizes, n, lambda_max, eps)
+    return x if status == SOLVED else None
 
 
 def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None):
-    """``x`` of the general TPM path for ``m <= n`` (:func:`_general`), or None: then
-    :class:`hqp_tpm.solvers._kernels.Factorization` decides and solves."""
+    """``x`` of the general TPM path for ``m <= n`` (:func:`_general`), or None (a singular pivot: the recursion
+    answers)."""
     s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
     if s is None and (s := _sizes(sizes)) is None:
-        return None
+        s = np.asarray(sizes, dtype=np.int64)
     x = np.empty(n)
     use = x0 is not None
     status = _general(J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
@@ -806,29 +818,31 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
 # The recursion of hqp_tpm.solvers.nullspace: TPM on the stacks its factorization cannot take exactly.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0, ranks):
-    """``x`` of eqs. (5)-(6) of papers/000 on orthonormal bases ``Z`` (:mod:`hqp_tpm.solvers.nullspace`): level by
-    level the SVD of ``J_i Z``; its singular values above ``rank_tol(||J_i||_F, max(m, n))`` are the directions the
-    level uses (inverted by the damping law, which sees ``m_i`` values: zeros for the rows beyond ``Z``'s columns),
-    the others stay in ``Z`` for the levels below. Then ``+ Z Z^T x0`` (eq. (14)) when ``use_x0``. ``ranks[i]``:
-    the number of directions level ``i`` uses (its rank in what the levels above leave)."""
+def _recursion_cols(J, B, sizes, n, lambda_max, eps, unit, ranks):
+    """``(X, Z)``: ``X[:, c]`` the ``x`` of eqs. (5)-(6) of papers/000 for the right-hand side ``B[:, c]``, on
+    orthonormal bases ``Z`` (:mod:`hqp_tpm.solvers.nullspace`): level by level the SVD of ``J_i Z``; its singular
+    values above ``rank_tol(||J_i||_F, max(m, n))`` are the directions the level uses (inverted by the damping law,
+    which sees ``m_i`` values: zeros for the rows beyond ``Z``'s columns), the others stay in ``Z`` for the levels
+    below (``Z``: the last basis, ``P = Z Z^T``). ``ranks[i]``: the number of directions level ``i`` uses (its rank
+    in what the levels above leave). One SVD per level for every column of ``B``."""
     m = J.shape[0]
+    k = B.shape[1]
     size = max(m, n)
-    x = np.zeros(n)
+    X = np.zeros((n, k))
     Z = np.eye(n)
     a = 0
     for lev in range(sizes.shape[0]):
         e = a + sizes[lev]
-        k = Z.shape[1]
+        nz = Z.shape[1]
         ranks[lev] = 0
-        if k > 0 and e > a:
+        if nz > 0 and e > a:
             Ji = np.ascontiguousarray(J[a:e])
             ssq = 0.0
             for i in range(Ji.shape[0]):
                 for j in range(n):
                     ssq += Ji[i, j] * Ji[i, j]
             tol = unit * size * math.sqrt(ssq)
-            r = b[a:e] - Ji @ x
+            r = np.ascontiguousarray(B[a:e]) - Ji @ X
             U, s, Vt = np.linalg.svd(Ji @ Z)
             ns = s.shape[0]
             smin = s[ns - 1] if ns == e - a else 0.0      # m_i values: zeros beyond Z's columns
@@ -836,20 +850,36 @@ def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0, ranks):
             if lambda_max > 0.0 and smin < eps:
                 lam2 = (1.0 - (smin / eps) ** 2) * lambda_max * lambda_max
             rank = 0
-            y = np.zeros(k)
+            y = np.zeros((nz, k))
             for t in range(ns):
                 if s[t] > tol:
                     rank += 1
-                    c = 0.0
-                    for i in range(e - a):
-                        c += U[i, t] * r[i]
-                    c *= s[t] / (s[t] * s[t] + lam2)
-                    for j in range(k):
-                        y[j] += c * Vt[t, j]
+                    inv = s[t] / (s[t] * s[t] + lam2)
+                    for col in range(k):
+                        c = 0.0
+                        for i in range(e - a):
+                            c += U[i, t] * r[i, col]
+                        c *= inv
+                        for j in range(nz):
+                            y[j, col] += c * Vt[t, j]
             ranks[lev] = rank
-            x += Z @ y                                    # eq. (5): Z (J_i Z)# (b_i - J_i x)
+            X += Z @ y                                    # eq. (5): Z (J_i Z)# (b_i - J_i x)
             Z = Z @ np.ascontiguousarray(Vt[rank:].T)     # eq. (6): P = Z Z^T
         a = e
+    return X, Z
+
+
+@_kernel
+def _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0, ranks):
+    """``x`` of :func:`_recursion_cols` for one right-hand side ``b``, then ``+ Z Z^T x0`` (eq. (14)) when
+    ``use_x0``."""
+    B = np.empty((b.shape[0], 1))
+    for i in range(b.shape[0]):
+        B[i, 0] = b[i]
+    X, Z = _recursion_cols(J, B, sizes, n, lambda_max, eps, unit, ranks)
+    x = np.empty(n)
+    for i in range(n):
+        x[i] = X[i, 0]
     if use_x0:
         x += Z @ (Z.T @ x0)                               # eq. (14)
     return x
@@ -868,6 +898,42 @@ def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
             return _recursion(J, b, s, n, float(lambda_max), float(eps), _UNIT, x0, use, ranks)
     return _recursion(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, x0, use,
                       ranks)
+
+
+@_kernel
+def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
+    """``out <- x`` of TPM in one call: the factorization's kernel (:func:`_past_rank` when ``m > n``, else
+    :func:`_general`) and, on a stack it does not take (a singular pivot, a certificate that cannot decide), the
+    recursion (:func:`_recursion`: the same answer where both apply, the exact one where a pivot is singular).
+    Returns :data:`FACTORED` or :data:`RECURSION`, the path that answered."""
+    if J.shape[0] > n:                                 # rank n reached before the last level: x0 has no effect
+        status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
+    else:
+        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+    if status == SOLVED:
+        return FACTORED
+    ranks = np.empty(sizes.shape[0], dtype=np.int64)
+    out[:] = _recursion(J, b, sizes, n, lambda_max, eps, unit, x0, use_x0, ranks)
+    return RECURSION
+
+
+def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
+    """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm`, compiled when
+    :data:`ENABLED`, else the same source as Python (its loops are made for the compiler: ~2-8 ms a solve)."""
+    use = x0 is not None
+    x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
+    out = np.empty(n)
+    if _jit.ENABLED:
+        s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
+        if s is not None or (s := _sizes(sizes)) is not None:
+            _tpm(J, b, s, n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use, out)
+            return out
+    _tpm_py(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use,
+            out)
+    return out
+
+
+_tpm_py = _tpm  # the Python source (the name _tpm becomes the dispatcher when compiled)
 
 
 _jit.share_switch(__name__)  # ENABLED, AVAILABLE: hqp_tpm._jit's

@@ -1,34 +1,33 @@
-"""Compiled (numba) SNS-TPM loop (private to :mod:`hqp_tpm.solvers`).
+"""The SNS-TPM loop in one kernel (private to :mod:`hqp_tpm.solvers`; compiled by numba when
+:data:`hqp_tpm._jit.ENABLED`, else the same source runs as Python).
 
-:func:`sns_tpm_loop` runs the loop of :func:`hqp_tpm.solvers.sns.sns_tpm` (papers/002 Algorithm 1, eq. (4)) in
-one call, with the scale factor and the most critical joint computed joint by joint as ``_scale_and_pick``,
-the best scaled solution and the clip into the exact box as ``_result``:
+:func:`sns_tpm_loop` runs :func:`hqp_tpm.solvers.sns.sns_tpm` (papers/002 Algorithm 1, eq. (4)) in one call, the
+scale factor and the most critical joint computed joint by joint (:func:`_pick`), the best scaled solution and the
+clip into the exact box at the end:
 
-* ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack by the full-rank shortcut kernel
-  :func:`hqp_tpm.solvers._compiled._past_rank` (called inside compiled code; its own certificates) and of each
-  free-column stack ``J W`` by the same shortcut on the upper levels' QR *downdated* when a joint saturates
-  (Givens rotations, below; the certificates of ``_past_rank`` on the downdated factors), or refactorized when
-  another level crosses rank; the rank test on the first level;
-* ``m <= n`` when no pivot of the stack is singular: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is
-  damped) by :func:`hqp_tpm.solvers._compiled._general_factors`, ``(J W)#`` by the QR of ``(J W)^T`` and the
-  rank test ``rank(J W) < m`` of ``FreeColumns`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol``
-  keeps it).
+* ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack by the full-rank shortcut
+  :func:`hqp_tpm.solvers._compiled._past_rank` and of each free-column stack ``J W`` by the same shortcut on the
+  upper levels' QR *downdated* when a joint saturates (Givens rotations, below; the certificates of ``_past_rank``
+  on the downdated factors), or refactorized when another level crosses rank. Where the shortcut's certificates do
+  not take a stack (a damped or singular pivot above the crossing level: every damped Romeo stack), the recursion
+  :func:`hqp_tpm.solvers._compiled._recursion_cols` solves it, both right-hand sides of a pass with one SVD per
+  level, and reports the first level's rank for the rank test;
+* ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
+  :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
+  when a pivot is singular), ``(J W)#`` by the QR of ``(D J W)^T`` and the rank test ``rank(J W) < m`` of
+  Algorithm 1 on ``D J W`` (``min |r_jj| <= tol`` loses rank, ``1/||R^-1||_F > tol`` keeps it; between the two,
+  the SVD of ``D J W`` decides and applies ``(J W)#``).
 
 Each pass after a saturation solves one right-hand side, ``x = (J W)# (xd - J xN) + xN``; ``a = (J W)# xd`` (and
 ``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two.
 
-It takes the numpy path's decisions on numbers equal to it up to rounding (its own QR, the downdates); whatever
-it does not implement it hands back before returning anything (a status code says why), and the numpy path then
-solves:
+No stack leaves the kernel inside a solve; it returns :data:`BAD_BOX` (the caller raises the box's typed error) or
+:data:`SHIFT` (no scale factor in ``[0, 1]`` keeps a box without 0: the caller solves around the box point,
+``_around_box_point`` of :mod:`hqp_tpm.solvers.sns`, by this kernel again). :data:`DECLINED` and :data:`RESUME`
+are no longer returned (kept for the callers that test for them).
 
-* from the start, when the stack itself is one the certificates do not decide or has a singular pivot
-  (``Factorization``, SVDs), when no scale factor in ``[0, 1]`` keeps the box (the box-point shift
-  ``_around_box_point``), or when the box is not valid (``_box`` raises the typed error);
-* from the pass where it stopped (:data:`RESUME`: the saturated joints in their order, ``x_N``, the best scaled
-  solution so far and the pass count in ``state``), when a *free-column* stack ``J W`` is one the certificates
-  do not decide. Before, the numpy loop ran every earlier pass again (on Romeo ~1 ms of its ~1.3 ms).
-
-``tests/test_compiled_sns.py`` proves it equal to the numpy fast path and to ``sns_tpm_reference``.
+``tests/test_compiled_sns.py`` proves it equal to ``sns_tpm_reference`` (Algorithm 1 as written) compiled and as
+Python.
 """
 
 from __future__ import annotations
@@ -41,10 +40,8 @@ from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _kernel  # the package's one kernel decorator
 from hqp_tpm.solvers import _compiled
 
-#: Outcomes: solved; handed back to the numpy path (which starts over) because the box is not valid, the
-#: certificates could not decide on the stack, or no scale factor in ``[0, 1]`` kept the box (the box-point
-#: shift); handed back at a pass (the numpy loop resumes there) because they could not decide on a free-column
-#: stack ``J W``.
+#: Outcomes: solved; the box is not valid; (no longer returned); no scale factor in ``[0, 1]`` kept the box (the
+#: box-point shift); (no longer returned).
 DONE, BAD_BOX, DECLINED, SHIFT, RESUME = 0, 1, 2, 3, 4
 
 _READY = False
@@ -81,6 +78,23 @@ def _q_rinv_t(V, tau, R, c, out):
 
 
 @_kernel
+def _svd_solve(U, sv, Vt, c, out):
+    """``out <- V diag(1/sv) U^T c`` (``(D J W)# c`` from the SVD of ``D J W``)."""
+    k = sv.shape[0]
+    t = np.empty(k)
+    for j in range(k):
+        s = 0.0
+        for i in range(U.shape[0]):
+            s += U[i, j] * c[i]
+        t[j] = s / sv[j]
+    for f in range(Vt.shape[1]):
+        s = 0.0
+        for j in range(k):
+            s += Vt[j, f] * t[j]
+        out[f] = s
+
+
+@_kernel
 def _gather_free(J, free, out):
     """``out <- J W``: the columns of ``J`` whose ``free`` flag is set, in order."""
     m, n = J.shape
@@ -104,7 +118,7 @@ def _saturated_rows(J, order, nsat, xN, c):
 
 @_kernel
 def _free_columns(J, free, nf, tol, V, tau, R, rw):
-    """``FreeColumns.of`` (:mod:`hqp_tpm.solvers._kernels`): the QR of ``(D J W)^T`` into ``V`` (``m x nf``), ``tau``,
+    """The rank test ``rank(J W) = m`` (module doc): the QR of ``(D J W)^T`` into ``V`` (``m x nf``), ``tau``,
     ``R``, ``D = diag(rw)`` the rows' level weights (``row_weights``). Returns 1 (rank ``m``: ``1/||R^-1||_F > tol``),
     0 (rank lost: ``min |r_jj| <= tol``) or -1 (only an SVD decides: hand back)."""
     m = J.shape[0]
@@ -283,7 +297,8 @@ def _refactored_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, 
 
 @_kernel
 def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
-    """``_scale_and_pick`` of :mod:`hqp_tpm.solvers.sns` (the same operations): ``(factor, j)``."""
+    """``(factor, j)``: the task scale factor and the most critical joint, joint by joint (the numbers of the
+    reference's ``sns._scaling`` then ``sns._critical_joint``; ``tests/test_sns.py`` holds them equal)."""
     n = a.shape[0]
     for j in range(n):
         smax[j] = math.inf
@@ -333,61 +348,67 @@ def _pick(a, b, lo, up, wlo, wup, free, viol, smax):
     return factor, j
 
 
-@_inlined
-def _keep_state(state, xN, best_a, best_b):
-    """:data:`RESUME`'s arrays: ``state`` rows ``x_N`` and the best scaled solution's ``a``, ``b``."""
-    state[0, :] = xN
-    state[1, :] = best_a
-    state[2, :] = best_b
-
-
 @_kernel
-def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, order, state):
-    """SNS-TPM of a stack ``J`` under ``lo <= x <= up``: ``x``, ``order[:nsat]`` the saturated joints. ``m > n``:
-    the extension, each ``J W`` by the full-rank shortcut; ``m <= n``: the paper's loop when no pivot of the
-    stack is singular (``F`` of the damped pivots applied to ``xd`` and ``J xN``), ``(J W)#`` by the QR of
-    ``(J W)^T`` (``FreeColumns``).
+def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, order, state, nwarm=0):
+    """SNS-TPM of a stack ``J`` under ``lo <= x <= up``: ``x``, ``order[:nsat]`` the saturated joints (module doc:
+    ``m > n`` the extension, each ``J W`` by the full-rank shortcut or the recursion; ``m <= n`` the paper's loop).
 
-    Returns ``(status, scale, nsat, iterations, feasible, best_nsat)``; ``status`` :data:`DONE` or why it hands
-    back. :data:`RESUME`: ``order[:nsat]`` saturated, ``state`` (``3 x n``) holds ``x_N`` and the best scaled
-    solution's ``a``, ``b`` (``scale`` its factor, ``feasible`` whether there is one, ``best_nsat`` its saturated
-    joints ``order[:best_nsat]``), ``iterations`` the passes so far.
+    Returns ``(status, scale, nsat, iterations, feasible, nrec)``; ``status`` :data:`DONE`, :data:`BAD_BOX` or
+    :data:`SHIFT` (``iterations``: the passes made); ``nrec``: the passes whose TPM (or ``(J W)#``) the recursion
+    (or an SVD) gave, where the factorization's certificates did not decide (before, the kernel handed those
+    stacks back to numpy). ``state``: not used (the callers' buffer of earlier versions). ``nwarm``: the measurement
+    of a warm start (benchmarks/romeo_damped.py; not used by the solvers): at the first saturation, the joints
+    ``order[:nwarm]`` (a previous call's) that are beyond a bound are saturated at once, then the algorithm goes on.
     """
     m, n = J.shape
+    warm = order[:nwarm].copy()
     for j in range(n):                                 # _box's test (NaN fails it): else the typed error
         if not (lo[j] <= up[j] and lo[j] < math.inf and up[j] > -math.inf):
             return BAD_BOX, 0.0, 0, 0, False, 0
     extended = m > n
+    nlev = sizes.shape[0]
+    ranks = np.empty(nlev, dtype=np.int64)             # the recursion's ranks of the levels
+    no_x0 = np.empty(0)
+    rec = False                                        # this pass's TPM by the recursion (m > n)
+    nrec = 0                                           # passes whose TPM or (J W)# took the recursion or an SVD
+    k_fit = True                                       # m > n: the rank test watches the first level
     if extended:                                       # _past_rank, its factors kept for the downdates
         status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR = _compiled._past_rank_factor(
             J, sizes, n, lambda_max, eps, unit, margin, cond)
-        if status != _compiled.SOLVED:
-            return DECLINED, 0.0, 0, 0, False, 0
-        _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR, lambda_max,
-                                 eps, x)
         k0 = _compiled._crossing_level(sizes, n)[0]
+        rec = status != _compiled.SOLVED
+        nrec += rec
+        if rec:                                        # a pivot the shortcut does not take: the recursion
+            x[:] = _compiled._recursion(J, xd, sizes, n, lambda_max, eps, unit, no_x0, False, ranks)
+            k_fit = ranks[0] == sizes[0]
+        else:
+            _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR,
+                                     lambda_max, eps, x)
+            k_fit = not sizes[0] > n
     else:
         m1, mk, k0 = 0, 0, 0
         PV, Ptau, PR1, PBT = np.empty((0, n)), np.empty(0), np.empty((0, 0)), np.empty((n, 0))
     Fb = np.empty((0, 0))                              # m <= n: Fbar (F = Fbar^T) when a pivot is damped
     Fxd = np.empty(0 if extended else m)               # F xd
     damped = False
-    if not extended:                                   # the general path's factorization (no singular pivot)
-        status, damped, V0, tau0, R0, Fb = _compiled._general_factors(J, sizes, lambda_max, eps, unit)
-        if status != _compiled.SOLVED:
-            return DECLINED, 0.0, 0, 0, False, 0
+    if not extended:                                   # the general path's factorization
+        status, damped, V0, tau0, R0, Fb = _compiled._general_factors(J, sizes, lambda_max, eps, unit, True)
         if damped:
             _compiled._f_times(Fb, xd, Fxd)
         else:
             Fxd[:] = xd
-        _q_rinv_t(V0, tau0, R0, Fxd, x)                # x = J# F xd
+        if status == _compiled.SINGULAR:               # x = J# F xd is not exact there: the recursion's x
+            nrec += 1
+            x[:] = _compiled._recursion(J, xd, sizes, n, lambda_max, eps, unit, no_x0, False, ranks)
+        else:
+            _q_rinv_t(V0, tau0, R0, Fxd, x)            # x = J# F xd
     inside = True
     for j in range(n):
         if not (x[j] >= lo[j] and x[j] <= up[j]):
             inside = False
             break
     if inside:                                         # no bound reached: the TPM solution
-        return DONE, 1.0, 0, 1, True, 0
+        return DONE, 1.0, 0, 1, True, nrec
     scale = 0.0                                        # _Box: the largest finite bound, the widened box
     for j in range(n):
         if math.isfinite(lo[j]):
@@ -415,7 +436,6 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     found = False
     nsat = 0
     iterations = 0
-    k_fit = not sizes[0] > n                           # the rank test watches the first level (module doc of sns)
     Jf = np.empty((m, 0))
     mg = 0 if extended else m                          # (the general path's arrays: empty when extended)
     rw = np.ones(m)                                    # row_weights: rank(J W) on unit levels (m <= n)
@@ -438,7 +458,10 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     R = np.zeros((mg, mg))
     c = np.empty(m)
     Fc = np.empty(mg)
-    downdating = extended
+    downdating = extended and not rec                  # (the first pass's factors exist)
+    Xr = np.empty((0, 2))                              # rec: (J W)# F_W [xd - J xN, xd] by the recursion
+    SU, Ssv, SVt = np.empty((0, 0)), np.empty(0), np.empty((0, 0))   # m <= n: the SVD of D J W when the QR
+    use_svd = False                                                 # cannot decide its rank
     CT = np.empty((0, 0))
     Rt = np.empty((0, 0))
     cs = np.empty((0, 0))
@@ -465,11 +488,16 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                         dc[i] = Fxd[i] - c[i]
                 for i in range(m):
                     dc[i] *= rw[i]                     # (J W)# = (D J W)# D
-                _q_rinv_t(V[:, :nf], tau, R, dc, yf[:nf])
+                if use_svd:
+                    _svd_solve(SU, Ssv, SVt, dc, yf[:nf])
+                else:
+                    _q_rinv_t(V[:, :nf], tau, R, dc, yf[:nf])
             else:                                      # (c = J xN: computed at the saturation)
                 for i in range(m):
                     dc[i] = xd[i] - c[i]
-                if downdating:
+                if rec:
+                    yf[:nf] = Xr[:, 0]
+                elif downdating:
                     _downdated_rhs(dc, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
                                    lambda_max, eps, yf)
                 else:
@@ -489,10 +517,15 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
         if not anyv:
             for j in range(n):
                 x[j] = min(max(x[j], lo[j]), up[j])
-            return DONE, 1.0, nsat, iterations, True, 0
+            return DONE, 1.0, nsat, iterations, True, nrec
         if nsat:                                       # a = (J W)# F_W xd, b = x - a (b = xN - (J W)# F_W J xN)
             if not extended:
-                _q_rinv_t(V[:, :nf], tau, R, wFxd, xf[:nf])
+                if use_svd:
+                    _svd_solve(SU, Ssv, SVt, wFxd, xf[:nf])
+                else:
+                    _q_rinv_t(V[:, :nf], tau, R, wFxd, xf[:nf])
+            elif rec:
+                xf[:nf] = Xr[:, 1]
             elif downdating:
                 _downdated_rhs(xd, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
                                lambda_max, eps, xf)
@@ -515,16 +548,36 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             best_b[:] = b
         stop = j < 0
         if j >= 0:
-            free[j] = False
-            xN[j] = up[j] if x[j] > up[j] else lo[j]
-            order[nsat] = j
-            nsat += 1
+            if nsat == 0 and nwarm > 0:                # (warm start: the previous call's joints beyond a bound)
+                for t in range(nwarm):
+                    jj = warm[t]
+                    if free[jj] and viol[jj]:
+                        free[jj] = False
+                        xN[jj] = up[jj] if x[jj] > up[jj] else lo[jj]
+                        order[nsat] = jj
+                        nsat += 1
+                if nsat > 1:
+                    downdating = False
+                if nsat:
+                    j = order[nsat - 1]
+            if free[j]:
+                free[j] = False
+                xN[j] = up[j] if x[j] > up[j] else lo[j]
+                order[nsat] = j
+                nsat += 1
             nf = n - nsat
             if not extended:
                 rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R, rw)
-                if rank < 0:                           # only an SVD decides rank(J W): numpy, from this pass on
-                    _keep_state(state, xN, best_a, best_b)
-                    return RESUME, best_s, nsat, iterations, found, best_nsat
+                use_svd = rank < 0
+                nrec += use_svd
+                if use_svd:                            # only an SVD decides rank(J W)
+                    A = np.empty((m, nf))
+                    _gather_free(J, free, A)
+                    for i in range(m):
+                        for f in range(nf):
+                            A[i, f] *= rw[i]
+                    SU, Ssv, SVt = np.linalg.svd(A, full_matrices=False)
+                    rank = 1 if Ssv[m - 1] > tol else 0
                 stop = rank == 0                       # rank(J W) < m
             elif nf == 0:
                 stop = True
@@ -550,60 +603,52 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                     _gather_free(J, free, Jf)
                     (status, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau,
                      DR) = _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond)
-                if status != _compiled.SOLVED:         # the certificates cannot decide J W: numpy, from here
-                    _keep_state(state, xN, best_a, best_b)
-                    return RESUME, best_s, nsat, iterations, found, best_nsat
-                stop = k_fit and sizes[0] > nf         # the first level crosses rank nf: J_1 W loses rank
+                rec = status != _compiled.SOLVED       # the certificates cannot decide J W: the recursion
+                nrec += rec
+                if rec:                                # (its TPM of J W for both right-hand sides, one SVD a level)
+                    Jf = np.empty((m, nf))
+                    _gather_free(J, free, Jf)
+                    Bc = np.empty((m, 2))
+                    for i in range(m):
+                        Bc[i, 0] = xd[i] - c[i]
+                        Bc[i, 1] = xd[i]
+                    Xr = _compiled._recursion_cols(Jf, Bc, sizes, nf, lambda_max, eps, unit, ranks)[0]
+                    stop = k_fit and ranks[0] < sizes[0]  # J_1 W loses rank
+                else:
+                    stop = k_fit and sizes[0] > nf     # the first level crosses rank nf: J_1 W loses rank
         if stop:
             if not found:                              # no factor kept the box: the box-point shift
-                return SHIFT, 0.0, 0, 0, False, 0
+                return SHIFT, 0.0, 0, iterations, False, nrec
             feasible = True
             for t in range(n):
                 x[t] = best_s * best_a[t] + best_b[t]
                 if x[t] < lo[t] - 2.0 * tlo[t] or x[t] > up[t] + 2.0 * tup[t]:
                     feasible = False
                 x[t] = min(max(x[t], lo[t]), up[t])
-            return DONE, best_s, best_nsat, iterations, feasible, 0
+            return DONE, best_s, best_nsat, iterations, feasible, nrec
 
 
-class LoopState:
-    """Where :func:`_sns_loop` handed back with :data:`RESUME`: the joints saturated so far (in order), ``x_N``,
-    the best scaled solution ``best`` (``(factor, a, b, its saturated joints)``, or None) and the passes made."""
-
-    __slots__ = ("order", "xN", "best", "iterations")
-
-    def __init__(self, order, xN, best, iterations):
-        self.order, self.xN, self.best, self.iterations = order, xN, best, iterations
-
-    @classmethod
-    def of(cls, order: list, state: np.ndarray, scale: float, best_nsat: int, iterations: int) -> LoopState:
-        """From :func:`_sns_loop`'s outputs: the saturated joints, ``state`` (its ``3 x n`` rows), the best
-        factor and its count of saturated joints (``-1``: no best scaled solution yet), the passes."""
-        best = (scale, state[1], state[2], tuple(order[:best_nsat])) if best_nsat >= 0 else None
-        return cls(order, state[0], best, iterations)
-
-
-def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin, cond):
-    """``(x, saturated, scale, iterations, feasible)`` of SNS-TPM (:func:`_sns_loop`), a :class:`LoopState`
-    (handed back at a pass: the numpy loop resumes there) or the status (an int: handed back, the numpy path
-    solves from the start)."""
-    global _READY
-    if not _READY:
-        if _compiled._sizes(sizes) is None:        # numba not importable after all
-            return DECLINED
+def sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, margin=_compiled.MARGIN, cond=_compiled.COND, warm=()):
+    """``(status, x, saturated, scale, iterations, feasible, nrec)`` of SNS-TPM by :func:`_sns_loop`, compiled when
+    :data:`hqp_tpm._jit.ENABLED` (else the same source as Python); ``status`` :data:`DONE`, or :data:`BAD_BOX` /
+    :data:`SHIFT` (the caller raises the box's typed error / solves around the box point); ``nrec``: the passes
+    the recursion (or an SVD) answered inside the kernel. ``warm``: joints to saturate at once at the first
+    saturation (the warm-start measurement of benchmarks/romeo_damped.py)."""
+    if _jit.ENABLED and not _READY and _compiled._sizes(sizes) is not None:
         try:
             _compile()
         except ImportError:  # pragma: no cover - (_jit turned the switch off)
-            return DECLINED
-    s = _compiled._sizes(sizes)
+            pass
+    s = _compiled._sizes(sizes) if _READY else np.asarray(sizes, dtype=np.int64)
     n = lo.shape[0]
     x = np.empty(n)
     order = np.empty(n, dtype=np.int64)
-    state = np.empty((3, n))
-    status, scale, nsat, iterations, feasible, best_nsat = _sns_loop(
-        J, xd, s, lo, up, float(lambda_max), float(eps), _compiled._UNIT, margin, cond, x, order, state)
-    if status == RESUME:
-        return LoopState.of(order[:nsat].tolist(), state, scale, best_nsat if feasible else -1, iterations)
-    if status != DONE:
-        return status
-    return x, tuple(order[:nsat].tolist()), scale, iterations, feasible
+    order[:len(warm)] = warm
+    status, scale, nsat, iterations, feasible, nrec = (_sns_loop if _jit.ENABLED else _sns_loop_py)(
+        J, xd, s, lo, up, float(lambda_max), float(eps), _compiled._UNIT, margin, cond, x, order, _NO_STATE,
+        len(warm))
+    return status, x, tuple(order[:nsat].tolist()), scale, iterations, feasible, nrec
+
+
+_NO_STATE = np.empty((3, 0))
+_sns_loop_py = _sns_loop  # the Python source (the name _sns_loop becomes the dispatcher when compiled)

@@ -95,15 +95,6 @@ def inverted_singular_values(s: np.ndarray, lambda_max: float = 0.0, eps: float 
     return out
 
 
-def inverted_singular_value(s: float, lambda_max: float = 0.0, eps: float = 0.0, tol: float = 0.0) -> float:
-    """:func:`inverted_singular_values` of a single singular value (a 1 x 1 block), same arithmetic."""
-    if s <= tol:
-        return 0.0
-    if lambda_max > 0.0 and s < eps:
-        return s / (s**2 + (1.0 - (s / eps) ** 2) * lambda_max**2)
-    return 1.0 / s
-
-
 def pinv(A: np.ndarray, lambda_max: float = 0.0, eps: float = 0.0, tol: float | None = None) -> np.ndarray:
     """Pseudo-inverse of ``A`` (k x p), exact or damped by the law above; shape p x k.
 

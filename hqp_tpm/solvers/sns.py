@@ -5,10 +5,10 @@
   (computed once, :func:`hqp_tpm.solvers.tpm.tpm_factors`), ``W = diag(0/1)`` marks the saturated
   joints and one scale factor ``s`` applies to *all* tasks. Without an active bound the result
   is exactly :func:`hqp_tpm.solvers.tpm.tpm`. The reference path follows the algorithm line by
-  line with ``n x n`` matrices; the fast path starts from :func:`tpm` itself, computes ``F`` only
-  once a bound is exceeded and then works on the columns of the free joints, one QR per
-  saturation (rank test and ``(J W)#`` at once; an SVD only when the QR cannot decide the rank).
-  ``tests/test_sns.py`` proves them equal.
+  line with ``n x n`` matrices; :func:`sns_tpm` runs every pass in one kernel
+  (:mod:`hqp_tpm.solvers._compiled_sns`: the TPM factorization of the stack, then the columns of the
+  free joints, one QR per saturation, the recursion or an SVD where the QR's certificates cannot
+  decide). ``tests/test_sns.py`` and ``tests/test_compiled_sns.py`` prove them equal.
 * :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
   first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
   least amount); a lower level moves only in the null space of the higher ones (an orthonormal
@@ -71,23 +71,18 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from hqp_tpm.errors import BoxError, ShapeError
-from hqp_tpm.solvers import _compiled, _compiled_sns
-from hqp_tpm.solvers._fullrank import COND, MARGIN
-from hqp_tpm.solvers._kernels import Factorization, FreeColumns, row_weights
+from hqp_tpm.solvers import _compiled_sns
+from hqp_tpm.solvers._kernels import row_weights
 from hqp_tpm.solvers.damping import check_damping, matrix_tol, pinv, rank_tol
 from hqp_tpm.solvers.levels import Level, as_levels, equality_stack, stacked
 from hqp_tpm.solvers.nullspace import nullspace_stacked, projected_step
-from hqp_tpm.solvers.tpm import past_rank, tpm_factors
+from hqp_tpm.solvers.tpm import tpm_factors
 
 #: A joint counts as beyond a bound when it exceeds it by more than ``VIOLATION_TOL * (|bound| + B)``, ``B``
 #: the box's largest finite bound (so the test does not depend on units);
 #: the scale factor uses the box widened by the same amount, and the returned command is clipped
 #: into the exact box (a change of at most this size, the round-off of the null-space products).
 VIOLATION_TOL = 1e-10
-
-#: SNS-TPM fast path: up to this many joints the scale factor is computed on Python floats (fewer calls),
-#: above it with numpy (fewer operations); both give the same numbers.
-SCALAR_MAX_N = 40
 
 #: Multi-task SNS: a joint can be saturated at level ``k`` only if the rows of ``P_{k-1}`` of the
 #: saturated joints stay independent (smallest singular value above this); otherwise the levels
@@ -380,94 +375,8 @@ def _around_box_point(solver, lv, box: _Box, lambda_max, eps, iterations, return
 
 
 # ----------------------------------------------------------------------------------------
-# SNS-TPM: fast path.
+# SNS-TPM: the kernel (hqp_tpm.solvers._compiled_sns).
 # ----------------------------------------------------------------------------------------
-class _ScalarBox:
-    """The box as Python floats, for :func:`_scale_and_pick` (cheaper than numpy at these sizes)."""
-
-    __slots__ = ("lo", "up", "wlo", "wup")
-
-    def __init__(self, box: _Box):
-        self.lo, self.up, self.wlo, self.wup = (v.tolist() for v in (box.lo, box.up, box.wlo, box.wup))
-
-
-def _scale_and_pick(a, b, sb: _ScalarBox, free, viol) -> tuple[float, int]:
-    """:func:`_scaling` then :func:`_critical_joint`, joint by joint on floats: the same numbers.
-
-    ``a``, ``b``, ``viol``: lists; ``free``: list of bools. Returns ``(factor, j)``.
-    """
-    n = len(a)
-    inf = float("inf")
-    smax = [inf] * n
-    factor = None
-    for j in range(n):                           # saturated joints must sit inside, at s = 0 and s = 1
-        if not free[j]:
-            lo, up, bj = sb.wlo[j], sb.wup[j], b[j]
-            if not (lo <= bj <= up and lo <= a[j] + bj <= up):
-                factor = -1.0
-                break
-    if factor is None:
-        bad = [j for j in range(n) if free[j] and a[j] == 0.0 and not (sb.wlo[j] <= b[j] <= sb.wup[j])]
-        if bad:                                  # s has no effect on a joint outside the box
-            for j in bad:
-                smax[j] = -inf
-            factor = -1.0
-    if factor is None:
-        s_hi_w, s_lo, s_hi, any_idx = inf, -inf, inf, False
-        for j in range(n):
-            aj = a[j]
-            if free[j] and aj != 0.0:
-                any_idx = True
-                bj = b[j]
-                if aj > 0.0:
-                    sm, sw, sl = (sb.up[j] - bj) / aj, (sb.wup[j] - bj) / aj, (sb.wlo[j] - bj) / aj
-                else:
-                    sm, sw, sl = (sb.lo[j] - bj) / aj, (sb.wlo[j] - bj) / aj, (sb.wup[j] - bj) / aj
-                smax[j] = sm
-                s_hi, s_hi_w, s_lo = min(s_hi, sm), min(s_hi_w, sw), max(s_lo, sl)
-        if not any_idx:
-            factor = 1.0
-        else:
-            s_lo = max(s_lo, 0.0)
-            factor = -1.0 if s_lo > min(s_hi_w, 1.0) else max(min(s_hi, 1.0), s_lo)
-    j = min(range(n), key=smax.__getitem__)      # first argmin, as np.argmin
-    if not (free[j] and viol[j]):
-        cand = [k for k in range(n) if free[k] and viol[k]]
-        j = min(cand, key=smax.__getitem__) if cand else -1
-    return factor, j
-
-
-class _FreeStack:
-    """TPM of the stack restricted to the free joints (``J W`` of the extension, ``m > n``): the full-rank shortcut
-    (:func:`hqp_tpm.solvers.tpm.past_rank`, compiled when enabled) when it applies, else tpm's recursion
-    (:func:`hqp_tpm.solvers._compiled.recursion`, compiled). The shortcut's decisions do not depend on the
-    right-hand side, so trying it once on ``xd`` tells."""
-
-    __slots__ = ("Jf", "xd", "x_xd", "sizes", "nf", "damping", "shortcut")
-
-    @classmethod
-    def of(cls, Jf, xd, sizes, lambda_max, eps, k_fit):
-        """The solver, or None when the first level of ``J W`` loses rank and ``k_fit`` watches it."""
-        self = cls.__new__(cls)
-        nf = Jf.shape[1]
-        self.Jf, self.xd, self.sizes, self.nf, self.damping = Jf, xd, sizes, nf, (lambda_max, eps)
-        self.x_xd = past_rank(Jf, xd, sizes, nf, lambda_max, eps)        # Jf has m > n > nf rows
-        self.shortcut = self.x_xd is not None
-        if self.shortcut:                        # upper pivots regular: only a crossing first level can be singular
-            return None if k_fit and sizes[0] > nf else self
-        ranks = np.empty(len(sizes), dtype=np.int64)
-        self.x_xd = _compiled.recursion(Jf, xd, sizes, nf, lambda_max, eps, ranks=ranks)
-        return None if k_fit and ranks[0] < sizes[0] else self
-
-    def solve(self, c):
-        """``(J W)# F_W c`` on the free joints (TPM of ``J W``)."""
-        if c is self.xd:
-            return self.x_xd
-        if self.shortcut:
-            return past_rank(self.Jf, c, self.sizes, self.nf, *self.damping)
-        return _compiled.recursion(self.Jf, c, self.sizes, self.nf, *self.damping)
-
-
 def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: float = 0.0,
             return_info: bool = False):
     """SNS-TPM (papers/002 Algorithm 1, eq. (4)): prioritized stack under the box ``lower <= x <= upper``.
@@ -477,9 +386,9 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     Returns ``x``, or ``(x, SNSInfo)`` with ``return_info``. Equal to :func:`tpm` when no bound is
     exceeded; otherwise joints are saturated one by one and, when ``rank(J W) < m``, the best
     scaled solution ``x = x_N + (J W)# F (s b - J x_N)`` is returned. Same numbers as
-    :func:`sns_tpm_reference`; the first pass is :func:`tpm`'s computation itself (one QR of the
-    stack gives both ``x`` and ``F``), later ones evaluate the core step as ``x = s a + b`` with
-    ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
+    :func:`sns_tpm_reference`; every pass runs in one kernel (:mod:`hqp_tpm.solvers._compiled_sns`,
+    compiled, or the same source as Python with ``HQP_TPM_COMPILED=0``), which evaluates the core step
+    as ``x = s a + b`` with ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
     """
     lambda_max, eps = check_damping(lambda_max, eps)
     lo, up = _box(lower, upper, None)
@@ -493,164 +402,34 @@ def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambd
     """:func:`sns_tpm` of a stack already stacked: ``J`` (m x n) and ``xd`` finite floats, ``sizes`` the row
     counts of the levels (a tuple, summing to m). The box is checked as by :func:`sns_tpm`, the stack is not
     (the lean step, :mod:`hqp_tpm.control.lean`, checks it once per step). Same result as :func:`sns_tpm`.
-    ``compiled=False``: the numpy loop only (the caller's compiled loop has just handed this stack back);
-    ``resume``: the :class:`~hqp_tpm.solvers._compiled_sns.LoopState` where the caller's compiled loop stopped on
-    these arrays (the numpy loop goes on from there)."""
+    ``compiled``, ``resume``: accepted for the callers of earlier versions and not used (the kernel solves every
+    stack from its first pass; nothing is resumed)."""
     n = J.shape[1]
-    tried = resume is not None
-    if (not tried and compiled and _compiled.ENABLED and sizes and type(lower) is np.ndarray
-            and type(upper) is np.ndarray and lower.dtype == np.float64 and upper.dtype == np.float64
-            and lower.shape == upper.shape == (n,)):
-        tried = True
-        result, resume = _compiled_loop(J, xd, sizes, lower, upper, lambda_max, eps, return_info)
-        if result is not None:
-            return result
-    lo, up = _box(lower, upper, n)
-    return _sns_tpm(J, xd, sizes, lo, up, None, lambda_max, eps, return_info, compiled and not tried, resume)
+    if not (type(lower) is np.ndarray and type(upper) is np.ndarray and lower.dtype == np.float64
+            and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
+        lower, upper = _box(lower, upper, n)     # (else the kernel tests the box: BAD_BOX, then _box raises)
+    return _sns_tpm(J, xd, tuple(sizes), lower, upper, None, lambda_max, eps, return_info)
 
 
-def _compiled_loop(J, xd, sizes, lo, up, lambda_max, eps, return_info):
-    """The compiled loop (:mod:`hqp_tpm.solvers._compiled_sns`): ``(its result, None)``, or ``(None, resume)`` when
-    it hands back: ``resume`` its :class:`~hqp_tpm.solvers._compiled_sns.LoopState` (the numpy loop goes on from
-    that pass) or None (the numpy path starts over)."""
-    out = _compiled_sns.sns_tpm_loop(J, xd, sizes, lo, up, lambda_max, eps, MARGIN, COND)
-    if type(out) is tuple:
-        x, sat, s, iterations, feasible = out
-        return ((x, SNSInfo(s, sat, iterations, feasible)) if return_info else x), None
-    return None, (out if type(out) is _compiled_sns.LoopState else None)
-
-
-def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, compiled=True, resume=None):
-    """The fast path of :func:`sns_tpm` on the stacked active rows (``lv``: the levels, or None: built from
-    ``J``, ``xd``, ``sizes`` when the box-point shift needs them). The compiled loop
-    (:mod:`hqp_tpm.solvers._compiled_sns`) when enabled and ``compiled`` (False: it has handed this stack back
-    already), else (or when it hands back) numpy: from the start, or from the pass where the compiled loop
-    stopped (``resume``, its :class:`~hqp_tpm.solvers._compiled_sns.LoopState`)."""
+def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info):
+    """SNS-TPM of the stacked active rows by the kernel; the box-point shift (module doc) when no scale factor in
+    ``[0, 1]`` kept the box (``lv``: the levels, or None: built from ``J``, ``xd``, ``sizes``)."""
     n = lo.shape[0]
-    if compiled and _compiled.ENABLED and sizes:
-        result, resume = _compiled_loop(J, xd, sizes, lo, up, lambda_max, eps, return_info)
-        if result is not None:
-            return result
-    extended = bool(sizes) and J.shape[0] > n    # more rows than joints: this library's extension (module doc)
-    if resume is not None:
-        return _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, resume)
-    x = fac = None
-    first_singular = False
-    if extended:                                 # rank n before the last level: hqp_tpm.solvers._fullrank
-        x = past_rank(J, xd, sizes, n, lambda_max, eps)
-        first_singular = sizes[0] > n            # (the shortcut: the first level crosses rank n with more rows)
-        if x is None:                            # else tpm's recursion (compiled), and the first level's rank
-            ranks = np.empty(len(sizes), dtype=np.int64)
-            x = _compiled.recursion(J, xd, sizes, n, lambda_max, eps, ranks=ranks)
-            first_singular = bool(ranks[0] < sizes[0])
+    if sizes:
+        status, x, sat, s, iterations, feasible, _ = _compiled_sns.sns_tpm_loop(J, xd, sizes, lo, up, lambda_max,
+                                                                                eps)
+        if status == _compiled_sns.DONE:
+            return (x, SNSInfo(s, sat, iterations, feasible)) if return_info else x
+        if status == _compiled_sns.BAD_BOX:
+            _box(lo, up, n)                      # raises the box's typed error
+    else:                                        # no active row: x = 0, if the box holds it
+        x, iterations = np.zeros(n), 1
         if ((x >= lo) & (x <= up)).all():
             return (x, SNSInfo(1.0, (), 1)) if return_info else x
-    elif sizes and _compiled.ENABLED:            # m <= n: the TPM solution by the compiled general path
-        x0 = _compiled.general(J, xd, sizes, n, lambda_max, eps)
-        if x0 is not None and ((x0 >= lo) & (x0 <= up)).all():
-            return (x0, SNSInfo(1.0, (), 1)) if return_info else x0
-    if extended:                                 # the TPM solution: F is not needed (m > n)
-        F_times = Fxd = None
-    elif sizes:                                  # W = I: eq. (4) is the TPM solution (1)
-        fac = Factorization(J, sizes, n, lambda_max, eps)
-        F_times = fac.F_times
-        Fxd = F_times(xd)
-        # a level losing rank in what the levels above leave: tpm's exact recursion (hqp_tpm.solvers.tpm)
-        x = nullspace_stacked(J, xd, sizes, n, lambda_max, eps) if fac.singular else fac.pinv_times(Fxd)[:n]
-        first_singular = fac.pivots[0].singular
-    else:
-        F_times, Fxd, x, first_singular = (lambda v: v), xd, np.zeros(n), False
-    if ((x >= lo) & (x <= up)).all():            # no bound reached (the common case): the TPM solution
-        return (x, SNSInfo(1.0, (), 1)) if return_info else x
-    return _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, None, x, fac, F_times, Fxd,
-                     first_singular)
-
-
-def _sns_loop(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info, extended, resume, x=None, fac=None,
-              F_times=None, Fxd=None, first_singular=False):
-    """The passes of :func:`_sns_tpm` after the first: from the TPM solution ``x`` (``fac``, ``F_times``, ``Fxd``
-    of its factorization; ``first_singular``: the first level has a singular pivot), or from ``resume``, the pass
-    where the compiled loop stopped (the same decisions as this loop up to rounding: it goes on as this loop
-    would have)."""
-    n = lo.shape[0]
-    box = _Box(lo, up)
-    if resume is None:
-        free = np.ones(n, dtype=bool)
-        xN = np.zeros(n)
-        a, b = x, np.zeros(n)
-        order: list[int] = []
-        best = None                              # (s*, a, b, saturated) of the best scaled solution
-        iterations = 0
-    else:
-        order, xN, best, iterations = list(resume.order), resume.xN.copy(), resume.best, resume.iterations
-        free = np.ones(n, dtype=bool)
-        free[order] = False
-        if extended:                             # (F is not needed: m > n)
-            first_singular = sizes[0] > n
-        else:                                    # m <= n: F and the rank tolerance from the stack's factorization
-            fac = Factorization(J, sizes, n, lambda_max, eps)
-            F_times = fac.F_times
-            Fxd = F_times(xd)
-    sb = None
-    weights = row_weights(J, sizes) if not extended else None  # rank(JW) on unit levels (m <= n only)
-    k_fit = int(extended and not first_singular)  # m > n: the rank test watches the first level only
-    if resume is not None:                       # the pass that saturated order[-1], from (J W)#
-        G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, weights)
-        if G is None:
-            return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
-    while True:
-        iterations += 1
-        if order:                                # (JW)# applied by triangular solves, never formed
-            if extended:                         # TPM of the stack J W
-                ab = np.zeros((n, 2))
-                ab[free, 0] = G.solve(xd)
-                ab[free, 1] = G.solve(J[:, order] @ xN[order])
-            else:
-                ab = G.times(np.column_stack([Fxd, F_times(J[:, order] @ xN[order])]))
-            a = ab[:, 0]
-            b = xN - ab[:, 1]
-            x = a + b
-        viol = box.violated(x)
-        if not viol.any():
-            return _result(x, box, SNSInfo(1.0, tuple(order), iterations), return_info, checked=True)
-        if n <= SCALAR_MAX_N:
-            sb = sb or _ScalarBox(box)
-            factor, j = _scale_and_pick(a.tolist(), b.tolist(), sb, free.tolist(), viol.tolist())
-        else:
-            factor, smax = _scaling(a, b, box, free)
-            j = _critical_joint(smax, free, viol)
-        if factor >= 0.0 and (best is None or factor > best[0]):
-            best = (factor, a, b, tuple(order))
-        if j >= 0:
-            free[j] = False
-            xN[j] = up[j] if x[j] > up[j] else lo[j]
-            order.append(j)
-            G = _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, weights)
-        if j < 0 or G is None:
-            return _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info)
-
-
-def _free_solver(J, xd, sizes, free, lambda_max, eps, extended, k_fit, weights):
-    """``(J W)#`` for the ``free`` joints after a saturation, or None when ``J W`` has lost rank
-    (``m <= n``: :class:`FreeColumns`; ``m > n``: :class:`_FreeStack`, None also when no joint is free)."""
-    if not extended:
-        w, tol = weights
-        return FreeColumns.of(J, free, tol, w)
-    if free.any():
-        return _FreeStack.of(J[:, free], xd, sizes, lambda_max, eps, k_fit)
-    return None
-
-
-def _best_scaled(J, xd, sizes, lv, box, best, lambda_max, eps, iterations, return_info):
-    """The loop stops (no joint left to saturate, or rank lost): the best scaled solution, or the box-point
-    shift when no factor kept the box (0 is outside it)."""
-    if best is None:
-        if lv is None:
-            off = np.cumsum((0, *sizes))
-            lv = [Level(J[a:e], xd[a:e]) for a, e in zip(off, off[1:], strict=False)]
-        return _around_box_point(sns_tpm, lv, box, lambda_max, eps, iterations, return_info)
-    s, a, b, sat = best
-    return _result(s * a + b, box, SNSInfo(float(s), sat, iterations), return_info)
+    if lv is None:                               # (the kernel's SHIFT: no factor kept the box, 0 is outside it)
+        off = np.cumsum((0, *sizes))
+        lv = [Level(J[a:e], xd[a:e]) for a, e in zip(off, off[1:], strict=False)]
+    return _around_box_point(sns_tpm, lv, _Box(lo, up), lambda_max, eps, iterations, return_info)
 
 
 # ----------------------------------------------------------------------------------------

@@ -1,17 +1,13 @@
 """Task Priority Matrix (TPM): ``x = J# F b`` (eqs. (7)-(11) of papers/000).
 
-Two paths compute the same numbers:
-
 * :func:`tpm_reference` follows the paper literally: QR of ``J^T`` (8), ``Fbar = R`` (9),
   Steps 2-4 block by block with the pivot pseudo-inverses, ``F = Fbar^T`` (10) and
-  ``J# = Q pinv(R^T)`` (11).
-* :func:`tpm` / :func:`tpm_factors` are the fast path. When every pivot block ``R_ii`` is
-  invertible and undamped, Gauss-Jordan elimination turns ``Fbar`` into the identity, so
-  ``F = I`` and ``x = Q R^{-T} b`` by one triangular solve; otherwise it runs the same
-  elimination on the pivot blocks only. Whether a pivot is regular is decided on its smallest
-  singular value, as in the reference, but a norm bound spares the SVD in most cases. The
-  factorization (:class:`hqp_tpm.solvers._kernels.Factorization`) is shared with :func:`hqp_tpm.solvers.sns.sns_tpm`,
-  which needs ``x`` and ``F`` of the same stack. ``tests/test_tpm.py`` proves the paths equal.
+  ``J# = Q pinv(R^T)`` (11); :func:`tpm_factors` returns its ``Q``, ``R``, ``F`` and ``J#`` for inspection.
+* :func:`tpm` / :func:`tpm_stacked` run one kernel (:func:`hqp_tpm.solvers._compiled._tpm`, compiled when numba
+  is on): the factorization's kernels (``m <= n``: the Householder QR of ``J^T``, each pivot certified regular or
+  decided and damped by the SVD of its block, ``x = Q R^{-T} F b``; ``m > n`` with rank ``n`` reached before the
+  last level: the shortcut of :mod:`hqp_tpm.solvers._fullrank`) and, on a stack they do not take, the recursion.
+  ``HQP_TPM_COMPILED=0``: the same source as Python.
 
 **Exact on every stack.** Steps 2-4 on the pivots are a forward substitution: with every pivot invertible
 (regular, or damped with ``sigma_min > tol``), ``x = Q R^{-T} F b = Q y`` with ``y_i = D_i^T (b_i - sum_{j<i}
@@ -22,7 +18,7 @@ depending on the ones above, more rows than joints left) breaks this: the unpivo
 level ``m_i`` directions although it uses fewer, and the levels below lose the others (``[0] x = 1`` then
 ``[1] x = 1`` gives ``x = 0``, the strict-priority answer is 1). The paper's algorithm as written
 (:func:`tpm_reference`) keeps that limit; :func:`tpm` hands such a stack to the recursion
-(:func:`hqp_tpm.solvers._compiled.recursion`, compiled), whose per-level SVD keeps only the directions the level
+(:func:`hqp_tpm.solvers._compiled._recursion`), whose per-level SVD keeps only the directions the level
 uses and returns the rest to the levels below: the lexicographic minimum-norm solution undamped, and the same
 damping law as the pivots (``m_i`` singular values, zeros for the directions missing) when damped. Rank
 decisions are relative to each level's own rows (:mod:`hqp_tpm.solvers.damping`), so a level's units do not
@@ -31,14 +27,10 @@ change them.
 At acceleration level the same call gives ``qdd = J# F (pdd - Jdot qd)`` (12); pass
 ``x0 = qdd_0`` to add the null-space term ``(I - J# J) qdd_0`` of (14).
 
-If the stack has more rows than columns (``m > n``) the Jacobian is padded with zero
-columns up to ``m``: the minimum-norm solution has zeros there and they are dropped. When such a
-stack reaches rank ``n`` before its last level (a final posture level), :func:`tpm` takes the
-shortcut of :mod:`hqp_tpm.solvers._fullrank` instead (same numbers, no padding, no SVD of ``R^T``).
-
-:func:`tpm_stacked` (hence :func:`tpm`) runs the shortcut and the general path through the compiled kernels of
-:mod:`hqp_tpm.solvers._compiled` when numba is importable (``HQP_TPM_COMPILED=0`` forces the numpy code, which
-stays the reference; ``tests/test_compiled.py`` proves them equal).
+If the stack has more rows than columns (``m > n``) the reference pads the Jacobian with zero columns up to
+``m``: the minimum-norm solution has zeros there and they are dropped. ``tests/test_compiled.py`` and
+``tests/test_fullrank.py`` prove the kernels equal to the reference where its pivots are regular,
+``tests/test_solver_core.py`` the recursion's answer where they are not.
 """
 
 from __future__ import annotations
@@ -51,8 +43,6 @@ import scipy.linalg as sla
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.solvers import _compiled
-from hqp_tpm.solvers._fullrank import COND, MARGIN, solve_past_rank
-from hqp_tpm.solvers._kernels import Factorization
 from hqp_tpm.solvers.damping import check_damping, pinv, pinv_times, rank_tol
 from hqp_tpm.solvers.levels import stacked
 
@@ -101,14 +91,10 @@ def _offsets(sizes):
 # ----------------------------------------------------------------------------------------
 # Reference path: the paper's steps, one by one.
 # ----------------------------------------------------------------------------------------
-def tpm_reference(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
-                  x0: np.ndarray | None = None, n: int | None = None) -> np.ndarray:
-    """TPM solution computed literally as in papers/000 Sec. II (readable, slow)."""
-    J, b, sizes, n = _stack(levels, n)
-    if not sizes:
-        return np.zeros(n) if x0 is None else np.array(x0, dtype=float)
-    m = J.shape[0]
-    size = max(m, n)                                            # rank tolerances: damping.rank_tol
+def _reference_factors(J, sizes, n, lambda_max, eps):
+    """``(Q, R, F)`` of papers/000: the QR of ``J^T`` (8, padded when ``m > n``), ``Fbar = R`` (9), Steps 2-4 with
+    the pivot pseudo-inverses (rank tolerance relative to each level's rows), ``F = Fbar^T`` (10)."""
+    size = max(J.shape[0], n)                                   # rank tolerances: damping.rank_tol
     Q, R = _qr_of_transpose(J)                                  # eq. (8)
     Fbar = R.copy()                                             # Step 1, eq. (9)
     off = _offsets(sizes)
@@ -120,8 +106,18 @@ def tpm_reference(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0
         if i > 0:                                                          # Step 3
             above = slice(0, off[i])
             Fbar[above, :] -= Fbar[above, rows] @ Fbar[rows, :]
-    F = Fbar.T                                                  # Step 5, eq. (10)
-    tol = rank_tol(np.linalg.norm(J), size)                     # relative to the stack
+    return Q, R, Fbar.T                                         # Step 5, eq. (10)
+
+
+def tpm_reference(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
+                  x0: np.ndarray | None = None, n: int | None = None) -> np.ndarray:
+    """TPM solution computed literally as in papers/000 Sec. II (readable, slow)."""
+    J, b, sizes, n = _stack(levels, n)
+    if not sizes:
+        return np.zeros(n) if x0 is None else np.array(x0, dtype=float)
+    m = J.shape[0]
+    Q, R, F = _reference_factors(J, sizes, n, lambda_max, eps)
+    tol = rank_tol(np.linalg.norm(J), max(m, n))               # relative to the stack
     y = F @ b
     if x0 is not None:                                          # eq. (14): x0 + J# (F b - J x0)
         Jfull = J if m <= n else np.hstack([J, np.zeros((m, m - n))])
@@ -130,20 +126,21 @@ def tpm_reference(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0
     return (Q @ pinv_times(R.T, y, tol=tol))[:n]                # eqs. (7) / (12), (11): J# = Q pinv(R^T)
 
 
-# ----------------------------------------------------------------------------------------
-# Fast path: hqp_tpm.solvers._kernels.Factorization.
-# ----------------------------------------------------------------------------------------
 def tpm_factors(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
                 n: int | None = None) -> TPMFactors:
-    """Q, R, F and J# of the stack (same numbers as :func:`tpm_reference`)."""
+    """Q, R, F and J# of the stack, as :func:`tpm_reference` computes them (for inspection)."""
     J, _b, sizes, n = _stack(levels, n)
     m = J.shape[0]
     if m == 0:
         return TPMFactors(np.zeros((n, 0)), np.zeros((0, 0)), np.zeros((0, 0)), np.zeros((n, 0)), (), n)
-    fac = Factorization(J, sizes, n, lambda_max, eps)
-    return TPMFactors(fac.Q(), fac.R(), fac.F(), fac.pinv_matrix(), tuple(sizes), n)
+    Q, R, F = _reference_factors(J, sizes, n, lambda_max, eps)
+    Jpinv = (Q @ pinv(R.T, tol=rank_tol(np.linalg.norm(J), max(m, n))))[:n]
+    return TPMFactors(Q, R, F, Jpinv, tuple(sizes), n)
 
 
+# ----------------------------------------------------------------------------------------
+# The solver: one kernel (hqp_tpm.solvers._compiled._tpm).
+# ----------------------------------------------------------------------------------------
 def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
         x0: np.ndarray | None = None, n: int | None = None) -> np.ndarray:
     """Solve a prioritized stack with the Task Priority Matrix: ``x = J# F b`` (eq. (7)).
@@ -167,33 +164,17 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
     return tpm_stacked(J, b, sizes, n, lambda_max, eps, x0)
 
 
-def past_rank(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float):
-    """:func:`hqp_tpm.solvers._fullrank.solve_past_rank`, by its compiled kernel (:mod:`hqp_tpm.solvers._compiled`)
-    when enabled, else by the numpy reference."""
-    if _compiled.ENABLED:
-        return _compiled.past_rank(J, b, sizes, n, lambda_max, eps, MARGIN, COND)
-    return solve_past_rank(J, b, sizes, n, lambda_max, eps)
-
-
 def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float = 0.0, eps: float = 0.0,
                 x0: np.ndarray | None = None, kernel_status: int | None = None) -> np.ndarray:
     """:func:`tpm` of a stack already stacked and checked: ``J`` (m x n, m >= 1) and ``b`` finite floats,
     ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
     :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step).
 
-    The factorization's kernels first (the full-rank shortcut when ``m > n``, else ``x = Q R^{-T} F b``); a stack
-    they do not take (a singular pivot, or a certificate that cannot decide) is solved by the recursion, compiled
-    (:func:`hqp_tpm.solvers._compiled.recursion`; module doc: the same answer where both apply, the exact one where
-    a pivot is singular). ``kernel_status``: what the factorization's kernel already answered on these arrays
-    (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with other work): the recursion runs."""
+    One kernel (:func:`hqp_tpm.solvers._compiled.tpm`): the factorization's kernels first (the full-rank shortcut
+    when ``m > n``, else ``x = Q R^{-T} F b``), the recursion on a stack they do not take (module doc: the same
+    answer where both apply, the exact one where a pivot is singular). ``kernel_status``: what the factorization's
+    kernel already answered on these arrays (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with
+    other work): the recursion runs."""
     if kernel_status is None:
-        if J.shape[0] > n:  # rank n reached before the last level: hqp_tpm.solvers._fullrank (x0 has no effect)
-            x = past_rank(J, b, sizes, n, lambda_max, eps)
-        elif _compiled.ENABLED:  # m <= n: x = Q R^-T F b in one compiled call
-            x = _compiled.general(J, b, sizes, n, lambda_max, eps, x0)
-        else:
-            fac = Factorization(J, sizes, n, lambda_max, eps)
-            x = None if fac.singular else fac.solve(b, x0)
-        if x is not None:
-            return x
+        return _compiled.tpm(J, b, sizes, n, lambda_max, eps, x0)
     return _compiled.recursion(J, b, sizes, n, lambda_max, eps, x0)

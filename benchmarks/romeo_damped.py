@@ -1,0 +1,178 @@
+"""Damped Romeo, solve alone: sns_tpm and tpm on the 200 peers configurations with the library's damping.
+
+    OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py [--configs 200] [--repeats 3] [--warm]
+
+The stacks are those of :mod:`benchmarks.peers.problems`' ``romeo_vel`` (6 levels, m > n) with kp = 100 and
+``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute``). Prints, per solver, the median and p99 of
+the solve alone (thread CPU time, ``sns_tpm_stacked`` / ``tpm_stacked`` on the captured arrays, one BLAS
+thread), the SNS passes (median, max), how many ``sns_tpm`` solves left the compiled loop and how many ``tpm``
+solves its kernel answered by the recursion. ``--warm``: the warm-start experiment (closed loops;
+:func:`warm_start`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import collections
+import importlib
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from benchmarks import common  # noqa: E402
+from benchmarks.peers import problems as P  # noqa: E402
+
+LAMBDA_MAX, EPS, KP = 0.05, 0.1, 100.0
+
+
+def controller(robot, prob, cfg):
+    from hqp_tpm import Controller, Stack
+
+    stack = Stack.of(*P.hqp_tasks(robot, prob, cfg))
+    return Controller(robot, stack, order=1, dt=P.DT, solver="sns_tpm", box=P.joint_limits_box(robot, 1), q0=cfg.q,
+                      v0=cfg.v, lambda_max=LAMBDA_MAX, eps=EPS)
+
+
+def stacks(n_configs: int):
+    """``(J, b, sizes, lo, up)`` of each configuration (the arrays the controller's solve sees)."""
+    S = importlib.import_module("hqp_tpm.solvers.sns")  # (the package exports the function ``sns``)
+
+    robot = P.load_robot(P.ROMEO)
+    prob = P.romeo_problem(robot, n_configs)
+    out = []
+    real = S.sns_tpm
+    gains = P.KP_ROMEO, P.KP_ROMEO_POSTURE
+    P.KP_ROMEO, P.KP_ROMEO_POSTURE = KP, KP           # (the problem module's gains, restored below)
+
+    def capture(levels, lo, up, **kw):
+        lv, J, b, sizes = S._stacked(levels, lo.shape[0])
+        out.append((J.copy(), b.copy(), tuple(sizes), np.array(lo, float), np.array(up, float)))
+        return real(levels, lo, up, **kw)
+
+    S.sns_tpm = capture
+    try:
+        for cfg in prob.configs:
+            controller(robot, prob, cfg).compute()
+    finally:
+        S.sns_tpm = real
+        P.KP_ROMEO, P.KP_ROMEO_POSTURE = gains
+    return robot, prob, out
+
+
+def kernel_outcomes(cases):
+    """``(sns_left, tpm_recursion)``: the ``sns_tpm`` solves the compiled loop handed back (left compiled code), the
+    ``tpm`` solves its one kernel answered by the recursion rather than the factorization (both compiled)."""
+    from hqp_tpm.solvers import _compiled, _compiled_sns
+
+    sns_left = tpm_rec = 0
+    for J, b, sizes, lo, up in cases:
+        out = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS, _compiled.MARGIN, _compiled.COND)
+        sns_left += type(out) is not tuple or out[0] != _compiled_sns.DONE
+        x = np.empty(J.shape[1])
+        tpm_rec += _compiled._tpm(J, b, np.array(sizes), J.shape[1], LAMBDA_MAX, EPS, _compiled._UNIT,
+                                  _compiled.MARGIN, _compiled.COND, np.empty(0), False, x) == _compiled.RECURSION
+    return sns_left, tpm_rec
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--configs", type=int, default=P.N_CONFIGS)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--warm", action="store_true")
+    args = ap.parse_args(argv)
+    from hqp_tpm.solvers.sns import sns_tpm_stacked
+    from hqp_tpm.solvers.tpm import tpm_stacked
+
+    with common.one_blas_thread():
+        robot, prob, cases = stacks(args.configs)
+        for J, b, sizes, lo, up in cases:  # compile / warm up
+            sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=LAMBDA_MAX, eps=EPS)
+            tpm_stacked(J, b, sizes, J.shape[1], LAMBDA_MAX, EPS)
+        times = collections.defaultdict(list)
+        passes = []
+        for J, b, sizes, lo, up in cases:
+            for _ in range(args.repeats):
+                t0 = time.thread_time_ns()
+                _, info = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=LAMBDA_MAX, eps=EPS, return_info=True)
+                times["sns_tpm"].append(time.thread_time_ns() - t0)
+                t0 = time.thread_time_ns()
+                tpm_stacked(J, b, sizes, J.shape[1], LAMBDA_MAX, EPS)
+                times["tpm"].append(time.thread_time_ns() - t0)
+            passes.append(info.iterations)
+        print(f"damped Romeo (lambda_max {LAMBDA_MAX}, eps {EPS}, kp {KP}), {len(cases)} configurations x "
+              f"{args.repeats} solves, m x n = {cases[0][0].shape}, thread CPU time, one BLAS thread")
+        for name, v in times.items():
+            v = np.array(v) / 1e3
+            print(f"  {name:8s} solve alone: median {np.median(v):8.1f} us  p99 {np.percentile(v, 99):8.1f} us  "
+                  f"p99/median {np.percentile(v, 99) / np.median(v):5.2f}")
+        print(f"  sns_tpm passes: median {np.median(passes):.0f}, max {max(passes)}")
+        try:
+            sns_left, tpm_rec = kernel_outcomes(cases)
+            print(f"  sns_tpm solves that left the compiled loop: {sns_left} of {len(cases)}; tpm solves answered "
+                  f"by the recursion inside its kernel: {tpm_rec} of {len(cases)}")
+        except AttributeError as e:  # (an older tree without the kernel's path report)
+            print(f"  (kernel outcomes not reported by this tree: {e})")
+        if args.warm:
+            warm_start(robot, prob)
+    return 0
+
+
+def warm_start(robot, prob, runs: int = 10, steps: int = 20):
+    """Closed loops (``runs`` configurations, ``steps`` control steps each): passes per solve, cold vs warm-started
+    from the previous step's saturated joints (``_compiled_sns.sns_tpm_loop(..., warm=...)``: at the first
+    saturation the previous joints that are beyond a bound are saturated at once, then the full algorithm goes on
+    and decides), and how often the warm start changes the command."""
+    from hqp_tpm.solvers import _compiled_sns
+
+    S = importlib.import_module("hqp_tpm.solvers.sns")
+    real = S.sns_tpm
+    seen = []
+
+    def capture(levels, lo, up, **kw):
+        lv, J, b, sizes = S._stacked(levels, lo.shape[0])
+        seen.append((J.copy(), b.copy(), tuple(sizes), np.array(lo, float), np.array(up, float)))
+        return real(levels, lo, up, **kw)
+
+    cold_p, warm_p, same, diffs, t_cold, t_warm = [], [], 0, [], [], []
+    S.sns_tpm = capture
+    gains = P.KP_ROMEO, P.KP_ROMEO_POSTURE
+    P.KP_ROMEO, P.KP_ROMEO_POSTURE = KP, KP
+    try:
+        for cfg in prob.configs[:runs]:
+            ctrl = controller(robot, prob, cfg)
+            prev = ()
+            for _ in range(steps):
+                seen.clear()
+                ctrl.compute()                        # (the readable step: its sns_tpm call is captured)
+                J, b, sizes, lo, up = seen[0]
+                ctrl.step()
+                t0 = time.thread_time_ns()
+                cold = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+                t1 = time.thread_time_ns()
+                warm = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS, warm=prev)
+                t_cold.append(t1 - t0)
+                t_warm.append(time.thread_time_ns() - t1)
+                cold_p.append(cold[4])
+                warm_p.append(warm[4])
+                d = float(np.max(np.abs(cold[1] - warm[1])))
+                diffs.append(d)
+                same += d <= 1e-9 * max(1.0, float(np.max(np.abs(cold[1]))))
+                prev = cold[2]
+    finally:
+        S.sns_tpm = real
+        P.KP_ROMEO, P.KP_ROMEO_POSTURE = gains
+    cold_p, warm_p = np.array(cold_p), np.array(warm_p)
+    print(f"  warm start, {len(cold_p)} closed-loop steps ({runs} runs x {steps}): passes cold median "
+          f"{np.median(cold_p):.0f} mean {cold_p.mean():.2f}, warm median {np.median(warm_p):.0f} mean "
+          f"{warm_p.mean():.2f}; solve median cold {np.median(t_cold) / 1e3:.1f} us, warm "
+          f"{np.median(t_warm) / 1e3:.1f} us; same command (1e-9) {same} of {len(cold_p)}, largest difference "
+          f"{max(diffs):.2e}")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
