@@ -251,29 +251,27 @@ def test_tpm_after_a_singular_or_repeated_level(case):
     assert_solvers_agree(levels, ("tpm", "nullspace", "qp:daqp"))
 
 
-def test_readme_example_runs():
-    """The five lines of the README section, with a stack, a box, a task class and a stack defined before them."""
+def test_readme_example_runs_and_the_documented_crosscheck_holds():
+    """The README's "Testing your own stacks" block runs on its own, and docs/testing.md's in-run crosscheck
+    (``Controller(robot, stack, q0=q0, crosscheck="qp:daqp")``) logs every step with the two solvers agreeing."""
     import re
     from pathlib import Path
 
     import matplotlib
 
+    from hqp_tpm import Controller, FramePosition, Posture, Robot, Stack
+
     matplotlib.use("Agg")
-    text = (Path(__file__).resolve().parents[1] / "README.md").read_text(encoding="utf-8")
+    root = Path(__file__).resolve().parents[1]
+    text = (root / "README.md").read_text(encoding="utf-8")
     section = text[text.index("## Testing your own stacks"):]
     block = re.search(r"```python\n(.*?)```", section, re.S).group(1)
-    rng = np.random.default_rng(0)
-    levels = small_stack()
-    setup = {"np": np, "levels": levels, "lo": -0.3 * np.ones(7), "up": 0.3 * np.ones(7), "rng": rng}
-    exec("""
-from hqp_tpm import Controller, FramePosition, Posture, Robot, Stack
-robot = Robot.load("planar5")
-MyTask = lambda robot: FramePosition(robot, "planar5_ee", [0.5, 0.5], axes="xy")
-stack = Stack.of(MyTask(robot), Posture(robot, None))
-q0 = np.array([0.3, 0.4, -0.2, 0.5, 0.1])  # not stretched out (see test_tpm_after_a_singular_or_repeated_level)
-""", setup)
-    exec(block, setup)
-    ctrl = setup["ctrl"]
+    exec(block, {})
+    assert 'crosscheck="qp:daqp"' in (root / "docs" / "testing.md").read_text(encoding="utf-8")
+    robot = Robot.load("planar5")
+    stack = Stack.of(FramePosition(robot, "planar5_ee", [0.5, 0.5], axes="xy"), Posture(robot, None))
+    q0 = np.array([0.3, 0.4, -0.2, 0.5, 0.1])  # not stretched out (see test_tpm_after_a_singular_or_repeated_level)
+    ctrl = Controller(robot, stack, q0=q0, crosscheck="qp:daqp")
     for _ in range(5):
         ctrl.step()
     assert len(ctrl.crosscheck_log) == 5 and ctrl.crosscheck_log.max_diff() < 1e-8
