@@ -1,0 +1,52 @@
+"""Mistakes a new user makes in Python and on the command line, answered with a typed error that names the bad
+value and the valid choices (the new-user check of 2026-12-04). Every test here failed on main at 43491f1 (a
+silent acceptance, a bare ValueError/AttributeError, or a traceback)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+from hqp_tpm.control.controller import Controller
+from hqp_tpm.control.stack import Stack
+from hqp_tpm.errors import ParameterError, ShapeError
+from hqp_tpm.robot.model import Robot
+from hqp_tpm.tasks import FramePose
+
+
+@pytest.fixture(scope="module")
+def iiwa():
+    return Robot.load("iiwa7")
+
+
+# 1. FramePose targets -------------------------------------------------------------------------------------------
+def test_frame_pose_takes_a_homogeneous_matrix_and_a_pair(iiwa):
+    R = pin.utils.rpyToMatrix(0.1, -0.2, 0.3)
+    p = np.array([0.4, 0.1, 0.5])
+    H = np.eye(4)
+    H[:3, :3], H[:3, 3] = R, p
+    for target in (H, (p, R), [p.tolist(), R.tolist()], pin.SE3(R, p)):
+        task = FramePose(iiwa, "iiwa_ee", target)
+        ctrl = Controller(iiwa, Stack.of(task), order=1)
+        ctrl.start()  # a given target is kept, not replaced by the start pose
+        M = task._M_target
+        np.testing.assert_allclose(M.translation, p)
+        np.testing.assert_allclose(M.rotation, R)
+        start = ctrl.state.placement(task.fid)
+        assert not np.allclose(start.translation, p)  # (the start pose is elsewhere)
+
+
+@pytest.mark.parametrize("target", [[0.1, 0.2, 0.3, 0.0, 0.0, 0.0], np.zeros(3), np.eye(3), "home", np.zeros((4, 3))])
+def test_frame_pose_refuses_what_is_not_a_pose(iiwa, target):
+    with pytest.raises(ShapeError, match=r"FramePose 'iiwa_ee_pose': target .* 4x4 homogeneous matrix .* pair"):
+        FramePose(iiwa, "iiwa_ee", target)
+
+
+def test_frame_pose_refuses_a_matrix_that_is_not_a_rigid_motion(iiwa):
+    H = np.eye(4)
+    H[3, 0] = 1.0
+    with pytest.raises(ParameterError, match=r"last row .* expected \[0, 0, 0, 1\]"):
+        FramePose(iiwa, "iiwa_ee", H)
+    with pytest.raises(ParameterError, match="not a rotation matrix"):
+        FramePose(iiwa, "iiwa_ee", (np.zeros(3), 2.0 * np.eye(3)))
