@@ -12,7 +12,7 @@ from hqp_tpm.control.controller import Controller
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, ShapeError
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.tasks import FramePose
+from hqp_tpm.tasks import FrameOrientation, FramePose, Pointing
 
 
 @pytest.fixture(scope="module")
@@ -50,3 +50,22 @@ def test_frame_pose_refuses_a_matrix_that_is_not_a_rigid_motion(iiwa):
         FramePose(iiwa, "iiwa_ee", H)
     with pytest.raises(ParameterError, match="not a rotation matrix"):
         FramePose(iiwa, "iiwa_ee", (np.zeros(3), 2.0 * np.eye(3)))
+
+
+# 2. shapes of task parameters ------------------------------------------------------------------------------------
+def test_pointing_axis_of_two_numbers(iiwa):
+    with pytest.raises(ShapeError, match=r"Pointing 'iiwa_ee_pointing': axis \[0, 1\] has shape \(2,\), expected a "
+                                         r"3-vector"):
+        Pointing(iiwa, "iiwa_ee", axis=[0, 1], alpha_d=0.1)
+
+
+@pytest.mark.parametrize("target", [[0, 0, 1], np.eye(4), "home"])
+def test_frame_orientation_target_not_a_rotation_matrix(iiwa, target):
+    with pytest.raises(ShapeError, match=r"FrameOrientation 'iiwa_ee_orientation': target .* expected a 3x3 rotation"):
+        FrameOrientation(iiwa, "iiwa_ee", target)
+
+
+def test_frame_orientation_still_takes_a_matrix_and_hold(iiwa):
+    R = pin.utils.rpyToMatrix(0.1, 0.2, 0.3)
+    np.testing.assert_array_equal(FrameOrientation(iiwa, "iiwa_ee", R)._R_target, R)
+    assert FrameOrientation(iiwa, "iiwa_ee", "hold")._R_target is None
