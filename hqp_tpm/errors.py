@@ -109,6 +109,10 @@ class ParameterError(HqpTpmError, ValueError):
     """A parameter value is invalid: a negative gain, ``eps1 >= eps2``, a NaN damping, a bad order."""
 
 
+class ArgumentTypeError(ParameterError, TypeError):
+    """An argument of the wrong kind: a task name or a matrix where a Task is expected, a number as a policy."""
+
+
 class StateError(HqpTpmError, RuntimeError):
     """An object is used in a state that does not allow the call (e.g. a task before its pair is assigned)."""
 

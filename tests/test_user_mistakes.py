@@ -10,7 +10,7 @@ import pytest
 
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.errors import ParameterError, ShapeError
+from hqp_tpm.errors import ArgumentTypeError, ParameterError, ShapeError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.tasks import FrameOrientation, FramePose, Pointing
 
@@ -69,3 +69,34 @@ def test_frame_orientation_still_takes_a_matrix_and_hold(iiwa):
     R = pin.utils.rpyToMatrix(0.1, 0.2, 0.3)
     np.testing.assert_array_equal(FrameOrientation(iiwa, "iiwa_ee", R)._R_target, R)
     assert FrameOrientation(iiwa, "iiwa_ee", "hold")._R_target is None
+
+
+# 3., 4. what a stack level is -------------------------------------------------------------------------------------
+def test_a_task_name_is_not_a_level():
+    with pytest.raises(ArgumentTypeError, match=r"stack level 0: 'ee' \(str\) is not a task .*pass the task object"):
+        Stack.of("ee")
+
+
+def test_a_matrix_is_not_a_level(iiwa):
+    with pytest.raises(ArgumentTypeError, match=r"stack level 0: an array of shape \(7, 7\) .* a level is a Task"):
+        Controller(iiwa, [np.eye(7)])
+    with pytest.raises(TypeError):  # (still a TypeError for whoever caught one)
+        Controller(iiwa, 3.0)
+
+
+def test_an_empty_stack_and_a_task_twice(iiwa):
+    ee = FramePose(iiwa, "iiwa_ee")
+    with pytest.raises(ParameterError, match="at least one level"):
+        Stack.of()
+    with pytest.raises(ParameterError, match=r"stack level 1 is empty"):
+        Stack.of(ee, ())
+    with pytest.raises(ParameterError, match=r"task 'iiwa_ee_pose' is in the stack twice \(levels 0 and 1\)"):
+        Stack.of(ee, ee)
+    with pytest.raises(ParameterError, match=r"twice \(levels 0 and 0\)"):
+        Controller(iiwa, [(ee, ee)])
+
+
+def test_stack_repr_says_level_once(iiwa):
+    ee = FramePose(iiwa, "iiwa_ee")
+    assert repr(Stack.of(ee)) == "Stack('iiwa_ee_pose', 1 level)"
+    assert repr(Stack.of(ee, FrameOrientation(iiwa, "iiwa_ee"))).endswith("2 levels)")

@@ -26,7 +26,7 @@ from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.policy import FunctionPolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack
-from hqp_tpm.errors import NonFiniteError, ParameterError, SolverFailedError
+from hqp_tpm.errors import ArgumentTypeError, NonFiniteError, ParameterError, SolverFailedError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.damping import check_damping, nonnegative
@@ -270,4 +270,5 @@ def as_policy(policy) -> Policy:
         return FixedStack(policy)
     if callable(policy):
         return FunctionPolicy(policy)
-    raise TypeError(f"a policy must be a Policy, a Stack, a list of levels or a callable, got {type(policy).__name__}")
+    raise ArgumentTypeError(f"a policy must be a Policy, a Stack, a list of levels or a callable, got "
+                            f"{type(policy).__name__}")
