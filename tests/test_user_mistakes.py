@@ -11,6 +11,7 @@ import pytest
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ArgumentTypeError, ParameterError, ShapeError
+from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.tasks import FrameOrientation, FramePose, Pointing
 
@@ -100,3 +101,28 @@ def test_stack_repr_says_level_once(iiwa):
     ee = FramePose(iiwa, "iiwa_ee")
     assert repr(Stack.of(ee)) == "Stack('iiwa_ee_pose', 1 level)"
     assert repr(Stack.of(ee, FrameOrientation(iiwa, "iiwa_ee"))).endswith("2 levels)")
+
+
+# 4. a box the controller cannot use ------------------------------------------------------------------------------
+def test_joint_limits_of_order_3(iiwa):
+    with pytest.raises(ParameterError, match=r"JointLimits: order must be 1 .* or 2 .*got 3"):
+        JointLimits(iiwa, order=3, dt=1e-3)
+
+
+@pytest.mark.parametrize(("order", "dt"), [(1, 1e-3), (2, 1e-2)])
+def test_a_box_for_another_order_or_period(iiwa, order, dt):
+    ee = FramePose(iiwa, "iiwa_ee")
+    with pytest.raises(ParameterError, match=rf"box: JointLimits\(order={order}, dt={dt:g}\) does not match the "
+                                             r"controller's order=2, dt=0.001"):
+        Controller(iiwa, [ee], order=2, dt=1e-3, solver="sns_tpm", box=JointLimits(iiwa, order=order, dt=dt))
+    Controller(iiwa, [ee], order=2, dt=1e-3, solver="sns_tpm", box=JointLimits(iiwa, order=2, dt=1e-3))
+
+
+@pytest.mark.parametrize("solver", ["tpm", "nullspace"])
+def test_an_analytic_solver_refuses_a_box_as_a_scenario_does(iiwa, solver):
+    ee = FramePose(iiwa, "iiwa_ee")
+    with pytest.raises(ParameterError, match=rf"box: a hard joint box, which solver '{solver}' ignores; valid: .*"
+                                             r"sns_tpm.*box=None"):
+        Controller(iiwa, [ee], order=2, solver=solver, box=JointLimits(iiwa, order=2, dt=1e-3))
+    with pytest.raises(ParameterError, match="ignores"):  # any box function, not only JointLimits
+        Controller(iiwa, [ee], order=2, solver=solver, box=lambda st, t: (-np.ones(7), np.ones(7)))
