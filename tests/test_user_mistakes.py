@@ -9,11 +9,13 @@ import pinocchio as pin
 import pytest
 
 from hqp_tpm.control.controller import Controller
+from hqp_tpm.control.policy import FunctionPolicy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ArgumentTypeError, ParameterError, ShapeError
+from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.tasks import FrameOrientation, FramePose, Pointing
+from hqp_tpm.tasks import FrameOrientation, FramePose, FramePosition, Gains, Pointing, Posture
 
 
 @pytest.fixture(scope="module")
@@ -126,3 +128,37 @@ def test_an_analytic_solver_refuses_a_box_as_a_scenario_does(iiwa, solver):
         Controller(iiwa, [ee], order=2, solver=solver, box=JointLimits(iiwa, order=2, dt=1e-3))
     with pytest.raises(ParameterError, match="ignores"):  # any box function, not only JointLimits
         Controller(iiwa, [ee], order=2, solver=solver, box=lambda st, t: (-np.ones(7), np.ones(7)))
+
+
+# 5. a bare function as the policy ---------------------------------------------------------------------------------
+def _relative_reach(robot):
+    ee = FramePosition(robot, "iiwa_ee", Constant(value=[0.0, 0.05, -0.05], relative=True), Gains(5.0), name="ee")
+    post = Posture(robot, None, Gains(1.0), name="posture")
+    return ee, post
+
+
+def test_a_bare_function_starts_the_tasks_it_returns(iiwa):
+    q0 = np.linspace(-0.5, 0.6, 7)
+    ee, post = _relative_reach(iiwa)
+    bare = Controller(iiwa, lambda s, t: Stack.of(ee, post), order=1, q0=q0)
+    ee2, post2 = _relative_reach(iiwa)
+    wrapped = Controller(iiwa, FunctionPolicy(lambda s, t: Stack.of(ee2, post2), tasks=[ee2, post2]), order=1, q0=q0)
+    for _ in range(5):  # relative target and held posture taken from the start state, as FunctionPolicy(tasks=...)
+        np.testing.assert_array_equal(bare.step().command, wrapped.step().command)
+    p_start = Controller(iiwa, [post], q0=q0).state.update(q0, np.zeros(7)).placement(ee.fid).translation
+    np.testing.assert_allclose(ee.reference(0.0)[0], p_start + [0.0, 0.05, -0.05])
+    assert bare.tasks() == [ee, post]
+
+
+def test_a_bare_function_with_a_held_target_runs(iiwa):
+    held = FramePosition(iiwa, "iiwa_ee", None, Gains(5.0), name="held")
+    ctrl = Controller(iiwa, lambda s, t: Stack.of(held), order=1, q0=np.full(7, 0.3))
+    assert np.linalg.norm(ctrl.step().command) < 1e-9  # held where it starts: no motion
+
+
+def test_a_policy_function_that_returns_no_stack(iiwa):
+    ee, _ = _relative_reach(iiwa)
+    ctrl = Controller(iiwa, lambda s, t: [ee], order=1)
+    with pytest.raises(ArgumentTypeError, match=r"returned list, expected a Stack"):
+        ctrl.step()
+    assert ctrl.steps == 0
