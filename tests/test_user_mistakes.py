@@ -11,7 +11,7 @@ import pytest
 from hqp_tpm.control.controller import Controller
 from hqp_tpm.control.policy import FunctionPolicy
 from hqp_tpm.control.stack import Stack
-from hqp_tpm.errors import ArgumentTypeError, ParameterError, ShapeError
+from hqp_tpm.errors import ArgumentTypeError, ParameterError, RobotFileError, ShapeError
 from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.robot.model import Robot
@@ -162,3 +162,25 @@ def test_a_policy_function_that_returns_no_stack(iiwa):
     with pytest.raises(ArgumentTypeError, match=r"returned list, expected a Stack"):
         ctrl.step()
     assert ctrl.steps == 0
+
+
+# 7. names in messages ---------------------------------------------------------------------------------------------
+def test_an_unknown_robot_lists_the_shipped_ones():
+    with pytest.raises(RobotFileError) as info:
+        Robot.load("iiwa")
+    text = str(info.value)
+    assert "did you mean 'iiwa7'" in text
+    for name in ("iiwa7", "lwr4", "planar4", "planar5", "romeo21", "talos", "romeo", "panda"):
+        assert f" {name}," in text or text.endswith(f" {name}") or f" {name};" in text, name
+    assert text.count("panda,") == 1  # example-robot-data's list once
+
+
+@pytest.mark.parametrize("steps", [0, -3, 2.5])
+def test_record_names_its_steps_argument(iiwa, tmp_path, steps):
+    import hqp_tpm
+
+    ctrl = Controller(iiwa, [FramePose(iiwa, "iiwa_ee")], order=1)
+    with pytest.raises(ParameterError, match=r"^record: steps: ") as info:
+        hqp_tpm.record(ctrl, tmp_path / "r", steps=steps, figures=False, replay=False)
+    assert "--steps" not in str(info.value)
+    assert not (tmp_path / "r").exists()

@@ -14,7 +14,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from hqp_tpm.errors import ParameterError
+from hqp_tpm.errors import HqpTpmError, ParameterError
 from hqp_tpm.robot.limits import JointLimits
 
 
@@ -34,9 +34,15 @@ def record(source, out: str | os.PathLike, *, steps: int | None = None, name: st
     written). Read the trajectory back with ``numpy.load(Path(out) / "trajectory.npz")``.
     """
     from hqp_tpm.app.cli import run_scenario
+    from hqp_tpm.app.scenario import check_steps
     from hqp_tpm.control.controller import Controller
 
     options = dict(progress=progress, figures=figures, replay=replay, force=force)
+    if steps is not None:  # the Python argument named, not the command line's --steps
+        try:
+            steps = check_steps(steps, "record: steps")
+        except HqpTpmError as exc:
+            raise ParameterError(str(exc)) from None
     if not isinstance(source, Controller):
         if tasks is not None or obstacles:
             raise ParameterError("record: tasks and obstacles are given by the scenario; pass them only with a "
