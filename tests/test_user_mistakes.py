@@ -184,3 +184,50 @@ def test_record_names_its_steps_argument(iiwa, tmp_path, steps):
         hqp_tpm.record(ctrl, tmp_path / "r", steps=steps, figures=False, replay=False)
     assert "--steps" not in str(info.value)
     assert not (tmp_path / "r").exists()
+
+
+# 6. the command line ----------------------------------------------------------------------------------------------
+def test_sweep_over_a_misspelt_field_runs_nothing(tmp_path, capsys):
+    from hqp_tpm.app.cli import main
+
+    out = tmp_path / "sw"
+    code = main(["sweep", "planar5_exact", "--set", "polcy.d_m=0.15,0.25", "--steps", "5", "--workers", "0",
+                 "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "unknown field(s) 'polcy'; known fields: " in err and "'policy'" in err and "polcy.d_m=0.15" in err
+    assert "nothing was run" in err and "v001" not in err  # no variant ran
+    assert not out.exists()
+
+
+def test_sweep_where_every_variant_fails_exits_nonzero_and_claims_no_figure(tmp_path, capsys):
+    from hqp_tpm.app.cli import main
+
+    out = tmp_path / "sw"
+    code = main(["sweep", "planar5_exact", "--set", "policy.d_m=-1.0,-2.0", "--steps", "5", "--workers", "0",
+                 "--out", str(out)])
+    text = capsys.readouterr().out
+    assert code == 1 and "2 variants, 2 failed" in text
+    assert not (out / "sweep.png").is_file() and "summary.md (no sweep.png" in text and ", sweep.png" not in text
+
+
+@pytest.mark.parametrize(("argv", "match"), [
+    (["run", "planar5_exact", "--solver", "TPM"], r"^hqp-tpm: error: --solver: unknown solver 'TPM'; valid: tpm, "),
+    (["run", "planar5_exact", "--solver", "qp:foo"], r"^hqp-tpm: error: --solver: unknown QP backend 'foo'"),
+    (["sweep", "planar5_exact", "--set", "policy.d_m=0.2", "--solver", "tpm,qp:foo"],
+     r"^hqp-tpm: error: --solver: unknown QP backend 'foo'"),
+    (["run", "romeo_sns", "--solver", "tpm"], r"solver 'tpm' .*ignores the hard joint box of romeo_sns\.toml\.limits"),
+    (["sweep", "romeo_sns", "--set", "scenario.eps=0.1", "--solver", "nullspace"],
+     r"--solver 'nullspace' ignores the hard joint box of romeo_sns\[v000\]\.limits"),
+])
+def test_a_bad_solver_option_is_named_before_the_run(tmp_path, capsys, argv, match):
+    import re
+
+    from hqp_tpm.app.cli import main
+
+    assert main([*argv, "--out", str(tmp_path / "o"), "--steps", "3"]) == 2
+    captured = capsys.readouterr()
+    assert re.search(match, captured.err), captured.err
+    assert "step" not in captured.err.split("error:")[1][:40]  # (not "step 1 (t = 0 s): ...")
+    assert "planar5_exact.toml" not in captured.err  # the option is blamed, not the file
+    assert not (tmp_path / "o").exists()
