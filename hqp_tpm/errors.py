@@ -131,6 +131,10 @@ class OutputError(HqpTpmError, OSError):
     non-empty folder that is not a previous result of hqp-tpm (``--force`` to use it anyway)."""
 
 
+class ResultFolderError(HqpTpmError, FileNotFoundError):
+    """A folder given as a previous result (``hqp-tpm explain RUN_DIR``) is missing or holds no usable result."""
+
+
 class PlantError(HqpTpmError, RuntimeError):
     """A physics plant cannot be built or used: MuJoCo is not installed, the robot's model file cannot be made
     into a MuJoCo model, or its joints do not match the controller's model."""

@@ -231,3 +231,47 @@ def test_a_bad_solver_option_is_named_before_the_run(tmp_path, capsys, argv, mat
     assert "step" not in captured.err.split("error:")[1][:40]  # (not "step 1 (t = 0 s): ...")
     assert "planar5_exact.toml" not in captured.err  # the option is blamed, not the file
     assert not (tmp_path / "o").exists()
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """Two folders written by hqp_tpm.record from a planar5 controller: without and with the per-step account."""
+    import hqp_tpm
+
+    robot = Robot.load("planar5")
+    out = {}
+    for explain in (False, True):
+        tip = FramePosition(robot, "planar5_tip_1", [0.5, 0.5, 0.0], Gains(1.0), name="tip")
+        ctrl = Controller(robot, [tip, Posture(robot, None, Gains(1.0))], order=1, dt=0.01)
+        out[explain] = tmp_path_factory.mktemp("rec") / "run"
+        hqp_tpm.record(ctrl, out[explain], steps=5, figures=False, replay=False, explain=explain)
+    return out
+
+
+@pytest.mark.parametrize(("which", "t", "match"), [
+    ("missing", 1.0, r"error: '.*nonexist': no such folder; expected the folder of a run"),
+    ("file", 1.0, r"error: '.*a_file': not a folder"),
+    ("plain", 9.0, r"error: --t 9: the run '.*' covers t = 0 \.\. 0\.04 s \(5 steps\); give a time in that range"),
+    ("plain", -1.0, r"error: --t -1: the run .* covers t = 0 \.\. 0\.04 s"),
+    ("plain", 0.02, r"error: '.*' was recorded from Python \(hqp_tpm\.record\) without the per-step account.*"
+                    r"hqp_tpm\.record\(ctrl, out, steps=\.\.\., explain=True\)"),
+])
+def test_explain_says_what_is_wrong_with_its_folder_or_time(recorded, tmp_path, capsys, which, t, match):
+    import re
+
+    from hqp_tpm.app.cli import main
+
+    (tmp_path / "a_file").write_text("x")
+    folder = {"missing": tmp_path / "nonexist", "file": tmp_path / "a_file", "plain": recorded[False]}[which]
+    assert main(["explain", str(folder), "--t", str(t)]) == 2
+    err = capsys.readouterr().err
+    assert re.search(match, err), err
+    assert "Traceback" not in err and "unknown scenario" not in err
+
+
+def test_explain_reads_a_python_recorded_run_with_its_account(recorded, capsys):
+    from hqp_tpm.app.cli import main
+
+    assert main(["explain", str(recorded[True]), "--t", "0.02"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("t = 0.0200 s (step 2), solver tpm") and "tip" in out and "posture" in out
