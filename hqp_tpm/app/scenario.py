@@ -377,7 +377,8 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
     check_nesting(data, path.name)
     top = Section(data, path.name)
     sc = top.table("scenario")
-    solver = check_solver_choice(sc.string("solver", "tpm"), f"{sc.where}.solver")
+    solver = sc.string("solver", "tpm")
+    check_solver_choice(solver, f"{sc.where}.solver")
     period = sc.number("period")
     if period <= 0:
         raise ScenarioError(f"{sc.where}.period: must be > 0, got {period}")
