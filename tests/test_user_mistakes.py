@@ -275,3 +275,12 @@ def test_explain_reads_a_python_recorded_run_with_its_account(recorded, capsys):
     assert main(["explain", str(recorded[True]), "--t", "0.02"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("t = 0.0200 s (step 2), solver tpm") and "tip" in out and "posture" in out
+
+
+def test_sweep_with_no_values_is_refused(tmp_path):
+    from hqp_tpm.app import sweep
+    from hqp_tpm.errors import SweepError
+
+    with pytest.raises(SweepError, match=r"planar5_exact: no variants \(a field with no values: policy\.d_m\)"):
+        sweep.run_sweep("planar5_exact", tmp_path / "sw", grid={"policy.d_m": []}, workers=0)
+    assert not (tmp_path / "sw").exists()

@@ -405,6 +405,8 @@ def run_sweep(spec, out: Path, *, grid: dict | None = None, ranges: dict | None 
             set_field(copy.deepcopy(base), name, 0.0)
         except SweepError as exc:
             raise SweepError(f"{label}: {exc}") from None
+    if not variants:
+        raise SweepError(f"{label}: no variants (a field with no values: {', '.join(fields)})")
     try:  # the first variant's file: a misspelt field (a table set_field created) is refused before any work
         first = variant_scenario(base, label, variants[0])
         boxless = [s for s in solvers if s in ANALYTIC] if first.limits is not None else []
