@@ -118,6 +118,8 @@ def test_a_box_for_another_order_or_period(iiwa, order, dt):
                                              r"controller's order=2, dt=0.001"):
         Controller(iiwa, [ee], order=2, dt=1e-3, solver="sns_tpm", box=JointLimits(iiwa, order=order, dt=dt))
     Controller(iiwa, [ee], order=2, dt=1e-3, solver="sns_tpm", box=JointLimits(iiwa, order=2, dt=1e-3))
+    with pytest.raises(ArgumentTypeError, match=r"box must be None or a callable box\(state, t\)"):
+        Controller(iiwa, [ee], order=2, dt=1e-3, solver="sns_tpm", box=(-np.ones(7), np.ones(7)))
 
 
 @pytest.mark.parametrize("solver", ["tpm", "nullspace"])
