@@ -109,6 +109,10 @@ class ParameterError(HqpTpmError, ValueError):
     """A parameter value is invalid: a negative gain, ``eps1 >= eps2``, a NaN damping, a bad order."""
 
 
+class ArgumentTypeError(ParameterError, TypeError):
+    """An argument of the wrong kind: a task name or a matrix where a Task is expected, a number as a policy."""
+
+
 class StateError(HqpTpmError, RuntimeError):
     """An object is used in a state that does not allow the call (e.g. a task before its pair is assigned)."""
 
@@ -125,6 +129,10 @@ class SweepError(HqpTpmError, ValueError):
 class OutputError(HqpTpmError, OSError):
     """An output location cannot be used: a file where a folder is needed, a read-only folder, or a
     non-empty folder that is not a previous result of hqp-tpm (``--force`` to use it anyway)."""
+
+
+class ResultFolderError(HqpTpmError, FileNotFoundError):
+    """A folder given as a previous result (``hqp-tpm explain RUN_DIR``) is missing or holds no usable result."""
 
 
 class PlantError(HqpTpmError, RuntimeError):

@@ -57,7 +57,7 @@ def test_quiet_is_quiet_on_every_subcommand(tmp_path, capsys):
 
 
 def test_quiet_sweep_still_reports_failed_variants(tmp_path, capsys):
-    printed = _printed(capsys, ["sweep", "planar5_exact", "--set", "period=0.01", "--steps", "5", "--workers", "0",
-                                "--out", str(tmp_path / "s"), "--quiet"])
+    printed = _printed(capsys, ["sweep", "planar5_exact", "--set", "policy.d_m=-1.0", "--steps", "5", "--workers", "0",
+                                "--out", str(tmp_path / "s"), "--quiet"], code=1)  # (a misspelt field: no run at all)
     assert printed.out == ""
     assert "1 of 1 variants failed" in printed.err and "summary.md" in printed.err

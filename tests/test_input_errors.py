@@ -135,11 +135,12 @@ def test_library_errors_are_hqp_tpm_errors():
 def test_controller_refuses_bad_damping(kw):
     from hqp_tpm.control.controller import Controller
     from hqp_tpm.robot.model import Robot
+    from hqp_tpm.tasks import Posture
 
     robot = Robot.load("lwr4")
     name = next(iter(kw))
     with pytest.raises(HqpTpmError, match=name):
-        Controller(robot, [], **kw)
+        Controller(robot, [Posture(robot)], **kw)  # (an empty stack is refused: tests/test_user_mistakes.py)
 
 
 @pytest.mark.parametrize("solver", ["tpm", "nullspace", "qp"])

@@ -13,7 +13,7 @@ def test_short_reprs():
     assert repr(st).startswith("State('lwr4', t=0.0000") and len(repr(st)) < 200
     ee = FramePosition(robot, "lwr_ee", None, Gains(10.0), name="ee")
     stack = Stack.of(ee)
-    assert repr(stack) == "Stack('ee', 1 levels)"
+    assert repr(stack) == "Stack('ee', 1 level)"
     ctrl = Controller(robot, stack, order=1)
     res = ctrl.step()
     for obj in (ee, ctrl, res):

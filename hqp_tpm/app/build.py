@@ -14,6 +14,7 @@ from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.errors import HqpTpmError, ScenarioError, shown
 from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
 from hqp_tpm.robot.model import Robot
+from hqp_tpm.solvers.registry import ANALYTIC, BOXED
 from hqp_tpm.tasks import (
     CenterOfMass,
     Force,
@@ -308,6 +309,10 @@ def check_start_outside_obstacles(sc: Scenario, robot: Robot, policy: Policy, q0
 
 def build_run(sc: Scenario, solver: str | None = None) -> RunContext:
     """Robot, tasks, policy, controller and what the runner, results, figures and viewer need."""
+    if sc.limits is not None and solver in ANALYTIC:  # an override (--solver) that would ignore the file's box
+        raise ScenarioError(f"solver {solver!r} (given for this run, e.g. --solver) ignores the hard joint box of "
+                            f"{sc.limits.where}; valid: a boxed solver ({', '.join(BOXED)}, qp, qp:<backend>), or "
+                            "the scenario's own solver")
     try:
         robot = Robot.load(sc.robot)
     except HqpTpmError as exc:

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from hqp_tpm.errors import HqpTpmError
+from hqp_tpm.errors import HqpTpmError, ParameterError
 
 #: Figures are drawn from at most this many samples per series (every k-th step beyond it): memory stays flat.
 FIGURE_SAMPLES = 20_000
@@ -314,6 +314,11 @@ def _sweep(args) -> int:
         else:
             grid[name] = values
     solvers = tuple(s.strip() for s in args.solver.split(",")) if args.solver else (None,)
+    if args.solver:  # every solver named, before any variant runs
+        from hqp_tpm.app.scenario import check_solver_choice
+
+        for s in solvers:
+            check_solver_choice(s, "--solver", ParameterError)
     out = args.out or Path("runs") / f"sweep_{Path(args.scenario).stem}"
     import signal
 
@@ -339,9 +344,10 @@ def _sweep(args) -> int:
     if args.quiet:
         if failed:
             print(f"hqp-tpm: sweep: {failed} of {len(table)} variants failed (see {out}/summary.md)", file=sys.stderr)
-        return 0
-    return _print_lines([f"sweep: {len(table)} variants, {failed} failed; wrote {out}/summary.csv, summary.md, "
-                         "sweep.png"])
+        return 1 if failed == len(table) else 0
+    figure = ", sweep.png" if (out / "sweep.png").is_file() else " (no sweep.png: no metric to draw)"
+    _print_lines([f"sweep: {len(table)} variants, {failed} failed; wrote {out}/summary.csv, summary.md{figure}"])
+    return 1 if failed == len(table) else 0  # every variant failed: nothing to compare
 
 
 def _campaign(args) -> int:
@@ -432,6 +438,10 @@ def main(argv=None) -> int:
             files = sorted(SCENARIO_DIR.glob("*.toml"))
             width = max((len(f.stem) for f in files), default=0)
             return _print_lines(f.stem if args.names else f"{f.stem:{width}s}  {load(f).description}" for f in files)
+        if args.solver is not None:  # the option's mistake, named as such, before the run starts
+            from hqp_tpm.app.scenario import check_solver_choice
+
+            check_solver_choice(args.solver, "--solver", ParameterError)
         out = args.out or Path("runs") / Path(args.scenario).stem
         with _Signals() as signals:
             summary = run_scenario(args.scenario, out, solver=args.solver, crosscheck=args.crosscheck,

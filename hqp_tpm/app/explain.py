@@ -39,6 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hqp_tpm.errors import ParameterError, ResultFolderError
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers.account import StepAccount, account, explain
 
@@ -435,6 +436,10 @@ def _rerun(run_dir: Path, step: int):
     if manifest.exists():  # the scenario file the run read (a file given by path has no shipped name)
         path = json.loads(manifest.read_text()).get("scenario_file")
         spec = path if path and Path(path).exists() else spec
+    if manifest.exists() and json.loads(manifest.read_text()).get("scenario_file") == "<python>":
+        raise ResultFolderError(f"{str(run_dir)!r} was recorded from Python (hqp_tpm.record) without the per-step "
+                                "account, and its controller is in no scenario file to re-run: record it again with "
+                                "hqp_tpm.record(ctrl, out, steps=..., explain=True), then hqp-tpm explain reads it")
     sc = scenario.load(spec)
     robot, ctrl, tasks, policy = build.build(sc, solver=meta.get("solver"))
     for _ in range(step):
@@ -449,9 +454,21 @@ def _rerun(run_dir: Path, step: int):
 def explain_run(run_dir, t: float) -> str:
     """The text of ``hqp-tpm explain RUN_DIR --t T`` (module doc)."""
     run_dir = Path(run_dir)
+    if not (run_dir / "trajectory.npz").is_file():
+        what = "no such folder" if not run_dir.exists() else "not a folder" if not run_dir.is_dir() else \
+            "it holds no trajectory.npz"
+        raise ResultFolderError(f"{str(run_dir)!r}: {what}; expected the folder of a run (hqp-tpm run SCENARIO --out "
+                                "RUN_DIR, or hqp_tpm.record(...))")
     arrays = dict(np.load(run_dir / "trajectory.npz"))
     meta = json.loads((run_dir / "metrics.json").read_text()) if (run_dir / "metrics.json").exists() else {}
-    i = int(np.argmin(np.abs(arrays["t"] - t)))
+    times = np.asarray(arrays["t"], dtype=float)
+    if not times.size:
+        raise ResultFolderError(f"{str(run_dir)!r}: the run recorded no step")
+    half = 0.5 * (float(times[1] - times[0]) if times.size > 1 else 0.0)
+    if not (np.isfinite(t) and times[0] - half <= t <= times[-1] + half):
+        raise ParameterError(f"--t {t:g}: the run {str(run_dir)!r} covers t = {times[0]:g} .. {times[-1]:g} s "
+                             f"({times.size} steps); give a time in that range")
+    i = int(np.argmin(np.abs(times - t)))
     if "explain_fraction" in arrays:
         return format_step(arrays, i, solver=meta.get("solver", ""))
     one, solver = _rerun(run_dir, i)

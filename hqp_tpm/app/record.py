@@ -14,13 +14,13 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-from hqp_tpm.errors import ParameterError
+from hqp_tpm.errors import HqpTpmError, ParameterError
 from hqp_tpm.robot.limits import JointLimits
 
 
 def record(source, out: str | os.PathLike, *, steps: int | None = None, name: str | None = None, tasks=None,
            obstacles=(), figures: bool = True, replay: bool = True, progress: bool = False,
-           force: bool = False) -> dict:
+           force: bool = False, explain: bool = False) -> dict:
     """Run ``source`` for ``steps`` steps and write its result folder ``out``; returns the run's metrics.
 
     ``source``: a :class:`~hqp_tpm.control.controller.Controller` (run from its current state; ``steps``
@@ -28,15 +28,22 @@ def record(source, out: str | os.PathLike, *, steps: int | None = None, name: st
     default: the scenario's duration). ``name``: the run's name in titles and ``metrics.json`` (default
     ``"run"`` for a controller). ``tasks``: the tasks whose errors are recorded (default: the controller's,
     ``ctrl.tasks()``). ``obstacles``: drawn in the replay. ``figures``, ``replay``: write the figures and
-    ``replay.html``. ``force``: replace a non-empty folder that is not a previous result.
+    ``replay.html``. ``force``: replace a non-empty folder that is not a previous result. ``explain``: record
+    every step's account (``hqp-tpm explain OUT --t T`` prints it; a controller's run cannot be re-run for it).
 
     The returned dict is ``metrics.json``'s content plus ``"out"`` (the folder) and ``"files"`` (the files
     written). Read the trajectory back with ``numpy.load(Path(out) / "trajectory.npz")``.
     """
     from hqp_tpm.app.cli import run_scenario
+    from hqp_tpm.app.scenario import check_steps
     from hqp_tpm.control.controller import Controller
 
-    options = dict(progress=progress, figures=figures, replay=replay, force=force)
+    options = dict(progress=progress, figures=figures, replay=replay, force=force, explain=explain)
+    if steps is not None:  # the Python argument named, not the command line's --steps
+        try:
+            steps = check_steps(steps, "record: steps")
+        except HqpTpmError as exc:
+            raise ParameterError(str(exc)) from None
     if not isinstance(source, Controller):
         if tasks is not None or obstacles:
             raise ParameterError("record: tasks and obstacles are given by the scenario; pass them only with a "

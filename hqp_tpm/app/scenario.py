@@ -23,7 +23,7 @@ except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
 from hqp_tpm.data import scenarios_dir
-from hqp_tpm.errors import ScenarioError, shown
+from hqp_tpm.errors import HqpTpmError, ScenarioError, shown
 from hqp_tpm.solvers.registry import ANALYTIC, BOXED, SOLVER_NAMES, check_solver_name
 
 #: Folder of the shipped scenario files (package data ``hqp_tpm/data/scenarios/``).
@@ -226,6 +226,24 @@ def check_steps(steps, where: str = "steps") -> int:
     return int(steps)
 
 
+def check_solver_choice(solver, where: str, cls: type[HqpTpmError] = ScenarioError) -> str:
+    """``solver`` if it names a solver and, for ``qp:<backend>``, an installed backend (checked here, before any
+    work, where the file and field or the command-line option ``where`` are known); else ``cls`` naming ``where``."""
+    try:
+        check_solver_name(solver)
+    except Exception:
+        raise cls(f"{where}: unknown solver {shown(solver)}; valid: {', '.join(SOLVER_NAMES)}") from None
+    if solver.startswith("qp:"):
+        from hqp_tpm.errors import SolverNotAvailableError
+        from hqp_tpm.solvers.cascaded_qp import check_solver
+
+        try:
+            check_solver(solver[3:])
+        except SolverNotAvailableError as exc:
+            raise cls(f"{where}: {exc}") from None
+    return solver
+
+
 def resolve_path(spec: str | Path) -> Path:
     """``spec``: a path to a TOML file or the stem of a file in ``tasks/``."""
     p = Path(spec)
@@ -360,19 +378,7 @@ def parse(data: dict, path: Path = Path("<memory>")) -> Scenario:
     top = Section(data, path.name)
     sc = top.table("scenario")
     solver = sc.string("solver", "tpm")
-    try:
-        check_solver_name(solver)
-    except Exception:
-        raise ScenarioError(f"{sc.where}.solver: unknown solver {shown(solver)}; valid: "
-                            f"{', '.join(SOLVER_NAMES)}") from None
-    if solver.startswith("qp:"):  # the backend too, here, where the file and field are known
-        from hqp_tpm.errors import SolverNotAvailableError
-        from hqp_tpm.solvers.cascaded_qp import check_solver
-
-        try:
-            check_solver(solver[3:])
-        except SolverNotAvailableError as exc:
-            raise ScenarioError(f"{sc.where}.solver: {exc}") from None
+    check_solver_choice(solver, f"{sc.where}.solver")
     period = sc.number("period")
     if period <= 0:
         raise ScenarioError(f"{sc.where}.period: must be > 0, got {period}")

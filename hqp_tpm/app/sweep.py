@@ -43,7 +43,8 @@ try:
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
-from hqp_tpm.errors import HqpTpmError, OutputError, SweepError, elide
+from hqp_tpm.errors import HqpTpmError, OutputError, ScenarioError, SweepError, elide
+from hqp_tpm.solvers.registry import ANALYTIC, BOXED
 
 SWEEP_FILE = "sweep.json"
 #: Seconds to wait for a Dask scheduler given by --scheduler.
@@ -404,6 +405,18 @@ def run_sweep(spec, out: Path, *, grid: dict | None = None, ranges: dict | None 
             set_field(copy.deepcopy(base), name, 0.0)
         except SweepError as exc:
             raise SweepError(f"{label}: {exc}") from None
+    if not variants:
+        raise SweepError(f"{label}: no variants (a field with no values: {', '.join(fields)})")
+    try:  # the first variant's file: a misspelt field (a table set_field created) is refused before any work
+        first = variant_scenario(base, label, variants[0])
+        boxless = [s for s in solvers if s in ANALYTIC] if first.limits is not None else []
+        if boxless:
+            raise ScenarioError(f"--solver {boxless[0]!r} ignores the hard joint box of {first.limits.where}; "
+                                f"valid: a boxed solver ({', '.join(BOXED)}, qp, qp:<backend>)")
+    except ScenarioError as exc:
+        raise SweepError(f"{exc} (in the first variant, {variants[0].name}: "
+                         f"{', '.join(f'{k}={v!r}' for k, v in variants[0].overrides.items())}); nothing was run") \
+            from None
     out = Path(out).absolute()
     definition = {"scenario": label, "scenario_file": str(path), "grid": grid, "ranges": ranges,
                   "random": n_random, "seed": seed, "solvers": list(solvers), "steps": steps,

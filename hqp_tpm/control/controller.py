@@ -27,12 +27,13 @@ from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.policy import FunctionPolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack
 from hqp_tpm.control.step_result import StepResult
-from hqp_tpm.errors import NonFiniteError, ParameterError, SolverFailedError
+from hqp_tpm.errors import ArgumentTypeError, NonFiniteError, ParameterError, SolverFailedError
+from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.damping import check_damping, nonnegative
 from hqp_tpm.solvers.levels import all_finite
-from hqp_tpm.solvers.registry import ANALYTIC, check_solver_name, solve
+from hqp_tpm.solvers.registry import ANALYTIC, BOXED, check_solver_name, solve
 from hqp_tpm.tasks.base import Task
 
 BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
@@ -67,7 +68,7 @@ class Controller:
         self.solver = check_solver_name(solver)
         self.lambda_max, self.eps = check_damping(lambda_max, eps)
         self.nullspace_damping = nonnegative("nullspace_damping", nullspace_damping)
-        self.box = box
+        self.box = check_box(box, self.solver, order, self.dt)
         # a second solver run on every step, like for like (hqp_tpm.control.crosscheck)
         self.crosscheck = None if crosscheck is None else check_solver_name(crosscheck)
         self.crosscheck_log = CrosscheckLog()
@@ -282,4 +283,22 @@ def as_policy(policy) -> Policy:
         return FixedStack(policy)
     if callable(policy):
         return FunctionPolicy(policy)
-    raise TypeError(f"a policy must be a Policy, a Stack, a list of levels or a callable, got {type(policy).__name__}")
+    raise ArgumentTypeError(f"a policy must be a Policy, a Stack, a list of levels or a callable, got "
+                            f"{type(policy).__name__}")
+
+
+def check_box(box: BoxFn | None, solver: str, order: int, dt: float) -> BoxFn | None:
+    """``box`` if the controller can use it: refused with an analytic solver (it would be ignored, as a scenario file's
+    ``[limits]`` is refused), and a :class:`JointLimits` must have the controller's ``order`` and ``dt``."""
+    if box is None:
+        return None
+    if not callable(box):
+        raise ArgumentTypeError(f"box must be None or a callable box(state, t) -> (lower, upper), e.g. "
+                                f"JointLimits(robot, order=..., dt=...); got {type(box).__name__}")
+    if solver in ANALYTIC:
+        raise ParameterError(f"box: a hard joint box, which solver {solver!r} ignores; valid: a boxed solver "
+                             f"({', '.join(BOXED)}, qp, qp:<backend>), or box=None")
+    if isinstance(box, JointLimits) and (box.order != order or not np.isclose(box.dt, dt, rtol=1e-9, atol=0.0)):
+        raise ParameterError(f"box: JointLimits(order={box.order}, dt={box.dt:g}) does not match the controller's "
+                             f"order={order}, dt={dt:g}: build it with JointLimits(robot, order={order}, dt={dt:g})")
+    return box

@@ -39,6 +39,7 @@ from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from hqp_tpm.errors import ArgumentTypeError
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Task
 
@@ -155,14 +156,41 @@ class DistancePolicy(Policy):
 
 
 class FunctionPolicy(Policy):
-    """A plain callable ``f(state, t) -> Stack`` as a policy (no tasks to start, nothing optional)."""
+    """A plain callable ``f(state, t) -> Stack`` as a policy (nothing optional).
+
+    The controller starts ``tasks`` at the first step; a task the function returns that is not among them (a bare
+    function given to the controller lists none) is started the first time a stack holds it, from that step's state:
+    a held (``None``) or ``relative`` target is then the task's value when it enters (at the first step for the
+    tasks of the first stack). :meth:`tasks` lists them from then on.
+    """
 
     def __init__(self, fn: Callable[[State, float], Stack], tasks: list[Task] | None = None):
+        if not callable(fn):
+            raise ArgumentTypeError(f"FunctionPolicy: fn must be a callable f(state, t) -> Stack, got "
+                                    f"{type(fn).__name__}")
         self.fn = fn
         self._tasks = list(tasks or [])
+        self._listed = {id(task) for task in self._tasks}
+        self._entered: dict[int, Task] = {}  # id -> task: the tasks not in ``tasks`` started so far
 
     def __call__(self, state: State, t: float) -> Stack:
-        return self.fn(state, t)
+        from hqp_tpm.control.stack import Stack  # (stack.py imports this module)
+
+        stack = self.fn(state, t)
+        if not isinstance(stack, Stack):
+            raise ArgumentTypeError(f"the policy function {self.fn!r} returned {type(stack).__name__}, expected a "
+                                    "Stack (e.g. Stack.of(task_a, (task_b, task_c)))")
+        for task in stack.tasks():
+            if id(task) not in self._listed and id(task) not in self._entered:
+                task.start(state)
+                self._entered[id(task)] = task
+        return stack
 
     def tasks(self) -> list[Task]:
-        return list(self._tasks)
+        return [*self._tasks, *self._entered.values()]
+
+    def snapshot(self) -> Any:
+        return dict(self._entered)
+
+    def restore(self, snapshot: Any) -> None:
+        self._entered = dict(snapshot)

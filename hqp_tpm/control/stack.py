@@ -15,6 +15,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hqp_tpm.control.policy import Policy
+from hqp_tpm.errors import ArgumentTypeError, ParameterError, shown
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
@@ -29,15 +30,16 @@ class Stack:
 
     @classmethod
     def of(cls, *levels) -> Stack:
-        """``Stack.of(task_a, (task_b, task_c))``: one level per argument."""
-        return cls([tuple(lv) if isinstance(lv, (tuple, list)) else (lv,) for lv in levels])
+        """``Stack.of(task_a, (task_b, task_c))``: one level per argument (:func:`check_levels`)."""
+        return cls(check_levels([tuple(lv) if isinstance(lv, (tuple, list)) else (lv,) for lv in levels]))
 
     def tasks(self) -> list[Task]:
         return [t for lv in self.levels for t in lv]
 
     def __repr__(self) -> str:
         extras = f", extras for {', '.join(self.extras)}" if self.extras else ""
-        return f"Stack({self.label()!r}, {len(self.levels)} levels{extras})"
+        n = len(self.levels)
+        return f"Stack({self.label()!r}, {n} level{'' if n == 1 else 's'}{extras})"
 
     def label(self) -> str:
         """``"a > b+c"``: the stack as text (recorded per step)."""
@@ -50,6 +52,32 @@ class Stack:
             parts = [task.level(state, t, order, self.extras.get(task.name)) for task in lv]
             out.append(parts[0] if len(parts) == 1 else merge_levels(parts))
         return out
+
+
+#: what a level of a stack may be (named by the errors of :func:`check_levels`)
+LEVEL_FORMS = "a Task (hqp_tpm.tasks: FramePosition, Posture, ...) or a tuple/list of Tasks of equal priority"
+
+
+def check_levels(levels: list[tuple]) -> list[tuple]:
+    """``levels`` if they make a stack: at least one level, every level one or more :class:`Task` objects, no task
+    twice (a task is one set of rows: twice in a stack it would be solved against itself); else a typed error."""
+    if not levels:
+        raise ParameterError(f"Stack.of(): a stack needs at least one level; a level is {LEVEL_FORMS}")
+    seen: dict[int, int] = {}
+    for i, lv in enumerate(levels):
+        if not lv:
+            raise ParameterError(f"stack level {i} is empty; a level is {LEVEL_FORMS}")
+        for task in lv:
+            if not isinstance(task, Task):
+                hint = " (a task's name: pass the task object itself)" if isinstance(task, str) else ""
+                what = f"an array of shape {task.shape}" if isinstance(task, np.ndarray) else shown(task)
+                raise ArgumentTypeError(f"stack level {i}: {what} ({type(task).__name__}) is not a task"
+                                        f"{hint}; a level is {LEVEL_FORMS}")
+            if id(task) in seen:
+                raise ParameterError(f"task {task.name!r} is in the stack twice (levels {seen[id(task)]} and {i}); "
+                                     "each task may appear once")
+            seen[id(task)] = i
+    return levels
 
 
 def merge_levels(parts: Sequence[Level]) -> Level:

@@ -34,6 +34,9 @@ class JointLimits:
 
     def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
                  acceleration_limit: float = 50.0, velocity_scale: float = 1.0, command_rate: bool = False):
+        if order not in (1, 2):
+            raise ParameterError(f"JointLimits: order must be 1 (a box on the joint velocity) or 2 (on the joint "
+                                 f"acceleration), got {order!r}")
         if command_rate and order != 1:
             raise ParameterError(f"command_rate = {command_rate!r} needs order 1 (velocity level), got order "
                                  f"{order!r}: at acceleration level the box bounds the command itself (|qdd| <= a_max)")

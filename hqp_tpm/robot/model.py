@@ -101,7 +101,22 @@ class Robot:
             return cls.from_urdf(ROBOTS_DIR / PROJECT_ROBOTS[key], name=key)
         if key.endswith(".urdf") or os.sep in key:
             return cls.from_urdf(key)
-        return cls.from_example_robot_data(key)
+        try:
+            return cls.from_example_robot_data(key)
+        except RobotFileError as exc:
+            import difflib
+
+            import example_robot_data as erd
+
+            erd_names = sorted(getattr(erd.robots_loader, "ROBOTS", {}).keys())
+            if key in erd_names:  # a known name whose files failed: that error says why
+                raise
+            ours = sorted([*PROJECT_ROBOTS, *REDUCED_ROBOTS])
+            close = difflib.get_close_matches(key, [*ours, *erd_names], n=3, cutoff=0.6)
+            hint = f" (did you mean {' or '.join(map(repr, close))}?)" if close else ""
+            raise RobotFileError(f"unknown robot {key!r}{hint}; valid: hqp-tpm's robots {', '.join(ours)}; a URDF "
+                                 f"file path (ending in .urdf); or one of example-robot-data's robots: "
+                                 f"{', '.join(erd_names)}") from exc
 
     def reduced(self, keep, q_ref=None, name: str = "") -> Robot:
         """The robot with every 1-DOF joint not in ``keep`` locked at ``q_ref`` (default: neutral).

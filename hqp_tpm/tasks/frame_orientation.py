@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.errors import ShapeError, shown
 from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
@@ -23,7 +24,13 @@ class FrameOrientation(Task):
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *, name: str | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
-        self._R_target = None if target is None or isinstance(target, str) else np.asarray(target, float).reshape(3, 3)
+        self._R_target = None if target is None or isinstance(target, str) else np.asarray(target, float)
+        if (self._R_target is not None and self._R_target.shape != (3, 3)) or (isinstance(target, str)
+                                                                               and target != "hold"):
+            task = name or f"{frame}_orientation"
+            raise ShapeError(f"FrameOrientation {task!r}: target {shown(np.asarray(target).tolist())} has shape "
+                             f"{np.shape(target)}, expected a 3x3 rotation matrix (or None / 'hold': the start "
+                             "orientation)")
         super().__init__(name or f"{frame}_orientation", np.zeros(3), gains)
         self.trajectory = Hold() if self._R_target is None else Constant(value=np.zeros(3))
 

@@ -5,16 +5,57 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
 
+#: the target forms :class:`FramePose` accepts (named by its errors)
+TARGET_FORMS = ("a pinocchio.SE3, a 4x4 homogeneous matrix [[R, p], [0, 0, 0, 1]], a pair (position 3-vector, "
+                "3x3 rotation matrix), or None / 'hold' (the start pose)")
+
+
+def placement_target(target, task: str) -> pin.SE3 | None:
+    """The target placement of the pose task ``task`` from one of :data:`TARGET_FORMS` (None: the start pose)."""
+    if target is None or (isinstance(target, str) and target == "hold"):
+        return None
+    if isinstance(target, pin.SE3):
+        return target.copy()
+    what = f"an array of shape {target.shape}" if isinstance(target, np.ndarray) else shown(target)
+    bad = ShapeError(f"FramePose {task!r}: target {what} is not a pose; expected {TARGET_FORMS}")
+    if isinstance(target, str):
+        raise bad
+    try:
+        if isinstance(target, (tuple, list)) and len(target) == 2:
+            p, R = np.asarray(target[0], dtype=float), np.asarray(target[1], dtype=float)
+        else:
+            H = np.asarray(target, dtype=float)
+            if H.shape != (4, 4):
+                raise bad
+            if not np.allclose(H[3], [0.0, 0.0, 0.0, 1.0]):
+                raise ParameterError(f"FramePose {task!r}: the last row of the 4x4 target is {H[3].tolist()}, "
+                                     f"expected [0, 0, 0, 1] (a homogeneous matrix)")
+            p, R = H[:3, 3], H[:3, :3]
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, (ShapeError, ParameterError)):
+            raise
+        raise bad from exc
+    if p.shape != (3,) or R.shape != (3, 3):
+        raise bad
+    if not (np.isfinite(p).all() and np.isfinite(R).all()):
+        raise ParameterError(f"FramePose {task!r}: target position {p.tolist()} or rotation is not finite")
+    if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+        raise ParameterError(f"FramePose {task!r}: the target rotation {R.tolist()} is not a rotation matrix "
+                             "(orthonormal, determinant +1)")
+    return pin.SE3(R.copy(), p.copy())
+
 
 class FramePose(Task):
     """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
 
-    The target is an ``pin.SE3`` or ``None``/``"hold"`` for the start pose.
+    The target is a ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3
+    rotation matrix) or ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`.
     """
 
     dim = 6
@@ -22,7 +63,7 @@ class FramePose(Task):
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *, name: str | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
-        self._M_target = target if isinstance(target, pin.SE3) else None
+        self._M_target = placement_target(target, name or f"{frame}_pose")
         super().__init__(name or f"{frame}_pose", None, gains)
         self.trajectory = Hold()
 

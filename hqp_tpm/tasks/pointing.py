@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.errors import ParameterError
+from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
@@ -44,7 +44,10 @@ class Pointing(Task):
                  inequality: bool = True, name: str | None = None, drift_limit: float | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
-        z_d = np.asarray(axis, dtype=float).reshape(3)
+        z_d = np.asarray(axis, dtype=float)
+        if z_d.shape != (3,):
+            raise ShapeError(f"Pointing {name or frame + '_pointing'!r}: axis {shown(axis)} has shape {z_d.shape}, "
+                             "expected a 3-vector (x, y, z) in the world frame")
         norm = np.linalg.norm(z_d)
         if not np.isfinite(z_d).all() or norm < 1e-12:
             raise ParameterError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
