@@ -323,7 +323,7 @@ def test_the_scheduler_option_says_it_must_be_trusted(capsys):
         main(["sweep", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert re.search(r"--scheduler tcp://HOST:PORT .*trusted only: Dask unpickles", text)
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    readme = " ".join((Path(__file__).parents[1] / "README.md").read_text().split())
     assert "use `--scheduler` only with a cluster you trust" in readme
 
 
