@@ -15,6 +15,7 @@ import pytest
 
 from hqp_tpm.app.build import build
 from hqp_tpm.app.scenario import load
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
 from hqp_tpm.policies._planned_step import PlannedStep
 
@@ -155,7 +156,7 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
     (lambda c: setattr(c, "solver", "sns_tpm"), "solver 'sns_tpm'"),
     (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box"),
     (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
-    (lambda c: setattr(c, "policy", []), "not a PlanningPolicy"),
+    (lambda c: setattr(c, "policy", (lambda task: lambda st, t: Stack.of(task))(c.tasks()[0])), "not a PlanningPolicy"),
 ])
 def test_unsupported_set_ups_say_why(change, why):
     ctrl = lwr()
