@@ -27,8 +27,7 @@ the typed error naming the task), :data:`NONFINITE_X`, the TPM kernel's ``DECLIN
 ``tpm_stacked`` decides with the numpy reference, as it always does), :data:`BOX_HANDED_BACK` (a joint outside
 its position limits: the box's recovery rules are the caller's), :data:`SNS_HANDED_BACK` (the SNS loop handed
 back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
-:func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves) or :data:`SNS_RESUME` (the loop stopped at a pass whose
-free-column stack its certificates do not decide: the numpy loop goes on from :meth:`Program.loop_state`).
+:func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves).
 
 These kernels call the other modules' kernels; :mod:`hqp_tpm._jit` makes their dispatchers, and keys its disk cache
 by the source of every kernel module, so a changed callee is compiled again here too. First use on a machine
@@ -58,9 +57,6 @@ WRITTEN = 5
 SNS_HANDED_BACK = 6
 #: the joint box's kernel declined (an empty position box: the recovery rules); nothing solved.
 BOX_HANDED_BACK = 7
-#: the SNS-TPM loop stopped at a pass (``RESUME``): its state is in the program (:meth:`Program.loop_state`) and
-#: the numpy loop goes on from there.
-SNS_RESUME = 8
 #: Where the SNS box comes from (:meth:`Program.set_box`): the caller, the velocity box, the acceleration box.
 BOX_GIVEN, BOX_VELOCITY, BOX_ACCELERATION = 0, 1, 2
 #: What a program solves (:class:`Program`): nothing (the rows only), TPM, SNS-TPM in the box ``lo, up``.
@@ -223,22 +219,20 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
             ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
         if not ok:
             return BOX_HANDED_BACK
-    status, scale, nsat, iterations, feasible, best_nsat = _sns_loop(
+    status, scale, nsat, iterations, feasible, _ = _sns_loop(
         J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi + 3 + n: bi], state)
-    resume = status == _compiled_sns.RESUME
-    if not resume:
-        if status != _compiled_sns.DONE:
-            return SNS_HANDED_BACK
-        for i in range(n):
-            if not math.isfinite(out[i]):
-                return NONFINITE_X
-    # a solved step's info; after RESUME the loop's state for Program.loop_state (best_nsat, -1: no best yet)
+    if status != _compiled_sns.DONE:
+        return SNS_HANDED_BACK
+    for i in range(n):
+        if not math.isfinite(out[i]):
+            return NONFINITE_X
+    # the solved step's info
     ints[pi], ints[pi + 1] = nsat, iterations
-    ints[pi + 2] = (best_nsat if feasible else -1) if resume else (1 if feasible else 0)
+    ints[pi + 2] = 1 if feasible else 0
     for i in range(nsat):  # the saturated joints, from the loop's scratch
         ints[pi + 3 + i] = ints[pi + 3 + n + i]
     floats[pf] = scale
-    return SNS_RESUME if resume else SOLVED
+    return SOLVED
 
 
 def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
@@ -451,7 +445,7 @@ class Program:
     @staticmethod
     def buffer_size(m: int, n: int, solve: int) -> int:
         """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up`` and
-        the loop's state (``3 x n``: :meth:`loop_state`)."""
+        the loop's scratch (``3 x n``)."""
         return m * n + m + (7 if solve == SNS else 2) * n
 
     def build(self) -> Program:
@@ -503,14 +497,6 @@ class Program:
         return {"scale": self.floats.item(f), "saturated": self.ints[i + 3: i + 3 + nsat].tolist(),
                 "iterations": iterations}
 
-    def loop_state(self, buf: np.ndarray) -> _compiled_sns.LoopState:
-        """Where the SNS-TPM loop stopped after :data:`SNS_RESUME` (``buf`` the kernel's buffer)."""
-        i, f = self._sns_at
-        nsat, iterations, best_nsat = self.ints[i: i + 3].tolist()
-        m, n = self.ints.item(0), self.ints.item(1)
-        state = buf[m * n + m + 4 * n: m * n + m + 7 * n].reshape((3, n)).copy()
-        return _compiled_sns.LoopState.of(self.ints[i + 3: i + 3 + nsat].tolist(), state, self.floats.item(f),
-                                          best_nsat, iterations)
 
 
 def kernel(solve: int = TPM):

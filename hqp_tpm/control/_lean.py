@@ -276,8 +276,7 @@ class LeanStep(CompiledStep):
             if status == _compiled_step.NONFINITE_X:
                 raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {t:.6f}")
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
-            # BOX_HANDED_BACK (the JointBox's recovery rules), SNS_HANDED_BACK (sns_tpm_stacked's numpy path) or
-            # SNS_RESUME (its numpy loop, from the pass where the kernel's stopped): below
+            # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): below
         else:
             for write in self.writers:
                 write(t)
@@ -305,10 +304,8 @@ class LeanStep(CompiledStep):
             sizes = self.sizes
             if x0 is not None:  # the x0 damping level appended as the registry does (LeanStep.of)
                 J, b, sizes = np.vstack((J, np.eye(self.n))), np.concatenate((b, x0)), sizes + (self.n,)
-            resume = self._program.loop_state(self._buf) if status == _compiled_step.SNS_RESUME else None
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, compiled=status != _compiled_step.SNS_HANDED_BACK,
-                                       resume=resume)
+                                       return_info=True)
             info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         else:
             x, info = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,

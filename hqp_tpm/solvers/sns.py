@@ -398,12 +398,10 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
 
 
 def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambda_max: float = 0.0,
-                    eps: float = 0.0, return_info: bool = False, compiled: bool = True, resume=None):
+                    eps: float = 0.0, return_info: bool = False):
     """:func:`sns_tpm` of a stack already stacked: ``J`` (m x n) and ``xd`` finite floats, ``sizes`` the row
     counts of the levels (a tuple, summing to m). The box is checked as by :func:`sns_tpm`, the stack is not
-    (the lean step, :mod:`hqp_tpm.control.lean`, checks it once per step). Same result as :func:`sns_tpm`.
-    ``compiled``, ``resume``: accepted for the callers of earlier versions and not used (the kernel solves every
-    stack from its first pass; nothing is resumed)."""
+    (the compiled step, :mod:`hqp_tpm.control._lean`, checks it once per step). Same result as :func:`sns_tpm`."""
     n = J.shape[1]
     if not (type(lower) is np.ndarray and type(upper) is np.ndarray and lower.dtype == np.float64
             and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
