@@ -308,10 +308,10 @@ def test_row_writers_equal_jacobian_and_command(order, compiled):
             a += task.dim
         writers = [task.row_writer(st, order, J[r], b[r]) for task, r in zip(tasks, rows, strict=True)]
         own = [type(task).row_writer is not Task.row_writer for task in tasks]
-        # FramePosition and JointVelocity write their own rows (Posture its constant J once); the other classes'
-        # writer is jacobian and command (their compiled copy is their row program, compared with the readable step)
+        # FramePosition writes its own rows (Posture its constant J once); the other classes' writer is jacobian and
+        # command (their compiled copy is their row program, compared with the readable step)
         assert {type(task).__name__ for task, o in zip(tasks, own, strict=True) if o} == \
-            {"FramePosition", "JointVelocity", "Posture"} & {type(task).__name__ for task in tasks}
+            {"FramePosition", "Posture"} & {type(task).__name__ for task in tasks}
         frames = tuple(robot.frame_id(task.frame) for task in tasks if task.frame is not None)
         for k in range(20):
             q = pin.integrate(robot.model, q0, rng.normal(0.0, 0.4, robot.nv))

@@ -13,7 +13,6 @@ import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.robot.state import State
-from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
 
 
@@ -61,16 +60,3 @@ class JointVelocity(Task):
             raise ParameterError(f"task {self.name!r}: a joint velocity is a velocity-level task (order 1), "
                                  f"got {order!r}")
         return self.qd0
-
-    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`: the identity once, then ``qd_0`` per step (order 2: the readable error)."""
-        if order != 1:
-            return super().row_writer(state, order, J, b)
-        J[...] = self._I
-
-        def write(t: float) -> None:
-            b[...] = self.qd0
-        return write
-
-    def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        return Level(self._I, self.command(state, t, order), name=self.name)
