@@ -69,13 +69,8 @@ class Pointing(Task):
         return state.rotation(self.fid)[:, 2]
 
     def value(self, state: State) -> np.ndarray:
-        """``p_rp`` (16), computed once per state update (the policy and the level both use it)."""
-        return state.memo((id(self), "p_rp"), lambda: self._p_rp(state))
-
-    def _p_rp(self, state: State) -> np.ndarray:
-        p = np.array([self.z_d.dot(self.axis(state))])               # eq. (16)
-        p.flags.writeable = False  # shared within the step
-        return p
+        """``p_rp = z_d^T z_e`` (16)."""
+        return np.array([self.z_d.dot(self.axis(state))])
 
     def jacobian(self, state: State) -> np.ndarray:
         z_e = self.axis(state)
@@ -102,7 +97,7 @@ class Pointing(Task):
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
-        # the numbers of cos(alpha_d) - value(state)[0], without the memo and the array (the policy asks every step);
+        # the numbers of cos(alpha_d) - value(state)[0], without the array (the policy asks every step);
         # z_e read through a view of the rotation pinocchio updates in place, once the state is complete
         c = self._column
         if c is not None and c[0] is state and not state._partial:
