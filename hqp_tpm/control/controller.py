@@ -187,7 +187,7 @@ class Controller:
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
         if check is not None:
-            info = {**info, "crosscheck": check.compare(x)}
+            info = {**info, "crosscheck": check(x)}
         return StepResult(self.t, stack, levels, x, info, x0, box)
 
     def _compiled_step(self):

@@ -16,6 +16,7 @@ boxed solver). ``hqp_tpm.testing.plot_crosscheck`` draws it.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -38,35 +39,16 @@ def same_levels(levels) -> list[Level]:
     return out
 
 
-@dataclass
-class PendingCheck:
-    """The other solver's command of one step, waiting for the controller's final command."""
-
-    solver: str
-    other: str
-    command: np.ndarray
-    same_problem: bool
-    like_for_like: bool
-
-    def compare(self, x: np.ndarray) -> dict:
-        d = np.abs(self.command - x)
-        j = int(np.argmax(d)) if d.size else 0
-        diff = float(d[j]) if d.size else 0.0
-        return {"solver": self.other, "diff": diff, "joint": j,
-                "rel": float(np.linalg.norm(self.command - x) / max(1.0, np.linalg.norm(x))),
-                "same_problem": self.same_problem, "like_for_like": self.like_for_like, "command": self.command}
-
-
-def crosscheck_step(ctrl, state, stack, levels, x0, box, x_main) -> PendingCheck:
+def crosscheck_step(ctrl, state, stack, levels, x0, box, x_main) -> Callable[[np.ndarray], dict]:
     """Solve the step with ``ctrl.crosscheck`` through the controller's path (module doc); call before the
-    controller's own blend. ``x_main``: the controller's unblended solution."""
+    controller's own blend. ``x_main``: the controller's unblended solution. Returns ``compare(x)``: the step's
+    record (:meth:`CrosscheckLog.append`) against the controller's final command ``x``."""
     other = ctrl.crosscheck
     n = ctrl.robot.nv
     same = same_levels(levels)
     kw = {"x0": x0, "box": box, "lambda_max": ctrl.lambda_max, "eps": ctrl.eps}
     x = solve(other, same, n, **kw)[0]
     policy = ctrl.policy
-    like = True  # every Policy can snapshot and restore its state, so the blend is always replayed
     if policy.blends:
         def resolve(s):
             return solve(other, s.to_levels(state, ctrl.t, ctrl.order), n, **kw)[0]
@@ -84,7 +66,16 @@ def crosscheck_step(ctrl, state, stack, levels, x0, box, x_main) -> PendingCheck
         free = x_main if ka == "analytic" else x if kb == "analytic" else solve("tpm", same, n, **kw)[0]
         unit = 1.0 + np.maximum(np.abs(np.nan_to_num(box[0], neginf=0.0)), np.abs(np.nan_to_num(box[1], posinf=0.0)))
         same_problem = bool((np.maximum(0.0, np.maximum(box[0] - free, free - box[1])) <= 1e-9 * unit).all())
-    return PendingCheck(ctrl.solver, other, np.asarray(x, dtype=float), same_problem, like)
+    command = np.asarray(x, dtype=float)
+
+    def compare(x: np.ndarray) -> dict:
+        d = np.abs(command - x)
+        j = int(np.argmax(d)) if d.size else 0
+        return {"solver": other, "diff": float(d[j]) if d.size else 0.0, "joint": j,
+                "rel": float(np.linalg.norm(command - x) / max(1.0, np.linalg.norm(x))), "same_problem": same_problem,
+                # every Policy can snapshot and restore its state, so the blend is always replayed: like for like
+                "like_for_like": True, "command": command}
+    return compare
 
 
 @dataclass
