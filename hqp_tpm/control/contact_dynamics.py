@@ -47,10 +47,6 @@ class SoleContact:
     task: FramePose
     corners: np.ndarray  # (k, 3), sole frame
 
-    @property
-    def frame(self) -> str:
-        return self.task.frame
-
 
 @dataclass
 class ContactSolution:
