@@ -129,12 +129,10 @@ class Pointing(Task):
         (the inequality's row is in the stack only while it is positive). For the planned step."""
         model, data, fid = state.model, state.data, self.fid
         views = state.frame_views(fid)
-        none = np.zeros(6)
+        none, plain = np.zeros(6), super().row_writer(state, order, J, b)  # (jacobian and command)
 
         def readable(t: float) -> float:
-            Jt = self.jacobian(state)
-            J[...] = Jt
-            b[...] = self.command(state, t, order, None, Jt)
+            plain(t)
             return self.pointing_error(state)
 
         if views is None:
