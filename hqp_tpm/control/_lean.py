@@ -248,26 +248,26 @@ class LeanStep(CompiledStep):
         ctrl = self.ctrl
         if not ctrl._started:
             ctrl.start()
-        t = ctrl.t
+        t, q, v = ctrl.t, ctrl._q, ctrl._v
         kernel, status = self._kernel, None
-        fused = kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED
+        fused = kernel is not None and _compiled.ENABLED  # (one switch: hqp_tpm._jit, shared by the kernel modules)
         if self._velocities:
-            st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames)
+            st = ctrl.state.update(q, v, t, validate=False, frames=self.frames)
         elif fused:  # (the kernel places the frames its tasks read: _fused_frames has the others; the CoM with them)
-            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self._fused_frames, self._com)
+            st = ctrl.state.update_positions(q, v, t, self._fused_frames, self._com)
         else:
-            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
+            st = ctrl.state.update_positions(q, v, t, self.frames)
         if fused:  # the program's tasks gather their arrays, the others write their rows
             for write in self._fused:
                 write(t)
             x0 = self.x0
             if x0 is not None:
-                np.multiply(ctrl._v, -self.damping, out=x0)
+                np.multiply(v, -self.damping, out=x0)
             program = self._program
             sns = program.solve == _compiled_step.SNS
-            if sns and self.box is not None and program.box_given:
+            if sns and program.box_given and self.box is not None:
                 self.box(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
-            status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v)
+            status = kernel(self._buf, program.ints, program.floats, q, v)
             if status == 0:  # SOLVED
                 self._info = None if sns else {}  # (None: the program's, read by the info property)
                 return self._out.copy()
@@ -285,7 +285,7 @@ class LeanStep(CompiledStep):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
             x0 = self.x0
             if x0 is not None:
-                np.multiply(ctrl._v, -self.damping, out=x0)
+                np.multiply(v, -self.damping, out=x0)
         J, b = self.J, self.b
         solver = self.solver
         info = {}

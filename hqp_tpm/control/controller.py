@@ -17,9 +17,11 @@ distance-field history: :meth:`Policy.snapshot`) are left exactly as they were b
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
+from scipy.linalg.blas import ddot as _ddot
 
 from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.control.command_rate import rate_limited, solve_around
@@ -37,14 +39,6 @@ from hqp_tpm.solvers.registry import ANALYTIC, BOXED, check_solver_name, solve
 from hqp_tpm.tasks.base import Task
 
 BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
-
-
-def _finite(*arrays: np.ndarray) -> bool:
-    """Are all entries finite? (:func:`~hqp_tpm.solvers.levels.all_finite` of each)"""
-    for a in arrays:
-        if not all_finite(a):
-            return False
-    return True
 
 
 class Controller:
@@ -216,14 +210,14 @@ class Controller:
         The policy's state advances as in a step; on an error it is restored.
         """
         t, q, v = self.t, self._q, self._v
-        started, saved = self._started, self.policy.snapshot()
+        fast = None if record else self._compiled_step()
+        started, saved = self._started, self._policy.snapshot()
         try:
-            fast = None if record else self._compiled_step()
             if fast is None:
                 return self._compute()
             return fast.result(t, q, v, fast.compute())
         except BaseException:
-            self.policy.restore(saved)
+            self._policy.restore(saved)
             self._started = started
             raise
 
@@ -253,14 +247,14 @@ class Controller:
         command. Transactional: on any error (in ``command`` or a non-finite state) the controller and its policy
         keep their state. The one place a step is committed (:meth:`step` and the lean steps of
         :mod:`hqp_tpm.control.lean` and :mod:`hqp_tpm.policies.planned_step`)."""
-        started, saved = self._started, self.policy.snapshot()
+        started, saved = self._started, self._policy.snapshot()
         try:
             x = command()
             q, v = self.state.integrate(self._q, self._v, x, self.dt, self.order)
-            if not _finite(q, v):
+            if not (math.isfinite(_ddot(q, q) + _ddot(v, v)) or (all_finite(q) and all_finite(v))):
                 raise NonFiniteError(f"integration produced a non-finite state{self._where()}")
         except BaseException:
-            self.policy.restore(saved)
+            self._policy.restore(saved)
             self._started = started
             raise
         self._q, self._v = q, v

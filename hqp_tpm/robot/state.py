@@ -8,8 +8,11 @@ read lazily and cached until the next update, so tasks never recompute kinematic
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.blas import ddot as _ddot
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.robot import _compiled
@@ -32,6 +35,7 @@ class State:
         self.data = robot.model.createData()
         self.q = robot.neutral()
         self.v = np.zeros(robot.nv)
+        self._sizes = (self.model.nq, self.model.nv)
         self.t = 0.0
         self._zero = np.zeros(robot.nv)
         self._cache: dict = {}
@@ -51,24 +55,18 @@ class State:
     def check(self, q, v=None) -> tuple[np.ndarray, np.ndarray]:
         """Validated copies of ``q`` and ``v`` (shape and finiteness; ``v`` None: zeros), without touching the
         state."""
-        nq, nv = self.model.nq, self.model.nv
+        nq, nv = self._sizes
         q = np.array(q, dtype=float)
-        if q.shape != (nq,):
-            q = q.reshape(-1)
-            if q.shape != (nq,):
-                raise ShapeError(f"q has {q.size} entries, the robot {self.robot.name!r} has nq = {nq}")
-        if v is None:
-            v = np.zeros(nv)
-        else:
-            v = np.array(v, dtype=float)
-            if v.shape != (nv,):
-                v = v.reshape(-1)
-                if v.shape != (nv,):
-                    raise ShapeError(f"v has {v.size} entries, the robot {self.robot.name!r} has nv = {nv}")
+        v = np.zeros(nv) if v is None else np.array(v, dtype=float)
+        if q.shape == (nq,) and v.shape == (nv,) and math.isfinite(_ddot(q, q) + _ddot(v, v)):
+            return q, v  # (the common case: one sum of squares says both are finite)
+        for arr, what, size in ((q, "q", nq), (v, "v", nv)):
+            if arr.size != size:
+                raise ShapeError(f"{what} has {arr.size} entries, the robot {self.robot.name!r} has n{what} = {size}")
         for arr, what in ((q, "q"), (v, "v")):
             if not all_finite(arr):
                 raise NonFiniteError(f"{what} holds non-finite values at {np.flatnonzero(~np.isfinite(arr)).tolist()}")
-        return q, v
+        return q.reshape(-1), v.reshape(-1)
 
     def update(self, q, v, t: float = 0.0, *, validate: bool = True, frames=None, velocities: bool = True) -> State:
         """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.

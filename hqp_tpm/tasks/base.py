@@ -8,15 +8,17 @@ desired velocity/acceleration before the feedback terms.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache, partial
 
 import numpy as np
+from scipy.linalg.blas import ddot as _ddot
 
-from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
-from hqp_tpm.references.trajectories import Trajectory, as_trajectory
+from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError, shown
+from hqp_tpm.references.trajectories import Constant, Trajectory, as_trajectory
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 
@@ -46,10 +48,38 @@ class Task(ABC):
     def __init__(self, name: str, target, gains: Gains | None = None):
         self.name = name
         self.gains = gains or Gains()
+        self.trajectory: Trajectory = self._trajectory_of(target)
+
+    def _trajectory_of(self, target) -> Trajectory:
+        """``target`` (a constant, None/``"hold"``, a trajectory) as this task's trajectory, the errors naming it."""
         try:
-            self.trajectory: Trajectory = as_trajectory(target, self.dim)
-        except ShapeError as exc:  # name the task whose target is wrong
-            raise ShapeError(f"task {name!r}: {exc}") from None
+            return as_trajectory(target, self.dim)
+        except (ShapeError, NonFiniteError) as exc:  # name the task whose target is wrong
+            raise type(exc)(f"task {self.name!r}: {exc}") from None
+
+    @property
+    def target(self) -> Trajectory:
+        """The reference the task tracks (its :attr:`trajectory`). Assigning a constant (``dim`` values) or a
+        :class:`Trajectory` replaces it, validated as the constructor's target (:class:`ShapeError`,
+        :class:`NonFiniteError` naming the task; a relative constant stays relative); a constant array given to a
+        constant trajectory is stored in it at the cost of one copy (:meth:`Constant.assign`)."""
+        return self.trajectory
+
+    @target.setter
+    def target(self, value) -> None:
+        tr = self.trajectory
+        if type(value) is np.ndarray and type(tr) is Constant and tr.origin is None and value.shape == (self.dim,) \
+                and value.dtype == np.float64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
+            tr.assign(value.copy())
+            return
+        if value is None or isinstance(value, str):
+            raise ParameterError(f"task {self.name!r}: target {shown(value)} (the start value) is a constructor's "
+                                 f"target only; assign {self.dim} values or a Trajectory")
+        new = self._trajectory_of(value)
+        if type(tr) is Constant and type(new) is Constant and not isinstance(value, Trajectory):
+            tr.value = new.value  # (a relative constant keeps its origin)
+        else:
+            self.trajectory = new
 
     # robot-side quantities --------------------------------------------------------------
     @abstractmethod
@@ -173,27 +203,32 @@ def kernel_placement(state: State, fid: int, order: int, inside: bool):
 
 class ReferenceSlots:
     """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused
-    program's floats (:meth:`Task.row_program`) when they are not the ones copied last (compared by identity): a
-    constant reference is one read-only tuple between starts and assignments (copied once); any other is copied
-    every step."""
+    program's floats (:meth:`Task.row_program`) when they are not the ones copied last (compared by identity, part
+    by part): a constant reference is one read-only tuple between starts and assignments (copied once; an assigned
+    constant changes ``x_d`` only, :meth:`Constant.assign`); any other is copied every step."""
 
-    __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task")
+    __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task", "views")
 
     def __init__(self, task: Task, program, gains_at: int, at: int, parts: tuple[tuple[int, int], ...]):
         """``kp, kd`` at ``program.floats[gains_at:]``, the reference parts ``(index, entries)`` from ``at`` on."""
         self.task, self.program, self.gains_at, self.at, self.parts = task, program, gains_at, at, parts
-        self.last, self.gains = None, task.gains
+        self.last, self.gains, self.views = (None, None, None), task.gains, None
 
     def refresh(self, t: float) -> None:
         task = self.task
         ref = task.trajectory.reference(t)
-        if ref is not self.last:
-            f, at = self.program.floats, self.at
-            for i, size in self.parts:  # (index into ref, entries), laid out one after the other
-                f[at: at + size] = ref[i]
-                at += size
+        last = self.last
+        if ref is not last:
+            if self.views is None:  # the parts' views of the program's floats (built after the row programs)
+                at, self.views = self.at, []
+                for _, size in self.parts:  # (index into ref, entries), laid out one after the other
+                    self.views.append(self.program.floats[at: at + size])
+                    at += size
+            for (i, _), view in zip(self.parts, self.views, strict=True):
+                if ref[i] is not last[i]:
+                    view[...] = ref[i]
             frozen = not (ref[0].flags.writeable or ref[1].flags.writeable or ref[2].flags.writeable)
-            self.last = ref if frozen else None
+            self.last = ref if frozen else (None, None, None)
         if task.gains is not self.gains:
             self.gains = g = task.gains
             self.program.floats[self.gains_at: self.gains_at + 2] = g.kp, g.kd

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.blas import ddot
 
 from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Hold
@@ -21,6 +24,8 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     if target is None or (isinstance(target, str) and target == "hold"):
         return None
     if isinstance(target, pin.SE3):
+        if not _finite(target.translation, target.rotation.T.ravel()):
+            raise ParameterError(f"FramePose {task!r}: target {target.homogeneous.tolist()} is not finite")
         return target.copy()
     what = f"an array of shape {target.shape}" if isinstance(target, np.ndarray) else shown(target)
     bad = ShapeError(f"FramePose {task!r}: target {what} is not a pose; expected {TARGET_FORMS}")
@@ -51,6 +56,23 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     return pin.SE3(R.copy(), p.copy())
 
 
+def _finite(p: np.ndarray, r: np.ndarray) -> bool:
+    """Are the vectors ``p`` and ``r`` finite? (One sum of squares, by BLAS; an overflow is tested entry by entry.)"""
+    return math.isfinite(ddot(p, p) + ddot(r, r)) or bool(np.isfinite(p).all() and np.isfinite(r).all())
+
+
+def _assigned_in_place() -> bool:
+    """Does assigning an ``SE3``'s translation and rotation write into the storage its earlier views read (so a
+    task can keep one target placement whose memory the fused kernel reads)?"""
+    M = pin.SE3.Identity()
+    p, R = M.translation, M.rotation
+    M.translation, M.rotation = np.ones(3), np.diag([1.0, -1.0, -1.0])
+    return p[0] == 1.0 and R[1, 1] == -1.0
+
+
+IN_PLACE = _assigned_in_place()
+
+
 class FramePose(Task):
     """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
 
@@ -66,6 +88,27 @@ class FramePose(Task):
         self._M_target = placement_target(target, name or f"{frame}_pose")
         super().__init__(name or f"{frame}_pose", None, gains)
         self.trajectory = Hold()
+
+    @property
+    def target(self) -> pin.SE3 | None:
+        """The target placement (a copy; None: the start pose, until the first step). Assigning one of
+        :data:`TARGET_FORMS` but None/"hold" sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming
+        the value); a finite ``pin.SE3`` is copied into the task's own placement (the one the compiled step reads)."""
+        return None if self._M_target is None else self._M_target.copy()
+
+    @target.setter
+    def target(self, value) -> None:
+        M = self._M_target
+        if type(value) is pin.SE3 and M is not None and IN_PLACE:  # the common case, cheap
+            p, R = value.translation, value.rotation
+            r = R.T.ravel()  # (a view)
+            if math.isfinite(ddot(p, p) + ddot(r, r)):
+                M.translation, M.rotation = p, R
+                return
+        if value is None or isinstance(value, str):
+            raise ParameterError(f"FramePose {self.name!r}: target {shown(value)} (the start pose) is a "
+                                 f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
+        self._M_target = placement_target(value, self.name)
 
     def start(self, state: State) -> None:
         if self._M_target is None:

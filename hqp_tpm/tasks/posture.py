@@ -31,9 +31,13 @@ class Posture(Task):
         self.dim = len(self.cols)
         self._J = np.zeros((self.dim, robot.nv))
         self._J[np.arange(self.dim), self.cols] = 1.0
-        super().__init__(name, self.joint_target(robot, target, name), gains)
+        self._nq = robot.nq
+        super().__init__(name, target, gains)
 
-    def joint_target(self, robot: Robot, target, name: str | None = None):
+    def _trajectory_of(self, target):
+        return super()._trajectory_of(self.joint_target(target))
+
+    def joint_target(self, target):
         """``target`` as this task's joint angles: a full configuration (``robot.nq``) gives its ``q[joints]``.
 
         Any other array must hold one angle per joint; a wrong size raises :class:`ShapeError` naming the
@@ -44,13 +48,13 @@ class Posture(Task):
         value = np.asarray(target, dtype=float)
         if value.shape == (self.dim,):
             return value
-        if value.shape == (robot.nq,):
+        if value.shape == (self._nq,):
             return self.angles.of(value)
         idx = self.angles.idx
         where = (f"q[{idx[0]}:{idx[-1] + 1}]" if self.dim and np.all(np.diff(idx) == 1) else f"q[{idx.tolist()}]")
-        raise ShapeError(f"task {name or self.name!r}: target has shape {value.shape}; expected ({self.dim},), "
+        raise ShapeError(f"task {self.name!r}: target has shape {value.shape}; expected ({self.dim},), "
                          f"one angle per joint ({where} of a full configuration), or a full configuration "
-                         f"({robot.nq},)")
+                         f"({self._nq},)")
 
     def value(self, state: State) -> np.ndarray:
         return self.angles.of(state.q)
