@@ -6,7 +6,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm import Controller, FramePose, FramePosition, Gains, Posture, Stack
+from hqp_tpm import Controller, FrameOrientation, FramePose, FramePosition, Gains, Posture, Stack
 from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.references.trajectories import Constant, Harmonic
@@ -118,3 +118,33 @@ def test_trajectory_targets(iiwa):
     wave = Harmonic(center=np.zeros(3), cos_amplitude=np.ones(3))
     point.target = wave
     assert point.trajectory is wave
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_orientation_targets_are_followed_and_validated(iiwa, order):
+    """``FrameOrientation.target``: a rotation matrix, followed by the compiled step (to ROUNDING); what is not a
+    rotation matrix is refused (typed, naming the task) and changes nothing."""
+    rng = np.random.default_rng(4)
+
+    def make():
+        stack = Stack.of(FrameOrientation(iiwa, "iiwa_ee", None, Gains(5.0, 2.0), name="ori"),
+                         Posture(iiwa, np.zeros(7), Gains(1.0, 1.0)))
+        return Controller(iiwa, stack, order=order, dt=1e-3, q0=np.linspace(-0.6, 0.8, 7))
+
+    ref, fast = make(), make()
+    for i in range(12):
+        R = pin.rpy.rpyToMatrix(*rng.uniform(-0.3, 0.3, 3))
+        for ctrl in (ref, fast):
+            ctrl.policy.stack.tasks()[0].target = R if i % 2 else R.tolist()
+        got, want = fast.step().command, ref.step(record=True).command
+        assert np.abs(got - want).max() <= ROUNDING * max(1.0, np.abs(want).max()), (i, got, want)
+    task = fast.policy.stack.tasks()[0]
+    np.testing.assert_array_equal(task.target, R)
+    for bad, error, match in ((np.zeros(3), ShapeError, r"FrameOrientation 'ori': target .* not a 3x3 rotation"),
+                              ("hold", ShapeError, "constructor's target only"),
+                              (2.0 * np.eye(3), ParameterError, "FrameOrientation 'ori': the target rotation .* not a "
+                                                                "rotation matrix"),
+                              ([["a"] * 3] * 3, ShapeError, "not a 3x3 rotation")):
+        with pytest.raises(error, match=match):
+            task.target = bad
+        np.testing.assert_array_equal(task.target, R)

@@ -92,12 +92,13 @@ class Constant(Trajectory):
         object.__setattr__(self, "value", x)
         ref = self._ref
         if self.origin is not None:
-            self._ref = None
+            ref = None
         elif ref is not None and ref[1].shape == x.shape:
-            self._ref = (x, ref[1], ref[2])
+            ref = (x, ref[1], ref[2])
         else:
             z = np.zeros_like(x)
-            self._ref = _frozen(x, z) + (z,)
+            ref = _frozen(x, z) + (z,)
+        object.__setattr__(self, "_ref", ref)
 
     def reference(self, t: float):
         if self._ref is None:  # constant between starts: computed once, read-only
