@@ -208,17 +208,10 @@ def hqp_tasks(robot, problem: Problem, cfg: Config):
 
 
 def assign_targets(tasks: dict, targets: dict) -> None:
-    """Give each hqp-tpm task (by name) its target from ``targets`` (as a user moving targets does, every step): a
-    task with a ``target`` property takes it there; else a pose its SE3 placement (``FramePose`` keeps it as
-    ``_M_target``: no public setter yet), the others a new constant value of their trajectory."""
+    """Give each hqp-tpm task (by name) its target from ``targets`` through its public ``target`` property (as a user
+    moving targets does, every step): a pose its ``pin.SE3``, the others their values."""
     for name, task in tasks.items():
-        value = targets[name]
-        if isinstance(getattr(type(task), "target", None), property):
-            task.target = value
-        elif isinstance(value, pin.SE3):
-            task._M_target = value
-        else:
-            task.trajectory.value = value
+        task.target = targets[name]
 
 
 def joint_limits_box(robot, order: int):

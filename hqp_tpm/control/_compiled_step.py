@@ -1,38 +1,24 @@
 """The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._lean`).
 
-:func:`kernel` does what the lean step did in several calls, one kernel per thing solved (:data:`ROWS`,
-:data:`TPM`, :data:`SNS`: each compiles only what it calls). All three write the program's rows (the right-hand
-side of the posture tasks, a selection of revolute or prismatic joints, as
-:func:`hqp_tpm.robot._compiled.posture_rows`; the frame tasks' rows from pinocchio's outputs: the frame Jacobian
-from the joint Jacobians ``data.J`` with pinocchio's operations, :func:`hqp_tpm.robot._compiled.frame_jacobian`, and
-the rotation error ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`, within a few ulps of
-pinocchio's) and test ``J`` and ``b`` for finiteness; :data:`TPM` then runs the TPM kernel of
-:mod:`hqp_tpm.solvers._compiled` that :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (``_past_rank`` when
-``m > n``, ``_general`` otherwise: the same kernels, so the same numbers to the last bit) and tests ``x``. numba's
-dispatch cost grows with each argument it types, so the kernel takes five: ``J``, ``b``, ``x0`` and ``x`` in one
-buffer (``J`` row-major, then ``b``), the integers (sizes, tasks, and the address table of the arrays the tasks
-read) in one array, the floats ``[lambda_max, eps, unit, margin, cond, ...]`` in another (:class:`Program`), and
-``q``, ``v``.
+:func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`: each compiles only what it
+calls). Each writes the program's rows (posture tasks: ``b`` of a selection of revolute or prismatic joints; frame
+tasks: the frame Jacobian from the joint Jacobians ``data.J`` with pinocchio's operations,
+:func:`hqp_tpm.robot._compiled.frame_jacobian`, and ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
+within a few ulps of pinocchio's) and tests ``J`` and ``b`` for finiteness; :data:`TPM` then runs the TPM kernel
+:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last bit), :data:`SNS` the SNS-TPM loop
+:func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf`` (the joint limits' box computed
+here, :meth:`Program.set_box`, else written by the caller; its info in the tails of ``ints`` and ``floats``,
+:meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel takes five: ``buf``
+(``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of the arrays the tasks
+read) and the floats of a :class:`Program`, ``q``, ``v``.
 
-With ``sns_tpm`` (a program built with ``solve=SNS``) the kernel runs the SNS-TPM loop of
-:mod:`hqp_tpm.solvers._compiled_sns` (``_sns_loop``, the kernel :func:`hqp_tpm.solvers.sns.sns_tpm_stacked`
-calls) on ``J``, ``b`` and the box ``lo``, ``up`` in ``buf`` after ``x`` (the joint limits' box computed here by the
-kernels of :class:`~hqp_tpm.control._lean.JointBox`, :func:`hqp_tpm.robot._compiled.velocity_box` and
-``acceleration_box``, given with :meth:`Program.set_box`; else written by the caller); it writes the saturated
-joints, their count, the iterations and feasibility into the tail of ``ints`` and the scale factor into the tail of
-``floats`` (:meth:`Program.sns_info`).
+A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises the typed
+error naming the task), :data:`NONFINITE_X`, ``DECLINED``/``UNDECIDED`` (``tpm_stacked``'s numpy reference decides),
+:data:`BOX_HANDED_BACK` (a joint outside its position limits: the box's recovery rules), :data:`SNS_HANDED_BACK` (the
+numpy path of ``sns_tpm_stacked`` solves).
 
-A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises
-the typed error naming the task), :data:`NONFINITE_X`, the TPM kernel's ``DECLINED``/``UNDECIDED`` (then
-``tpm_stacked`` decides with the numpy reference, as it always does), :data:`BOX_HANDED_BACK` (a joint outside
-its position limits: the box's recovery rules are the caller's), :data:`SNS_HANDED_BACK` (the SNS loop handed
-back: an invalid box, a stack its certificates do not decide, the box-point shift; the numpy path of
-:func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` solves).
-
-These kernels call the other modules' kernels; :mod:`hqp_tpm._jit` makes their dispatchers, and keys its disk cache
-by the source of every kernel module, so a changed callee is compiled again here too. First use on a machine
-compiles, later processes load the cache (``benchmarks/first_call.py`` measures both).
-"""
+:mod:`hqp_tpm._jit` makes the dispatchers and keys its disk cache by the source of every kernel module (a changed callee
+is compiled again here too); ``benchmarks/first_call.py`` measures the first and later loads."""
 
 from __future__ import annotations
 
@@ -76,9 +62,9 @@ _frame_jacobian = _rotation_error = _frame_placement = _mat = _vec = None
 
 
 def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
-    """The program's rows of ``J`` and ``b`` and their finiteness: ``(status, pi, pf)``, ``status``
-    :data:`WRITTEN` or :data:`NONFINITE_ROWS`, ``pi``, ``pf`` the ends of the tasks' entries in ``ints``, ``floats``
-    (where the SNS entries start). Plain Python until :func:`_build`, as the three steps."""
+    """The program's rows of ``J`` and ``b`` and their finiteness: ``(status, pi, pf)``, ``status`` :data:`WRITTEN` or
+    :data:`NONFINITE_ROWS`, ``pi``, ``pf`` the ends of the tasks' entries in ``ints``, ``floats`` (where the SNS entries
+    start). Plain Python until :func:`_build`, as the three steps."""
     m, n, nlev, order, count = ints[0], ints[1], ints[3], ints[4], ints[5]
     mn = m * n
     J = buf[:mn].reshape((m, n))
@@ -87,7 +73,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
     for _ in range(count):  # the program's tasks: their rows of J and b
         kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
         kp, kd = floats[pf], floats[pf + 1]
-        if kind == SELECTION:  # hqp_tpm.robot._compiled.posture_rows
+        if kind == SELECTION:  # the posture rows (Task.command)
             for i in range(dim):
                 e = floats[pf + 2 + i] - q[ints[pi + 3 + i]]
                 xd = floats[pf + 2 + dim + i]
@@ -236,9 +222,9 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
 
 
 def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
-    """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``), ``b``:
-    their finiteness, ``x0 = -damping v`` when ``damping`` (eq. (15) of papers/000), the TPM kernel
-    ``tpm_stacked`` would call, ``x``'s finiteness; the statuses of :func:`kernel`."""
+    """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``), ``b``: their
+    finiteness, ``x0 = -damping v`` when ``damping`` (eq. (15) of papers/000), the TPM kernel ``tpm_stacked`` would
+    call, ``x``'s finiteness; the statuses of :func:`kernel`."""
     m, n = J.shape
     s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(m):
@@ -255,9 +241,9 @@ def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x
 
 
 def stacked_kernel():
-    """The compiled :func:`_stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out)
-    -> status`` (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; compiled or loaded on first use), or
-    None if numba cannot be imported after all."""
+    """The compiled :func:`_stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out) ->
+    status`` (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; compiled or loaded on first use), or None if
+    numba cannot be imported after all."""
     kernel = _KERNELS.get("stacked")
     if kernel is None:
         if _compiled._sizes(()) is None:
@@ -276,8 +262,8 @@ def _tpm_solve_kernel() -> None:
 
 
 def _build(solve: int):
-    """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user
-    does not compile the SNS loop); None if numba cannot be imported."""
+    """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user does not
+    compile the SNS loop); None if numba cannot be imported."""
     global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
     global _frame_jacobian, _rotation_error, _mat, _vec
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
@@ -320,14 +306,13 @@ class Program:
     :data:`ROWS`, the kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`;
     :data:`SNS`, then ``ints`` has ``2 n + 3`` more entries and ``floats`` one for :meth:`sns_info`), ``floats =
     [lambda_max, eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices,
-    and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's
-    Jacobian and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an
-    address table at the end of ``ints`` (from ``mats_at``: address, rows, columns per matrix; from ``vecs_at``:
-    address, length per vector), so that the kernel takes five arguments whatever the stack (numba's dispatch cost
-    grows with each array it types). A task is given its slots (the program's own arrays, or views it puts there
-    before :meth:`build`); after it, :meth:`bind_mat` and :meth:`bind_vec` point a slot at another array (the
-    program keeps it alive). :meth:`buffer_size`: the length of the kernel's ``buf``.
-    """
+    and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's Jacobian
+    and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an address table
+    at the end of ``ints`` (from ``mats_at``: address, rows, columns per matrix; from ``vecs_at``: address, length per
+    vector), so that the kernel takes five arguments whatever the stack (numba's dispatch cost grows with each array it
+    types). A task is given its slots (the program's own arrays, or views it puts there before :meth:`build`); after it,
+    :meth:`bind_mat` and :meth:`bind_vec` point a slot at another array (the program keeps it alive).
+    :meth:`buffer_size`: the length of the kernel's ``buf``."""
 
     def __init__(self, m: int, n: int, sizes, order: int, lambda_max: float, eps: float, use_x0: bool,
                  solve: int = TPM):
@@ -357,9 +342,9 @@ class Program:
         return at
 
     def add_selection(self, row: int, qidx, vidx, kp: float, kd: float) -> int:
-        """Rows ``row...`` with ``b = xd_d + kp (x_d - q[qidx])`` (order 1) or ``xdd_d + kd (xd_d - v[vidx]) +
-        kp (x_d - q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns the offset of ``x_d, xd_d,
-        xdd_d`` in :attr:`floats` (its owner writes them there whenever they change)."""
+        """Rows ``row...`` with ``b = xd_d + kp (x_d - q[qidx])`` (order 1) or ``xdd_d + kd (xd_d - v[vidx]) + kp (x_d -
+        q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns the offset of ``x_d, xd_d, xdd_d`` in
+        :attr:`floats` (its owner writes them there whenever they change)."""
         dim = len(qidx)
         self._ints += [SELECTION, row, dim, *qidx, *vidx]
         return self._gains(kp, kd, 3 * dim)
@@ -368,10 +353,10 @@ class Program:
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
                   placement=None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
-        and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when
-        ``len(xrows) == len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at
-        order 2 ``rate = J qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`.
-        ``x``: the array of ``x``'s slot (a view pinocchio updates; with ``xrows``).
+        and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
+        len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at order 2 ``rate = J
+        qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`. ``x``: the array of
+        ``x``'s slot (a view pinocchio updates; with ``xrows``).
 
         ``jacobian = (JT, cols, p)`` (:meth:`hqp_tpm.robot.state.State.frame_jacobian_source` and the frame's
         position, views pinocchio updates): the kernel writes ``S`` itself
@@ -381,7 +366,7 @@ class Program:
         (:func:`hqp_tpm.robot._compiled.rotation_error`); the caller replaces ``mats[rot + 1]`` when the target
         changes. ``transposed`` (``n x q``, a view pinocchio updates, e.g. the CoM Jacobian transposed): ``S^T``, put
         in slot ``mat`` (order 1 only: the kernel does not compute ``rate`` from it). ``placement = (fid, RiT, pi, P,
-        RfT)`` (with ``jacobian``, at order 1; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
+        RfT)`` (with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
         places frame ``fid`` first (its rotation and its position ``p``,
         :func:`hqp_tpm.robot._compiled.frame_placement`), and :attr:`placed` gets ``fid``: the caller need not place
         it. Returns ``(at, mat, vec, rot)``:
@@ -411,8 +396,8 @@ class Program:
             self.mats += [rotation[0], rotation[1]]
         place, tail = -1, []
         if placement is not None:
-            if jacobian is None or self.order != 1:
-                raise ValueError("a frame placed in the kernel: with its joint-Jacobian source, at order 1")
+            if jacobian is None:
+                raise ValueError("a frame placed in the kernel: with its joint-Jacobian source")
             fid, RiT, pi, P, RfT = placement
             place = len(self.mats)
             self.mats += [RiT, np.ascontiguousarray(P, dtype=float), RfT]
@@ -424,8 +409,8 @@ class Program:
 
     @staticmethod
     def _slot(arrays: list, a: np.ndarray) -> int:
-        """The slot of ``a`` in ``arrays`` (added once: tasks share pinocchio's joint Jacobians, a frame task's
-        position is its ``x``)."""
+        """The slot of ``a`` in ``arrays`` (added once: tasks share pinocchio's joint Jacobians, a frame task's position
+        is its ``x``)."""
         for i, b in enumerate(arrays):
             if b is a:
                 return i
@@ -434,8 +419,8 @@ class Program:
 
     def set_box(self, kind: int, limits: np.ndarray, idx: np.ndarray, dt: float) -> None:
         """With :data:`SNS`: the kernel computes the box (:data:`BOX_VELOCITY` or :data:`BOX_ACCELERATION`) from
-        ``limits`` (the rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``) and ``idx`` (configuration and
-        velocity indices, 2 x joints), as :class:`~hqp_tpm.control._lean.JointBox`'s kernels."""
+        ``limits`` (the rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``) and ``idx`` (configuration and velocity
+        indices, 2 x joints), as :class:`~hqp_tpm.control._lean.JointBox`'s kernels."""
         if self.solve != SNS or kind not in (BOX_VELOCITY, BOX_ACCELERATION) or limits.shape != (6, idx.shape[1]):
             raise ValueError("set_box: an SNS program, BOX_VELOCITY or BOX_ACCELERATION, 6 x k limits, 2 x k indices")
         self.mats.append(np.ascontiguousarray(limits, dtype=float))
@@ -489,24 +474,27 @@ class Program:
         at = self.ints[8] + 2 * slot
         self.ints[at: at + 2] = a.__array_interface__["data"][0], a.shape[0]
 
-    def sns_info(self) -> dict:
-        """The SNS solver's info of the last solve (``scale``, ``saturated``, ``iterations``), as the lean step
-        records it."""
+    def sns_outputs(self) -> tuple[np.ndarray, float]:
+        """A copy of the SNS loop's outputs of the last solve (nsat, iterations, feasible, the saturated joints; the
+        scale), for :meth:`sns_info`."""
         i, f = self._sns_at
-        nsat, iterations = self.ints[i: i + 2].tolist()
-        return {"scale": self.floats.item(f), "saturated": self.ints[i + 3: i + 3 + nsat].tolist(),
-                "iterations": iterations}
+        return self.ints[i: i + 3 + self.ints[1]].copy(), self.floats.item(f)
 
+    def sns_info(self, outputs: tuple | None = None) -> dict:
+        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of the last solve or of its
+        :meth:`sns_outputs`, as the lean step records it."""
+        tail, scale = self.sns_outputs() if outputs is None else outputs
+        nsat, iterations = tail[:2].tolist()
+        return {"scale": scale, "saturated": tail[3: 3 + nsat].tolist(), "iterations": iterations}
 
 
 def kernel(solve: int = TPM):
-    """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; compiled or
-    loaded on first use), or None if numba cannot be imported after all (then
-    :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
+    """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; compiled or loaded
+    on first use), or None if numba cannot be imported after all (then :data:`hqp_tpm.solvers._compiled.ENABLED` is
+    False).
 
-    ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the
-    null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the
-    arrays of the program's slots, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box
-    and ``x`` of the SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`.
-    """
+    ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the null-space
+    term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the arrays of the
+    program's slots, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box and ``x`` of the
+    SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`."""
     return _KERNELS.get(solve) or _build(solve)

@@ -1,47 +1,25 @@
-"""The lean control step: the same step as :meth:`Controller.step` in a fixed, small number of calls.
+"""The lean control step: :meth:`Controller.step`'s numbers for a fixed stack of equality tasks in a few calls.
 
-The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds every step a
-:class:`~hqp_tpm.control.stack.Stack`, one :class:`~hqp_tpm.solvers.levels.Level` per task (each
-validated), stacks them, looks the solver up by name and wraps the result in a ``StepResult``. For a
-*fixed* stack of equality tasks all of that is the same every step, so :class:`LeanStep` checks it
-once, at construction, and per step does only:
+The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds a :class:`~hqp_tpm.control.stack.Stack`,
+one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks them and looks the solver up every step. For a
+*fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (pinocchio's
+kinematics, only the frames and passes the rows read: :meth:`hqp_tpm.robot.state.State.update_positions` at velocity
+level), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve, and the
+controller's integration.
 
-1. the state update: pinocchio's kinematics, partial (:meth:`hqp_tpm.robot.state.State.update` with the
-   frames the row writers read, and no velocity pass at velocity level; the rest on demand);
-2. each task's rows written in place into one preallocated stacked ``J`` and ``b`` by its row writer
-   (:meth:`hqp_tpm.tasks.base.Task.row_writer`: pinocchio's data read through views, no Level objects;
-   the arithmetic in one compiled call per task where numba is available, :mod:`hqp_tpm.robot._compiled`);
-3. the joint box, if any, into preallocated arrays (:class:`JointBox` for
-   :class:`~hqp_tpm.robot.limits.JointLimits`, one compiled call where it can; any other box function is called
-   as the controller does);
-4. one finiteness check of ``J`` and ``b`` and one solver call: ``tpm`` through the TPM kernel
-   (:func:`hqp_tpm.solvers.tpm.tpm_stacked`), ``sns_tpm`` through :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` on
-   ``J`` and ``b`` (its loop compiled for ``m > n``), any other solver through the registry on levels built once
-   as views of ``J`` and ``b``;
-5. one integration (:meth:`hqp_tpm.robot.state.State.integrate`).
+With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that have a row program
+(:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture of
+revolute/prismatic joints) copy only changed references into the program (:class:`~hqp_tpm.tasks.base.ReferenceSlots`),
+and one compiled call writes their rows from pinocchio's data read in place (frame placements and Jacobians, rotation
+errors ``log3(R_d R^T)``), tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in the joint limits' box), solves;
+the other tasks' row writers (:meth:`hqp_tpm.tasks.base.Task.row_writer`) run before it and other solvers after it,
+through the registry on levels that are views of ``J`` and ``b``.
 
-With numba, steps 2 and 4 are fused (:mod:`hqp_tpm.control._compiled_step`): the tasks that have a row program
-(:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture
-of revolute/prismatic joints) only copy their references and gains into the program where they are not the ones it
-holds (:class:`~hqp_tpm.tasks.base.ReferenceSlots`: a comparison of identities; and at order 2 gather
-``Jdot qd``); the kernel reads pinocchio's
-data in place (the joint Jacobians, frame placements, the CoM Jacobian) and computes the
-frame Jacobians (pinocchio's operations) and rotation errors ``log3(R_d R^T)`` itself; the other tasks write their
-rows; one compiled call writes the programs' rows, tests ``J`` and ``b`` for finiteness and, with ``tpm`` or
-``sns_tpm`` (in the joint limits' box), solves and tests ``x`` (other solvers then run on ``J`` and ``b`` as
-above). At velocity level the state update is :meth:`hqp_tpm.robot.state.State.update_positions` (one pinocchio
-pass, which also computes the CoM and its Jacobian when a task's rows read them).
-
-Same numbers as the readable path, step by step (``tests/test_lean.py``: the row writers repeat the
-operations of ``jacobian`` and ``command``, the box those of :mod:`hqp_tpm.robot.joint_boxes`, and the
-solvers are the readable path's own): to the last bit, except where the fused kernel computes a rotation error
-(its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd``: there to 1e-12.
-
-Supported (else :meth:`LeanStep.of` returns ``None`` and :meth:`LeanStep.why_not` says why): a
-:class:`~hqp_tpm.control.stack.FixedStack` without extra commands whose tasks are equality tasks (their
-``level`` is :meth:`Task.level`), no crosscheck, a policy that neither updates nor blends. A step whose
-rows are not finite is handed to the readable path, which raises the same typed error naming the task.
-"""
+Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
+error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` (to 1e-12). Supported (else
+:meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a :class:`~hqp_tpm.control.stack.FixedStack`
+without extra commands of equality tasks, no crosscheck, a policy that neither updates nor blends. A step whose rows are
+not finite is handed to the readable path, which raises the typed error naming the task."""
 
 from __future__ import annotations
 
@@ -64,9 +42,9 @@ from hqp_tpm.tasks.base import Task, own_rows, row_writer
 
 
 class JointBox:
-    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays: by the
-    compiled kernel (:meth:`JointLimits.kernel_box`, the same operations as ``BoxLimits``, the same bits) where it
-    can, else by :meth:`JointLimits.reference_box` (the readable formulas, recovery rules included)."""
+    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays: by the compiled
+    kernel (:meth:`JointLimits.kernel_box`, the same operations as ``BoxLimits``, the same bits) where it can, else by
+    :meth:`JointLimits.reference_box` (the readable formulas, recovery rules included)."""
 
     __slots__ = ("limits", "order", "lo", "up", "fast", "_P", "_idx", "_dt")
 
@@ -92,8 +70,7 @@ class LeanStep(CompiledStep):
 
     :meth:`compute` returns the command at the controller's state (``ctrl.step()`` runs it:
     :class:`~hqp_tpm.control.step_result.CompiledStep`). The controller stays the owner of the state (``ctrl.q``,
-    ``ctrl.v``, ``ctrl.t``, ``ctrl.steps``): compiled and readable steps can be mixed.
-    """
+    ``ctrl.v``, ``ctrl.t``, ``ctrl.steps``): compiled and readable steps can be mixed."""
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
@@ -216,8 +193,14 @@ class LeanStep(CompiledStep):
 
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
         """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the stacked rows
-        (the readable step's levels, bit for bit, built when asked)."""
-        return StepResult(t, self._stack, LAZY, x, self.info, LAZY, LAZY, (self, q, v, self._flat.copy()))
+        (the readable step's levels, bit for bit, built when asked) and of the fused SNS solve's info."""
+        if self._info is None:  # (the fused SNS kernel's: its outputs copied, the info built when asked)
+            return StepResult(t, self._stack, LAZY, x, LAZY, LAZY, LAZY,
+                              (self, q, v, self._flat.copy(), self._program.sns_outputs()))
+        return StepResult(t, self._stack, LAZY, x, self._info, LAZY, LAZY, (self, q, v, self._flat.copy()))
+
+    def info_of(self, kept: tuple) -> dict:
+        return self._program.sns_info(kept[4])
 
     def levels_of(self, kept: tuple) -> list[Level]:
         rows, m, n = kept[3], self.b.size, self.n
@@ -248,26 +231,25 @@ class LeanStep(CompiledStep):
         ctrl = self.ctrl
         if not ctrl._started:
             ctrl.start()
-        t = ctrl.t
+        t, q, v = ctrl.t, ctrl._q, ctrl._v
         kernel, status = self._kernel, None
-        fused = kernel is not None and _solvers_compiled.ENABLED and _compiled.ENABLED
+        fused = kernel is not None and _compiled.ENABLED  # (one switch: hqp_tpm._jit, shared by the kernel modules)
+        frames = self._fused_frames if fused else self.frames  # (the kernel places the frames its tasks read)
         if self._velocities:
-            st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False, frames=self.frames)
-        elif fused:  # (the kernel places the frames its tasks read: _fused_frames has the others; the CoM with them)
-            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self._fused_frames, self._com)
-        else:
-            st = ctrl.state.update_positions(ctrl._q, ctrl._v, t, self.frames)
+            st = ctrl.state.update(q, v, t, validate=False, frames=frames)
+        else:  # (the CoM with them when the kernel reads it)
+            st = ctrl.state.update_positions(q, v, t, frames, fused and self._com)
         if fused:  # the program's tasks gather their arrays, the others write their rows
             for write in self._fused:
                 write(t)
             x0 = self.x0
             if x0 is not None:
-                np.multiply(ctrl._v, -self.damping, out=x0)
+                np.multiply(v, -self.damping, out=x0)
             program = self._program
             sns = program.solve == _compiled_step.SNS
-            if sns and self.box is not None and program.box_given:
+            if sns and program.box_given and self.box is not None:
                 self.box(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
-            status = kernel(self._buf, program.ints, program.floats, ctrl._q, ctrl._v)
+            status = kernel(self._buf, program.ints, program.floats, q, v)
             if status == 0:  # SOLVED
                 self._info = None if sns else {}  # (None: the program's, read by the info property)
                 return self._out.copy()
@@ -285,7 +267,7 @@ class LeanStep(CompiledStep):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
             x0 = self.x0
             if x0 is not None:
-                np.multiply(ctrl._v, -self.damping, out=x0)
+                np.multiply(v, -self.damping, out=x0)
         J, b = self.J, self.b
         solver = self.solver
         info = {}

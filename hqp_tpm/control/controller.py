@@ -1,25 +1,24 @@
 """The control loop: one state update, the policy's stack, one solve, one integration per step.
 
 Velocity level (``order=1``): ``qd = solve(levels)``, ``q <- q + qd T``.
-Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` with the
-null-space damping ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then
-``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T`` (docs/setups.md).
+Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` with the null-space damping
+``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then ``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T``.
 
-The policy follows :class:`~hqp_tpm.control.policy.Policy`. One that ``blends`` gets the solution
-``x`` and returns the command (``resolve(stack)`` solves another stack with the same solver and
-settings): the smooth stack transitions of papers/003, eq. (8). With a solver that keeps a hard box
-(SNS, QP) the blended command is clipped into the box.
+The policy follows :class:`~hqp_tpm.control.policy.Policy`. One that ``blends`` gets the solution ``x`` and returns the
+command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth stack transitions of
+papers/003, eq. (8). With a solver that keeps a hard box (SNS, QP) the blended command is clipped into the box.
 
-A step is transactional: if it fails (non-finite command or state, wrong shapes, solver error, any
-exception) the controller *and the policy* (its stack, eq. (8) offset, operator, references,
-distance-field history: :meth:`Policy.snapshot`) are left exactly as they were before the step.
-"""
+A step is transactional: if it fails (non-finite command or state, wrong shapes, solver error, any exception) the
+controller *and the policy* (its stack, eq. (8) offset, operator, references, distance-field history:
+:meth:`Policy.snapshot`) are left exactly as they were before the step."""
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
+from scipy.linalg.blas import ddot as _ddot
 
 from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.control.command_rate import rate_limited, solve_around
@@ -39,20 +38,11 @@ from hqp_tpm.tasks.base import Task
 BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
 
 
-def _finite(*arrays: np.ndarray) -> bool:
-    """Are all entries finite? (:func:`~hqp_tpm.solvers.levels.all_finite` of each)"""
-    for a in arrays:
-        if not all_finite(a):
-            return False
-    return True
-
-
 class Controller:
     """Holds the robot state, a policy (or fixed stack), a solver name and the integration rule.
 
-    ``policy``: a :class:`~hqp_tpm.control.policy.Policy`, a :class:`Stack` or list of levels (a
-    :class:`FixedStack`), or a plain callable ``f(state, t) -> Stack``.
-    """
+    ``policy``: a :class:`~hqp_tpm.control.policy.Policy`, a :class:`Stack` or list of levels (a :class:`FixedStack`),
+    or a plain callable ``f(state, t) -> Stack``."""
 
     def __init__(self, robot: Robot, policy, *, order: int = 2, dt: float = 1e-3, solver: str = "tpm",
                  lambda_max: float = 0.0, eps: float = 0.0, nullspace_damping: float = 0.0,
@@ -83,8 +73,8 @@ class Controller:
         self._fast = self._fast_key = self._scratch = None  # the compiled step and what it was planned for
 
     def __getstate__(self) -> dict:
-        """Copied and pickled without its compiled step (it reads this controller's arrays by address): the copy
-        plans its own at its first step."""
+        """Copied and pickled without its compiled step (it reads this controller's arrays by address): the copy plans
+        its own at its first step."""
         return {**self.__dict__, "_fast": None, "_fast_key": None}
 
     def __repr__(self) -> str:
@@ -132,8 +122,8 @@ class Controller:
         self._started = True
 
     def solve_inputs(self, state: State, t: float, v: np.ndarray):
-        """``(x0, box)`` of the solve at ``state``: the null-space damping term ``-D qd`` (acceleration
-        level, eq. (15) of papers/000) and the hard box of the command (None when unused)."""
+        """``(x0, box)`` of the solve at ``state``: the null-space damping term ``-D qd`` (acceleration level, eq. (15)
+        of papers/000) and the hard box of the command (None when unused)."""
         box = self.box(state, t) if self.box is not None else None
         return self.null_space_term(v), box
 
@@ -142,15 +132,15 @@ class Controller:
         return -self.nullspace_damping * v if (self.order == 2 and self.nullspace_damping) else None
 
     def scratch_state(self) -> State:
-        """A second :class:`State` of the robot (the fields a compiled step's :class:`StepResult` computes on demand
-        are computed there, leaving :attr:`state` as the step left it)."""
+        """A second :class:`State` of the robot (the fields a compiled step's :class:`StepResult` computes on demand are
+        computed there, leaving :attr:`state` as the step left it)."""
         if self._scratch is None:
             self._scratch = State(self.robot)
         return self._scratch
 
     def _where(self) -> str:
-        """Where a step failed: the time and the size of the state it started from (a run that diverged
-        overflows into NaN long after the cause; ``max|v|`` of 1e250 says so at once)."""
+        """Where a step failed: the time and the size of the state it started from (a run that diverged overflows into
+        NaN long after the cause; ``max|v|`` of 1e250 says so at once)."""
         return (f" (step at t = {self.t:.6f} from max|q| = {np.abs(self._q).max():.3g}, "
                 f"max|v| = {np.abs(self._v).max():.3g})")
 
@@ -191,11 +181,11 @@ class Controller:
         return StepResult(self.t, stack, levels, x, info, x0, box)
 
     def _compiled_step(self):
-        """The compiled step of the policy under this controller's settings (None: the readable step), planned on
-        first use and again when the policy, a setting or the structure of the policy's stack changed.
+        """The compiled step of the policy under this controller's settings (None: the readable step), planned on first
+        use and again when the policy, a setting or the structure of the policy's stack changed.
 
-        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; a policy that plans its
-        stack: its own (:meth:`Policy.compiled_step`, e.g. Algorithm 1's)."""
+        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; a policy that plans its stack:
+        its own (:meth:`Policy.compiled_step`, e.g. Algorithm 1's)."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast
@@ -211,27 +201,25 @@ class Controller:
     def compute(self, record: bool = False) -> StepResult:
         """State update, policy, solve: the command at the current state (no integration).
 
-        ``record``: the step through the readable path (Task -> Level -> solver), every field computed at once;
-        else the compiled step where the set-up has one (the same numbers, fields computed on demand).
-        The policy's state advances as in a step; on an error it is restored.
-        """
+        ``record``: the step through the readable path (Task -> Level -> solver), every field computed at once; else the
+        compiled step where the set-up has one (the same numbers, fields computed on demand). The policy's state
+        advances as in a step; on an error it is restored."""
         t, q, v = self.t, self._q, self._v
-        started, saved = self._started, self.policy.snapshot()
+        fast = None if record else self._compiled_step()
+        started, saved = self._started, self._policy.snapshot()
         try:
-            fast = None if record else self._compiled_step()
             if fast is None:
                 return self._compute()
             return fast.result(t, q, v, fast.compute())
         except BaseException:
-            self.policy.restore(saved)
+            self._policy.restore(saved)
             self._started = started
             raise
 
     def step(self, record: bool = False) -> StepResult:
         """One control step, transactional: on any error the controller and its policy keep their state.
 
-        ``record``: as in :meth:`compute` (the readable path; ``--explain`` and the crosscheck read its record).
-        """
+        ``record``: as in :meth:`compute` (the readable path; ``--explain`` and the crosscheck read its record)."""
         t, q, v = self.t, self._q, self._v
         fast = None if record else self._compiled_step()
         if fast is not None:
@@ -250,17 +238,17 @@ class Controller:
 
     def advance(self, command: Callable[[], np.ndarray]) -> np.ndarray:
         """Compute a command with ``command()``, integrate it over ``dt`` and advance the controller; returns the
-        command. Transactional: on any error (in ``command`` or a non-finite state) the controller and its policy
-        keep their state. The one place a step is committed (:meth:`step` and the lean steps of
-        :mod:`hqp_tpm.control.lean` and :mod:`hqp_tpm.policies.planned_step`)."""
-        started, saved = self._started, self.policy.snapshot()
+        command. Transactional: on any error (in ``command`` or a non-finite state) the controller and its policy keep
+        their state. The one place a step is committed (:meth:`step` and the lean steps of :mod:`hqp_tpm.control.lean`
+        and :mod:`hqp_tpm.policies.planned_step`)."""
+        started, saved = self._started, self._policy.snapshot()
         try:
             x = command()
             q, v = self.state.integrate(self._q, self._v, x, self.dt, self.order)
-            if not _finite(q, v):
+            if not (math.isfinite(_ddot(q, q) + _ddot(v, v)) or (all_finite(q) and all_finite(v))):
                 raise NonFiniteError(f"integration produced a non-finite state{self._where()}")
         except BaseException:
-            self.policy.restore(saved)
+            self._policy.restore(saved)
             self._started = started
             raise
         self._q, self._v = q, v

@@ -1,5 +1,5 @@
-"""What one control step computed: :class:`StepResult`, and :class:`Kept`, what a compiled step keeps to fill
-the result's costly fields on demand (:meth:`hqp_tpm.control.controller.Controller.step`)."""
+"""What one control step computed: :class:`StepResult`, and :class:`Kept`, what a compiled step keeps to fill the
+result's costly fields on demand (:meth:`hqp_tpm.control.controller.Controller.step`)."""
 
 from __future__ import annotations
 
@@ -17,27 +17,32 @@ LAZY = object()  # a StepResult field not computed yet
 class StepResult:
     """What one step computed (before integration): the stack, the command, solver info and inputs.
 
-    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose at this step.
-    ``levels``: the solver's input, one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest
-    first (``Level.J``, ``Level.b`` of an equality level, ``Level.lower``/``Level.upper`` of an inequality
-    level, ``Level.name`` from the tasks), the rows the step solved at this state; pass them with ``x0`` and
-    ``box`` to :func:`~hqp_tpm.solvers.solve` or to :func:`hqp_tpm.testing.assert_solvers_agree` to solve the
-    same problem again. ``command``: the joint velocity (order 1) or acceleration (order 2), ``nv`` values.
-    ``info``: the solver's account (e.g. ``scale``, ``saturated``, ``iterations``). ``x0``: the null-space term
-    (None: none). ``box``: ``(lower, upper)`` of the command (None: no box).
+    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose at this step. ``levels``: the
+    solver's input, one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest first (``Level.J``,
+    ``Level.b`` of an equality level, ``Level.lower``/``Level.upper`` of an inequality level, ``Level.name`` from the
+    tasks), the rows the step solved at this state; pass them with ``x0`` and ``box`` to :func:`~hqp_tpm.solvers.solve`
+    or to :func:`hqp_tpm.testing.assert_solvers_agree` to solve the same problem again. ``command``: the joint velocity
+    (order 1) or acceleration (order 2), ``nv`` values. ``info``: the solver's account (e.g. ``scale``, ``saturated``,
+    ``iterations``). ``x0``: the null-space term (None: none). ``box``: ``(lower, upper)`` of the command (None: no
+    box).
 
-    A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from
-    what it kept of the step (its stacked rows, the state it started from): the numbers of the readable step.
-    """
+    A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
+    it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
 
-    __slots__ = ("t", "command", "info", "_stack", "_levels", "_x0", "_box", "_kept")
+    __slots__ = ("t", "command", "_info", "_stack", "_levels", "_x0", "_box", "_kept")
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
                  kept: tuple | None = None):
-        """``kept``: ``(step, q, v, rows)`` of a compiled step (:class:`CompiledStep`), which computes the fields
-        passed as ``LAZY``."""
-        self.t, self.command, self.info = t, command, {} if info is None else info
+        """``kept``: ``(step, q, v, rows)`` of a compiled step (:class:`CompiledStep`), which computes the fields passed
+        as ``LAZY``."""
+        self.t, self.command, self._info = t, command, {} if info is None else info
         self._stack, self._levels, self._x0, self._box, self._kept = stack, levels, x0, box, kept
+
+    @property
+    def info(self) -> dict:
+        if self._info is LAZY:
+            self._info = self._kept[0].info_of(self._kept)
+        return self._info
 
     @property
     def stack(self) -> Stack:
@@ -79,13 +84,15 @@ class CompiledStep:
     :class:`hqp_tpm.policies._planned_step.PlannedStep`): the readable step's numbers in fewer calls.
 
     ``compute() -> command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it,
-    keeping ``(step, q, v, rows)`` (``q``, ``v``: the state it started from; the controller replaces, never writes,
-    its arrays), from which ``stack_of``, ``levels_of``, ``label_of`` and :meth:`box_of` compute the result's fields
-    on demand; ``current()``: whether the controller's policy is still the one planned for.
-    """
+    keeping ``(step, q, v, rows, ...)`` (``q``, ``v``: the state it started from; the controller replaces, never writes,
+    its arrays), from which ``stack_of``, ``levels_of``, ``label_of``, ``info_of`` and :meth:`box_of` compute the
+    result's fields on demand; ``current()``: whether the controller's policy is still the one planned for."""
 
     __slots__ = ()
     ctrl: Controller
+
+    def info_of(self, kept: tuple) -> dict:  # pragma: no cover - a step that passes a LAZY info overrides it
+        raise NotImplementedError
 
     def box_of(self, t: float, kept: tuple) -> tuple[np.ndarray, np.ndarray] | None:
         """The controller's box at the kept state (in :meth:`Controller.scratch_state`)."""

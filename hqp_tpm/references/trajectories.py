@@ -83,6 +83,23 @@ class Constant(Trajectory):
         super().start(x0)
         self._ref = None
 
+    def assign(self, x: np.ndarray) -> None:
+        """``value = x`` without another copy: ``x`` a new float64 vector the caller checked (finite), kept and made
+        read-only. Without an origin the reference is ``(x, 0, 0)`` at once (``x + 0`` but for the sign of a zero),
+        the zeros the previous reference's (the same objects: :class:`~hqp_tpm.tasks.base.ReferenceSlots` copies
+        ``x`` only); with one, the next :meth:`reference` adds it."""
+        x.setflags(write=False)
+        object.__setattr__(self, "value", x)
+        ref = self._ref
+        if self.origin is not None:
+            ref = None
+        elif ref is not None and ref[1].shape == x.shape:
+            ref = (x, ref[1], ref[2])
+        else:
+            z = np.zeros_like(x)
+            ref = _frozen(x, z) + (z,)
+        object.__setattr__(self, "_ref", ref)
+
     def reference(self, t: float):
         if self._ref is None:  # constant between starts: computed once, read-only
             x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0)

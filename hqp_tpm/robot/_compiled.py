@@ -1,20 +1,18 @@
 """Compiled (numba) kernels of the lean step's arithmetic around pinocchio (private; :mod:`hqp_tpm.control._lean`).
 
-One call each instead of 10-30 small numpy calls: the joint box of
-:class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (velocity and acceleration level, the common case of a state
-inside its limits; the recovery cases return False and the caller computes them with ``BoxLimits``), and the
-tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the error (order 2, and the posture rows); for the
-fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement and its Jacobian from the joint
-Jacobians, its rotation error ``log3(R_d R^T)`` (the arrays that step reads by address:
-:func:`hqp_tpm._jit.table_matrix`). Every kernel does the readable code's (or pinocchio's) floating-point operations
-in the same order (no fast-math, no contraction), so the results are the same to the last bit
-(``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3`: it follows pinocchio's steps, but its
-sums round within a few ulps of pinocchio's.
+One call each instead of 10-30 small numpy calls: the joint box of :class:`~hqp_tpm.robot.joint_boxes.BoxLimits`
+(velocity and acceleration level, the common case of a state inside its limits; the recovery cases return False and the
+caller computes them with ``BoxLimits``), and the tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the
+error (order 2); for the fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement and its Jacobian
+from the joint Jacobians, its rotation error ``log3(R_d R^T)`` (the arrays that step reads by address:
+:func:`hqp_tpm._jit.table_matrix`). Every kernel does the readable code's (or pinocchio's) floating-point operations in
+the same order (no fast-math, no contraction), so the results are the same to the last bit (``tests/test_lean.py``,
+``tests/test_frame_kernels.py``), except :func:`log3`: it follows pinocchio's steps, but its sums round within a few
+ulps of pinocchio's.
 
-Used when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED` and
-:data:`AVAILABLE` are that one switch, shared with the solvers' kernels). :mod:`hqp_tpm._jit` compiles them on the
-first call of a process (~1-3 s) or loads them from its disk cache.
-"""
+Used when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED` and :data:`AVAILABLE`
+are that one switch, shared with the solvers' kernels). :mod:`hqp_tpm._jit` compiles them on the first call of a process
+(~1-3 s) or loads them from its disk cache."""
 
 from __future__ import annotations
 
@@ -28,11 +26,10 @@ from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (
 
 @_njit
 def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a joint's
-    position box is empty (the recovery rules: the caller computes the box with ``BoxLimits``).
+    """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a joint's position box
+    is empty (the recovery rules: the caller computes the box with ``BoxLimits``).
 
-    ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt`` (finite limits, ``a_max > 0``).
-    """
+    ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt`` (finite limits, ``a_max > 0``)."""
     for j in range(P.shape[1]):
         qj = q[idx[0, j]]
         q_min, q_max, v_max, two_a = P[0, j], P[1, j], P[2, j], P[4, j]
@@ -53,8 +50,8 @@ def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
 @_njit
 def velocity_rate_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
     """``BoxLimits.velocity_box(q, dq=v)`` (the discrete braking term, then the command-rate bound ``v +- a_max dt``;
-    ``P[5] = a_max dt > 0``)
-    into ``lo[idx[1]]``, ``up[idx[1]]``, the same operations; False if a joint's position box is empty."""
+    ``P[5] = a_max dt > 0``) into ``lo[idx[1]]``, ``up[idx[1]]``, the same operations; False if a joint's position box
+    is empty."""
     for j in range(P.shape[1]):
         c = idx[1, j]
         qj = q[idx[0, j]]
@@ -79,8 +76,8 @@ def velocity_rate_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
 
 @_njit
 def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.acceleration_box`` at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False
-    for a state outside its viable set or an empty position box (the caller then uses ``BoxLimits``)."""
+    """``BoxLimits.acceleration_box`` at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False for a
+    state outside its viable set or an empty position box (the caller then uses ``BoxLimits``)."""
     for j in range(P.shape[1]):
         c = idx[1, j]
         qj, dq = q[idx[0, j]], v[c]
@@ -108,18 +105,6 @@ def feedback2(b, e, xd, xdd, rate, jdq, kp, kd):  # pragma: no cover - compiled
     """``b = xdd + kd (xd - rate) + kp e - jdq`` (:meth:`Task.command`, order 2), entry by entry."""
     for i in range(b.shape[0]):
         b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e[i] - jdq[i]
-
-
-@_njit
-def posture_rows(b, q, v, idx, cols, x_d, xd, xdd, kp, kd, order):  # pragma: no cover - compiled
-    """The posture task's ``b`` (revolute/prismatic joints): ``e = x_d - q[idx]``; order 1 ``xd + kp e``,
-    order 2 ``xdd + kd (xd - v[cols]) + kp e - 0``."""
-    for i in range(b.shape[0]):
-        e = x_d[i] - q[idx[i]]
-        if order == 1:
-            b[i] = xd[i] + kp * e
-        else:
-            b[i] = xdd[i] + kd * (xd[i] - v[cols[i]]) + kp * e - 0.0
 
 
 @_njit
@@ -154,8 +139,8 @@ def copy_rows(J, Jsrc, rows):  # pragma: no cover - compiled
 
 @_njit
 def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - compiled
-    """A task's rows at order 1: ``J[i] = Jsrc[rows[i]]``; ``e = [x_d - x[xrows], w]`` (``w``: the rows after
-    ``x_d``, e.g. a frame's rotation error); ``b = xd + kp e`` (:meth:`Task.command`)."""
+    """A task's rows at order 1: ``J[i] = Jsrc[rows[i]]``; ``e = [x_d - x[xrows], w]`` (``w``: the rows after ``x_d``,
+    e.g. a frame's rotation error); ``b = xd + kp e`` (:meth:`Task.command`)."""
     m = J.shape[0]
     copy_rows(J, Jsrc, rows)
     k = x_d.shape[0]
@@ -167,8 +152,8 @@ def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - com
 
 @_njit
 def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pragma: no cover - compiled
-    """A task's rows at order 2: ``J`` and ``e`` as :func:`rows1`, ``b = xdd + kd (xd - rate) + kp e - jdq``
-    (``rate = J qd`` computed by the caller with numpy's dot, as :meth:`Task.command` does)."""
+    """A task's rows at order 2: ``J`` and ``e`` as :func:`rows1`, ``b = xdd + kd (xd - rate) + kp e - jdq`` (``rate = J
+    qd`` computed by the caller with numpy's dot, as :meth:`Task.command` does)."""
     m = J.shape[0]
     copy_rows(J, Jsrc, rows)
     k = x_d.shape[0]
@@ -180,10 +165,10 @@ def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pr
 @_njit
 def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
     """``pin.updateFramePlacement``: ``oMf = oMi * placement`` of a frame into pinocchio's own arrays, ``R_f = R_i R_p``
-    (``RfT`` its transposed view) and ``p = R_i p_p + p_i``, from its parent joint's placement (``RiT = R_i^T``,
-    ``pi``: views) and its placement in that joint (``P``: the rows of ``R_p``, then ``p_p``); Eigen's sums as the
-    pinocchio wheels compute them (rows 0 and 1 in one SIMD packet, ``(t0 + t1) + t2``; row 2 alone, ``t0 + (t1 +
-    t2)``): the same bits with pinocchio 3.4, 3.8 and 4.1 (``tests/test_frame_kernels.py``)."""
+    (``RfT`` its transposed view) and ``p = R_i p_p + p_i``, from its parent joint's placement (``RiT = R_i^T``, ``pi``:
+    views) and its placement in that joint (``P``: the rows of ``R_p``, then ``p_p``); Eigen's sums as the pinocchio
+    wheels compute them (rows 0 and 1 in one SIMD packet, ``(t0 + t1) + t2``; row 2 alone, ``t0 + (t1 + t2)``): the same
+    bits with pinocchio 3.4, 3.8 and 4.1 (``tests/test_frame_kernels.py``)."""
     for a in range(3):
         r0, r1, r2 = RiT[0, a], RiT[1, a], RiT[2, a]
         if a < 2:
@@ -200,8 +185,8 @@ def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
 def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
     """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into ``S`` (6 x nv), from the joint
     Jacobians ``JT = data.J.T`` (nv x 6, world frame) on the columns ``cols`` that support the frame, as pinocchio's
-    ``translateJointJacobian``: ``linear = v - p x omega``, ``angular = omega`` (Eigen's cross product, term by
-    term); the other columns of ``S`` are not written (zero)."""
+    ``translateJointJacobian``: ``linear = v - p x omega``, ``angular = omega`` (Eigen's cross product, term by term);
+    the other columns of ``S`` are not written (zero)."""
     p0, p1, p2 = p[0], p[1], p[2]
     for c in cols:
         a0, a1, a2 = JT[c, 3], JT[c, 4], JT[c, 5]
@@ -235,9 +220,9 @@ def _theta_axis(i0, val, R, axis):  # pragma: no cover - compiled
 @_njit
 def log3(M, w):  # pragma: no cover - compiled
     """``w <- pin.log3(M)`` for a rotation matrix ``M`` (3 x 3): pinocchio's ``log3_impl`` (3.x) step by step
-    (renormalized columns, ``acos`` of the trace, its expansions near 0 and pi, at pi the axis of the largest
-    ``2 R_ii - tr + 1``). Not bit-identical to pinocchio (its sums may round otherwise): equal to ~1e-15 away from
-    pi (``tests/test_frame_kernels.py``)."""
+    (renormalized columns, ``acos`` of the trace, its expansions near 0 and pi, at pi the axis of the largest ``2 R_ii -
+    tr + 1``). Not bit-identical to pinocchio (its sums may round otherwise): equal to ~1e-15 away from pi
+    (``tests/test_frame_kernels.py``)."""
     R = np.empty((3, 3))
     n0 = math.sqrt(M[0, 0] * M[0, 0] + M[1, 0] * M[1, 0] + M[2, 0] * M[2, 0])
     n1 = math.sqrt(M[0, 1] * M[0, 1] + M[1, 1] * M[1, 1] + M[2, 1] * M[2, 1])

@@ -1,15 +1,16 @@
 """One state update per control step: kinematics, Jacobians and J-dot q-dot computed once.
 
-:meth:`State.update` runs pinocchio's second-order forward kinematics with zero joint
-acceleration, so the classical acceleration of any frame *is* its ``J-dot q-dot``; joint
-Jacobians are computed in the same pass. Frame quantities and the centre of mass are then
-read lazily and cached until the next update, so tasks never recompute kinematics.
-"""
+:meth:`State.update` runs pinocchio's second-order forward kinematics with zero joint acceleration, so the classical
+acceleration of any frame *is* its ``J-dot q-dot``; joint Jacobians are computed in the same pass. Frame quantities and
+the centre of mass are then read lazily and cached until the next update, so tasks never recompute kinematics."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.blas import ddot as _ddot
 
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.robot import _compiled
@@ -32,6 +33,7 @@ class State:
         self.data = robot.model.createData()
         self.q = robot.neutral()
         self.v = np.zeros(robot.nv)
+        self._sizes = (self.model.nq, self.model.nv)
         self.t = 0.0
         self._zero = np.zeros(robot.nv)
         self._cache: dict = {}
@@ -49,37 +51,29 @@ class State:
                 f"updates={self.updates})")
 
     def check(self, q, v=None) -> tuple[np.ndarray, np.ndarray]:
-        """Validated copies of ``q`` and ``v`` (shape and finiteness; ``v`` None: zeros), without touching the
-        state."""
-        nq, nv = self.model.nq, self.model.nv
+        """Validated copies of ``q`` and ``v`` (shape and finiteness; ``v`` None: zeros), without touching the state."""
+        nq, nv = self._sizes
         q = np.array(q, dtype=float)
-        if q.shape != (nq,):
-            q = q.reshape(-1)
-            if q.shape != (nq,):
-                raise ShapeError(f"q has {q.size} entries, the robot {self.robot.name!r} has nq = {nq}")
-        if v is None:
-            v = np.zeros(nv)
-        else:
-            v = np.array(v, dtype=float)
-            if v.shape != (nv,):
-                v = v.reshape(-1)
-                if v.shape != (nv,):
-                    raise ShapeError(f"v has {v.size} entries, the robot {self.robot.name!r} has nv = {nv}")
+        v = np.zeros(nv) if v is None else np.array(v, dtype=float)
+        if q.shape == (nq,) and v.shape == (nv,) and math.isfinite(_ddot(q, q) + _ddot(v, v)):
+            return q, v  # (the common case: one sum of squares says both are finite)
+        for arr, what, size in ((q, "q", nq), (v, "v", nv)):
+            if arr.size != size:
+                raise ShapeError(f"{what} has {arr.size} entries, the robot {self.robot.name!r} has n{what} = {size}")
         for arr, what in ((q, "q"), (v, "v")):
             if not all_finite(arr):
                 raise NonFiniteError(f"{what} holds non-finite values at {np.flatnonzero(~np.isfinite(arr)).tolist()}")
-        return q, v
+        return q.reshape(-1), v.reshape(-1)
 
     def update(self, q, v, t: float = 0.0, *, validate: bool = True, frames=None, velocities: bool = True) -> State:
         """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
 
-        ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the
-        controller's ``q``, ``v``): float vectors of the right sizes, finite, not modified afterwards.
+        ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the controller's ``q``,
+        ``v``): float vectors of the right sizes, finite, not modified afterwards.
 
-        The lean step (:mod:`hqp_tpm.control._lean`) may ask for less: ``frames`` (frame ids) places only
-        those frames, ``velocities=False`` runs the position pass only. The rest is then computed by the
-        first method of this class that needs it (reading ``state.data`` directly sees only what was asked).
-        """
+        The lean step (:mod:`hqp_tpm.control._lean`) may ask for less: ``frames`` (frame ids) places only those frames,
+        ``velocities=False`` runs the position pass only. The rest is then computed by the first method of this class
+        that needs it (reading ``state.data`` directly sees only what was asked)."""
         if validate:
             q, v = self.check(q, v)
         self.q, self.v, self.t = q, v, float(t)
@@ -100,11 +94,11 @@ class State:
         return self
 
     def update_positions(self, q, v, t: float, frames, com: bool = False) -> State:
-        """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations (the
-        lean step's update at velocity level, every step). ``com``: also the CoM and its Jacobian
-        (:meth:`com_views`; :meth:`com_kinematics` at order 1 then has nothing left to do in this update), in the
-        same pinocchio pass: ``jacobianCenterOfMass`` from ``q`` computes the joint Jacobians with the same
-        operations as ``computeJointJacobians`` (the same bits: ``tests/test_lean.py``)."""
+        """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations (the lean
+        step's update at velocity level, every step). ``com``: also the CoM and its Jacobian (:meth:`com_views`;
+        :meth:`com_kinematics` at order 1 then has nothing left to do in this update), in the same pinocchio pass:
+        ``jacobianCenterOfMass`` from ``q`` computes the joint Jacobians with the same operations as
+        ``computeJointJacobians`` (the same bits: ``tests/test_lean.py``)."""
         self.q, self.v, self.t = q, v, float(t)
         model, data = self.model, self.data
         if com:
@@ -172,8 +166,8 @@ class State:
         return pin.getFrameVelocity(self.model, self.data, fid, LWA).vector
 
     def frame_views(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """Position and rotation of frame ``fid`` as views of pinocchio's data, updated in place by every
-        :meth:`update` (for the lean step's row writers); None if this pinocchio returns copies."""
+        """Position and rotation of frame ``fid`` as views of pinocchio's data, updated in place by every :meth:`update`
+        (for the lean step's row writers); None if this pinocchio returns copies."""
         M = self.data.oMf[fid]
         views = M.translation, M.rotation
         again = self.data.oMf[fid]
@@ -181,9 +175,9 @@ class State:
 
     def frame_placement_source(self, fid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
         """``(RiT, pi, P, RfT)``: the parent joint's placement as views of pinocchio's data (rotation transposed,
-        translation), the frame's placement in that joint (``P``, 4 x 3: the rows of its rotation, then its
-        translation) and a view of the frame's rotation transposed, from which the lean step's kernel places the
-        frame as ``pin.updateFramePlacement`` (:func:`hqp_tpm.robot._compiled.frame_placement`; its translation is
+        translation), the frame's placement in that joint (``P``, 4 x 3: the rows of its rotation, then its translation)
+        and a view of the frame's rotation transposed, from which the lean step's kernel places the frame as
+        ``pin.updateFramePlacement`` (:func:`hqp_tpm.robot._compiled.frame_placement`; its translation is
         :meth:`frame_views`'); None if this pinocchio returns copies or that kernel on such views is not
         ``pin.updateFramePlacement`` to the bit (:func:`verify_source`)."""
         model, data = self.model, self.data
@@ -201,9 +195,9 @@ class State:
 
     def frame_jacobian_source(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
         """``(JT, cols)``: the joint Jacobians ``data.J`` transposed (a view, ``nv x 6``, world frame, refreshed by
-        every :meth:`update`) and the columns that support frame ``fid``, from which the lean step's kernel writes
-        the frame Jacobian (:func:`hqp_tpm.robot._compiled.frame_jacobian`); None if this pinocchio returns a copy
-        of ``data.J``, the model has mimic joints, or that kernel on such a view is not ``getFrameJacobian`` to the bit
+        every :meth:`update`) and the columns that support frame ``fid``, from which the lean step's kernel writes the
+        frame Jacobian (:func:`hqp_tpm.robot._compiled.frame_jacobian`); None if this pinocchio returns a copy of
+        ``data.J``, the model has mimic joints, or that kernel on such a view is not ``getFrameJacobian`` to the bit
         (:func:`verify_source`; then ``getFrameJacobian`` is called)."""
         model, data = self.model, self.data
         if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
@@ -230,16 +224,16 @@ class State:
 
     # -- centre of mass --------------------------------------------------------------------------
     def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """CoM, CoM Jacobian and CoM J-dot q-dot as views of pinocchio's data, filled by :meth:`com_kinematics`
-        (for the lean step's row writers); None if this pinocchio returns copies."""
+        """CoM, CoM Jacobian and CoM J-dot q-dot as views of pinocchio's data, filled by :meth:`com_kinematics` (for the
+        lean step's row writers); None if this pinocchio returns copies."""
         d = self.data
         views = d.com[0], d.Jcom, d.acom[0]
         return views if _same_memory(views, (d.com[0], d.Jcom, d.acom[0])) else None
 
     def com_kinematics(self, order: int) -> None:
-        """Fill :meth:`com_views` from the kinematics of :meth:`update`: the CoM and its Jacobian, and at
-        ``order`` 2 first its J-dot q-dot (the same calls, in the same order, as :meth:`com`). At order 1 nothing when
-        this update computed them (:meth:`update_positions` with ``com``): every other path here ends with the same
+        """Fill :meth:`com_views` from the kinematics of :meth:`update`: the CoM and its Jacobian, and at ``order`` 2
+        first its J-dot q-dot (the same calls, in the same order, as :meth:`com`). At order 1 nothing when this update
+        computed them (:meth:`update_positions` with ``com``): every other path here ends with the same
         ``jacobianCenterOfMass`` on the same joint placements, so pinocchio holds these numbers whichever ran."""
         if order == 1 and self._com_update == self.updates:
             return
@@ -270,8 +264,8 @@ class State:
 
     # -- integration ---------------------------------------------------------------------------
     def integrate(self, q, v, a, dt: float, order: int) -> tuple[np.ndarray, np.ndarray]:
-        """Next ``(q, v)``: velocity level ``q + v dt``; acceleration level
-        ``q + v dt + a dt^2 / 2`` and ``v + a dt`` (docs/setups.md, 'Initial state and run')."""
+        """Next ``(q, v)``: velocity level ``q + v dt``; acceleration level ``q + v dt + a dt^2 / 2`` and ``v + a dt``
+        (docs/setups.md, 'Initial state and run')."""
         if self.euclidean and _compiled.ENABLED:  # pin.integrate is q + dq here: one compiled call, same operations
             n = q.shape[0]
             q_next, v_next = np.empty(n), np.empty(n)
@@ -302,9 +296,8 @@ def verify_source(model, what: str, fid: int) -> bool:
     ``what``: ``"jacobian"``, :func:`~hqp_tpm.robot._compiled.frame_jacobian` from ``data.J.T`` equals
     ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``; ``"placement"``,
     :func:`~hqp_tpm.robot._compiled.frame_placement` from the parent joint's placement equals
-    ``pin.updateFramePlacement``, and writes through the views of
-    ``data.oMf[fid]`` are what pinocchio's ``data.oMf[fid]`` then reads.
-    """
+    ``pin.updateFramePlacement``, and writes through the views of ``data.oMf[fid]`` are what pinocchio's
+    ``data.oMf[fid]`` then reads."""
     data = model.createData()
     frame = model.frames[fid]
     try:

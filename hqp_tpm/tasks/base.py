@@ -2,21 +2,22 @@
 
 Velocity level (order 1):      ``b = xd_d + kp e``                      (CLIK, eq. (7) of papers/000)
 Acceleration level (order 2):  ``b = xdd_d + kd (xd_d - J qd) + kp e - Jdot qd``  (eq. (12))
-with ``e = x_d - x``. An ``extra`` vector (e.g. the EE repulsion of eq. (30)) is added to the
-desired velocity/acceleration before the feedback terms.
-"""
+with ``e = x_d - x``. An ``extra`` vector (e.g. the EE repulsion of eq. (30)) is added to the desired
+velocity/acceleration before the feedback terms."""
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cache, partial
 
 import numpy as np
+from scipy.linalg.blas import ddot as _ddot
 
-from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
-from hqp_tpm.references.trajectories import Trajectory, as_trajectory
+from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError, shown
+from hqp_tpm.references.trajectories import Constant, Trajectory, as_trajectory
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 
@@ -46,10 +47,14 @@ class Task(ABC):
     def __init__(self, name: str, target, gains: Gains | None = None):
         self.name = name
         self.gains = gains or Gains()
+        self.trajectory: Trajectory = self._trajectory_of(target)
+
+    def _trajectory_of(self, target) -> Trajectory:
+        """``target`` (a constant, None/``"hold"``, a trajectory) as this task's trajectory, the errors naming it."""
         try:
-            self.trajectory: Trajectory = as_trajectory(target, self.dim)
-        except ShapeError as exc:  # name the task whose target is wrong
-            raise ShapeError(f"task {name!r}: {exc}") from None
+            return as_trajectory(target, self.dim)
+        except (ShapeError, NonFiniteError) as exc:  # name the task whose target is wrong
+            raise type(exc)(f"task {self.name!r}: {exc}") from None
 
     # robot-side quantities --------------------------------------------------------------
     @abstractmethod
@@ -110,10 +115,9 @@ class Task(ABC):
         """``write(t)`` for the lean step (:mod:`hqp_tpm.control._lean`): this task's rows at ``state``'s current
         kinematics written in place into ``J`` (``dim x n``) and ``b`` (``dim``), views of the stacked arrays.
 
-        The numbers of :meth:`jacobian` and :meth:`command` (without an extra command); built once, called
-        every step after the state update. This default calls them; the frame, CoM, posture and joint
-        velocity tasks write with fewer calls (``tests/test_lean.py`` compares every writer with them).
-        """
+        The numbers of :meth:`jacobian` and :meth:`command` (without an extra command); built once, called every step
+        after the state update. This default calls them; the frame, CoM, posture and joint velocity tasks write with
+        fewer calls (``tests/test_lean.py`` compares every writer with them)."""
         def write(t: float) -> None:
             Jt = self.jacobian(state)
             J[...] = Jt
@@ -121,12 +125,11 @@ class Task(ABC):
         return write
 
     def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
-        """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows
-        (starting at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the
-        step's pinocchio outputs into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array
-        is bound with ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel
-        then writes the numbers of :meth:`jacobian` and :meth:`command`. None (this default): the task's row writer runs
-        instead."""
+        """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows (starting
+        at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the step's pinocchio outputs
+        into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array is bound with
+        ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel then writes the
+        numbers of :meth:`jacobian` and :meth:`command`. None (this default): the task's row writer runs instead."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -138,15 +141,44 @@ class Task(ABC):
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
 
 
+def _target(self) -> Trajectory:
+    """The reference the task tracks (its :attr:`trajectory`). Assigning a constant (``dim`` values) or a
+    :class:`Trajectory` replaces it, validated as the constructor's target (:class:`ShapeError`, :class:`NonFiniteError`
+    naming the task; a relative constant stays relative); a constant array given to a constant trajectory is stored in
+    it at the cost of one copy (:meth:`Constant.assign`)."""
+    return self.trajectory
+
+
+def _set_target(self, value) -> None:
+    tr = self.trajectory
+    if type(value) is np.ndarray and type(tr) is Constant and tr.origin is None and value.shape == (self.dim,) \
+            and value.dtype == np.float64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
+        tr.assign(value.copy())
+        return
+    if value is None or isinstance(value, str):
+        raise ParameterError(f"task {self.name!r}: target {shown(value)} (the start value) is a constructor's "
+                             f"target only; assign {self.dim} values or a Trajectory")
+    new = self._trajectory_of(value)
+    if type(tr) is Constant and type(new) is Constant and not isinstance(value, Trajectory):
+        tr.value = new.value  # (a relative constant keeps its origin)
+    else:
+        self.trajectory = new
+
+
+#: ``target`` of the tasks whose trajectory is their target (:class:`~hqp_tpm.tasks.posture.Posture`,
+#: :class:`~hqp_tpm.tasks.frame_position.FramePosition`, :class:`~hqp_tpm.tasks.com.CenterOfMass`)
+trajectory_target = property(_target, _set_target)
+
+
 #: The methods a row writer or row program repeats (:func:`own_rows`).
 _REPEATED = ("value", "jacobian", "jdot_qdot", "error", "reference", "command", "level")
 
 
 @cache
 def own_rows(kind: type[Task]) -> bool:
-    """Whether the row writer and row program of task class ``kind`` repeat its own methods: no class below the one
-    that defines them overrides one of the methods they repeat (a subclass that changes ``jacobian`` only, say, is
-    written by the default :meth:`Task.row_writer`, which calls it)."""
+    """Whether the row writer and row program of task class ``kind`` repeat its own methods: no class below the one that
+    defines them overrides one of the methods they repeat (a subclass that changes ``jacobian`` only, say, is written by
+    the default :meth:`Task.row_writer`, which calls it)."""
     def owner(name: str) -> type:
         return next(k for k in kind.__mro__ if name in vars(k))
 
@@ -155,45 +187,52 @@ def own_rows(kind: type[Task]) -> bool:
 
 
 def row_writer(task: Task, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
-    """``task``'s row writer (:meth:`Task.row_writer`) where it repeats the task's own methods (:func:`own_rows`),
-    else the default one, which calls them."""
+    """``task``'s row writer (:meth:`Task.row_writer`) where it repeats the task's own methods (:func:`own_rows`), else
+    the default one, which calls them."""
     kind = task.row_writer if own_rows(type(task)) else partial(Task.row_writer, task)
     return kind(state, order, J, b)
 
 
-def kernel_placement(state: State, fid: int, order: int, inside: bool):
+def kernel_placement(state: State, fid: int, inside: bool):
     """``add_frame``'s ``placement`` (:meth:`hqp_tpm.control._compiled_step.Program.add_frame`) of a frame task's row
-    program: frame ``fid`` placed by the fused kernel when it also computes the frame's Jacobian (``inside``), at
-    order 1, and the state gives views (:meth:`~hqp_tpm.robot.state.State.frame_placement_source`); else None."""
-    if not inside or order != 1:
+    program: frame ``fid`` placed by the fused kernel when it also computes the frame's Jacobian (``inside``) and the
+    state gives views (:meth:`~hqp_tpm.robot.state.State.frame_placement_source`); else None. (At order 2 the row
+    programs read ``Jdot qd`` with ``getFrameClassicalAcceleration``, which reads the joint's placement, not the
+    frame's.)"""
+    if not inside:
         return None
     source = state.frame_placement_source(fid)
     return None if source is None else (fid, *source)
 
 
 class ReferenceSlots:
-    """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused
-    program's floats (:meth:`Task.row_program`) when they are not the ones copied last (compared by identity): a
-    constant reference is one read-only tuple between starts and assignments (copied once); any other is copied
-    every step."""
+    """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused program's
+    floats (:meth:`Task.row_program`) when they are not the ones copied last (compared by identity, part by part): a
+    constant reference is one read-only tuple between starts and assignments (copied once; an assigned constant changes
+    ``x_d`` only, :meth:`Constant.assign`); any other is copied every step."""
 
-    __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task")
+    __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task", "views")
 
     def __init__(self, task: Task, program, gains_at: int, at: int, parts: tuple[tuple[int, int], ...]):
         """``kp, kd`` at ``program.floats[gains_at:]``, the reference parts ``(index, entries)`` from ``at`` on."""
         self.task, self.program, self.gains_at, self.at, self.parts = task, program, gains_at, at, parts
-        self.last, self.gains = None, task.gains
+        self.last, self.gains, self.views = (None, None, None), task.gains, None
 
     def refresh(self, t: float) -> None:
         task = self.task
         ref = task.trajectory.reference(t)
-        if ref is not self.last:
-            f, at = self.program.floats, self.at
-            for i, size in self.parts:  # (index into ref, entries), laid out one after the other
-                f[at: at + size] = ref[i]
-                at += size
+        last = self.last
+        if ref is not last:
+            if self.views is None:  # the parts' views of the program's floats (built after the row programs)
+                at, self.views = self.at, []
+                for _, size in self.parts:  # (index into ref, entries), laid out one after the other
+                    self.views.append(self.program.floats[at: at + size])
+                    at += size
+            for (i, _), view in zip(self.parts, self.views, strict=True):
+                if ref[i] is not last[i]:
+                    view[...] = ref[i]
             frozen = not (ref[0].flags.writeable or ref[1].flags.writeable or ref[2].flags.writeable)
-            self.last = ref if frozen else None
+            self.last = ref if frozen else (None, None, None)
         if task.gains is not self.gains:
             self.gains = g = task.gains
             self.program.floats[self.gains_at: self.gains_at + 2] = g.kp, g.kd

@@ -6,16 +6,16 @@ import numpy as np
 
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, row_selector, select_axes
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, row_selector, select_axes, trajectory_target
 
 
 class CenterOfMass(Task):
     """``x = com[axes]``, ``J = J_com[axes]``, ``Jdot qd`` = CoM acceleration at zero q-ddot.
 
-    ``CenterOfMass(robot, target, gains, axes="xy")`` like every other task (the robot is not needed: the
-    CoM comes from the state). The older form without the robot, ``CenterOfMass(target, gains)``, is
-    still accepted.
-    """
+    ``CenterOfMass(robot, target, gains, axes="xy")`` like every other task (the robot is not needed: the CoM comes from
+    the state). The older form without the robot, ``CenterOfMass(target, gains)``, is still accepted."""
+
+    target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
 
     def __init__(self, robot: Robot | None = None, target=None, gains: Gains | None = None, *, axes: str = "xyz",
                  name: str = "com"):
@@ -41,8 +41,8 @@ class CenterOfMass(Task):
         """:meth:`Task.row_program` at velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the
         kernel's slots, filled by ``jacobianCenterOfMass`` every step (in the lean step's state update,
         :meth:`State.update_positions` with ``com``, else :meth:`State.com_kinematics`), and the reference into its
-        floats; the kernel then writes the numbers of :meth:`jacobian` and :meth:`command`. At acceleration level:
-        None (the row writer runs)."""
+        floats; the kernel then writes the numbers of :meth:`jacobian` and :meth:`command`. At acceleration level: None
+        (the row writer runs)."""
         views = state.com_views()
         if views is None or order != 1:
             return None

@@ -10,14 +10,14 @@ from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
+from hqp_tpm.tasks.frame_pose import rotation_matrix
 
 
 class FrameOrientation(Task):
     """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot.
 
-    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation.
-    The 'value' is the rotation flattened; the error is the world rotation vector to the target.
-    """
+    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation. The 'value' is the
+    rotation flattened; the error is the world rotation vector to the target."""
 
     dim = 3
 
@@ -33,6 +33,24 @@ class FrameOrientation(Task):
                              "orientation)")
         super().__init__(name or f"{frame}_orientation", np.zeros(3), gains)
         self.trajectory = Hold() if self._R_target is None else Constant(value=np.zeros(3))
+
+    @property
+    def target(self) -> np.ndarray | None:
+        """The target rotation (a copy; None: the start orientation, until the first step). Assigning a 3x3 rotation
+        matrix sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming the value)."""
+        return None if self._R_target is None else self._R_target.copy()
+
+    @target.setter
+    def target(self, value) -> None:
+        what = f"FrameOrientation {self.name!r}"
+        try:
+            R = None if value is None or isinstance(value, str) else np.asarray(value, dtype=float)
+        except (TypeError, ValueError):
+            R = None
+        if R is None or R.shape != (3, 3):
+            raise ShapeError(f"{what}: target {shown(value)} is not a 3x3 rotation matrix (None / 'hold': the start "
+                             "orientation, a constructor's target only)")
+        self._R_target = rotation_matrix(R, what)
 
     def start(self, state: State) -> None:
         if self._R_target is None:
@@ -52,8 +70,8 @@ class FrameOrientation(Task):
         return state.jdot_qdot(self.fid)[3:]
 
     def row_program(self, state: State, order: int, program, row: int):
-        """:meth:`Task.row_program`: the frame Jacobian and ``w = log3(R_d R^T)`` (at order 2 also the angular
-        ``J qd`` and ``Jdot qd``) into the kernel's slots; the reference into its floats."""
+        """:meth:`Task.row_program`: the frame Jacobian and ``w = log3(R_d R^T)`` (at order 2 also the angular ``J qd``
+        and ``Jdot qd``) into the kernel's slots; the reference into its floats."""
         views = state.frame_views(self.fid)
         if views is None:
             return None
@@ -65,7 +83,7 @@ class FrameOrientation(Task):
         at, mat, vec, rot = program.add_frame(row, range(3, 6), (), g.kp, g.kd, x_d_vec=False,
                                               jacobian=(*source, p) if inside else None,
                                               rotation=(R.T, np.eye(3)) if inside else None,  # (the target's: below)
-                                              placement=kernel_placement(state, fid, order, inside))
+                                              placement=kernel_placement(state, fid, inside))
         refresh = ReferenceSlots(self, program, at - 2, at, ((1, 3), (2, 3))).refresh
         target = [None]  # the target rotation whose transpose the kernel reads
         S, w = program.mats[mat], program.vecs[vec]  # the program's arrays (written here if not inside)

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pinocchio as pin
+from scipy.linalg.blas import ddot
 
 from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Hold
@@ -21,6 +24,8 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     if target is None or (isinstance(target, str) and target == "hold"):
         return None
     if isinstance(target, pin.SE3):
+        if not np.isfinite(target.homogeneous).all():
+            raise ParameterError(f"FramePose {task!r}: target {target.homogeneous.tolist()} is not finite")
         return target.copy()
     what = f"an array of shape {target.shape}" if isinstance(target, np.ndarray) else shown(target)
     bad = ShapeError(f"FramePose {task!r}: target {what} is not a pose; expected {TARGET_FORMS}")
@@ -43,20 +48,34 @@ def placement_target(target, task: str) -> pin.SE3 | None:
         raise bad from exc
     if p.shape != (3,) or R.shape != (3, 3):
         raise bad
-    if not (np.isfinite(p).all() and np.isfinite(R).all()):
-        raise ParameterError(f"FramePose {task!r}: target position {p.tolist()} or rotation is not finite")
-    if not (np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
-        raise ParameterError(f"FramePose {task!r}: the target rotation {R.tolist()} is not a rotation matrix "
-                             "(orthonormal, determinant +1)")
-    return pin.SE3(R.copy(), p.copy())
+    if not np.isfinite(p).all():
+        raise ParameterError(f"FramePose {task!r}: target position {p.tolist()} is not finite")
+    return pin.SE3(rotation_matrix(R, f"FramePose {task!r}"), p.copy())
+
+
+def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
+    """A copy of the 3x3 matrix ``R`` if it is a finite rotation matrix, else :class:`ParameterError` (``what``: the
+    task, for the message)."""
+    if not (np.isfinite(R).all() and np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
+        raise ParameterError(f"{what}: the target rotation {R.tolist()} is not a rotation matrix (finite, "
+                             "orthonormal, determinant +1)")
+    return R.copy()
+
+
+_PROBE = pin.SE3.Identity()
+_VIEW = _PROBE.translation
+_PROBE.translation = np.ones(3)
+#: assigning an ``SE3``'s translation (rotation) writes into the memory its earlier views read: a task keeps one target
+#: placement, whose memory the fused kernel reads, and its ``target`` setter writes into it
+IN_PLACE = bool(_VIEW[0] == 1.0)
+del _PROBE, _VIEW
 
 
 class FramePose(Task):
     """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
 
-    The target is a ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3
-    rotation matrix) or ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`.
-    """
+    The target is a ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3 rotation
+    matrix) or ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`."""
 
     dim = 6
 
@@ -66,6 +85,27 @@ class FramePose(Task):
         self._M_target = placement_target(target, name or f"{frame}_pose")
         super().__init__(name or f"{frame}_pose", None, gains)
         self.trajectory = Hold()
+
+    @property
+    def target(self) -> pin.SE3 | None:
+        """The target placement (a copy; None: the start pose, until the first step). Assigning one of
+        :data:`TARGET_FORMS` but None/"hold" sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming the
+        value); a finite ``pin.SE3`` is copied into the task's own placement (the one the compiled step reads)."""
+        return None if self._M_target is None else self._M_target.copy()
+
+    @target.setter
+    def target(self, value) -> None:
+        M = self._M_target
+        if type(value) is pin.SE3 and M is not None and IN_PLACE:  # the common case, cheap
+            p, R = value.translation, value.rotation
+            r = R.T.ravel()  # (a view)
+            if math.isfinite(ddot(p, p) + ddot(r, r)):
+                M.translation, M.rotation = p, R
+                return
+        if value is None or isinstance(value, str):
+            raise ParameterError(f"FramePose {self.name!r}: target {shown(value)} (the start pose) is a "
+                                 f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
+        self._M_target = placement_target(value, self.name)
 
     def start(self, state: State) -> None:
         if self._M_target is None:
@@ -89,8 +129,8 @@ class FramePose(Task):
 
     def row_program(self, state: State, order: int, program, row: int):
         """:meth:`Task.row_program`: ``p`` and the target translation (at order 2 also ``Jdot qd``) into the kernel's
-        slots; the kernel computes the frame Jacobian from the joint Jacobians and ``w = log3(R_d R^T)`` where the
-        state gives views of them (:meth:`State.frame_jacobian_source`), else they are gathered here."""
+        slots; the kernel computes the frame Jacobian from the joint Jacobians and ``w = log3(R_d R^T)`` where the state
+        gives views of them (:meth:`State.frame_jacobian_source`), else they are gathered here."""
         views = state.frame_views(self.fid)
         if views is None:
             return None
@@ -103,7 +143,7 @@ class FramePose(Task):
         at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True, x=p,
                                               jacobian=(*source, p) if inside else None,
                                               rotation=(RT, np.eye(3)) if inside else None,  # (the target's: below)
-                                              placement=kernel_placement(state, fid, order, inside))
+                                              placement=kernel_placement(state, fid, inside))
         refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
         target = [None, None, None]  # the target placement and views of its translation and rotation
         xd_slot = vec + (4 if order == 2 else 2)

@@ -17,11 +17,14 @@ from hqp_tpm.tasks.base import (
     kernel_placement,
     row_selector,
     select_axes,
+    trajectory_target,
 )
 
 
 class FramePosition(Task):
     """``x = p_frame[axes]``, ``J = J_v[axes]``, ``Jdot qd`` = classical linear acceleration at zero q-ddot."""
+
+    target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
                  axes: str = "xyz", name: str | None = None):
@@ -46,10 +49,9 @@ class FramePosition(Task):
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
         """:meth:`Task.row_writer`: the selected linear rows of the frame Jacobian and ``b``, the same numbers.
 
-        ``write(t, extra=None)`` also takes an extra command (added to the command as :meth:`Task.command` adds
-        it: Algorithm 1's EE repulsion (30)); with a :class:`~hqp_tpm.references.trajectories.Harmonic` reference
-        the reference and the rows are one compiled call (:func:`~hqp_tpm.tasks._compiled_rows.
-        harmonic_position_rows`)."""
+        ``write(t, extra=None)`` also takes an extra command (added to the command as :meth:`Task.command` adds it:
+        Algorithm 1's EE repulsion (30)); with a :class:`~hqp_tpm.references.trajectories.Harmonic` reference the
+        reference and the rows are one compiled call (:func:`~hqp_tpm.tasks._compiled_rows.harmonic_position_rows`)."""
         model, data, fid, sel = state.model, state.data, self.fid, self._sel
         views = state.frame_views(fid)
         if views is None:
@@ -105,8 +107,8 @@ class FramePosition(Task):
         b[...] = self.command(state, t, order, extra, Jt)
 
     def row_program(self, state: State, order: int, program, row: int):
-        """:meth:`Task.row_program`: the frame Jacobian and ``p`` (at order 2 also the selected ``J qd`` and
-        ``Jdot qd``) into the kernel's slots; the reference into its floats. None (the row writer runs) with a
+        """:meth:`Task.row_program`: the frame Jacobian and ``p`` (at order 2 also the selected ``J qd`` and ``Jdot
+        qd``) into the kernel's slots; the reference into its floats. None (the row writer runs) with a
         :class:`~hqp_tpm.references.trajectories.Harmonic` reference: the writer computes it inside its one compiled
         call, where the program would copy ``Harmonic.reference``'s three arrays every step."""
         views = state.frame_views(self.fid)
@@ -119,7 +121,7 @@ class FramePosition(Task):
         inside = source is not None  # the frame Jacobian (and J qd) computed in the kernel
         at, mat, vec, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, x=p,
                                             jacobian=(*source, p) if inside else None,  # (p: pinocchio's view)
-                                            placement=kernel_placement(state, fid, order, inside))
+                                            placement=kernel_placement(state, fid, inside))
         refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
         S = program.mats[mat]  # the program's arrays (written here if not inside)
         rate, jdq = (program.vecs[vec + 1][:d], program.vecs[vec + 2][:d]) if order == 2 else (None, None)
@@ -139,8 +141,8 @@ class FramePosition(Task):
 
 class _HarmonicParams:
     """A :class:`~hqp_tpm.references.trajectories.Harmonic`'s numbers packed for the compiled row writer, ``[omega,
-    phase, (center, offset, cos_amplitude, sin_amplitude) per entry]``: packed again whenever the trajectory or one
-    of its attributes is replaced (the offset is the origin of a relative trajectory, set by ``start``)."""
+    phase, (center, offset, cos_amplitude, sin_amplitude) per entry]``: packed again whenever the trajectory or one of
+    its attributes is replaced (the offset is the origin of a relative trajectory, set by ``start``)."""
 
     __slots__ = ("key", "h")
 

@@ -1,8 +1,7 @@
 """Joint posture: selected 1-DOF joints towards target angles (``J`` is a selection matrix).
 
-Continuous joints (``nq = 2``: ``cos, sin``) enter through their angle and the error is
-``pinocchio.difference`` of the joint, wrapped into ``(-pi, pi]`` (:class:`~hqp_tpm.tasks.manipulability.JointAngles`).
-"""
+Continuous joints (``nq = 2``: ``cos, sin``) enter through their angle and the error is ``pinocchio.difference`` of the
+joint, wrapped into ``(-pi, pi]`` (:class:`~hqp_tpm.tasks.manipulability.JointAngles`)."""
 
 from __future__ import annotations
 
@@ -12,16 +11,17 @@ from hqp_tpm.errors import ShapeError
 from hqp_tpm.references.trajectories import Trajectory
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task
+from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, trajectory_target
 from hqp_tpm.tasks.manipulability import JointAngles
 
 
 class Posture(Task):
     """``x = q[joints]``; ``joints=None`` means every 1-DOF joint. Target ``None`` holds the start posture.
 
-    The target is either the joints' angles (``dim`` values) or a whole configuration (``robot.nq`` values,
-    e.g. ``robot.reference("half_sitting")`` of a floating-base robot): the joints' angles are read from it.
-    """
+    The target is either the joints' angles (``dim`` values) or a whole configuration (``robot.nq`` values, e.g.
+    ``robot.reference("half_sitting")`` of a floating-base robot): the joints' angles are read from it."""
+
+    target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
 
     def __init__(self, robot: Robot, target=None, gains: Gains | None = None, *, joints=None, name: str = "posture"):
         names = [n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
@@ -31,26 +31,29 @@ class Posture(Task):
         self.dim = len(self.cols)
         self._J = np.zeros((self.dim, robot.nv))
         self._J[np.arange(self.dim), self.cols] = 1.0
-        super().__init__(name, self.joint_target(robot, target, name), gains)
+        self._nq = robot.nq
+        super().__init__(name, target, gains)
 
-    def joint_target(self, robot: Robot, target, name: str | None = None):
+    def _trajectory_of(self, target):
+        return super()._trajectory_of(self.joint_target(target))
+
+    def joint_target(self, target):
         """``target`` as this task's joint angles: a full configuration (``robot.nq``) gives its ``q[joints]``.
 
-        Any other array must hold one angle per joint; a wrong size raises :class:`ShapeError` naming the
-        task and both accepted shapes. Trajectories, ``None`` and ``"hold"`` pass through.
-        """
+        Any other array must hold one angle per joint; a wrong size raises :class:`ShapeError` naming the task and both
+        accepted shapes. Trajectories, ``None`` and ``"hold"`` pass through."""
         if target is None or isinstance(target, (str, Trajectory)):
             return target
         value = np.asarray(target, dtype=float)
         if value.shape == (self.dim,):
             return value
-        if value.shape == (robot.nq,):
+        if value.shape == (self._nq,):
             return self.angles.of(value)
         idx = self.angles.idx
         where = (f"q[{idx[0]}:{idx[-1] + 1}]" if self.dim and np.all(np.diff(idx) == 1) else f"q[{idx.tolist()}]")
-        raise ShapeError(f"task {name or self.name!r}: target has shape {value.shape}; expected ({self.dim},), "
+        raise ShapeError(f"task {self.name!r}: target has shape {value.shape}; expected ({self.dim},), "
                          f"one angle per joint ({where} of a full configuration), or a full configuration "
-                         f"({robot.nq},)")
+                         f"({self._nq},)")
 
     def value(self, state: State) -> np.ndarray:
         return self.angles.of(state.q)
