@@ -57,7 +57,7 @@ HEAD = 9
 #: the compiled kernels by what they solve (:func:`kernel`), compiled or loaded on first use
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
-_write_rows = _solve = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
+_write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
 _frame_jacobian = _rotation_error = _frame_placement = _mat = _vec = None
 
 
@@ -142,20 +142,37 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
     return WRITTEN, pi, pf
 
 
-def _tpm_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out):  # pragma: no cover - compiled
-    """``out <- x`` of the TPM kernel ``tpm_stacked`` calls (``_past_rank`` when ``m > n``, ``_general`` with ``x0``
-    otherwise), then ``x``'s finiteness: :data:`SOLVED`, :data:`NONFINITE_X` or the kernel's status."""
-    m, n = J.shape
-    if m > n:
-        status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
-    else:
-        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+def _x_status(status, out):  # pragma: no cover - compiled (inlined)
+    """The solve's ``status``, or :data:`NONFINITE_X` if it solved and ``out`` holds a non-finite value."""
     if status != SOLVED:
         return status
-    for i in range(n):
+    for i in range(out.shape[0]):
         if not math.isfinite(out[i]):
             return NONFINITE_X
     return SOLVED
+
+
+def _wide_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out):  # pragma: no cover - compiled
+    """``m <= n``: ``out <- x`` of ``_general`` with ``x0`` (the TPM kernel ``tpm_stacked`` calls), then ``x``'s
+    finiteness: :data:`SOLVED`, :data:`NONFINITE_X` or the kernel's status (``DECLINED`` if ``m > n``)."""
+    if J.shape[0] > J.shape[1]:
+        return DECLINED
+    return _x_status(_general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out), out)
+
+
+def _tall_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out):  # pragma: no cover - compiled
+    """``m > n``: ``out <- x`` of ``_past_rank`` (``x0`` has no effect), as :func:`_wide_solve`."""
+    if J.shape[0] <= J.shape[1]:
+        return DECLINED
+    return _x_status(_past_rank(J, b, sizes, J.shape[1], lambda_max, eps, unit, margin, cond, out), out)
+
+
+def _step_arrays(buf, ints):  # pragma: no cover - compiled (inlined)
+    """``(J, b, x0, out, sizes)``: the views of a program's buffer and integers a solve reads and writes."""
+    m, n, nlev = ints[0], ints[1], ints[3]
+    mn = m * n
+    return (buf[:mn].reshape((m, n)), buf[mn: mn + m], buf[mn + m: mn + m + n], buf[mn + m + n: mn + m + 2 * n],
+            ints[HEAD: HEAD + nlev])
 
 
 def _rows_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -164,19 +181,21 @@ def _rows_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
 
 
 def _tpm_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
-    """:data:`TPM`: the rows, the TPM kernel (``_past_rank`` when ``m > n``, ``_general`` otherwise), ``x``'s
-    finiteness."""
+    """:data:`TPM`, ``m <= n``: the rows, the TPM kernel (``_general``), ``x``'s finiteness."""
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
-    m, n, use_x0, nlev = ints[0], ints[1], ints[2], ints[3]
-    mn = m * n
-    J = buf[:mn].reshape((m, n))
-    b = buf[mn: mn + m]
-    x0 = buf[mn + m: mn + m + n]
-    out = buf[mn + m + n: mn + m + 2 * n]
-    sizes = ints[HEAD: HEAD + nlev]
-    return _solve(J, b, sizes, x0, use_x0 != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
+    J, b, x0, out, sizes = _step_arrays(buf, ints)
+    return _wide_solve(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
+
+
+def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
+    """:data:`TPM`, ``m > n``: the rows, the TPM kernel (``_past_rank``), ``x``'s finiteness."""
+    status, pi, pf = _write_rows(buf, ints, floats, q, v)
+    if status != WRITTEN:
+        return status
+    J, b, x0, out, sizes = _step_arrays(buf, ints)
+    return _tall_solve(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
 
 
 def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -221,10 +240,9 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     return SOLVED
 
 
-def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
-    """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``), ``b``: their
-    finiteness, ``x0 = -damping v`` when ``damping`` (eq. (15) of papers/000), the TPM kernel ``tpm_stacked`` would
-    call, ``x``'s finiteness; the statuses of :func:`kernel`."""
+def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled (inlined)
+    """The finiteness of the stacked ``J``, ``b`` (False: a non-finite or too large value) and ``x0 = -damping v``
+    when ``damping`` (eq. (15) of papers/000): ``(finite, use_x0)``."""
     m, n = J.shape
     s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(m):
@@ -232,41 +250,72 @@ def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x
         for j in range(n):
             s += J[i, j] * J[i, j]
     if not s <= MAX_SUMSQ:
-        return NONFINITE_ROWS
+        return False, False
     use_x0 = damping != 0.0
     if use_x0:
         for i in range(n):
             x0[i] = -damping * v[i]
-    return _solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out)
+    return True, use_x0
 
 
-def stacked_kernel():
-    """The compiled :func:`_stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out) ->
-    status`` (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; compiled or loaded on first use), or None if
-    numba cannot be imported after all."""
-    kernel = _KERNELS.get("stacked")
+def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
+    """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``, ``m <= n``),
+    ``b``: their finiteness, ``x0 = -damping v`` when ``damping``, the TPM kernel ``tpm_stacked`` would call
+    (``_general``), ``x``'s finiteness; the statuses of :func:`kernel`."""
+    finite, use_x0 = _stacked_rows(J, b, v, damping, x0)
+    if not finite:
+        return NONFINITE_ROWS
+    return _wide_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out)
+
+
+def _stacked_tpm_tall(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
+    """:func:`_stacked_tpm` for ``m > n`` (``_past_rank``)."""
+    finite, use_x0 = _stacked_rows(J, b, v, damping, x0)
+    if not finite:
+        return NONFINITE_ROWS
+    return _tall_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out)
+
+
+def _solves() -> bool:
+    """Make the dispatchers of the solvers' kernels (numba compiles or loads each on the first call of a kernel that
+    calls it) and of this module's inlined pieces; False if numba cannot be imported after all."""
+    global _past_rank, _general, _x_status, _wide_solve, _tall_solve, _step_arrays, _stacked_rows
+    if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
+        return False
+    if _KERNELS.get("solves") is None:
+        _past_rank, _general = _compiled._past_rank, _compiled._general
+        _x_status, _step_arrays, _stacked_rows = (_jit.dispatcher(f, inline=True)
+                                                  for f in (_x_status_py, _step_arrays_py, _stacked_rows_py))
+        _wide_solve, _tall_solve = (_jit.dispatcher(f, inline=True) for f in (_wide_solve_py, _tall_solve_py))
+        _KERNELS["solves"] = True
+    return True
+
+
+_x_status_py, _step_arrays_py, _stacked_rows_py = _x_status, _step_arrays, _stacked_rows  # (the Python sources)
+_wide_solve_py, _tall_solve_py = _wide_solve, _tall_solve
+
+
+def stacked_kernel(tall: bool):
+    """The compiled :func:`_stacked_tpm` (``tall``: :func:`_stacked_tpm_tall`, for ``m > n``) ``(J, b, sizes, v,
+    damping, lambda_max, eps, unit, margin, cond, x0, out) -> status`` (``sizes`` an int64 array, ``x0`` and ``out``
+    of length ``n``; compiled or loaded on first use: a run compiles only the branch its stacks take), or None if
+    numba cannot be imported after all. The other branch's shapes are declined (``DECLINED``)."""
+    key = ("stacked", bool(tall))
+    kernel = _KERNELS.get(key)
     if kernel is None:
-        if _compiled._sizes(()) is None:
+        if not _solves():
             return None
-        _tpm_solve_kernel()
-        kernel = _KERNELS["stacked"] = _jit.dispatcher(_stacked_tpm)
+        kernel = _KERNELS[key] = _jit.dispatcher(_stacked_tpm_tall if tall else _stacked_tpm)
     return kernel
 
 
-def _tpm_solve_kernel() -> None:
-    """Compile (or load) :func:`_tpm_solve` after the TPM kernels it calls (the solvers' kernels prepared)."""
-    global _solve, _past_rank, _general
-    if _solve is None:
-        _past_rank, _general = _compiled._past_rank, _compiled._general
-        _solve = _jit.dispatcher(_tpm_solve)
-
-
-def _build(solve: int):
-    """Compile the kernel of ``solve`` (after the kernels it calls; each step's callees only, so a ``tpm`` user does not
-    compile the SNS loop); None if numba cannot be imported."""
-    global _write_rows, _past_rank, _general, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
+def _build(solve: int, tall: bool):
+    """Compile the kernel of ``solve`` (``tall``: the TPM kernel of ``m > n``) after the kernels it calls (each
+    step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
+    ``m > n`` kernel); None if numba cannot be imported."""
+    global _write_rows, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
     global _frame_jacobian, _rotation_error, _mat, _vec
-    if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
+    if not _solves():
         return None
     if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
         return None
@@ -278,16 +327,16 @@ def _build(solve: int):
             return None
         _mat, _vec = readers
         _write_rows = _jit.dispatcher(_rows)
-    _tpm_solve_kernel()
     if solve == SNS and not _compiled_sns._READY:
         try:
             _compiled_sns._compile()
         except ImportError:  # pragma: no cover - numba not importable after all
             return None
-    _past_rank, _general, _sns_loop = _compiled._past_rank, _compiled._general, _compiled_sns._sns_loop
+    _sns_loop = _compiled_sns._sns_loop
     _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
-    _KERNELS[solve] = _jit.dispatcher({ROWS: _rows_step, TPM: _tpm_step, SNS: _sns_step}[solve])
-    return _KERNELS[solve]
+    step = {ROWS: _rows_step, TPM: _tpm_step_tall if tall else _tpm_step, SNS: _sns_step}[solve]
+    _KERNELS[(solve, tall)] = _jit.dispatcher(step)
+    return _KERNELS[(solve, tall)]
 
 
 def _checked(a: np.ndarray, ndim: int) -> np.ndarray:
@@ -488,13 +537,15 @@ class Program:
         return {"scale": scale, "saturated": tail[3: 3 + nsat].tolist(), "iterations": iterations}
 
 
-def kernel(solve: int = TPM):
-    """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; compiled or loaded
-    on first use), or None if numba cannot be imported after all (then :data:`hqp_tpm.solvers._compiled.ENABLED` is
-    False).
+def kernel(solve: int = TPM, tall: bool = False):
+    """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; ``tall``: a TPM
+    program of ``m > n`` rows, whose kernel is another; compiled or loaded on first use), or None if numba cannot be
+    imported after all (then :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
 
-    ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the null-space
-    term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the arrays of the
-    program's slots, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box and ``x`` of the
-    SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`."""
-    return _KERNELS.get(solve) or _build(solve)
+    ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the
+    null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the
+    arrays of the program's slots, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box
+    and ``x`` of the SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`.
+    """
+    tall = bool(tall) and solve == TPM
+    return _KERNELS.get((solve, tall)) or _build(solve, tall)

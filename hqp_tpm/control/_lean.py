@@ -183,7 +183,7 @@ class LeanStep(CompiledStep):
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
             self._com = program.com_in_update  # (set by a row program at velocity level only)
-            self._kernel = _compiled_step.kernel(mode)
+            self._kernel = _compiled_step.kernel(mode, tall=a > n)
         return self
 
     def current(self) -> bool:

@@ -116,7 +116,7 @@ class PlannedStep(CompiledStep):
                      if type(task).level is Task.level and type(task).row_writer is not Task.row_writer
                      and own_rows(type(task))}
         self._placed: dict[tuple[int, int], tuple | bool] = {}
-        self._kernel, self._x0 = None, np.zeros(self.n)
+        self._kernel, self._x0 = [None, None], np.zeros(self.n)  # the compiled solves of m <= n, m > n
         return self
 
     def _place(self, task: Task, a: int) -> tuple | bool:
@@ -207,7 +207,8 @@ class PlannedStep(CompiledStep):
         J, b = self.J[:m], self.b[:m]
         status = None  # (the compiled kernel's answer, if it ran and declined)
         if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
-            kernel = self._kernel or self._load_kernel()
+            tall = m > self.n
+            kernel = self._kernel[tall] or self._load_kernel(tall)
             if kernel is not None:
                 x, x0 = np.empty(self.n), self._x0
                 status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
@@ -234,10 +235,11 @@ class PlannedStep(CompiledStep):
             raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
         return x
 
-    def _load_kernel(self):
-        """The compiled solve of :meth:`compute` (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
-        self._kernel = _compiled_step.stacked_kernel()
-        return self._kernel
+    def _load_kernel(self, tall: bool):
+        """The compiled solve of :meth:`compute` for ``m > n`` rows (``tall``) or not
+        (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
+        self._kernel[tall] = _compiled_step.stacked_kernel(tall)
+        return self._kernel[tall]
 
     def current(self) -> bool:
         """Always: the stack is planned at every step."""

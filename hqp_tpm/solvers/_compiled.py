@@ -749,7 +749,8 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     if damped:
         _f_times(Fb, b, c)
     else:
-        c[:] = b
+        for i in range(m):                             # (loops, not slice copies: see _copy_into)
+            c[i] = b[i]
     if use_x0:
         for i in range(m):
             s = 0.0
@@ -757,9 +758,10 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
                 s += J[i, t] * x0[t]
             c[i] -= s
     z = _solve_upper_t(R, c)
-    for i in range(n):
+    for i in range(m):
+        out[i] = z[i]
+    for i in range(m, n):
         out[i] = 0.0
-    out[:m] = z
     _apply_q(out, V, tau, m)
     if use_x0:
         for i in range(n):
