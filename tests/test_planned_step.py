@@ -121,6 +121,37 @@ def test_lwr_relaxed_avoidance_above_the_ee_task_equal():
     assert {"avoid > ee > pointing", "ee > avoid > pointing"} <= labels
 
 
+def test_lwr_relaxed_with_sns_tpm_equal():
+    """Algorithm 1 solved by ``sns_tpm`` (no box: the null-space term as one more level, the pointing cone's row)."""
+    ref, fast = lwr(), lwr()
+    for c in (ref, fast):
+        c.solver = "sns_tpm"
+    labels = same_steps(ref, fast, 600)
+    assert {"ee > avoid", "ee > pointing > avoid"} <= labels
+
+
+def romeo_obstacles(at: int):
+    """Two ``romeo_obstacles_sns_tpm`` controllers at step ``at`` of the readable run (whole-body avoidance, SNS-TPM
+    in the joint limits' box bounding the command's rate: the rows solved around ``v``)."""
+    ref, fast = (build(load("romeo_obstacles_sns_tpm"))[1] for _ in range(2))
+    for _ in range(at):
+        ref.step(record=True)
+    fast.start()
+    fast.set_state(ref.q, ref.v)
+    fast.t, fast.steps = ref.t, ref.steps
+    return ref, fast
+
+
+def test_whole_body_avoidance_steps_equal():
+    """Steps 780-1040 of ``romeo_obstacles_sns_tpm``: the obstacle row, obstacle and self rows, the self row alone and
+    none, each planned again as the stack changes (inequality rows shifted by ``J v`` then kept while active)."""
+    ref, fast = romeo_obstacles(780)
+    labels = same_steps(ref, fast, 260)
+    tail = "com > left_foot > left_hand > right_hand"
+    assert {f"right_sole > avoid_obstacle > {tail}", f"right_sole > avoid_obstacle > avoid_self > {tail}",
+            f"right_sole > avoid_self > {tail}", f"right_sole > {tail}"} <= labels
+
+
 def test_planned_and_readable_steps_mix_on_one_controller():
     ref, fast = lwr(), lwr()
     planned = Planned.of(fast)
@@ -153,8 +184,10 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
 
 
 @pytest.mark.parametrize("change, why", [
-    (lambda c: setattr(c, "solver", "sns_tpm"), "solver 'sns_tpm'"),
+    (lambda c: setattr(c, "solver", "sns"), "solver 'sns'"),
+    (lambda c: setattr(c, "solver", "qp"), "solver 'qp'"),
     (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box"),
+    (lambda c: (setattr(c, "solver", "sns_tpm"), setattr(c, "box", lambda st, t: (None, None))), "a box"),
     (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
     (lambda c: setattr(c, "policy", (lambda task: lambda st, t: Stack.of(task))(c.tasks()[0])), "not a PlanningPolicy"),
 ])

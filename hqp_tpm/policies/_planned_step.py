@@ -38,13 +38,17 @@ from abc import abstractmethod
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
+from hqp_tpm.control._lean import JointBox
+from hqp_tpm.control.command_rate import rate_limited, shifted
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
+from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
+from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task, own_rows
@@ -75,7 +79,8 @@ class PlannedStep(CompiledStep):
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made")
+                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info", "_eye",
+                 "_bs")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -85,10 +90,10 @@ class PlannedStep(CompiledStep):
             return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan())"
         if policy.blends:
             return "the policy blends"
-        if ctrl.solver != "tpm":
-            return f"solver {ctrl.solver!r} (the planned step solves with 'tpm')"
-        if ctrl.box is not None:
-            return "a box is set"
+        if ctrl.solver not in ("tpm", "sns_tpm"):
+            return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
+        if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):
+            return "a box other than JointLimits (with 'sns_tpm') is set"
         if ctrl.crosscheck is not None:
             return "a crosscheck solver is set"
         return None
@@ -117,6 +122,15 @@ class PlannedStep(CompiledStep):
                      and own_rows(type(task))}
         self._placed: dict[tuple[int, int], tuple | bool] = {}
         self._kernel, self._x0 = None, np.zeros(self.n)
+        # sns_tpm: the stacked rows solved in the joint limits' box (JointBox: the box's numbers in fewer calls), the
+        # null-space term x0 one more, lowest level (as the registry adds it); the box bounds the command's rate
+        # (velocity level): the rows shifted by J v and solved for the change (command_rate.solve_around)
+        self.sns = ctrl.solver == "sns_tpm"
+        self.rate = self.sns and ctrl.order == 1 and rate_limited(ctrl.box)
+        self.box = JointBox(ctrl.box) if ctrl.box is not None else None
+        self.info: dict = {}
+        self._eye = np.eye(self.n)
+        self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
         return self
 
     def _place(self, task: Task, a: int) -> tuple | bool:
@@ -124,7 +138,7 @@ class PlannedStep(CompiledStep):
         dim, task)``, or False for a task without one (an inequality pointing task's ``write`` returns its error:
         its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
         kind = type(task)
-        if id(task) in self._own or kind is Avoidance or kind is Pointing:
+        if id(task) in self._own or kind is Avoidance or (kind is Pointing and not (self.rate and task.inequality)):
             dim = task.dim
             if a + dim > self.J.shape[0]:
                 self._grow(a + dim)
@@ -166,7 +180,7 @@ class PlannedStep(CompiledStep):
                 bt = task.command(st, t, order, extra, Jt)
             elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
                 Jt, bt = task.jacobian(st), task.command(st, t, order)
-            elif kind is Pointing and task.inequality:  # Pointing.level: the cone row (J, command) while e > 0
+            elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
                 if not task.pointing_error(st) > 0.0:
                     continue
                 Jt = task.jacobian(st)
@@ -174,9 +188,16 @@ class PlannedStep(CompiledStep):
                 lv = True
             else:
                 lv = task.level(st, t, order, extra)
-                Jt, bt = (lv.J, lv.b) if lv.b is not None else lv.check_finite().as_equality()
+                if lv.b is not None:
+                    Jt, bt = lv.J, lv.b
+                elif self.rate:  # its active rows seen from v (command_rate.shifted), written shifted
+                    Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
+                else:
+                    Jt, bt = lv.check_finite().as_equality()
             m = Jt.shape[0]
             if not m:
+                if lv is not False and lv is not True:  # a level without active rows, in the readable levels too
+                    made.append((task, a, 0, lv))
                 continue
             if a + m > self.J.shape[0]:
                 self._grow(a + m)
@@ -190,7 +211,7 @@ class PlannedStep(CompiledStep):
     def _grow(self, rows: int) -> None:
         J, b = np.zeros((2 * rows, self.n)), np.zeros(2 * rows)
         J[: self.J.shape[0]], b[: self.b.shape[0]] = self.J, self.b
-        self.J, self.b = J, b
+        self.J, self.b, self._bs = J, b, np.zeros(2 * rows)
         self._placed.clear()  # the writers wrote into the old arrays
 
     def compute(self) -> np.ndarray:
@@ -205,6 +226,8 @@ class PlannedStep(CompiledStep):
         self.tasks, self._extras = tasks, extras
         m, sizes = self._rows(st, t, tasks, extras)
         J, b = self.J[:m], self.b[:m]
+        if self.sns:
+            return self._sns(st, t, J, b, sizes)
         status = None  # (the compiled kernel's answer, if it ran and declined)
         if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
             kernel = self._kernel or self._load_kernel()
@@ -234,6 +257,37 @@ class PlannedStep(CompiledStep):
             raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
         return x
 
+    def _sns(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
+        """The SNS-TPM command from the stacked rows, as the readable step solves them (registry.solve, and
+        command_rate.solve_around when the box bounds the command's rate)."""
+        ctrl, n = self.ctrl, self.n
+        if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
+            return ctrl._compute().command      # the readable path raises the typed error naming the task
+        lo, up = self.box(st) if self.box is not None else (np.full(n, -np.inf), np.full(n, np.inf))
+        if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
+            v = ctrl._v
+            bs = self._bs[:J.shape[0]]
+            for _task, a, k, lv in self._made:
+                if lv is False or lv.b is not None:  # equality rows (an inequality level's are written shifted)
+                    np.subtract(b[a:a + k], J[a:a + k] @ v, out=bs[a:a + k])
+                else:
+                    bs[a:a + k] = b[a:a + k]
+            if not sumsq(bs) <= MAX_SUMSQ:
+                return ctrl._compute().command
+            d, sinfo = sns_tpm_stacked(np.concatenate((J, self._eye)), np.concatenate((bs, -v)), (*sizes, n),
+                                       lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps, return_info=True)
+            x = np.minimum(np.maximum(v + d, lo), up)
+        else:
+            x0 = ctrl.null_space_term(ctrl._v)
+            if x0 is not None:  # the joint-space term must respect the box too: one more (lowest) level
+                J, b, sizes = np.concatenate((J, self._eye)), np.concatenate((b, x0)), (*sizes, n)
+            x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
+                                       return_info=True)
+        if not all_finite(x):
+            raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
+        self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
+        return x
+
     def _load_kernel(self):
         """The compiled solve of :meth:`compute` (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
         self._kernel = _compiled_step.stacked_kernel()
@@ -249,7 +303,7 @@ class PlannedStep(CompiledStep):
         made = self._made
         m = made[-1][1] + made[-1][2] if made else 0
         rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras)
-        return StepResult(t, LAZY, LAZY, x, {}, LAZY, LAZY, (self, q, v, rows))
+        return StepResult(t, LAZY, LAZY, x, self.info if self.sns else {}, LAZY, LAZY, (self, q, v, rows))
 
     def stack_of(self, kept: tuple) -> Stack:
         return Stack([(task,) for task in kept[3][3]], kept[3][4])
