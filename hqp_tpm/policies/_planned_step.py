@@ -39,15 +39,16 @@ import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._lean import JointBox
-from hqp_tpm.control.command_rate import rate_limited, shifted
+from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
-from hqp_tpm.errors import SolverFailedError
+from hqp_tpm.errors import ParameterError, SolverFailedError
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
+from hqp_tpm.solvers.registry import solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
@@ -71,6 +72,15 @@ class PlanningPolicy(Policy):
         return PlannedStep.of(ctrl)
 
 
+class OneTaskLevels(Policy):
+    """A policy whose every stack has one task per level (its ``__call__`` gives the Stack): the planned step writes
+    their rows as a :class:`PlanningPolicy`'s, and blends (:meth:`Policy.blend`) as the readable step does."""
+
+    def compiled_step(self, ctrl) -> PlannedStep | None:
+        """:class:`PlannedStep` (solved by ``tpm``, or ``sns_tpm`` in the joint limits' box), else None."""
+        return PlannedStep.of(ctrl)
+
+
 class PlannedStep(CompiledStep):
     """The lean step of a :class:`~hqp_tpm.control.controller.Controller` whose policy plans (build it with :meth:`of`).
 
@@ -80,16 +90,14 @@ class PlannedStep(CompiledStep):
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
                  "_own", "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info", "_eye",
-                 "_bs")
+                 "_bs", "_stack", "_box_now")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not isinstance(policy, PlanningPolicy):
-            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan())"
-        if policy.blends:
-            return "the policy blends"
+        if not isinstance(policy, (PlanningPolicy, OneTaskLevels)):
+            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()) nor OneTaskLevels"
         if ctrl.solver not in ("tpm", "sns_tpm"):
             return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
         if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):
@@ -131,6 +139,7 @@ class PlannedStep(CompiledStep):
         self.info: dict = {}
         self._eye = np.eye(self.n)
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
+        self._stack = self._box_now = None
         return self
 
     def _place(self, task: Task, a: int) -> tuple | bool:
@@ -222,8 +231,45 @@ class PlannedStep(CompiledStep):
         t = ctrl.t
         st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False)
         policy.update(st, t)
-        tasks, extras = policy.plan(st, t)
-        self.tasks, self._extras = tasks, extras
+        if isinstance(policy, PlanningPolicy):
+            tasks, extras = policy.plan(st, t)
+            stack = None
+        else:  # OneTaskLevels
+            stack = policy(st, t)
+            tasks, extras = tuple(level[0] for level in stack.levels), stack.extras
+            if len(tasks) != sum(map(len, stack.levels)):
+                raise ParameterError(f"policy {type(policy).__name__} (OneTaskLevels) gave a stack with more than one "
+                                     f"task in a level: {stack.label()!r}")
+        self.tasks, self._extras, self._stack = tasks, extras, stack
+        x = self._solve(st, t, tasks, extras)
+        if policy.blends:
+            x = self._blend(st, t, x)
+        return x
+
+    def _blend(self, st, t: float, x: np.ndarray) -> np.ndarray:
+        """The policy's blend of ``x`` with other stacks solved as the readable step solves them
+        (:meth:`Controller._solve_step`), clipped into the box when there is one."""
+        ctrl, n, box = self.ctrl, self.n, self._box_now
+        x0 = ctrl.null_space_term(ctrl._v)
+
+        def resolve(other: Stack) -> np.ndarray:
+            levels = other.to_levels(st, t, self.order)
+            if self.rate:
+                return solve_around(ctrl.solver, levels, n, ctrl._v, box, lambda_max=self.lambda_max, eps=self.eps,
+                                    solve=solve)[0]
+            return solve(ctrl.solver, levels, n, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)[0]
+
+        stack = self._stack if self._stack is not None else Stack([(task,) for task in self.tasks], self._extras)
+        x = self.policy.blend(st, t, stack, x, resolve)
+        if box is not None:
+            x = np.minimum(np.maximum(x, box[0]), box[1])
+        if not np.isfinite(x).all():
+            raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
+        return x
+
+    def _solve(self, st, t: float, tasks, extras) -> np.ndarray:
+        """The solution of the planned tasks' rows (the readable step's solve)."""
+        ctrl = self.ctrl
         m, sizes = self._rows(st, t, tasks, extras)
         J, b = self.J[:m], self.b[:m]
         if self.sns:
@@ -263,7 +309,8 @@ class PlannedStep(CompiledStep):
         ctrl, n = self.ctrl, self.n
         if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
             return ctrl._compute().command      # the readable path raises the typed error naming the task
-        lo, up = self.box(st) if self.box is not None else (np.full(n, -np.inf), np.full(n, np.inf))
+        self._box_now = self.box(st) if self.box is not None else None
+        lo, up = self._box_now or (np.full(n, -np.inf), np.full(n, np.inf))
         if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
             v = ctrl._v
             bs = self._bs[:J.shape[0]]
@@ -302,10 +349,12 @@ class PlannedStep(CompiledStep):
         (its stack and levels, the readable step's, built when asked)."""
         made = self._made
         m = made[-1][1] + made[-1][2] if made else 0
-        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras)
+        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras, self._stack)
         return StepResult(t, LAZY, LAZY, x, self.info if self.sns else {}, LAZY, LAZY, (self, q, v, rows))
 
     def stack_of(self, kept: tuple) -> Stack:
+        if kept[3][5] is not None:  # (the stack a OneTaskLevels policy gave)
+            return kept[3][5]
         return Stack([(task,) for task in kept[3][3]], kept[3][4])
 
     def levels_of(self, kept: tuple) -> list[Level]:
@@ -320,6 +369,8 @@ class PlannedStep(CompiledStep):
         return out
 
     def label_of(self, kept: tuple) -> str:
+        if kept[3][5] is not None:
+            return kept[3][5].label()
         key = tuple(task.name for task in kept[3][3])
         text = self._labels.get(key)
         if text is None:
