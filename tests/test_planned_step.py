@@ -153,15 +153,17 @@ def test_whole_body_avoidance_steps_equal():
 
 
 @pytest.mark.parametrize("name, steps, want", [
+    ("iiwa_admittance", 1500, {"admittance+orientation"}),
     ("iiwa_comanipulation", 2600, {"position > orientation", "force > orientation > manipulability > joint_limit"}),
     ("planar5_exact", 3000, {"ee", "ee > avoid_o1"}),
     ("planar5_approximate", 3000, {"ee > nullspace_velocity"}),
     ("planar5_pwdls", 400, {"avoid_o1 ~ ee (pwdls)"}),
     ("planar5_transition", 3000, {"avoid_o1 >~ ee"}),
 ])
-def test_blending_policies_steps_equal(name, steps, want):
-    """The switching policy (eq. (8) of papers/003) and the papers/004 schemes (eqs. (19), (30)-(31)): OneTaskLevels
-    policies whose planned step blends the solution with stacks re-solved as the readable step does."""
+def test_stack_policies_steps_equal(name, steps, want):
+    """The admittance baseline (one level of two tasks), the switching policy (eq. (8) of papers/003) and the
+    papers/004 schemes (eqs. (19), (30)-(31)): StackPolicy policies, whose planned step takes the stack as it is and
+    blends the solution with stacks re-solved as the readable step does."""
     ref, fast = (build(load(name))[1] for _ in range(2))
     assert want <= same_steps(ref, fast, steps)
 

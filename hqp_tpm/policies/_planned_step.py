@@ -41,9 +41,9 @@ from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._lean import JointBox
 from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
 from hqp_tpm.control.policy import Policy
-from hqp_tpm.control.stack import Stack
+from hqp_tpm.control.stack import Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
-from hqp_tpm.errors import ParameterError, SolverFailedError
+from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
@@ -72,9 +72,10 @@ class PlanningPolicy(Policy):
         return PlannedStep.of(ctrl)
 
 
-class OneTaskLevels(Policy):
-    """A policy whose every stack has one task per level (its ``__call__`` gives the Stack): the planned step writes
-    their rows as a :class:`PlanningPolicy`'s, and blends (:meth:`Policy.blend`) as the readable step does."""
+class StackPolicy(Policy):
+    """A policy whose stack (its ``__call__``) the planned step takes as it is: it writes the rows of each level's
+    tasks in turn (a level of several tasks: their rows stacked, as :func:`~hqp_tpm.control.stack.merge_levels`
+    merges them) and blends (:meth:`Policy.blend`) as the readable step does."""
 
     def compiled_step(self, ctrl) -> PlannedStep | None:
         """:class:`PlannedStep` (solved by ``tpm``, or ``sns_tpm`` in the joint limits' box), else None."""
@@ -96,8 +97,8 @@ class PlannedStep(CompiledStep):
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not isinstance(policy, (PlanningPolicy, OneTaskLevels)):
-            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()) nor OneTaskLevels"
+        if not isinstance(policy, (PlanningPolicy, StackPolicy)):
+            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()) nor StackPolicy"
         if ctrl.solver not in ("tpm", "sns_tpm"):
             return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
         if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):
@@ -158,63 +159,66 @@ class PlannedStep(CompiledStep):
         self._placed[(id(task), a)] = w
         return w
 
-    def _rows(self, st, t: float, tasks, extras) -> tuple[int, tuple[int, ...]]:
-        """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
+    def _rows(self, st, t: float, levels, extras) -> tuple[int, tuple[int, ...]]:
+        """The planned levels' active rows (each level's tasks in turn) written into ``self.J``, ``self.b``: row count
+        and level sizes."""
         order, a, sizes, placed = self.order, 0, [], self._placed
         made = self._made = []
-        for task in tasks:
-            extra = extras.get(task.name) if extras else None
-            w = placed.get((id(task), a))
-            if w is None or (w is not False and w[4] is not task):
-                w = self._place(task, a)
-            if w is not False and (extra is None or w[2]):  # a row writer, writing in place
-                if w[1]:                  # the cone (21): its row while e > 0
-                    if not w[0](t) > 0.0:
+        for g, level in enumerate(levels):
+            a0 = a
+            for task in level:
+                extra = extras.get(task.name) if extras else None
+                w = placed.get((id(task), a))
+                if w is None or (w is not False and w[4] is not task):
+                    w = self._place(task, a)
+                if w is not False and (extra is None or w[2]):  # a row writer, writing in place
+                    if w[1]:                  # the cone (21): its row while e > 0
+                        if not w[0](t) > 0.0:
+                            continue
+                    elif extra is None:
+                        w[0](t)
+                    else:                     # with the extra command (Algorithm 1's EE repulsion (30))
+                        w[0](t, extra)
+                    m = w[3]
+                    if not m:
                         continue
-                elif extra is None:
-                    w[0](t)
-                else:                     # with the extra command (Algorithm 1's EE repulsion (30))
-                    w[0](t, extra)
-                m = w[3]
-                if not m:
+                    made.append((task, a, m, w[1], g))
+                    a += m
                     continue
-                made.append((task, a, m, w[1]))
-                a += m
-                sizes.append(m)
-                continue
-            kind = type(task)
-            lv = False                    # (the level of the result: False, equality rows; True, the cone row)
-            if kind.level is Task.level:  # an equality task: its own rows, no Level object
-                Jt = task.jacobian(st)
-                bt = task.command(st, t, order, extra, Jt)
-            elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
-                Jt, bt = task.jacobian(st), task.command(st, t, order)
-            elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
-                if not task.pointing_error(st) > 0.0:
-                    continue
-                Jt = task.jacobian(st)
-                bt = task.command(st, t, order, extra, Jt)
-                lv = True
-            else:
-                lv = task.level(st, t, order, extra)
-                if lv.b is not None:
-                    Jt, bt = lv.J, lv.b
-                elif self.rate:  # its active rows seen from v (command_rate.shifted), written shifted
-                    Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
+                kind = type(task)
+                lv = False                    # (the level of the result: False, equality rows; True, the cone row)
+                if kind.level is Task.level:  # an equality task: its own rows, no Level object
+                    Jt = task.jacobian(st)
+                    bt = task.command(st, t, order, extra, Jt)
+                elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
+                    Jt, bt = task.jacobian(st), task.command(st, t, order)
+                elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
+                    if not task.pointing_error(st) > 0.0:
+                        continue
+                    Jt = task.jacobian(st)
+                    bt = task.command(st, t, order, extra, Jt)
+                    lv = True
                 else:
-                    Jt, bt = lv.check_finite().as_equality()
-            m = Jt.shape[0]
-            if not m:
-                if lv is not False and lv is not True:  # a level without active rows, in the readable levels too
-                    made.append((task, a, 0, lv))
-                continue
-            if a + m > self.J.shape[0]:
-                self._grow(a + m)
-            self.J[a:a + m] = Jt
-            self.b[a:a + m] = bt
-            made.append((task, a, m, lv))
-            a += m
-            sizes.append(m)
+                    lv = task.level(st, t, order, extra)
+                    if lv.b is not None:
+                        Jt, bt = lv.J, lv.b
+                    elif self.rate:  # its active rows seen from v (command_rate.shifted), written shifted
+                        Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
+                    else:
+                        Jt, bt = lv.check_finite().as_equality()
+                m = Jt.shape[0]
+                if not m:
+                    if lv is not False and lv is not True:  # a level without active rows, in the readable levels too
+                        made.append((task, a, 0, lv, g))
+                    continue
+                if a + m > self.J.shape[0]:
+                    self._grow(a + m)
+                self.J[a:a + m] = Jt
+                self.b[a:a + m] = bt
+                made.append((task, a, m, lv, g))
+                a += m
+            if a > a0:
+                sizes.append(a - a0)
         return a, tuple(sizes)
 
     def _grow(self, rows: int) -> None:
@@ -233,15 +237,13 @@ class PlannedStep(CompiledStep):
         policy.update(st, t)
         if isinstance(policy, PlanningPolicy):
             tasks, extras = policy.plan(st, t)
-            stack = None
-        else:  # OneTaskLevels
+            stack, levels = None, tuple((task,) for task in tasks)
+        else:  # a StackPolicy
             stack = policy(st, t)
-            tasks, extras = tuple(level[0] for level in stack.levels), stack.extras
-            if len(tasks) != sum(map(len, stack.levels)):
-                raise ParameterError(f"policy {type(policy).__name__} (OneTaskLevels) gave a stack with more than one "
-                                     f"task in a level: {stack.label()!r}")
+            levels, extras = stack.levels, stack.extras
+            tasks = tuple(task for level in levels for task in level)
         self.tasks, self._extras, self._stack = tasks, extras, stack
-        x = self._solve(st, t, tasks, extras)
+        x = self._solve(st, t, levels, extras)
         if policy.blends:
             x = self._blend(st, t, x)
         return x
@@ -267,10 +269,10 @@ class PlannedStep(CompiledStep):
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         return x
 
-    def _solve(self, st, t: float, tasks, extras) -> np.ndarray:
-        """The solution of the planned tasks' rows (the readable step's solve)."""
+    def _solve(self, st, t: float, levels, extras) -> np.ndarray:
+        """The solution of the planned levels' rows (the readable step's solve)."""
         ctrl = self.ctrl
-        m, sizes = self._rows(st, t, tasks, extras)
+        m, sizes = self._rows(st, t, levels, extras)
         J, b = self.J[:m], self.b[:m]
         if self.sns:
             return self._sns(st, t, J, b, sizes)
@@ -314,7 +316,7 @@ class PlannedStep(CompiledStep):
         if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
             v = ctrl._v
             bs = self._bs[:J.shape[0]]
-            for _task, a, k, lv in self._made:
+            for _task, a, k, lv, _g in self._made:
                 if lv is False or lv.b is not None:  # equality rows (an inequality level's are written shifted)
                     np.subtract(b[a:a + k], J[a:a + k] @ v, out=bs[a:a + k])
                 else:
@@ -353,20 +355,20 @@ class PlannedStep(CompiledStep):
         return StepResult(t, LAZY, LAZY, x, self.info if self.sns else {}, LAZY, LAZY, (self, q, v, rows))
 
     def stack_of(self, kept: tuple) -> Stack:
-        if kept[3][5] is not None:  # (the stack a OneTaskLevels policy gave)
+        if kept[3][5] is not None:  # (the stack a StackPolicy policy gave)
             return kept[3][5]
         return Stack([(task,) for task in kept[3][3]], kept[3][4])
 
     def levels_of(self, kept: tuple) -> list[Level]:
         J, b, made = kept[3][:3]
-        out = []
-        for task, a, k, lv in made:
+        groups: dict[int, list[Level]] = {}
+        for task, a, k, lv, g in made:
             if lv is False:
                 lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
             elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
                 lv = task.cone_level(J[a:a + k], b[a:a + k], True)
-            out.append(lv)
-        return out
+            groups.setdefault(g, []).append(lv)
+        return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
     def label_of(self, kept: tuple) -> str:
         if kept[3][5] is not None:
