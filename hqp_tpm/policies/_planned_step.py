@@ -1,33 +1,41 @@
-"""The lean step of a policy that plans its stack (Algorithm 1 of papers/000): same numbers, fewer objects.
+"""The planned step of every shipped policy (``ctrl.step()`` runs it): same numbers as the readable step, fewer
+objects.
 
-The readable step (:meth:`hqp_tpm.control.controller.Controller.step`) builds every step a
+The readable step (:meth:`hqp_tpm.control.controller.Controller.step` with ``record=True``) builds every step a
 :class:`~hqp_tpm.control.stack.Stack`, one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks
-them, looks the solver up by name and wraps the result in a ``StepResult``. A :class:`PlanningPolicy` (its stack is
-``plan(state, t) -> (tasks, extras)``: one task per level, highest first, and extra commands by task name;
-:class:`~hqp_tpm.policies.algorithm1.Algorithm1`) solved by ``tpm`` without a box needs none of that.
-:class:`PlannedStep` does per step:
+them, looks the solver up by name and wraps the result in a ``StepResult``. Two kinds of policy step without that:
+a :class:`PlanningPolicy` (its stack is ``plan(state, t) -> (tasks, extras)``: one task per level, highest first,
+and extra commands by task name; Algorithm 1, the whole-body avoidance) and a :class:`StackPolicy` (its stack as
+``__call__`` gives it, levels of one or more tasks; the switching, admittance and papers/004 policies), solved by
+``tpm`` without a box or by ``sns_tpm`` in a :class:`~hqp_tpm.robot.limits.JointLimits` box. :class:`PlannedStep`
+does per step:
 
-1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field);
-2. the plan, and each planned task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
+1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field, operator);
+2. the plan (or stack), and each task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
    level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its row writer (:meth:`Task.row_writer
    <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and either no extra command is added or the writer
    takes it, as :meth:`FramePosition.row_writer <hqp_tpm.tasks.frame_position.FramePosition.row_writer>` does) or
-   its own
-   ``jacobian`` and ``command``, an
-   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's
-   cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the numbers
-   of their ``level``); any other task through
-   its level's analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes);
-3. one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
+   its own ``jacobian`` and ``command``, an :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a
+   :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's cone row while ``e > 0``, target = its command) by
+   their row writers (one compiled call each: the numbers of their ``level``); any other task through its level's
+   analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes; when the box
+   bounds the command's rate, an inequality level is first seen from ``v``:
+   :func:`~hqp_tpm.control.command_rate.shifted`);
+3. ``tpm``: one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
    ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000), the TPM kernel :func:`tpm` calls and the
    finiteness of ``x`` (without numba, or where that kernel declines: the same checks in numpy and
-   :func:`~hqp_tpm.solvers.tpm.tpm_stacked`);
-4. one integration.
+   :func:`~hqp_tpm.solvers.tpm.tpm_stacked`); ``sns_tpm``: the joint limits' box
+   (:class:`~hqp_tpm.control._lean.JointBox`) and :func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` on the rows and the
+   null-space term's level, as the registry adds it, or, when the box bounds the command's rate, on the rows seen
+   from ``v`` as :func:`~hqp_tpm.control.command_rate.solve_around` solves them;
+4. the policy's blend (:meth:`Policy.blend`) with the other stacks solved by the readable step's own calls;
+5. one integration.
 
-The rows, their order and the kernel call are those of the readable step, so the commands and states are equal
-(``tests/test_planned_step.py``: every step of ``lwr_relaxed``, within 1e-12; bit for bit where numpy's BLAS
-sums the compiled row writers' 3-vector products in their order, which depends on the CPU). A step whose rows
-are not finite is handed to the readable path, which raises the same typed error naming the task. Transactional like
+The rows, their order and the solver calls are those of the readable step, so the commands and states are equal
+(``tests/test_planned_step.py``: every step of its windows of ``lwr_relaxed``, ``romeo_obstacles_sns_tpm`` and the
+switching, admittance and papers/004 scenarios, within 1e-12; bit for bit where numpy's BLAS sums the compiled row
+writers' 3-vector products in their order, which depends on the CPU). A step whose rows are not finite is handed
+to the readable path, which raises the same typed error naming the task. Transactional like
 :meth:`Controller.step`: on any error the controller and the policy keep their state.
 """
 

@@ -43,7 +43,10 @@ pair overall. The self level always has one row, the closest self pair.
 
 Distances for control come from a field whose broad phase culls every pair whose bounding spheres are
 farther apart than the activation distance (such a pair cannot be active: its distance is at least that lower
-bound); the recorded distances (up to ``record_range``) from a second field, updated by ``probe`` only.
+bound). ``probe`` records the nearest distances up to ``record_range`` from the same update and the few culled
+pairs that could be nearer (:meth:`DistanceField.nearest_within
+<hqp_tpm.geometry.distances.DistanceField.nearest_within>`: the numbers of a field updated at that range); the
+viewer draws a second field at ``record_range`` (:attr:`WholeBody.record_field`, updated by the viewer).
 
 ``probe`` records ``d_obstacle`` (closest robot-obstacle distance), ``d_self`` (closest checked self
 pair), ``n_avoid_obstacle`` and ``n_avoid_self`` (rows of the avoidance levels); the runner records
@@ -212,8 +215,8 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         gm = control_geometries(robot, geometries)
         self.pairs = self_pairs(robot.model, robot.collision_model) if pairs is None else list(pairs)
         # control: pairs whose bounding spheres are farther apart than the activation distances cannot be
-        # active, so the broad phase culls them (tests/test_whole_body.py); recording: the distances within
-        # record_range, from a second field updated by probe() only
+        # active, so the broad phase culls them (tests/test_whole_body.py); the record field (record_range) is the
+        # viewer's; probe() reads the control field (DistanceField.nearest_within)
         self.field = DistanceField(robot.model, gm, (), self.obstacles, surveillance=d_obstacle_activation,
                                    self_pairs=self.pairs, self_surveillance=d_self_activation)
         self.record_field = DistanceField(robot.model, gm, (), self.obstacles,
