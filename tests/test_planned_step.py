@@ -30,7 +30,7 @@ V_LATE = [0.07287855567991329, 0.1812309499497944, -0.17140408443826932, -0.4741
 def close(actual, desired, err_msg=""):
     """``actual`` equals ``desired`` within 1e-12 of ``max(1, |desired|)`` (the compiled paths' stated tolerance)."""
     desired = np.asarray(desired, dtype=float)
-    scale = max(1.0, float(np.abs(desired).max(initial=0.0)))
+    scale = max(1.0, float(np.abs(desired[np.isfinite(desired)]).max(initial=0.0)))  # (a box may hold infinities)
     np.testing.assert_allclose(actual, desired, rtol=0, atol=1e-12 * scale, err_msg=err_msg)
 
 
@@ -121,6 +121,53 @@ def test_lwr_relaxed_avoidance_above_the_ee_task_equal():
     assert {"avoid > ee > pointing", "ee > avoid > pointing"} <= labels
 
 
+def test_lwr_relaxed_with_sns_tpm_equal():
+    """Algorithm 1 solved by ``sns_tpm`` (no box: the null-space term as one more level, the pointing cone's row)."""
+    ref, fast = lwr(), lwr()
+    for c in (ref, fast):
+        c.solver = "sns_tpm"
+    labels = same_steps(ref, fast, 600)
+    assert {"ee > avoid", "ee > pointing > avoid"} <= labels
+
+
+def romeo_obstacles(at: int):
+    """Two ``romeo_obstacles_sns_tpm`` controllers at step ``at`` of its run (whole-body avoidance, SNS-TPM in the
+    joint limits' box bounding the command's rate: the rows solved around ``v``), reached by ``ctrl.step()``."""
+    ref, fast = (build(load("romeo_obstacles_sns_tpm"))[1] for _ in range(2))
+    for _ in range(at):
+        ref.step()
+    fast.start()
+    fast.set_state(ref.q, ref.v)
+    fast.t, fast.steps = ref.t, ref.steps
+    return ref, fast
+
+
+def test_whole_body_avoidance_steps_equal():
+    """Steps 790-1035 of ``romeo_obstacles_sns_tpm``: the obstacle row, obstacle and self rows, the self row alone and
+    none, each planned again as the stack changes (inequality rows shifted by ``J v`` then kept while active)."""
+    ref, fast = romeo_obstacles(790)
+    labels = same_steps(ref, fast, 245)
+    tail = "com > left_foot > left_hand > right_hand"
+    assert {f"right_sole > avoid_obstacle > {tail}", f"right_sole > avoid_obstacle > avoid_self > {tail}",
+            f"right_sole > avoid_self > {tail}", f"right_sole > {tail}"} <= labels
+
+
+@pytest.mark.parametrize("name, steps, want", [
+    ("iiwa_admittance", 1500, {"admittance+orientation"}),
+    ("iiwa_comanipulation", 2600, {"position > orientation", "force > orientation > manipulability > joint_limit"}),
+    ("planar5_exact", 3000, {"ee", "ee > avoid_o1"}),
+    ("planar5_approximate", 3000, {"ee > nullspace_velocity"}),
+    ("planar5_pwdls", 400, {"avoid_o1 ~ ee (pwdls)"}),
+    ("planar5_transition", 3000, {"avoid_o1 >~ ee"}),
+])
+def test_stack_policies_steps_equal(name, steps, want):
+    """The admittance baseline (one level of two tasks), the switching policy (eq. (8) of papers/003) and the
+    papers/004 schemes (eqs. (19), (30)-(31)): StackPolicy policies, whose planned step takes the stack as it is and
+    blends the solution with stacks re-solved as the readable step does."""
+    ref, fast = (build(load(name))[1] for _ in range(2))
+    assert want <= same_steps(ref, fast, steps)
+
+
 def test_planned_and_readable_steps_mix_on_one_controller():
     ref, fast = lwr(), lwr()
     planned = Planned.of(fast)
@@ -153,8 +200,10 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
 
 
 @pytest.mark.parametrize("change, why", [
-    (lambda c: setattr(c, "solver", "sns_tpm"), "solver 'sns_tpm'"),
+    (lambda c: setattr(c, "solver", "sns"), "solver 'sns'"),
+    (lambda c: setattr(c, "solver", "qp"), "solver 'qp'"),
     (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box"),
+    (lambda c: (setattr(c, "solver", "sns_tpm"), setattr(c, "box", lambda st, t: (None, None))), "a box"),
     (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
     (lambda c: setattr(c, "policy", (lambda task: lambda st, t: Stack.of(task))(c.tasks()[0])), "not a PlanningPolicy"),
 ])

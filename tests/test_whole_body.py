@@ -237,3 +237,32 @@ def test_recorded_distances_reach_the_record_range():
     rec, _ = runner.run(ctx.controller, 40, probes=[ctx.policy.probe])
     d = rec.arrays()["d_obstacle"]
     assert np.isfinite(d).all() and (d > 0.10).any() and (d <= 0.3).all()
+
+
+def test_probe_equals_a_field_updated_at_the_record_range():
+    """probe()'s distances (the control field's and the culled pairs that could be nearer, DistanceField.nearest_within)
+    equal, bit for bit, those of a field updated with surveillance record_range at the same state: along the first
+    1.1 s of romeo_obstacles_sns_tpm (no pair in range, the obstacle row, obstacle and self rows), and at a state
+    where nothing is within record_range (NaN)."""
+    ctx = build.build_run(scenario.load("romeo_obstacles_sns_tpm"))
+    ctrl, pol = ctx.controller, ctx.policy
+    reference = DistanceField(ctrl.robot.model, pol.record_field.geometry_model, (), pol.obstacles,
+                              surveillance=pol.record_field.surveillance, self_pairs=pol.pairs, convexify=False)
+    seen = set()
+    for i in range(1100):
+        res = ctrl.step()
+        if i % 10 and i not in range(790, 830):
+            continue
+        got = pol.probe(ctrl, res)
+        f = reference.update(ctrl.state.data, None, pol.field.t)
+        for key, d, inside in (("d_obstacle", f.distance, f.in_range), ("d_self", f.self_distance, f.self_in_range)):
+            want = np.where(inside, d, np.inf).min(initial=np.inf)
+            assert got[key] == want if np.isfinite(want) else np.isnan(got[key]), (i, key)
+        seen.add(res.label())
+    assert len(seen) >= 3
+    far = wb.WholeBody(ctrl.robot, pol.top, pol.below, [Obstacle.sphere("far", [5.0, 0.0, 0.0], 0.1)],
+                       record_range=0.05, d_obstacle_activation=0.04, d_obstacle_safe=0.01, d_self_activation=0.02)
+    state = State(ctrl.robot).update(ctrl.q, ctrl.v)
+    far.update(state, 0.0)
+    d_obs, d_self = far.field.nearest_within(far.record_field.surveillance)
+    assert d_obs == np.inf and (d_self == np.inf or d_self <= 0.05)

@@ -183,6 +183,8 @@ class DistanceField:
         self._point_M = [pin.SE3.Identity() for _ in range(npts)]
         self._elem_M: list[pin.SE3 | None] = [None] * ng + list(self._point_M)
         self._refs_key = None
+        self._nearest_last = [-1, -1]  # nearest_within's last nearest obstacle and self pair
+        self._rsums = None  # nearest_within's sums of the bounding radii of the obstacle and of the self pairs
         self._joint_views: dict = {}  # (id(data), joint) -> views of its placement, velocity, acceleration
         # control points and fixed obstacles only, all sphere pairs in the compiled block: update()'s short path
         self._points_only = (not ng and npts > 0 and not self._obs_moving and bool(self._sph_all)
@@ -519,6 +521,62 @@ class DistanceField:
         D = np.where(self.self_in_range, self.self_distance, np.inf)
         k = int(np.argmin(D))
         return k, float(D[k])
+
+    def nearest_within(self, bound: float) -> tuple[float, float]:
+        """``(d_obstacle, d_self)``: the smallest robot-obstacle and self distance at most ``bound`` (+inf: none) at
+        the last :meth:`update`'s placements, as a field updated with surveillance ``bound`` (both) finds them, in
+        fewer coal queries: the pairs this update's broad phase culled are queried in increasing order of their
+        bounding-sphere lower bound (the last call's nearest pair first), until that bound passes the smallest
+        distance found (a pair's distance is at least its bound, which the broad phase assumes too). Writes none of
+        the update's arrays."""
+        C, elem_M, ng = self._elem_center, self._elem_M, self.n_geometries
+        ce, co, placements = self._coal_e, self._coal_o, self.obstacle_placements
+        if self._rsums is None:  # (the bounding radii do not change)
+            self._rsums = (self._elem_radius[ce] + self._obs_radius[co],
+                           self._elem_radius[self.self_pairs[:, 0]] + self._elem_radius[self.self_pairs[:, 1]])
+
+        def obstacle_pair(k):
+            e = ce[k]
+            if e >= ng:
+                self._point_M[e - ng].translation = C[e]
+            return self._coal_fun[k](elem_M[e], placements[co[k]], self._req, self._res)
+
+        def self_pair(k):
+            return self._self_fun[k](elem_M[self._self_a_list[k]], elem_M[self._self_b_list[k]], self._req, self._res)
+
+        out = []
+        for which, known, computed, ca, cb, query in (
+                (0, self.distance, self.computed, C[ce], self._obs_center[co], obstacle_pair),
+                (1, self.self_distance, self.self_computed, C[self.self_pairs[:, 0]], C[self.self_pairs[:, 1]],
+                 self_pair)):
+            best = float(np.where(computed, known, np.inf).min(initial=np.inf))
+            if len(ca):
+                diff = ca - cb
+                lower = np.sqrt(np.einsum("ij,ij->i", diff, diff)) - self._rsums[which]
+                lower[computed[ce, co] if which == 0 else computed] = np.inf  # (known already)
+                best = self._bounded_min(which, lower, best, query, bound)
+            out.append(best if best <= bound else math.inf)
+        return out[0], out[1]
+
+    def _bounded_min(self, which: int, lower: np.ndarray, best: float, query, bound: float) -> float:
+        """:meth:`nearest_within`'s search over one pair set: ``lower`` the pairs' lower bounds (+inf: computed by the
+        update), ``best`` the smallest distance the update computed, ``query(k)`` the distance of pair ``k``."""
+        first = self._nearest_last[which]  # the last nearest pair, tried first: the bound falls sooner
+        if first >= 0 and lower[first] <= bound:
+            self._res.clear()  # coal keeps the minimum over calls otherwise (GJK pairs)
+            best = min(best, query(first))
+        else:
+            first = -1
+        for k in np.argsort(lower, kind="stable").tolist():
+            if lower[k] > min(best, bound):
+                break
+            if k == first:
+                continue
+            self._res.clear()
+            d = query(k)
+            if d < best:
+                best, self._nearest_last[which] = d, k
+        return best
 
     def jacobian(self, data: pin.Data, element: int, obstacle: int) -> np.ndarray:
         """``J_c`` (28) of the robot witness point of pair (element, obstacle); see :func:`point_jacobian`."""

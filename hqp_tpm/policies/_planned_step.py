@@ -1,33 +1,41 @@
-"""The lean step of a policy that plans its stack (Algorithm 1 of papers/000): same numbers, fewer objects.
+"""The planned step of every shipped policy (``ctrl.step()`` runs it): same numbers as the readable step, fewer
+objects.
 
-The readable step (:meth:`hqp_tpm.control.controller.Controller.step`) builds every step a
+The readable step (:meth:`hqp_tpm.control.controller.Controller.step` with ``record=True``) builds every step a
 :class:`~hqp_tpm.control.stack.Stack`, one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks
-them, looks the solver up by name and wraps the result in a ``StepResult``. A :class:`PlanningPolicy` (its stack is
-``plan(state, t) -> (tasks, extras)``: one task per level, highest first, and extra commands by task name;
-:class:`~hqp_tpm.policies.algorithm1.Algorithm1`) solved by ``tpm`` without a box needs none of that.
-:class:`PlannedStep` does per step:
+them, looks the solver up by name and wraps the result in a ``StepResult``. Two kinds of policy step without that:
+a :class:`PlanningPolicy` (its stack is ``plan(state, t) -> (tasks, extras)``: one task per level, highest first,
+and extra commands by task name; Algorithm 1, the whole-body avoidance) and a :class:`StackPolicy` (its stack as
+``__call__`` gives it, levels of one or more tasks; the switching, admittance and papers/004 policies), solved by
+``tpm`` without a box or by ``sns_tpm`` in a :class:`~hqp_tpm.robot.limits.JointLimits` box. :class:`PlannedStep`
+does per step:
 
-1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field);
-2. the plan, and each planned task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
+1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field, operator);
+2. the plan (or stack), and each task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
    level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its row writer (:meth:`Task.row_writer
    <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and either no extra command is added or the writer
    takes it, as :meth:`FramePosition.row_writer <hqp_tpm.tasks.frame_position.FramePosition.row_writer>` does) or
-   its own
-   ``jacobian`` and ``command``, an
-   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's
-   cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the numbers
-   of their ``level``); any other task through
-   its level's analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes);
-3. one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
+   its own ``jacobian`` and ``command``, an :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a
+   :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's cone row while ``e > 0``, target = its command) by
+   their row writers (one compiled call each: the numbers of their ``level``); any other task through its level's
+   analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes; when the box
+   bounds the command's rate, an inequality level is first seen from ``v``:
+   :func:`~hqp_tpm.control.command_rate.shifted`);
+3. ``tpm``: one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
    ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000), the TPM kernel :func:`tpm` calls and the
    finiteness of ``x`` (without numba, or where that kernel declines: the same checks in numpy and
-   :func:`~hqp_tpm.solvers.tpm.tpm_stacked`);
-4. one integration.
+   :func:`~hqp_tpm.solvers.tpm.tpm_stacked`); ``sns_tpm``: the joint limits' box
+   (:class:`~hqp_tpm.control._lean.JointBox`) and :func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` on the rows and the
+   null-space term's level, as the registry adds it, or, when the box bounds the command's rate, on the rows seen
+   from ``v`` as :func:`~hqp_tpm.control.command_rate.solve_around` solves them;
+4. the policy's blend (:meth:`Policy.blend`) with the other stacks solved by the readable step's own calls;
+5. one integration.
 
-The rows, their order and the kernel call are those of the readable step, so the commands and states are equal
-(``tests/test_planned_step.py``: every step of ``lwr_relaxed``, within 1e-12; bit for bit where numpy's BLAS
-sums the compiled row writers' 3-vector products in their order, which depends on the CPU). A step whose rows
-are not finite is handed to the readable path, which raises the same typed error naming the task. Transactional like
+The rows, their order and the solver calls are those of the readable step, so the commands and states are equal
+(``tests/test_planned_step.py``: every step of its windows of ``lwr_relaxed``, ``romeo_obstacles_sns_tpm`` and the
+switching, admittance and papers/004 scenarios, within 1e-12; bit for bit where numpy's BLAS sums the compiled row
+writers' 3-vector products in their order, which depends on the CPU). A step whose rows are not finite is handed
+to the readable path, which raises the same typed error naming the task. Transactional like
 :meth:`Controller.step`: on any error the controller and the policy keep their state.
 """
 
@@ -38,13 +46,18 @@ from abc import abstractmethod
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
+from hqp_tpm.control._lean import JointBox
+from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
 from hqp_tpm.control.policy import Policy
-from hqp_tpm.control.stack import Stack
+from hqp_tpm.control.stack import Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
+from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
+from hqp_tpm.solvers.registry import solve
+from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
 from hqp_tpm.tasks.base import Task, own_rows
@@ -67,6 +80,16 @@ class PlanningPolicy(Policy):
         return PlannedStep.of(ctrl)
 
 
+class StackPolicy(Policy):
+    """A policy whose stack (its ``__call__``) the planned step takes as it is: it writes the rows of each level's
+    tasks in turn (a level of several tasks: their rows stacked, as :func:`~hqp_tpm.control.stack.merge_levels`
+    merges them) and blends (:meth:`Policy.blend`) as the readable step does."""
+
+    def compiled_step(self, ctrl) -> PlannedStep | None:
+        """:class:`PlannedStep` (solved by ``tpm``, or ``sns_tpm`` in the joint limits' box), else None."""
+        return PlannedStep.of(ctrl)
+
+
 class PlannedStep(CompiledStep):
     """The lean step of a :class:`~hqp_tpm.control.controller.Controller` whose policy plans (build it with :meth:`of`).
 
@@ -75,20 +98,19 @@ class PlannedStep(CompiledStep):
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made")
+                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info", "_eye",
+                 "_bs", "_stack", "_box_now")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not isinstance(policy, PlanningPolicy):
-            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan())"
-        if policy.blends:
-            return "the policy blends"
-        if ctrl.solver != "tpm":
-            return f"solver {ctrl.solver!r} (the planned step solves with 'tpm')"
-        if ctrl.box is not None:
-            return "a box is set"
+        if not isinstance(policy, (PlanningPolicy, StackPolicy)):
+            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()) nor StackPolicy"
+        if ctrl.solver not in ("tpm", "sns_tpm"):
+            return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
+        if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):
+            return "a box other than JointLimits (with 'sns_tpm') is set"
         if ctrl.crosscheck is not None:
             return "a crosscheck solver is set"
         return None
@@ -117,6 +139,16 @@ class PlannedStep(CompiledStep):
                      and own_rows(type(task))}
         self._placed: dict[tuple[int, int], tuple | bool] = {}
         self._kernel, self._x0 = [None, None], np.zeros(self.n)  # the compiled solves of m <= n, m > n
+        # sns_tpm: the stacked rows solved in the joint limits' box (JointBox: the box's numbers in fewer calls), the
+        # null-space term x0 one more, lowest level (as the registry adds it); the box bounds the command's rate
+        # (velocity level): the rows shifted by J v and solved for the change (command_rate.solve_around)
+        self.sns = ctrl.solver == "sns_tpm"
+        self.rate = self.sns and ctrl.order == 1 and rate_limited(ctrl.box)
+        self.box = JointBox(ctrl.box) if ctrl.box is not None else None
+        self.info: dict = {}
+        self._eye = np.eye(self.n)
+        self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
+        self._stack = self._box_now = None
         return self
 
     def _place(self, task: Task, a: int) -> tuple | bool:
@@ -124,7 +156,7 @@ class PlannedStep(CompiledStep):
         dim, task)``, or False for a task without one (an inequality pointing task's ``write`` returns its error:
         its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
         kind = type(task)
-        if id(task) in self._own or kind is Avoidance or kind is Pointing:
+        if id(task) in self._own or kind is Avoidance or (kind is Pointing and not (self.rate and task.inequality)):
             dim = task.dim
             if a + dim > self.J.shape[0]:
                 self._grow(a + dim)
@@ -135,62 +167,72 @@ class PlannedStep(CompiledStep):
         self._placed[(id(task), a)] = w
         return w
 
-    def _rows(self, st, t: float, tasks, extras) -> tuple[int, tuple[int, ...]]:
-        """The planned tasks' active rows written into ``self.J``, ``self.b``: row count and level sizes."""
+    def _rows(self, st, t: float, levels, extras) -> tuple[int, tuple[int, ...]]:
+        """The planned levels' active rows (each level's tasks in turn) written into ``self.J``, ``self.b``: row count
+        and level sizes."""
         order, a, sizes, placed = self.order, 0, [], self._placed
         made = self._made = []
-        for task in tasks:
-            extra = extras.get(task.name) if extras else None
-            w = placed.get((id(task), a))
-            if w is None or (w is not False and w[4] is not task):
-                w = self._place(task, a)
-            if w is not False and (extra is None or w[2]):  # a row writer, writing in place
-                if w[1]:                  # the cone (21): its row while e > 0
-                    if not w[0](t) > 0.0:
+        for g, level in enumerate(levels):
+            a0 = a
+            for task in level:
+                extra = extras.get(task.name) if extras else None
+                w = placed.get((id(task), a))
+                if w is None or (w is not False and w[4] is not task):
+                    w = self._place(task, a)
+                if w is not False and (extra is None or w[2]):  # a row writer, writing in place
+                    if w[1]:                  # the cone (21): its row while e > 0
+                        if not w[0](t) > 0.0:
+                            continue
+                    elif extra is None:
+                        w[0](t)
+                    else:                     # with the extra command (Algorithm 1's EE repulsion (30))
+                        w[0](t, extra)
+                    m = w[3]
+                    if not m:
                         continue
-                elif extra is None:
-                    w[0](t)
-                else:                     # with the extra command (Algorithm 1's EE repulsion (30))
-                    w[0](t, extra)
-                m = w[3]
+                    made.append((task, a, m, w[1], g))
+                    a += m
+                    continue
+                kind = type(task)
+                lv = False                    # (the level of the result: False, equality rows; True, the cone row)
+                if kind.level is Task.level:  # an equality task: its own rows, no Level object
+                    Jt = task.jacobian(st)
+                    bt = task.command(st, t, order, extra, Jt)
+                elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
+                    Jt, bt = task.jacobian(st), task.command(st, t, order)
+                elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
+                    if not task.pointing_error(st) > 0.0:
+                        continue
+                    Jt = task.jacobian(st)
+                    bt = task.command(st, t, order, extra, Jt)
+                    lv = True
+                else:
+                    lv = task.level(st, t, order, extra)
+                    if lv.b is not None:
+                        Jt, bt = lv.J, lv.b
+                    elif self.rate:  # its active rows seen from v (command_rate.shifted), written shifted
+                        Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
+                    else:
+                        Jt, bt = lv.check_finite().as_equality()
+                m = Jt.shape[0]
                 if not m:
+                    if lv is not False and lv is not True:  # a level without active rows, in the readable levels too
+                        made.append((task, a, 0, lv, g))
                     continue
-                made.append((task, a, m, w[1]))
+                if a + m > self.J.shape[0]:
+                    self._grow(a + m)
+                self.J[a:a + m] = Jt
+                self.b[a:a + m] = bt
+                made.append((task, a, m, lv, g))
                 a += m
-                sizes.append(m)
-                continue
-            kind = type(task)
-            lv = False                    # (the level of the result: False, equality rows; True, the cone row)
-            if kind.level is Task.level:  # an equality task: its own rows, no Level object
-                Jt = task.jacobian(st)
-                bt = task.command(st, t, order, extra, Jt)
-            elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
-                Jt, bt = task.jacobian(st), task.command(st, t, order)
-            elif kind is Pointing and task.inequality:  # Pointing.level: the cone row (J, command) while e > 0
-                if not task.pointing_error(st) > 0.0:
-                    continue
-                Jt = task.jacobian(st)
-                bt = task.command(st, t, order, extra, Jt)
-                lv = True
-            else:
-                lv = task.level(st, t, order, extra)
-                Jt, bt = (lv.J, lv.b) if lv.b is not None else lv.check_finite().as_equality()
-            m = Jt.shape[0]
-            if not m:
-                continue
-            if a + m > self.J.shape[0]:
-                self._grow(a + m)
-            self.J[a:a + m] = Jt
-            self.b[a:a + m] = bt
-            made.append((task, a, m, lv))
-            a += m
-            sizes.append(m)
+            if a > a0:
+                sizes.append(a - a0)
         return a, tuple(sizes)
 
     def _grow(self, rows: int) -> None:
         J, b = np.zeros((2 * rows, self.n)), np.zeros(2 * rows)
         J[: self.J.shape[0]], b[: self.b.shape[0]] = self.J, self.b
-        self.J, self.b = J, b
+        self.J, self.b, self._bs = J, b, np.zeros(2 * rows)
         self._placed.clear()  # the writers wrote into the old arrays
 
     def compute(self) -> np.ndarray:
@@ -201,10 +243,47 @@ class PlannedStep(CompiledStep):
         t = ctrl.t
         st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False)
         policy.update(st, t)
-        tasks, extras = policy.plan(st, t)
-        self.tasks, self._extras = tasks, extras
-        m, sizes = self._rows(st, t, tasks, extras)
+        if isinstance(policy, PlanningPolicy):
+            tasks, extras = policy.plan(st, t)
+            stack, levels = None, tuple((task,) for task in tasks)
+        else:  # a StackPolicy
+            stack = policy(st, t)
+            levels, extras = stack.levels, stack.extras
+            tasks = tuple(task for level in levels for task in level)
+        self.tasks, self._extras, self._stack = tasks, extras, stack
+        x = self._solve(st, t, levels, extras)
+        if policy.blends:
+            x = self._blend(st, t, x)
+        return x
+
+    def _blend(self, st, t: float, x: np.ndarray) -> np.ndarray:
+        """The policy's blend of ``x`` with other stacks solved as the readable step solves them
+        (:meth:`Controller._solve_step`), clipped into the box when there is one."""
+        ctrl, n, box = self.ctrl, self.n, self._box_now
+        x0 = ctrl.null_space_term(ctrl._v)
+
+        def resolve(other: Stack) -> np.ndarray:
+            levels = other.to_levels(st, t, self.order)
+            if self.rate:
+                return solve_around(ctrl.solver, levels, n, ctrl._v, box, lambda_max=self.lambda_max, eps=self.eps,
+                                    solve=solve)[0]
+            return solve(ctrl.solver, levels, n, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)[0]
+
+        stack = self._stack if self._stack is not None else Stack([(task,) for task in self.tasks], self._extras)
+        x = self.policy.blend(st, t, stack, x, resolve)
+        if box is not None:
+            x = np.minimum(np.maximum(x, box[0]), box[1])
+        if not np.isfinite(x).all():
+            raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
+        return x
+
+    def _solve(self, st, t: float, levels, extras) -> np.ndarray:
+        """The solution of the planned levels' rows (the readable step's solve)."""
+        ctrl = self.ctrl
+        m, sizes = self._rows(st, t, levels, extras)
         J, b = self.J[:m], self.b[:m]
+        if self.sns:
+            return self._sns(st, t, J, b, sizes)
         status = None  # (the compiled kernel's answer, if it ran and declined)
         if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
             tall = m > self.n
@@ -235,6 +314,38 @@ class PlannedStep(CompiledStep):
             raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
         return x
 
+    def _sns(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
+        """The SNS-TPM command from the stacked rows, as the readable step solves them (registry.solve, and
+        command_rate.solve_around when the box bounds the command's rate)."""
+        ctrl, n = self.ctrl, self.n
+        if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
+            return ctrl._compute().command      # the readable path raises the typed error naming the task
+        self._box_now = self.box(st) if self.box is not None else None
+        lo, up = self._box_now or (np.full(n, -np.inf), np.full(n, np.inf))
+        if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
+            v = ctrl._v
+            bs = self._bs[:J.shape[0]]
+            for _task, a, k, lv, _g in self._made:
+                if lv is False or lv.b is not None:  # equality rows (an inequality level's are written shifted)
+                    np.subtract(b[a:a + k], J[a:a + k] @ v, out=bs[a:a + k])
+                else:
+                    bs[a:a + k] = b[a:a + k]
+            if not sumsq(bs) <= MAX_SUMSQ:
+                return ctrl._compute().command
+            d, sinfo = sns_tpm_stacked(np.concatenate((J, self._eye)), np.concatenate((bs, -v)), (*sizes, n),
+                                       lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps, return_info=True)
+            x = np.minimum(np.maximum(v + d, lo), up)
+        else:
+            x0 = ctrl.null_space_term(ctrl._v)
+            if x0 is not None:  # the joint-space term must respect the box too: one more (lowest) level
+                J, b, sizes = np.concatenate((J, self._eye)), np.concatenate((b, x0)), (*sizes, n)
+            x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
+                                       return_info=True)
+        if not all_finite(x):
+            raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
+        self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
+        return x
+
     def _load_kernel(self, tall: bool):
         """The compiled solve of :meth:`compute` for ``m > n`` rows (``tall``) or not
         (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
@@ -250,24 +361,28 @@ class PlannedStep(CompiledStep):
         (its stack and levels, the readable step's, built when asked)."""
         made = self._made
         m = made[-1][1] + made[-1][2] if made else 0
-        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras)
-        return StepResult(t, LAZY, LAZY, x, {}, LAZY, LAZY, (self, q, v, rows))
+        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras, self._stack)
+        return StepResult(t, LAZY, LAZY, x, self.info if self.sns else {}, LAZY, LAZY, (self, q, v, rows))
 
     def stack_of(self, kept: tuple) -> Stack:
+        if kept[3][5] is not None:  # (the stack a StackPolicy policy gave)
+            return kept[3][5]
         return Stack([(task,) for task in kept[3][3]], kept[3][4])
 
     def levels_of(self, kept: tuple) -> list[Level]:
         J, b, made = kept[3][:3]
-        out = []
-        for task, a, k, lv in made:
+        groups: dict[int, list[Level]] = {}
+        for task, a, k, lv, g in made:
             if lv is False:
                 lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
             elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
                 lv = task.cone_level(J[a:a + k], b[a:a + k], True)
-            out.append(lv)
-        return out
+            groups.setdefault(g, []).append(lv)
+        return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
     def label_of(self, kept: tuple) -> str:
+        if kept[3][5] is not None:
+            return kept[3][5].label()
         key = tuple(task.name for task in kept[3][3])
         text = self._labels.get(key)
         if text is None:

@@ -20,9 +20,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.control.policy import Policy, SceneItems
+from hqp_tpm.control.policy import SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, ScenarioError
+from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.policies.switching import ComanipulationIndices
 from hqp_tpm.references.operator import Operator
 from hqp_tpm.robot.model import Robot
@@ -81,7 +82,7 @@ class AdmittancePosition(Task):
         return super().level(state, t, order, extra)
 
 
-class Admittance(Policy):
+class Admittance(StackPolicy):
     """One level ``[admittance position; orientation]``, solved by the pseudo-inverse (no null space)."""
 
     channels = (*ComanipulationIndices.channels, "admittance_lag")

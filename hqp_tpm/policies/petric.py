@@ -61,6 +61,7 @@ from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ScenarioError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle
+from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.pwdls import pwdls
 from hqp_tpm.tasks.avoidance import Avoidance
@@ -106,7 +107,7 @@ class LabeledStack(Stack):
         return self.text
 
 
-class Petric(DistancePolicy):
+class Petric(DistancePolicy, StackPolicy):
     """The avoidance schemes of papers/004 for an EE task and the link geometries of the robot."""
 
     blends = True

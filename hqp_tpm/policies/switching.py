@@ -51,9 +51,10 @@ import math
 
 import numpy as np
 
-from hqp_tpm.control.policy import Policy, SceneItems
+from hqp_tpm.control.policy import SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError
+from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.references.operator import Operator
 from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot.state import State
@@ -98,7 +99,7 @@ class ComanipulationIndices:
         return out
 
 
-class Switching(Policy):
+class Switching(StackPolicy):
     """Fig. 3 of papers/003: pose / force / manipulability / joint-limit stacks, eq. (8) transitions."""
 
     blends = True

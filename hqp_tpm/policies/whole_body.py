@@ -43,7 +43,10 @@ pair overall. The self level always has one row, the closest self pair.
 
 Distances for control come from a field whose broad phase culls every pair whose bounding spheres are
 farther apart than the activation distance (such a pair cannot be active: its distance is at least that lower
-bound); the recorded distances (up to ``record_range``) from a second field, updated by ``probe`` only.
+bound). ``probe`` records the nearest distances up to ``record_range`` from the same update and the few culled
+pairs that could be nearer (:meth:`DistanceField.nearest_within
+<hqp_tpm.geometry.distances.DistanceField.nearest_within>`: the numbers of a field updated at that range); the
+viewer draws a second field at ``record_range`` (:attr:`WholeBody.record_field`, updated by the viewer).
 
 ``probe`` records ``d_obstacle`` (closest robot-obstacle distance), ``d_self`` (closest checked self
 pair), ``n_avoid_obstacle`` and ``n_avoid_self`` (rows of the avoidance levels); the runner records
@@ -59,11 +62,11 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.control.policy import DistancePolicy, SceneItems, moving_targets
-from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle, convexified
 from hqp_tpm.geometry.witness import point_jacobian
+from hqp_tpm.policies._planned_step import PlanningPolicy
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 from hqp_tpm.tasks.base import Task
@@ -187,7 +190,7 @@ class PairAvoidance(Task):
         return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name)
 
 
-class WholeBody(DistancePolicy):
+class WholeBody(DistancePolicy, PlanningPolicy):
     """Dynamic stack: sole hold > obstacle avoidance > self avoidance > CoM > left foot > hands."""
 
     channels = ("d_obstacle", "d_self", "n_avoid_obstacle", "n_avoid_self")
@@ -212,8 +215,8 @@ class WholeBody(DistancePolicy):
         gm = control_geometries(robot, geometries)
         self.pairs = self_pairs(robot.model, robot.collision_model) if pairs is None else list(pairs)
         # control: pairs whose bounding spheres are farther apart than the activation distances cannot be
-        # active, so the broad phase culls them (tests/test_whole_body.py); recording: the distances within
-        # record_range, from a second field updated by probe() only
+        # active, so the broad phase culls them (tests/test_whole_body.py); the record field (record_range) is the
+        # viewer's; probe() reads the control field (DistanceField.nearest_within)
         self.field = DistanceField(robot.model, gm, (), self.obstacles, surveillance=d_obstacle_activation,
                                    self_pairs=self.pairs, self_surveillance=d_self_activation)
         self.record_field = DistanceField(robot.model, gm, (), self.obstacles,
@@ -224,14 +227,9 @@ class WholeBody(DistancePolicy):
         self.thresholds = {"d_obstacle": {"activation": d_obstacle_activation, "safe": d_obstacle_safe},
                            "d_self": {"activation": d_self_activation, "safe": d_self_safe}}
         self._last = {"n_avoid_obstacle": 0.0, "n_avoid_self": 0.0}
-        self._data = None  # the pinocchio data of the last update (probe() reads the record field from it)
 
     def tasks(self) -> list[Task]:
         return [*self.top, *self.below]
-
-    def update(self, state: State, t: float) -> None:
-        self._data = state.data
-        self.field.update(state.data, None, t)
 
     def scene(self) -> SceneItems:
         return SceneItems(self.obstacles, field=self.record_field, targets=moving_targets(self.tasks()))
@@ -250,15 +248,17 @@ class WholeBody(DistancePolicy):
             cand = [(int(np.argmin(D[:, j])), j) for j in range(D.shape[1])]
         return [(e, j, float(D[e, j])) for e, j in cand if D[e, j] < self.d_obs[0]]
 
-    def __call__(self, state: State, t: float) -> Stack:
+    def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict]:
+        """This step's tasks, one per level (highest first), no extra command (``__call__`` wraps them in a
+        :class:`Stack`; the planned step, :mod:`~hqp_tpm.policies._planned_step`, writes their rows)."""
         f, data, model = self.field, state.data, self.robot.model
-        levels: list[tuple[Task, ...]] = [(task,) for task in self.top]
+        levels: list[Task] = list(self.top)
         rows = self.obstacle_pairs()
         if rows:
             J = np.vstack([f.normal[e, j] @ f.jacobian(data, e, j) for e, j, _ in rows])
             d = np.array([r[2] for r in rows])
             self.avoid_obstacle.assign(J, repulsive_bound(d, *self.d_obs), d)
-            levels.append((self.avoid_obstacle,))
+            levels.append(self.avoid_obstacle)
         k, d_s = f.nearest_self()
         has_self = k >= 0 and d_s < self.d_self[0]
         if has_self:
@@ -266,15 +266,15 @@ class WholeBody(DistancePolicy):
             J = (point_jacobian(model, data, f.joint_ids[a], f.self_p1[k])
                  - point_jacobian(model, data, f.joint_ids[b], f.self_p2[k]))
             self.avoid_self.assign(f.self_normal[k] @ J, repulsive_bound([d_s], *self.d_self), [d_s])
-            levels.append((self.avoid_self,))
-        levels += [(task,) for task in self.below]
+            levels.append(self.avoid_self)
+        levels += self.below
         self._last = {"n_avoid_obstacle": float(len(rows)), "n_avoid_self": float(has_self)}
-        return Stack(levels)
+        return tuple(levels), {}
 
     def probe(self, ctrl, res) -> dict:
         """Per step: closest robot-obstacle and self distances (NaN beyond the recorded range), avoidance rows."""
-        f = self.record_field.update(self._data, None, self.field.t)  # the kinematics of the step's state
-        d_obs = np.where(f.in_range, f.distance, np.inf).min(initial=np.inf)
-        d_self = np.where(f.self_in_range, f.self_distance, np.inf).min(initial=np.inf)
+        # the record field's numbers (surveillance record_range) from the control field's last update (the step's
+        # state) and the few culled pairs that could be nearer (DistanceField.nearest_within)
+        d_obs, d_self = self.field.nearest_within(self.record_field.surveillance)
         return {"d_obstacle": float(d_obs) if np.isfinite(d_obs) else np.nan,
                 "d_self": float(d_self) if np.isfinite(d_self) else np.nan, **self._last}
