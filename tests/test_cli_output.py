@@ -61,3 +61,23 @@ def test_quiet_sweep_still_reports_failed_variants(tmp_path, capsys):
                                 "--out", str(tmp_path / "s"), "--quiet"], code=1)  # (a misspelt field: no run at all)
     assert printed.out == ""
     assert "1 of 1 variants failed" in printed.err and "summary.md" in printed.err
+
+
+def test_quiet_keeps_the_first_run_compile_notice_quiet(tmp_path, capsys, monkeypatch):
+    """42742a8: the first run's "compiling kernels" notice went to stderr under ``--quiet`` (on a machine whose numba
+    cache lacked a kernel the run calls); a run without ``--quiet`` still prints it."""
+    from hqp_tpm import _jit
+    from hqp_tpm.app import cli
+
+    real = cli.run_scenario
+
+    def compiling_run(*args, **kwargs):  # what numba's first compile of a kernel does during the run
+        _jit.notice(_jit.COMPILING)
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(cli, "run_scenario", compiling_run)
+    printed = _printed(capsys, ["run", "planar5_exact", "--steps", "5", "--out", str(tmp_path / "q"), "--quiet"])
+    assert printed.out == "" and printed.err == ""
+    printed = _printed(capsys, ["run", "planar5_exact", "--steps", "5", "--out", str(tmp_path / "l"), "--no-replay",
+                                "--no-figures"])
+    assert _jit.COMPILING in printed.err

@@ -423,6 +423,19 @@ def main(argv=None) -> int:
     p_camp.add_argument("--replay", type=int, default=None, metavar="INDEX", help="re-run one draw here")
     _executor_args(p_camp, "no progress lines (the result, which no file holds, is still printed)")
     args = parser.parse_args(_bare_assignments(sys.argv[1:] if argv is None else list(argv)))
+    if not vars(args).get("quiet"):
+        return _command(args)
+    from hqp_tpm import _jit
+
+    previous = _jit.set_notice_writer(lambda line: None)  # --quiet: not even the first run's compile notice
+    try:
+        return _command(args)
+    finally:
+        _jit.set_notice_writer(previous)
+
+
+def _command(args) -> int:
+    """Run the parsed subcommand; its exit code."""
     try:
         if args.command == "sweep":
             return _sweep(args)
