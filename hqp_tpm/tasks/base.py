@@ -149,10 +149,13 @@ def _target(self) -> Trajectory:
     return self.trajectory
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
 def _set_target(self, value) -> None:
     tr = self.trajectory
     if type(value) is np.ndarray and type(tr) is Constant and tr.origin is None and value.shape == (self.dim,) \
-            and value.dtype == np.float64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
+            and value.dtype is _FLOAT64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
         tr.assign(value.copy())
         return
     if value is None or isinstance(value, str):
