@@ -22,6 +22,9 @@ def load(root):
     for k in [k for k in sys.modules if k.split(".")[0] in ("hqp_tpm", "benchmarks")]:
         del sys.modules[k]
     sys.path.insert(0, root)
+    pkg = importlib.import_module("hqp_tpm")  # (now: the benchmark modules import it lazily, after root is gone)
+    if not Path(pkg.__file__).resolve().is_relative_to(Path(root).resolve()):
+        raise SystemExit(f"hqp_tpm imported from {pkg.__file__}, not from {root}")
     P = importlib.import_module("benchmarks.peers.problems")
     C = importlib.import_module("benchmarks.peers.contenders")
     sys.path.remove(root)

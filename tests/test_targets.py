@@ -73,7 +73,8 @@ def test_pose_target_getter_and_forms(iiwa):
 
 @pytest.mark.parametrize("bad, error, match", [
     (np.zeros(3), ShapeError, r"FramePose 'ee': target .* 4x4 homogeneous matrix"),
-    ("home", ParameterError, r"FramePose 'ee': target 'home' .* constructor's target only; assign a pinocchio.SE3"),
+    ("home", ShapeError, r"FramePose 'ee': target 'home' is not a pose; expected a pinocchio.SE3"),
+    ("hold", ParameterError, r"FramePose 'ee': target 'hold' .* constructor's target only; assign a pinocchio.SE3"),
     (None, ParameterError, r"FramePose 'ee': target None .* assign a pinocchio.SE3"),
     (pin.SE3(np.eye(3), np.array([0.1, np.nan, 0.0])), ParameterError, r"FramePose 'ee': target .*nan.* not finite"),
     ((np.zeros(3), 2.0 * np.eye(3)), ParameterError, "not a rotation matrix"),

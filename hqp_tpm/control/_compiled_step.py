@@ -529,10 +529,10 @@ class Program:
         i, f = self._sns_at
         return self.ints[i: i + 3 + self.ints[1]].copy(), self.floats.item(f)
 
-    def sns_info(self, outputs: tuple | None = None) -> dict:
-        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of the last solve or of its
-        :meth:`sns_outputs`, as the lean step records it."""
-        tail, scale = self.sns_outputs() if outputs is None else outputs
+    def sns_info(self, outputs: tuple) -> dict:
+        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of :meth:`sns_outputs`, as the readable step
+        records it."""
+        tail, scale = outputs
         nsat, iterations = tail[:2].tolist()
         return {"scale": scale, "saturated": tail[3: 3 + nsat].tolist(), "iterations": iterations}
 

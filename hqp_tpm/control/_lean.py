@@ -188,7 +188,7 @@ class LeanStep(CompiledStep):
 
     def current(self) -> bool:
         """Whether the controller's stack is still the one this step was planned for (no level replaced or added)."""
-        stack = self.ctrl.policy.stack
+        stack = self.ctrl._policy.stack
         return stack is self._stack and stack.levels == self._levels and not stack.extras
 
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
@@ -209,14 +209,6 @@ class LeanStep(CompiledStep):
 
     def label_of(self, kept: tuple) -> str:
         return self._label
-
-    @property
-    def info(self) -> dict:
-        """The solver's info of the last command, as the readable step's ``StepResult.info`` (SNS-TPM: ``scale``,
-        ``saturated``, ``iterations``; read from the fused kernel's outputs when asked for)."""
-        if self._info is None:
-            self._info = self._program.sns_info()
-        return self._info
 
     def _box(self, st, t):
         box = self.box

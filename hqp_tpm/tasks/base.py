@@ -141,18 +141,13 @@ class Task(ABC):
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
 
 
-def _target(self) -> Trajectory:
-    """The reference the task tracks (its :attr:`trajectory`). Assigning a constant (``dim`` values) or a
-    :class:`Trajectory` replaces it, validated as the constructor's target (:class:`ShapeError`, :class:`NonFiniteError`
-    naming the task; a relative constant stays relative); a constant array given to a constant trajectory is stored in
-    it at the cost of one copy (:meth:`Constant.assign`)."""
-    return self.trajectory
+_FLOAT64 = np.dtype(np.float64)
 
 
 def _set_target(self, value) -> None:
     tr = self.trajectory
     if type(value) is np.ndarray and type(tr) is Constant and tr.origin is None and value.shape == (self.dim,) \
-            and value.dtype == np.float64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
+            and value.dtype is _FLOAT64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
         tr.assign(value.copy())
         return
     if value is None or isinstance(value, str):
@@ -167,7 +162,11 @@ def _set_target(self, value) -> None:
 
 #: ``target`` of the tasks whose trajectory is their target (:class:`~hqp_tpm.tasks.posture.Posture`,
 #: :class:`~hqp_tpm.tasks.frame_position.FramePosition`, :class:`~hqp_tpm.tasks.com.CenterOfMass`)
-trajectory_target = property(_target, _set_target)
+trajectory_target = property(lambda self: self.trajectory, _set_target, doc="""The reference the task tracks (its
+    :attr:`trajectory`). Assigning a constant (``dim`` values) or a :class:`Trajectory` replaces it, validated as the
+    constructor's target (:class:`ShapeError`, :class:`NonFiniteError` naming the task; a relative constant stays
+    relative); a constant array given to a constant trajectory is stored in it with one copy (:meth:`Constant.assign`).
+    """)
 
 
 #: The methods a row writer or row program repeats (:func:`own_rows`).
@@ -211,11 +210,14 @@ class ReferenceSlots:
     constant reference is one read-only tuple between starts and assignments (copied once; an assigned constant changes
     ``x_d`` only, :meth:`Constant.assign`); any other is copied every step."""
 
-    __slots__ = ("program", "at", "parts", "last", "gains", "gains_at", "task", "views")
+    __slots__ = ("program", "parts", "last", "gains", "gains_at", "task", "views")
 
     def __init__(self, task: Task, program, gains_at: int, at: int, parts: tuple[tuple[int, int], ...]):
         """``kp, kd`` at ``program.floats[gains_at:]``, the reference parts ``(index, entries)`` from ``at`` on."""
-        self.task, self.program, self.gains_at, self.at, self.parts = task, program, gains_at, at, parts
+        self.task, self.program, self.gains_at, self.parts = task, program, gains_at, []
+        for i, size in parts:  # (index into the reference, its slice of the floats), laid out one after the other
+            self.parts.append((i, slice(at, at + size)))
+            at += size
         self.last, self.gains, self.views = (None, None, None), task.gains, None
 
     def refresh(self, t: float) -> None:
@@ -223,11 +225,8 @@ class ReferenceSlots:
         ref = task.trajectory.reference(t)
         last = self.last
         if ref is not last:
-            if self.views is None:  # the parts' views of the program's floats (built after the row programs)
-                at, self.views = self.at, []
-                for _, size in self.parts:  # (index into ref, entries), laid out one after the other
-                    self.views.append(self.program.floats[at: at + size])
-                    at += size
+            if self.views is None:  # (the program's floats exist once its row programs are built)
+                self.views = [self.program.floats[s] for _, s in self.parts]
             for (i, _), view in zip(self.parts, self.views, strict=True):
                 if ref[i] is not last[i]:
                     view[...] = ref[i]

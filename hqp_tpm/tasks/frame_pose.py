@@ -63,12 +63,10 @@ def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
 
 
 _PROBE = pin.SE3.Identity()
-_VIEW = _PROBE.translation
-_PROBE.translation = np.ones(3)
+_VIEW, _PROBE.translation = _PROBE.translation, np.ones(3)
 #: assigning an ``SE3``'s translation (rotation) writes into the memory its earlier views read: a task keeps one target
-#: placement, whose memory the fused kernel reads, and its ``target`` setter writes into it
+#: placement (whose memory the fused kernel reads) and its ``target`` setter writes into it
 IN_PLACE = bool(_VIEW[0] == 1.0)
-del _PROBE, _VIEW
 
 
 class FramePose(Task):
@@ -102,10 +100,10 @@ class FramePose(Task):
             if math.isfinite(ddot(p, p) + ddot(r, r)):
                 M.translation, M.rotation = p, R
                 return
-        if value is None or isinstance(value, str):
+        if (M := placement_target(value, self.name)) is None:
             raise ParameterError(f"FramePose {self.name!r}: target {shown(value)} (the start pose) is a "
                                  f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
-        self._M_target = placement_target(value, self.name)
+        self._M_target = M
 
     def start(self, state: State) -> None:
         if self._M_target is None:
