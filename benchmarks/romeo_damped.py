@@ -57,7 +57,7 @@ def stacks(n_configs: int):
     S.sns_tpm = capture
     try:
         for cfg in prob.configs:
-            controller(robot, prob, cfg).compute()
+            controller(robot, prob, cfg).compute(record=True)  # (the readable step: its sns_tpm call)
     finally:
         S.sns_tpm = real
         P.KP_ROMEO, P.KP_ROMEO_POSTURE = gains
@@ -148,7 +148,7 @@ def warm_start(robot, prob, runs: int = 10, steps: int = 20):
             prev = ()
             for _ in range(steps):
                 seen.clear()
-                ctrl.compute()                        # (the readable step: its sns_tpm call is captured)
+                ctrl.compute(record=True)             # (the readable step: its sns_tpm call is captured)
                 J, b, sizes, lo, up = seen[0]
                 ctrl.step()
                 t0 = time.thread_time_ns()

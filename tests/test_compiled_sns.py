@@ -352,22 +352,58 @@ def test_damped_romeo_like_stacks_stay_in_the_kernel(outcomes):
     assert outcomes[_compiled_sns.DONE] >= 20 and max(iterations) >= 5, (outcomes, iterations)
 
 
-def test_benchmark_damped_romeo_configurations_stay_in_the_kernel():
-    """The side-by-side benchmark's Romeo problem with the library's damping (kp 100, lambda_max 0.05, eps 0.1):
-    the controller's own stacks (6 levels, 38 x 27), each solved in the kernel to the end (DONE, the recursion's
-    passes counted inside it), equal to Algorithm 1. (On the old kernel every one was handed back.)"""
-    from benchmarks.romeo_damped import EPS, LAMBDA_MAX, stacks
+@pytest.fixture(scope="module")
+def damped_romeo_cases():
+    """``(J, b, sizes, lo, up)`` of 6 configurations of benchmarks/romeo_damped.py (the controller's own stacks)."""
+    from benchmarks.romeo_damped import stacks
 
     cases = stacks(6)[2]
-    for J, b, sizes, lo, up in cases:
+    assert len(cases) == 6                             # (the controller's sns_tpm calls were captured)
+    return cases
+
+
+def test_damped_romeo_tpm_is_factorized(damped_romeo_cases):
+    """TPM of the damped Romeo stacks (m > n, damped pivots above the crossing level): the kernel answers by the
+    factorization (``FACTORED``: each damped pivot's inverse from the SVD of its block, Steps 2-4 as a forward
+    substitution, the crossing level by the full-rank shortcut), equal to the recursion and to ``tpm_reference`` at
+    1e-12. (On 42742a8 the recursion answered 194 of the benchmark's 200.)"""
+    from benchmarks.romeo_damped import EPS, LAMBDA_MAX
+    from hqp_tpm.solvers.nullspace import nullspace_stacked
+    from hqp_tpm.solvers.tpm import tpm_reference
+
+    for J, b, sizes, _, _ in damped_romeo_cases:
+        n = J.shape[1]
+        x = np.empty(n)
+        path = _compiled._tpm(J, b, np.array(sizes), n, LAMBDA_MAX, EPS, _compiled._UNIT, _compiled.MARGIN,
+                              _compiled.COND, np.empty(0), False, x)
+        assert path == _compiled.FACTORED
+        off = np.cumsum((0, *sizes))
+        levels = [(J[a:e], b[a:e]) for a, e in zip(off, off[1:], strict=False)]
+        assert rel_diff(x, nullspace_stacked(J, b, sizes, n, LAMBDA_MAX, EPS)) <= TOL
+        assert rel_diff(x, tpm_reference(levels, lambda_max=LAMBDA_MAX, eps=EPS)) <= TOL
+
+
+def test_benchmark_damped_romeo_configurations_stay_in_the_kernel(damped_romeo_cases):
+    """The side-by-side benchmark's Romeo problem with the library's damping (kp 100, lambda_max 0.05, eps 0.1):
+    the controller's own stacks (6 levels, 38 x 27), each solved in the kernel to the end (DONE), equal to
+    Algorithm 1. Their damped pivots above the crossing level are taken by the factorization (each pivot's damped
+    inverse from the SVD of its block, the QR downdated at each saturation): the recursion answers at most one
+    pass in five (on 42742a8 it answered every pass; before 7f723e3 every solve was handed back to numpy)."""
+    from benchmarks.romeo_damped import EPS, LAMBDA_MAX
+
+    passes = recursions = 0
+    for J, b, sizes, lo, up in damped_romeo_cases:
         status, x, sat, scale, its, feasible, nrec = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX,
                                                                                   EPS)
-        assert status == _compiled_sns.DONE and nrec >= 1 and len(sat) >= 3, (status, nrec, sat)
+        assert status == _compiled_sns.DONE and len(sat) >= 3, (status, nrec, sat)
+        passes += its
+        recursions += nrec
         off = np.cumsum((0, *sizes))
         levels = [(J[a:e], b[a:e]) for a, e in zip(off, off[1:], strict=False)]
         xr, info_r = sns_tpm_reference(levels, lo, up, lambda_max=LAMBDA_MAX, eps=EPS, return_info=True)
         assert sat == info_r.saturated and its == info_r.iterations, (sat, info_r)
         assert rel_diff(x, xr) <= REF_TOL, rel_diff(x, xr)
+    assert 5 * recursions <= passes, (recursions, passes)
 
 
 @pytest.mark.parametrize("damping", [{}, {"lambda_max": 0.05, "eps": 0.1}])
