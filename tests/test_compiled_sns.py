@@ -443,7 +443,9 @@ def test_invalid_box_is_handed_back(outcomes):
 def test_downdated_factorization_equals_the_free_columns():
     """The QR downdate of the SNS loop (m > n): after each saturation, ``Q~[free rows, s:]`` is orthonormal, with
     ``R1`` it factors the upper levels' free columns ``J_<k W^T``, ``C~[:, s:]`` is ``J_k W Q~[free rows, s:]``,
-    and the saturated joints' rows are decoupled (the refactorization's factors, up to the columns' signs)."""
+    and the saturated joints' rows are decoupled (the refactorization's factors, up to the columns' signs). Past
+    the point where another level crosses rank (fewer free joints than the 17 rows above the posture), the views of
+    the new crossing level factor it the same way (``R~``'s leading columns and its columns of that level)."""
     rng = np.random.default_rng(8)
     n, sizes = 27, (6, 2, 3, 6, 21)
     J = np.vstack([rng.standard_normal((17, n)), np.hstack([np.zeros((21, 6)), np.eye(21)])])
@@ -455,7 +457,8 @@ def test_downdated_factorization_equals_the_free_columns():
     Rt[:m1] = R1
     cs, sn, w = np.zeros((n, n)), np.zeros((n, n)), np.empty(n)
     free = np.ones(n, dtype=bool)
-    for s, j in enumerate(rng.permutation(n)[:9]):
+    crossings = set()
+    for s, j in enumerate(rng.permutation(n)[:16]):
         free[j] = False
         _compiled_sns._q_row(j, V, tau, m1, cs, sn, s, w)
         _compiled_sns._downdate(w, CT, Rt, s, m1, cs, sn)
@@ -469,3 +472,9 @@ def test_downdated_factorization_equals_the_free_columns():
         assert np.abs(Qf[:, :m1] @ R1s - J[:m1, free].T).max() < 1e-13 * np.abs(J).max()
         assert np.abs(J[m1:, free] @ Qf - CT[s + 1:].T).max() < 1e-13
         assert np.abs(Q[~free][:, s + 1:]).max() < 1e-14                      # saturated joints: no coupling
+        k, m1k, mkk, _ = _compiled._crossing_level(np.array(sizes), n - s - 1)
+        crossings.add(k)
+        R1k, BTk = _compiled_sns._downdated_views(CT, Rt, s + 1, k, m1k, mkk, 4)
+        assert np.abs(Qf[:, :m1k] @ R1k - J[:m1k, free].T).max() < 1e-13 * np.abs(J).max()
+        assert np.abs(J[m1k:m1k + mkk, free] @ Qf - BTk.T).max() < 1e-13 * np.abs(J).max()
+    assert crossings == {4, 3, 2}, crossings                # (the posture level, then the levels above it)
