@@ -392,12 +392,20 @@ def test_benchmark_damped_romeo_configurations_stay_in_the_kernel(damped_romeo_c
     from benchmarks.romeo_damped import EPS, LAMBDA_MAX
 
     passes = recursions = 0
-    for J, b, sizes, lo, up in damped_romeo_cases:
+    for i, (J, b, sizes, lo, up) in enumerate(damped_romeo_cases):
         status, x, sat, scale, its, feasible, nrec = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX,
                                                                                   EPS)
         assert status == _compiled_sns.DONE and len(sat) >= 3, (status, nrec, sat)
         passes += its
         recursions += nrec
+        if i < 2:                                                 # the kernel's source as Python: the same run
+            _compiled.ENABLED = False
+            try:
+                py = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+            finally:
+                _compiled.ENABLED = True
+            assert py[2] == sat and py[4] == its and py[6] == nrec, (py[2:], sat, its, nrec)
+            assert rel_diff(py[1], x) <= TOL, rel_diff(py[1], x)
         off = np.cumsum((0, *sizes))
         levels = [(J[a:e], b[a:e]) for a, e in zip(off, off[1:], strict=False)]
         xr, info_r = sns_tpm_reference(levels, lo, up, lambda_max=LAMBDA_MAX, eps=EPS, return_info=True)
