@@ -3,11 +3,11 @@
     OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py [--configs 200] [--repeats 3] [--warm]
 
 The stacks are those of :mod:`benchmarks.peers.problems`' ``romeo_vel`` (6 levels, m > n) with kp = 100 and
-``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute``). Prints, per solver, the median and p99 of
-the solve alone (thread CPU time, ``sns_tpm_stacked`` / ``tpm_stacked`` on the captured arrays, one BLAS
-thread), the SNS passes (median, max), how many ``sns_tpm`` solves left the compiled loop and how many ``tpm``
-solves its kernel answered by the recursion. ``--warm``: the warm-start experiment (closed loops;
-:func:`warm_start`).
+``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute(record=True)``, the readable step). Prints,
+per solver, the median and p99 of the solve alone (thread CPU time, ``sns_tpm_stacked`` / ``tpm_stacked`` on the
+captured arrays, one BLAS thread), the SNS passes (median, max), how many ``sns_tpm`` solves left the compiled
+loop and how many ``tpm`` solves its kernel answered by the recursion. ``--warm``: the warm-start experiment
+(closed loops; :func:`warm_start`).
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ def stacks(n_configs: int):
     S.sns_tpm = capture
     try:
         for cfg in prob.configs:
-            controller(robot, prob, cfg).compute()
+            controller(robot, prob, cfg).compute(record=True)  # (the readable step: its sns_tpm call)
     finally:
         S.sns_tpm = real
         P.KP_ROMEO, P.KP_ROMEO_POSTURE = gains
@@ -148,7 +148,7 @@ def warm_start(robot, prob, runs: int = 10, steps: int = 20):
             prev = ()
             for _ in range(steps):
                 seen.clear()
-                ctrl.compute()                        # (the readable step: its sns_tpm call is captured)
+                ctrl.compute(record=True)             # (the readable step: its sns_tpm call is captured)
                 J, b, sizes, lo, up = seen[0]
                 ctrl.step()
                 t0 = time.thread_time_ns()

@@ -352,22 +352,66 @@ def test_damped_romeo_like_stacks_stay_in_the_kernel(outcomes):
     assert outcomes[_compiled_sns.DONE] >= 20 and max(iterations) >= 5, (outcomes, iterations)
 
 
-def test_benchmark_damped_romeo_configurations_stay_in_the_kernel():
-    """The side-by-side benchmark's Romeo problem with the library's damping (kp 100, lambda_max 0.05, eps 0.1):
-    the controller's own stacks (6 levels, 38 x 27), each solved in the kernel to the end (DONE, the recursion's
-    passes counted inside it), equal to Algorithm 1. (On the old kernel every one was handed back.)"""
-    from benchmarks.romeo_damped import EPS, LAMBDA_MAX, stacks
+@pytest.fixture(scope="module")
+def damped_romeo_cases():
+    """``(J, b, sizes, lo, up)`` of 6 configurations of benchmarks/romeo_damped.py (the controller's own stacks)."""
+    from benchmarks.romeo_damped import stacks
 
     cases = stacks(6)[2]
-    for J, b, sizes, lo, up in cases:
+    assert len(cases) == 6                             # (the controller's sns_tpm calls were captured)
+    return cases
+
+
+def test_damped_romeo_tpm_is_factorized(damped_romeo_cases):
+    """TPM of the damped Romeo stacks (m > n, damped pivots above the crossing level): the kernel answers by the
+    factorization (``FACTORED``: each damped pivot's inverse from the SVD of its block, Steps 2-4 as a forward
+    substitution, the crossing level by the full-rank shortcut), equal to the recursion and to ``tpm_reference`` at
+    1e-12. (On 42742a8 the recursion answered 194 of the benchmark's 200.)"""
+    from benchmarks.romeo_damped import EPS, LAMBDA_MAX
+    from hqp_tpm.solvers.nullspace import nullspace_stacked
+    from hqp_tpm.solvers.tpm import tpm_reference
+
+    for J, b, sizes, _, _ in damped_romeo_cases:
+        n = J.shape[1]
+        x = np.empty(n)
+        path = _compiled._tpm(J, b, np.array(sizes), n, LAMBDA_MAX, EPS, _compiled._UNIT, _compiled.MARGIN,
+                              _compiled.COND, np.empty(0), False, x)
+        assert path == _compiled.FACTORED
+        off = np.cumsum((0, *sizes))
+        levels = [(J[a:e], b[a:e]) for a, e in zip(off, off[1:], strict=False)]
+        assert rel_diff(x, nullspace_stacked(J, b, sizes, n, LAMBDA_MAX, EPS)) <= TOL
+        assert rel_diff(x, tpm_reference(levels, lambda_max=LAMBDA_MAX, eps=EPS)) <= TOL
+
+
+def test_benchmark_damped_romeo_configurations_stay_in_the_kernel(damped_romeo_cases):
+    """The side-by-side benchmark's Romeo problem with the library's damping (kp 100, lambda_max 0.05, eps 0.1):
+    the controller's own stacks (6 levels, 38 x 27), each solved in the kernel to the end (DONE), equal to
+    Algorithm 1. Their damped pivots above the crossing level are taken by the factorization (each pivot's damped
+    inverse from the SVD of its block, the QR downdated at each saturation): the recursion answers at most one
+    pass in five (on 42742a8 it answered every pass; before 7f723e3 every solve was handed back to numpy)."""
+    from benchmarks.romeo_damped import EPS, LAMBDA_MAX
+
+    passes = recursions = 0
+    for i, (J, b, sizes, lo, up) in enumerate(damped_romeo_cases):
         status, x, sat, scale, its, feasible, nrec = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX,
                                                                                   EPS)
-        assert status == _compiled_sns.DONE and nrec >= 1 and len(sat) >= 3, (status, nrec, sat)
+        assert status == _compiled_sns.DONE and len(sat) >= 3, (status, nrec, sat)
+        passes += its
+        recursions += nrec
+        if i < 2:                                                 # the kernel's source as Python: the same run
+            _compiled.ENABLED = False
+            try:
+                py = _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+            finally:
+                _compiled.ENABLED = True
+            assert py[2] == sat and py[4] == its and py[6] == nrec, (py[2:], sat, its, nrec)
+            assert rel_diff(py[1], x) <= TOL, rel_diff(py[1], x)
         off = np.cumsum((0, *sizes))
         levels = [(J[a:e], b[a:e]) for a, e in zip(off, off[1:], strict=False)]
         xr, info_r = sns_tpm_reference(levels, lo, up, lambda_max=LAMBDA_MAX, eps=EPS, return_info=True)
         assert sat == info_r.saturated and its == info_r.iterations, (sat, info_r)
         assert rel_diff(x, xr) <= REF_TOL, rel_diff(x, xr)
+    assert 5 * recursions <= passes, (recursions, passes)
 
 
 @pytest.mark.parametrize("damping", [{}, {"lambda_max": 0.05, "eps": 0.1}])
@@ -407,7 +451,9 @@ def test_invalid_box_is_handed_back(outcomes):
 def test_downdated_factorization_equals_the_free_columns():
     """The QR downdate of the SNS loop (m > n): after each saturation, ``Q~[free rows, s:]`` is orthonormal, with
     ``R1`` it factors the upper levels' free columns ``J_<k W^T``, ``C~[:, s:]`` is ``J_k W Q~[free rows, s:]``,
-    and the saturated joints' rows are decoupled (the refactorization's factors, up to the columns' signs)."""
+    and the saturated joints' rows are decoupled (the refactorization's factors, up to the columns' signs). Past
+    the point where another level crosses rank (fewer free joints than the 17 rows above the posture), the views of
+    the new crossing level factor it the same way (``R~``'s leading columns and its columns of that level)."""
     rng = np.random.default_rng(8)
     n, sizes = 27, (6, 2, 3, 6, 21)
     J = np.vstack([rng.standard_normal((17, n)), np.hstack([np.zeros((21, 6)), np.eye(21)])])
@@ -419,7 +465,8 @@ def test_downdated_factorization_equals_the_free_columns():
     Rt[:m1] = R1
     cs, sn, w = np.zeros((n, n)), np.zeros((n, n)), np.empty(n)
     free = np.ones(n, dtype=bool)
-    for s, j in enumerate(rng.permutation(n)[:9]):
+    crossings = set()
+    for s, j in enumerate(rng.permutation(n)[:16]):
         free[j] = False
         _compiled_sns._q_row(j, V, tau, m1, cs, sn, s, w)
         _compiled_sns._downdate(w, CT, Rt, s, m1, cs, sn)
@@ -433,3 +480,9 @@ def test_downdated_factorization_equals_the_free_columns():
         assert np.abs(Qf[:, :m1] @ R1s - J[:m1, free].T).max() < 1e-13 * np.abs(J).max()
         assert np.abs(J[m1:, free] @ Qf - CT[s + 1:].T).max() < 1e-13
         assert np.abs(Q[~free][:, s + 1:]).max() < 1e-14                      # saturated joints: no coupling
+        k, m1k, mkk, _ = _compiled._crossing_level(np.array(sizes), n - s - 1)
+        crossings.add(k)
+        R1k, BTk = _compiled_sns._downdated_views(CT, Rt, s + 1, k, m1k, mkk, 4)
+        assert np.abs(Qf[:, :m1k] @ R1k - J[:m1k, free].T).max() < 1e-13 * np.abs(J).max()
+        assert np.abs(J[m1k:m1k + mkk, free] @ Qf - BTk.T).max() < 1e-13 * np.abs(J).max()
+    assert crossings == {4, 3, 2}, crossings                # (the posture level, then the levels above it)

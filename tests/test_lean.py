@@ -898,7 +898,8 @@ def test_program_slots_take_c_contiguous_float_arrays():
 def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch):
     """Where the fused kernel's TPM declines (a singular EE pose, damped pivots), tpm_stacked goes straight to the
     compiled recursion with the kernel's answer (kernel_status) instead of running the same kernel (or TPM's one
-    kernel, which would run it first) again: the readable step's numbers."""
+    kernel, which would run it first) again: the readable step's numbers. (Each step from the singular pose: a step
+    moves away from it, where the damped, regular pivots are factorized by the kernel itself.)"""
     from hqp_tpm.solvers import _compiled as _solvers_compiled
 
     _flags(monkeypatch, True, True)
@@ -912,6 +913,8 @@ def test_a_declined_fused_tpm_step_does_not_run_the_tpm_kernel_again(monkeypatch
     ref, fast = _singular_damped_pair("tpm")
     lean = Lean.of(fast)
     for _ in range(5):
+        for c in (ref, fast):
+            c.set_state(np.zeros_like(c.q), c.v)
         want = ref.step(record=True).command
         again.clear()
         recursions.clear()

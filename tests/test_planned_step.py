@@ -398,7 +398,7 @@ def test_planned_solve_kernel_equals_tpm_stacked():
         if status == _compiled_step.SOLVED:
             ref = tpm_stacked(J, b, sizes, n, lam, eps, -damping * v if damping else None)
             np.testing.assert_array_equal(x, ref)
-    assert {_compiled_step.SOLVED, _compiled.DECLINED} <= seen, seen
+    assert _compiled_step.SOLVED in seen and seen & {_compiled.DECLINED, _compiled.UNDECIDED}, seen
     J, b, v = np.eye(3), np.ones(3), np.zeros(3)
     args = (_compiled._sizes((3,)), v, 0.0, 0.0, 0.0, _compiled._UNIT, MARGIN, COND, np.empty(3), np.empty(3))
     b[1] = np.nan

@@ -16,12 +16,17 @@ reference).
 How :func:`past_rank` computes (``J_<k^T = Q1 R1``, ``Q = [Q1 Z]``, see :mod:`hqp_tpm.solvers._fullrank`):
 
 * Householder QR of ``J_<k^T`` (LAPACK's ``dlarfg`` convention) on the rows of ``J`` (contiguous), the
-  certificates from ``R1^{-1}`` (back substitution; its entries never reach the result), ``z = R1^{-T} b_<k``;
+  certificates from ``R1^{-1}`` (back substitution), ``z = R1^{-T} b_<k``; with the damping on, a pivot whose
+  certificate ``1/||R_ii^{-1}||_F`` is below ``eps`` is decided by the SVD of its block and, where ``sigma_min <
+  eps``, inverted by the damping law: then ``z`` by Steps 2-4 as a forward substitution with every pivot's
+  (damped) inverse, ``z_i = D_i^T (b_i - sum_{j<i} R_ji^T z_j)`` (the recursion on the basis ``Q1``, tpm module
+  doc; :func:`_pivot_forward`);
 * ``J_k Q`` by applying the reflectors from the right (to a row-major ``J_k^T``): its first ``m1`` columns
   give ``J_k x1``, the others are ``A = J_k Z``;
 * ``A = Q_A R_A`` (Householder): ``||A#||_F = ||R_A^{-1}||_F`` exactly, and ``1/||R_A^{-1}||_F <= sigma_min(A)
-  <= min |r_jj|`` decides the rank and damping tests without an SVD; when it cannot decide (``sigma_min`` within
-  a factor ``sqrt(r)`` of a threshold), the recursion answers instead;
+  <= min |r_jj|`` decides the rank test without an SVD; when it cannot decide (``sigma_min`` within a factor
+  ``sqrt(r)`` of a threshold), the recursion answers instead; a square ``A`` whose bound is below ``eps`` gets
+  its ``sigma_min`` (for the damping law) from the SVD of ``R_A``;
 * the crossing level's least squares ``y = A# r`` from ``R_A`` (undamped) or from the QR of ``[R_A; lambda I]``
   (damped: the same minimizer as ``V diag(s/(s^2 + lambda^2)) U^T r``; :func:`_damped_qr` walks only its
   nonzeros, once per factorization, for every right-hand side);
@@ -473,10 +478,20 @@ def _level_sumsq(J, sizes, w):
 @_inlined
 def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, unit, margin, cond):
     """The certificates of :func:`_past_rank` and the QR of ``A = J_k Z``, given ``R1`` (``J_<k^T = Q1 R1``, its
-    diagonal nonzero) and ``BT = (J_k Q)^T``: ``(status, AT, tauA, RA)``."""
+    diagonal nonzero) and ``BT = (J_k Q)^T``: ``(status, AT, tauA, RA, Dp, blk, lam)``.
+
+    A pivot ``R_ii`` of the levels ``< k`` is certified regular (``1/||R_ii^{-1}||_F`` above ``margin`` times its
+    rank tolerance and ``cond ||J_i||_F``); where that bound is below ``eps`` (damping on) the SVD of the block
+    gives ``sigma_min`` and, below ``eps``, its damped inverse (:func:`_damped_block`): then ``Dp`` (``m1 x m1``,
+    block diagonal) holds every pivot's inverse, ``R_ii^{-1}`` or damped, and ``blk[i]`` the first row of row
+    ``i``'s level (else both empty: ``R1^{-T}`` by substitution). ``lam``: the crossing level's damping (0: none),
+    ``lambda_max`` when ``A`` has fewer columns than rows, else from ``sigma_min(A)`` (the SVD of ``R_A`` where
+    ``1/||R_A^{-1}||_F < eps``). The damping law is continuous in ``sigma_min``: no margin is needed at ``eps``."""
     AT = np.empty((r, mk))                             # A^T: the columns of A as rows
     tauA = np.empty(r)
     RA = np.zeros((r, r))
+    Dp = np.empty((0, 0))
+    blk = np.empty(0, dtype=np.int64)
     a_inv = 0.0
     if m1:                                             # levels < k: pivots certified regular by 1/||R_ii^-1||_F
         R1inv = _triangular_inverse(R1)
@@ -485,8 +500,18 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
             e = a + sizes[lev]
             bound = 1.0 / _fro_upper(R1inv, a, e)
             norm = math.sqrt(sq[lev])
-            if bound <= max(margin * unit * size * norm, cond * norm) or (lambda_max > 0.0 and bound < eps):
-                return DECLINED, AT, tauA, RA
+            if bound <= max(margin * unit * size * norm, cond * norm):
+                return DECLINED, AT, tauA, RA, Dp, blk, 0.0
+            if lambda_max > 0.0 and bound < eps:       # sigma_min may be below eps: the block's SVD decides
+                if Dp.shape[0] == 0:
+                    Dp, blk = _pivot_inverses(R1inv, sizes, k, m1)
+                if e - a == 1:
+                    s = abs(R1[a, a])
+                    if s < eps:
+                        inv = s / (s * s + (1.0 - (s / eps) ** 2) * lambda_max**2)
+                        Dp[a, a] = inv if R1[a, a] >= 0.0 else -inv
+                else:
+                    _damped_pivot(R1, a, e, lambda_max, eps, Dp)
             a = e
         a_inv = _fro_upper(R1inv, 0, m1)
     norm_k = math.sqrt(sq[k])
@@ -504,21 +529,157 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
     for j in range(r):
         dmin = min(dmin, abs(RA[j, j]))
     if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
-        return DECLINED, AT, tauA, RA
+        return DECLINED, AT, tauA, RA, Dp, blk, 0.0
     RAinv = _triangular_inverse(RA)
     p = _fro_upper(RAinv, 0, r)                        # = ||A#||_F = sqrt(sum 1/sigma^2)
     lower = 1.0 / p                                    # <= sigma_min(A)
-    if lower <= thr_k or (lambda_max > 0.0 and r == mk and lower < eps):
-        return UNDECIDED, AT, tauA, RA                 # sigma_min itself: the reference's SVD decides
-    if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
-        return DECLINED, AT, tauA, RA
-    return SOLVED, AT, tauA, RA
+    if lower <= thr_k:
+        return UNDECIDED, AT, tauA, RA, Dp, blk, 0.0   # sigma_min itself: the reference's SVD decides
+    lam = 0.0
+    if lambda_max > 0.0 and r < mk and 0.0 < eps:      # m_k - r zero singular values: lambda = lambda_max
+        lam = math.sqrt(lambda_max * lambda_max)       # (as the earlier kernel took it: the same bits)
+        p = min(p, math.sqrt(r) / (2.0 * lam))         # s / (s^2 + lam^2) <= min(1/s, 1/(2 lam))
+    elif lambda_max > 0.0 and r == mk and lower < eps:
+        sv = _jacobi_svd(RA, 0, r)[1]                  # sigma(A) = sigma(R_A)
+        smin = sv[0]
+        for t in range(1, r):
+            smin = min(smin, sv[t])
+        if smin < eps:
+            lam2 = (1.0 - (smin / eps) ** 2) * lambda_max**2
+            lam = math.sqrt(lam2)
+            p = 0.0
+            for t in range(r):
+                p += (sv[t] / (sv[t] * sv[t] + lam2)) ** 2
+            p = math.sqrt(p)                           # ||A#_lambda||_F
+    if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:   # the stack's solution map: at most 1/(cond ||J||)
+        return DECLINED, AT, tauA, RA, Dp, blk, 0.0
+    return SOLVED, AT, tauA, RA, Dp, blk, lam
+
+
+@_kernel
+def _jacobi_svd(B, a, e):
+    """``(W, sv, Vt)`` of the square block ``B[a:e, a:e] = U diag(sv) V^T`` by one-sided Jacobi (Hestenes; Demmel
+    & Veselic's rotation): the block's columns rotated pairwise until orthogonal, ``W[j] = sv_j u_j`` (the rotated
+    columns as rows), ``Vt[j]`` = ``v_j``, ``sv`` unsorted. Singular values to high relative accuracy, a few
+    sweeps on the small pivot blocks of TPM, no LAPACK call and no workspace query."""
+    k = e - a
+    W = np.empty((k, k))
+    for j in range(k):
+        for i in range(k):
+            W[j, i] = B[a + i, a + j]
+    Vt = np.zeros((k, k))
+    for j in range(k):
+        Vt[j, j] = 1.0
+    for _ in range(40):
+        rotated = False
+        for p in range(k - 1):
+            for q in range(p + 1, k):
+                al = 0.0
+                be = 0.0
+                ga = 0.0
+                for i in range(k):
+                    al += W[p, i] * W[p, i]
+                    be += W[q, i] * W[q, i]
+                    ga += W[p, i] * W[q, i]
+                if ga == 0.0 or abs(ga) <= EPS * math.sqrt(al * be):
+                    continue
+                rotated = True
+                zeta = (be - al) / (2.0 * ga)
+                t = math.copysign(1.0, zeta) / (abs(zeta) + math.sqrt(1.0 + zeta * zeta))
+                c = 1.0 / math.sqrt(1.0 + t * t)
+                sn = c * t
+                for i in range(k):
+                    wp = W[p, i]
+                    wq = W[q, i]
+                    W[p, i] = c * wp - sn * wq
+                    W[q, i] = sn * wp + c * wq
+                    vp = Vt[p, i]
+                    vq = Vt[q, i]
+                    Vt[p, i] = c * vp - sn * vq
+                    Vt[q, i] = sn * vp + c * vq
+        if not rotated:
+            break
+    sv = np.empty(k)
+    for j in range(k):
+        ssq = 0.0
+        for i in range(k):
+            ssq += W[j, i] * W[j, i]
+        sv[j] = math.sqrt(ssq)
+    return W, sv, Vt
+
+
+@_inlined
+def _damped_pivot(R, a, e, lambda_max, eps, D):
+    """The regular pivot block ``R[a:e, a:e]`` whose certificate is below ``eps``: its singular values
+    (:func:`_jacobi_svd`) and, when ``sigma_min < eps``, ``D[a:e, a:e]`` <- its damped inverse ``V diag(s / (s^2 +
+    lambda^2)) U^T`` (``damping.inverted_singular_values``' law; every ``s`` is above the rank tolerance: certified).
+    Returns 1 if damped, 0 if not (``D`` untouched)."""
+    W, sv, Vt = _jacobi_svd(R, a, e)
+    k = e - a
+    smin = sv[0]
+    for j in range(1, k):
+        smin = min(smin, sv[j])
+    if not smin < eps:
+        return 0
+    lam2 = (1.0 - (smin / eps) ** 2) * lambda_max**2
+    for j in range(k):                                 # (u_j s_j = W[j]: s_j / (s_j^2 + lam2) u_j = W[j] / (..))
+        sv[j] = 1.0 / (sv[j] * sv[j] + lam2)
+    for i in range(k):
+        for col in range(k):
+            s = 0.0
+            for j in range(k):
+                s += Vt[j, i] * sv[j] * W[j, col]
+            D[a + i, a + col] = s
+    return 1
+
+
+@_inlined
+def _pivot_inverses(R1inv, sizes, k, m1):
+    """``(Dp, blk)``: the block diagonal of ``R1^{-1}`` (the pivots' inverses ``R_ii^{-1}`` of levels ``< k``) and
+    each row's first row of its level."""
+    Dp = np.zeros((m1, m1))
+    blk = np.empty(m1, dtype=np.int64)
+    a = 0
+    for lev in range(k):
+        e = a + sizes[lev]
+        for i in range(a, e):
+            blk[i] = a
+            for j in range(i, e):
+                Dp[i, j] = R1inv[i, j]
+        a = e
+    return Dp, blk
+
+
+@_inlined
+def _pivot_forward(R1, Dp, blk, b, m1):
+    """``z`` of Steps 2-4 with the pivots' (damped) inverses ``Dp`` (:func:`_past_rank_certify`): level by level
+    ``z_i = D_i^T (b_i - sum_{j<i} R_ji^T z_j)``, the recursion on the basis ``Q1`` (tpm module doc)."""
+    z = np.empty(m1)
+    c = np.empty(m1)
+    a = 0
+    while a < m1:
+        e = a + 1
+        while e < m1 and blk[e] == a:
+            e += 1
+        for i in range(a, e):
+            s = b[i]
+            for t in range(a):
+                s -= R1[t, i] * z[t]
+            c[i] = s
+        for i in range(a, e):
+            s = 0.0
+            for t in range(a, e):
+                s += Dp[t, i] * c[t]
+            z[i] = s
+        a = e
+    return z
 
 
 @_inlined
 def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
     """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
-    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR)``."""
+    factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp,
+    blk)``."""
     m = J.shape[0]
     k, m1, mk, r = _crossing_level(sizes, n)
     w = np.empty(max(n, mk))                           # scratch of the Householder updates and row norms
@@ -533,35 +694,38 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
         for t in range(n):
             BT[t, i] = J[m1 + i, t]
     _apply_right_t(BT, V, tau, m1, w)
-    status, AT, tauA, RA = _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, n), lambda_max, eps, unit,
-                                              margin, cond)
+    status, AT, tauA, RA, Dp, blk, lam = _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, n), lambda_max,
+                                                            eps, unit, margin, cond)
     if status != SOLVED:
         return (status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, *_no_damping())
-    DV, Dtau, DR = _crossing_damping(RA, r, mk, lambda_max, eps)
-    return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR
+    DV, Dtau, DR = _crossing_damping(RA, lam)
+    return status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk
 
 
 @_inlined
 def _no_damping():
-    """:func:`_crossing_damping`'s empty factors (no damped crossing level, or nothing solved)."""
+    """Empty ``(DV, Dtau, DR, Dp, blk)``: no damped crossing level and no damped pivot above it (or nothing
+    solved)."""
+    return np.empty((0, 0)), np.empty(0), np.empty((0, 0)), np.empty((0, 0)), np.empty(0, dtype=np.int64)
+
+
+@_inlined
+def _crossing_damping(RA, lam):
+    """The crossing level's damped factors (:func:`_damped_qr` of ``[R_A; lam I]``, shared by every right-hand
+    side) when ``lam > 0`` (:func:`_past_rank_certify`), else empty."""
+    if lam > 0.0:
+        return _damped_qr(RA, lam)
     return np.empty((0, 0)), np.empty(0), np.empty((0, 0))
 
 
 @_inlined
-def _crossing_damping(RA, r, mk, lambda_max, eps):
-    """The crossing level's damped factors (:func:`_damped_qr` of ``[R_A; lambda_max I]``, shared by every
-    right-hand side) when ``R_kk`` has zero singular values (``r < mk``) and the damping is on, else empty."""
-    if lambda_max > 0.0 and r < mk and 0.0 < eps:
-        # (lambda as the square root of lambda^2, as the earlier kernel took it: the same bits)
-        return _damped_qr(RA, math.sqrt(lambda_max * lambda_max))
-    return _no_damping()
-
-
-@_inlined
-def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out):
+def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, out):
     """``out[:m1] <- z``, ``out[m1:m1 + r] <- y`` of :func:`_past_rank` for the right-hand side ``b``
-    (``x = Q [z; y]``; ``DV, Dtau, DR``: :func:`_crossing_damping`)."""
-    z = _solve_upper_t(R1, b[:m1]) if m1 else np.empty(0)
+    (``x = Q [z; y]``; ``DV, Dtau, DR``: :func:`_crossing_damping`; ``Dp, blk``: :func:`_past_rank_certify`)."""
+    if Dp.shape[0]:                                    # a damped pivot above the crossing level
+        z = _pivot_forward(R1, Dp, blk, b, m1)
+    else:
+        z = _solve_upper_t(R1, b[:m1]) if m1 else np.empty(0)
     res = np.empty(mk)
     for i in range(mk):
         res[i] = b[m1 + i]
@@ -570,7 +734,7 @@ def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, 
         for i in range(mk):
             res[i] -= BT[t, i] * zt
     _apply_qt(res, AT, tauA, r)
-    if lambda_max > 0.0 and r < mk and 0.0 < eps:     # R_kk has zero singular values: lambda = lambda_max
+    if DR.shape[0]:                                    # the crossing level damped (lambda > 0)
         y = _damped_solve(DV, Dtau, DR, res[:r])
     else:
         y = _solve_upper(RA, res[:r])
@@ -579,9 +743,10 @@ def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, 
 
 
 @_inlined
-def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out):
-    """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors."""
-    _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out)
+def _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, lambda_max, eps, out):
+    """``out <- x`` of :func:`_past_rank` for the right-hand side ``b``, from :func:`_past_rank_factor`'s factors
+    (``lambda_max``, ``eps``: not read, the damping is in the factors)."""
+    _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, out)
     _apply_q(out, V, tau, m1)                          # x = Q [z; y]
 
 
@@ -593,10 +758,10 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
     ``unit = RANK_FACTOR * EPS`` (``rank_tol(norm, size) = unit * size * norm``), ``margin``, ``cond``: the
     reference's ``MARGIN`` and ``COND``.
     """
-    status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR = _past_rank_factor(J, sizes, n, lambda_max, eps,
-                                                                                    unit, margin, cond)
+    (status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp,
+     blk) = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond)
     if status == SOLVED:
-        _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, out)
+        _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, lambda_max, eps, out)
     return status
 
 

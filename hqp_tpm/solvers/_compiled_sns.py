@@ -8,10 +8,11 @@ clip into the exact box at the end:
 * ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack by the full-rank shortcut
   :func:`hqp_tpm.solvers._compiled._past_rank` and of each free-column stack ``J W`` by the same shortcut on the
   upper levels' QR *downdated* when a joint saturates (Givens rotations, below; the certificates of ``_past_rank``
-  on the downdated factors), or refactorized when another level crosses rank. Where the shortcut's certificates do
-  not take a stack (a damped or singular pivot above the crossing level: every damped Romeo stack), the recursion
-  :func:`hqp_tpm.solvers._compiled._recursion_cols` solves it, both right-hand sides of a pass with one SVD per
-  level, and reports the first level's rank for the rank test;
+  on the downdated factors, damped pivots by the SVD of their blocks; when a level above crosses rank, its factors
+  are already in the downdated ``R~``: :func:`_downdated_views`). Where the shortcut's certificates do not take a
+  stack (a singular or nearly singular pivot above the crossing level, a crossing level without a clear full column
+  rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols` solves it, both right-hand sides of a pass
+  with one SVD per level, and reports the first level's rank for the rank test;
 * ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
   :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
   when a pivot is singular), ``(J W)#`` by the QR of ``(D J W)^T`` and the rank test ``rank(J W) < m`` of
@@ -238,18 +239,30 @@ def _q_times_rows(X, V, tau, p, cs, sn, s):
     _compiled._apply_q_rows(X, V, tau, p)
 
 
+@_inlined
+def _downdated_views(CT, Rt, nsat, k, m1, mk, k0):
+    """``(R1, BT)`` of the crossing level ``k`` (``m1`` rows above it, ``mk`` its own) of ``J W`` in the downdated
+    factorization (saturation ``nsat``): ``R~``'s rows ``nsat ..`` and, for ``k`` = the first pass's crossing level
+    ``k0``, ``C~^T``; for a level ``k < k0`` (fewer free joints than the rows above ``k0``) ``R~`` holds both: its
+    leading ``m1`` columns stay upper triangular under the row deletions (the QR of ``J_<k W^T``) and its columns of
+    level ``k`` are ``(J_k Q~)^T``. So the downdates go on when another level crosses rank."""
+    R1 = Rt[nsat:nsat + m1, 0:m1]
+    if k == k0:
+        return R1, CT[nsat:, 0:mk]
+    return R1, Rt[nsat:, m1:m1 + mk]
+
+
 @_kernel
-def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, CT, Rt, lambda_max, eps, unit, margin, cond):
-    """The TPM of ``J W`` (its free columns, in order) from the downdated factorization: ``_past_rank``'s
-    certificates on it and the crossing level's factors, ``(status, AT, tauA, RA, DV, Dtau, DR)``."""
+def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, R1, BT, lambda_max, eps, unit, margin, cond):
+    """The TPM of ``J W`` (its free columns, in order) from the downdated factorization (``R1``, ``BT``:
+    :func:`_downdated_views`): ``_past_rank``'s certificates on it and the crossing level's factors, ``(status, AT,
+    tauA, RA, DV, Dtau, DR, Dp, blk)``."""
     m, n = J.shape
     nf = n - nsat
     r = nf - m1
-    R1 = Rt[nsat:nsat + m1]
     for i in range(m1):
         if R1[i, i] == 0.0:
-            return (_compiled.DECLINED, *_compiled._no_damping(), *_compiled._no_damping())
-    BT = CT[nsat:]
+            return (_compiled.DECLINED, np.empty((0, 0)), np.empty(0), np.empty((0, 0)), *_compiled._no_damping())
     nlev = sizes.shape[0]
     sq = np.empty(nlev)                                # ||J_lev W||_F^2: the free columns' sums of squares, in order
     for lev in range(nlev):
@@ -258,24 +271,23 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, CT, Rt, lambda_max
             if free[t]:
                 total += colsq[lev, t]
         sq[lev] = total
-    status, AT, tauA, RA = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf), lambda_max,
-                                                        eps, unit, margin, cond)
+    status, AT, tauA, RA, Dp, blk, lam = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf),
+                                                                      lambda_max, eps, unit, margin, cond)
     if status != _compiled.SOLVED:
         return (status, AT, tauA, RA, *_compiled._no_damping())
-    DV, Dtau, DR = _compiled._crossing_damping(RA, r, mk, lambda_max, eps)
-    return status, AT, tauA, RA, DV, Dtau, DR
+    DV, Dtau, DR = _compiled._crossing_damping(RA, lam)
+    return status, AT, tauA, RA, DV, Dtau, DR, Dp, blk
 
 
 @_kernel
-def _downdated_rhs(rhs, free, nsat, m1, mk, V, tau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps,
-                   xf):
-    """``xf <- (J W)# rhs`` (the free joints' entries, in order) from :func:`_downdated_factor`'s factors."""
+def _downdated_rhs(rhs, free, nsat, m1, mk, p, V, tau, cs, sn, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, xf):
+    """``xf <- (J W)# rhs`` (the free joints' entries, in order) from :func:`_downdated_factor`'s factors (``m1``,
+    ``mk``: the crossing level's; ``p``: the first pass's reflectors in ``V``)."""
     n = free.shape[0]
     r = n - nsat - m1
     v = np.zeros((1, n))
-    _compiled._crossing_rhs(rhs, m1, mk, r, Rt[nsat:nsat + m1], CT[nsat:], AT, tauA, RA, DV, Dtau, DR, lambda_max,
-                            eps, v[0, nsat:])
-    _q_times_rows(v, V, tau, m1, cs, sn, nsat)
+    _compiled._crossing_rhs(rhs, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v[0, nsat:])
+    _q_times_rows(v, V, tau, p, cs, sn, nsat)
     f = 0
     for t in range(n):
         if free[t]:
@@ -290,9 +302,10 @@ def _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond):
 
 
 @_kernel
-def _refactored_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, xf):
+def _refactored_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, lambda_max, eps, xf):
     """``xf <- (J W)# rhs`` from :func:`_refactor`'s factors (:func:`_compiled._past_rank_rhs`)."""
-    _compiled._past_rank_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps, xf)
+    _compiled._past_rank_rhs(rhs, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, lambda_max, eps,
+                             xf)
 
 
 @_kernel
@@ -373,8 +386,8 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     nrec = 0                                           # passes whose TPM or (J W)# took the recursion or an SVD
     k_fit = True                                       # m > n: the rank test watches the first level
     if extended:                                       # _past_rank, its factors kept for the downdates
-        status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR = _compiled._past_rank_factor(
-            J, sizes, n, lambda_max, eps, unit, margin, cond)
+        (status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR, PDp,
+         Pblk) = _compiled._past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond)
         k0 = _compiled._crossing_level(sizes, n)[0]
         rec = status != _compiled.SOLVED
         nrec += rec
@@ -382,8 +395,8 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             x[:] = _compiled._recursion(J, xd, sizes, n, lambda_max, eps, unit, no_x0, False, ranks)
             k_fit = ranks[0] == sizes[0]
         else:
-            _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR,
-                                     lambda_max, eps, x)
+            _compiled._past_rank_rhs(xd, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR, PDp,
+                                     Pblk, lambda_max, eps, x)
             k_fit = not sizes[0] > n
     else:
         m1, mk, k0 = 0, 0, 0
@@ -464,12 +477,15 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     use_svd = False                                                 # cannot decide its rank
     CT = np.empty((0, 0))
     Rt = np.empty((0, 0))
+    dm1, dmk = 0, 0                                    # the downdated factorization's crossing level: rows above, its
+    DR1, DBT = _downdated_views(CT, Rt, 0, 0, 0, 0, 0)  # rows, R1 and (J_k Q~)^T (views of Rt, CT)
     cs = np.empty((0, 0))
     sn = np.empty((0, 0))
     colsq = np.empty((0, 0))
     # the free-column stack's factors (the downdated ones, or J W's own when refactorized): set at each saturation
     none2, none1 = np.empty((0, 0)), np.empty(0)     # (placeholders: two allocations, not ten)
-    AT, tauA, RA, DV, Dtau, DR = none2, none1, none2, none2, none1, none2
+    AT, tauA, RA, DV, Dtau, DR, Dp = none2, none1, none2, none2, none1, none2, none2
+    blk = np.empty(0, dtype=np.int64)
     FV, Ftau, FR1, FBT = none2, none1, none2, none2
     fm1, fmk, fr = 0, 0, 0
     dc = c.copy()                                      # xd - J xN (F applied when damped)
@@ -498,11 +514,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 if rec:
                     yf[:nf] = Xr[:, 0]
                 elif downdating:
-                    _downdated_rhs(dc, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
-                                   lambda_max, eps, yf)
+                    _downdated_rhs(dc, free, nsat, dm1, dmk, m1, PV, Ptau, cs, sn, DR1, DBT, AT, tauA, RA, DV, Dtau,
+                                   DR, Dp, blk, yf)
                 else:
-                    _refactored_rhs(dc, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, lambda_max,
-                                    eps, yf[:nf])
+                    _refactored_rhs(dc, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
+                                    lambda_max, eps, yf[:nf])
             f = 0
             for j in range(n):
                 if free[j]:
@@ -527,11 +543,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif rec:
                 xf[:nf] = Xr[:, 1]
             elif downdating:
-                _downdated_rhs(xd, free, nsat, m1, mk, PV, Ptau, cs, sn, CT, Rt, AT, tauA, RA, DV, Dtau, DR,
-                               lambda_max, eps, xf)
+                _downdated_rhs(xd, free, nsat, dm1, dmk, m1, PV, Ptau, cs, sn, DR1, DBT, AT, tauA, RA, DV, Dtau, DR,
+                               Dp, blk, xf)
             else:
-                _refactored_rhs(xd, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, lambda_max, eps,
-                                xf[:nf])
+                _refactored_rhs(xd, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
+                                lambda_max, eps, xf[:nf])
             f = 0
             for j in range(n):
                 if free[j]:
@@ -583,8 +599,6 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 stop = True
             else:
                 _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN
-                if downdating and _compiled._crossing_level(sizes, nf)[0] != k0:
-                    downdating = False                 # another level crosses rank nf: refactorize from here on
                 if downdating:                         # the upper levels' QR downdated (saturation nsat - 1)
                     if nsat == 1:
                         CT = PBT                       # (the first pass's, not read again)
@@ -595,14 +609,15 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                         colsq = _level_colsq(J, sizes)
                     _q_row(j, PV, Ptau, m1, cs, sn, nsat - 1, w)
                     _downdate(w, CT, Rt, nsat - 1, m1, cs, sn)
-                    status, AT, tauA, RA, DV, Dtau, DR = _downdated_factor(J, sizes, colsq, free, nsat, k0, m1, mk,
-                                                                           CT, Rt, lambda_max, eps, unit, margin,
-                                                                           cond)
+                    dk, dm1, dmk, _ = _compiled._crossing_level(sizes, nf)  # (k0, or a level above it)
+                    DR1, DBT = _downdated_views(CT, Rt, nsat, dk, dm1, dmk, k0)
+                    status, AT, tauA, RA, DV, Dtau, DR, Dp, blk = _downdated_factor(
+                        J, sizes, colsq, free, nsat, dk, dm1, dmk, DR1, DBT, lambda_max, eps, unit, margin, cond)
                 else:
                     Jf = np.empty((m, nf))             # J W on its free columns, in order
                     _gather_free(J, free, Jf)
-                    (status, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau,
-                     DR) = _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond)
+                    (status, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp,
+                     blk) = _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond)
                 rec = status != _compiled.SOLVED       # the certificates cannot decide J W: the recursion
                 nrec += rec
                 if rec:                                # (its TPM of J W for both right-hand sides, one SVD a level)

@@ -16,9 +16,15 @@ case of a stack ending with a posture level (6 + 7 rows on the 7-joint arm). Its
 * when ``A`` has full column rank the stack has rank ``n``: every later level's pivot is zero up to
   rounding (it acts in an empty null space) and its ``b`` does not reach ``x``; ``(I - J# J) x0 = 0``.
 
+With the damping on, a pivot of levels ``< k`` with ``sigma_min < eps`` gets its damped inverse ``D_i`` (the SVD
+of its block), and Steps 2-4 become the forward substitution ``z_i = D_i^T (b_i - sum_{j<i} R_ji^T z_j)``: the
+recursion on the basis ``Q1`` as long as every pivot is regular (``sigma_min`` well above its rank tolerance),
+which the certificates below ensure.
+
 The kernel returns that ``x``, or declines when it cannot certify the conditions under which the general
-path would take the same decisions (a pivot of levels ``< k`` not provably regular and undamped, ``A``
-without a clear full column rank, a smallest singular value of the stack near the rank tolerance): then the
+path would take the same decisions (a pivot of levels ``< k`` not provably regular, ``A`` without a clear full
+column rank, a smallest singular value of the stack near the rank tolerance, or a solution map amplifying by
+more than ``1/COND``; for a damped crossing level the damped ``A#`` counts, ``||A#_lambda||_F``): then the
 recursion answers (:func:`hqp_tpm.solvers._compiled._tpm`). ``tests/test_fullrank.py`` checks it against
 :func:`hqp_tpm.solvers.tpm.tpm_reference` at 1e-12.
 """
