@@ -59,13 +59,13 @@ def sphere_block(C, e_idx, Oc, o_idx, rsum, re, ro, re_zero, ro_zero, dist, norm
     return True
 
 
-@_njit
+@_njit(inline=True)
 def cross_into(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
     """:func:`hqp_tpm.robot.spatial.cross3` on scalars."""
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@_njit
+@_njit(inline=True)
 def _rotate(R, x0, x1, x2):  # pragma: no cover - compiled
     """``R x`` row by row, the sums in numpy's order (``R.dot(x)``: equal to the last bit, tested)."""
     return (R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2, R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2,

@@ -165,7 +165,7 @@ def _householder_rows(V, tau, R):
             j += 1
 
 
-@_kernel
+@_inlined
 def _rows_qr(J, p):
     """``(V, tau, R)``: the QR of ``J[:p]^T`` by :func:`_householder_rows` on a copy of the first ``p`` rows."""
     n = J.shape[1]
@@ -603,7 +603,7 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
 # ----------------------------------------------------------------------------------------
 # The general TPM path when m <= n.
 # ----------------------------------------------------------------------------------------
-@_kernel
+@_inlined
 def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
     """The pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its certificate did not decide, by the SVD of the block
     (LAPACK's ``gesdd``; ``damping.inverted_singular_values``' law): 0 regular, 1 damped
