@@ -72,7 +72,7 @@ def _rotate(R, x0, x1, x2):  # pragma: no cover - compiled
             R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2)
 
 
-@_njit
+@_njit(inline=True)  # (inlined where avoidance_row calls it; compiled alone when Python calls it)
 def point_jdot_qdot(R, o, v, a, p, out):  # pragma: no cover - compiled
     """:func:`~hqp_tpm.geometry.witness.point_jdot_qdot` into ``out``: the joint's rotation ``R`` and origin ``o``,
     its local velocity ``v`` and acceleration ``a`` (linear, angular), the point ``p`` (world)."""
