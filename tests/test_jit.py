@@ -17,6 +17,7 @@ import sys
 import tempfile
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 import hqp_tpm
@@ -325,3 +326,37 @@ def test_a_kernel_that_is_not_pinocchio_s_api_is_not_used(robots, what, monkeypa
     assert getattr(State(robot), f"{what}_source")(fid) is not None
     monkeypatch.setattr(_compiled, what, off_by_an_ulp)
     assert getattr(State(robot), f"{what}_source")(fid) is None
+
+
+#: A wide stack (m <= n, every pivot regular) through the public solver, then which of the solvers' kernels numba
+#: compiled: their signature counts.
+WIDE = r"""
+import numpy as np
+from hqp_tpm.solvers import _compiled
+from hqp_tpm.solvers.tpm import tpm_stacked
+J = np.random.default_rng(3).normal(size=(5, 7))
+x = tpm_stacked(J, np.cos(np.arange(5.0)), (3, 2), 7)
+print(repr([x.tolist(), len(_compiled._general.signatures), len(_compiled._past_rank.signatures),
+            len(_compiled._recursion.signatures)]))
+"""
+
+
+def test_a_first_solve_compiles_only_the_branch_it_takes(tmp_path):
+    """Issue 29 (first run): a process's first TPM solve on an ``m <= n`` stack compiles the general path's kernel
+    only, not the ``m > n`` shortcut's nor the recursion's (on main 42742a8 one kernel held all three: ~24 s of CPU
+    for a first solve), and gives the Python source's numbers (1e-12, as tests/test_compiled.py)."""
+    from hqp_tpm.solvers.tpm import tpm_stacked
+
+    cold = run({"NUMBA_CACHE_DIR": str(tmp_path)}, probe=WIDE)
+    x, general, past_rank, recursion = ast.literal_eval(ok(cold).strip().splitlines()[-1])
+    assert (general, past_rank, recursion) == (1, 0, 0)
+    J = np.random.default_rng(3).normal(size=(5, 7))
+    from hqp_tpm import _jit
+
+    on = _jit.ENABLED
+    _jit.set_enabled(False)
+    try:
+        want = tpm_stacked(J, np.cos(np.arange(5.0)), (3, 2), 7)
+    finally:
+        _jit.set_enabled(on)
+    np.testing.assert_allclose(x, want, rtol=1e-12, atol=1e-15)

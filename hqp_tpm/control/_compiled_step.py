@@ -240,9 +240,9 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     return SOLVED
 
 
-def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled (inlined)
-    """The finiteness of the stacked ``J``, ``b`` (False: a non-finite or too large value) and ``x0 = -damping v``
-    when ``damping`` (eq. (15) of papers/000): ``(finite, use_x0)``."""
+def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled
+    """The finiteness of the planned step's stacked ``J``, ``b`` and ``x0 = -damping v`` when ``damping`` (eq. (15)
+    of papers/000): -1 a non-finite or too large value (nothing written), 1 ``x0`` written, 0 no ``x0``."""
     m, n = J.shape
     s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(m):
@@ -250,43 +250,49 @@ def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled (inlined
         for j in range(n):
             s += J[i, j] * J[i, j]
     if not s <= MAX_SUMSQ:
-        return False, False
-    use_x0 = damping != 0.0
-    if use_x0:
-        for i in range(n):
-            x0[i] = -damping * v[i]
-    return True, use_x0
+        return -1
+    if damping == 0.0:
+        return 0
+    for i in range(n):
+        x0[i] = -damping * v[i]
+    return 1
 
 
-def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
+def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
     """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``, ``m <= n``),
-    ``b``: their finiteness, ``x0 = -damping v`` when ``damping``, the TPM kernel ``tpm_stacked`` would call
-    (``_general``), ``x``'s finiteness; the statuses of :func:`kernel`."""
-    finite, use_x0 = _stacked_rows(J, b, v, damping, x0)
-    if not finite:
+    ``b``: their finiteness, ``x0 = -damping v`` when ``damping`` (:func:`_stacked_rows`), the TPM kernel
+    ``tpm_stacked`` would call (``_general``), ``x``'s finiteness (:func:`_x_status`); the statuses of
+    :func:`kernel`. Three compiled calls, not one kernel: a kernel calling ``_general`` would compile all of its
+    code once more (numba links and optimizes a callee's code again into each caller), ~2 s of a first run."""
+    use_x0 = _stacked_rows(J, b, v, damping, x0)
+    if use_x0 < 0:
         return NONFINITE_ROWS
-    return _wide_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out)
+    if J.shape[0] > J.shape[1]:
+        return DECLINED
+    return _x_status(_general(J, b, sizes, x0, use_x0 == 1, lambda_max, eps, unit, out), out)
 
 
-def _stacked_tpm_tall(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):  # pragma: no cover
-    """:func:`_stacked_tpm` for ``m > n`` (``_past_rank``)."""
-    finite, use_x0 = _stacked_rows(J, b, v, damping, x0)
-    if not finite:
+def _stacked_tpm_tall(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
+    """:func:`_stacked_tpm` for ``m > n`` (``_past_rank``; ``x0`` has no effect)."""
+    if _stacked_rows(J, b, v, damping, x0) < 0:
         return NONFINITE_ROWS
-    return _tall_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out)
+    m, n = J.shape
+    if m <= n:
+        return DECLINED
+    return _x_status(_past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out), out)
 
 
 def _solves() -> bool:
     """Make the dispatchers of the solvers' kernels (numba compiles or loads each on the first call of a kernel that
-    calls it) and of this module's inlined pieces; False if numba cannot be imported after all."""
+    calls it) and of this module's pieces; False if numba cannot be imported after all."""
     global _past_rank, _general, _x_status, _wide_solve, _tall_solve, _step_arrays, _stacked_rows
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return False
     if _KERNELS.get("solves") is None:
         _past_rank, _general = _compiled._past_rank, _compiled._general
-        _x_status, _step_arrays, _stacked_rows = (_jit.dispatcher(f, inline=True)
-                                                  for f in (_x_status_py, _step_arrays_py, _stacked_rows_py))
+        _x_status, _step_arrays = (_jit.dispatcher(f, inline=True) for f in (_x_status_py, _step_arrays_py))
         _wide_solve, _tall_solve = (_jit.dispatcher(f, inline=True) for f in (_wide_solve_py, _tall_solve_py))
+        _stacked_rows = _jit.dispatcher(_stacked_rows_py)
         _KERNELS["solves"] = True
     return True
 
@@ -296,17 +302,13 @@ _wide_solve_py, _tall_solve_py = _wide_solve, _tall_solve
 
 
 def stacked_kernel(tall: bool):
-    """The compiled :func:`_stacked_tpm` (``tall``: :func:`_stacked_tpm_tall`, for ``m > n``) ``(J, b, sizes, v,
-    damping, lambda_max, eps, unit, margin, cond, x0, out) -> status`` (``sizes`` an int64 array, ``x0`` and ``out``
-    of length ``n``; compiled or loaded on first use: a run compiles only the branch its stacks take), or None if
-    numba cannot be imported after all. The other branch's shapes are declined (``DECLINED``)."""
-    key = ("stacked", bool(tall))
-    kernel = _KERNELS.get(key)
-    if kernel is None:
-        if not _solves():
-            return None
-        kernel = _KERNELS[key] = _jit.dispatcher(_stacked_tpm_tall if tall else _stacked_tpm)
-    return kernel
+    """:func:`_stacked_tpm` (``tall``: :func:`_stacked_tpm_tall`, for ``m > n``) ``(J, b, sizes, v, damping,
+    lambda_max, eps, unit, margin, cond, x0, out) -> status`` (``sizes`` an int64 array, ``x0`` and ``out`` of
+    length ``n``; its kernels compiled or loaded on first use: a run compiles only the branch its stacks take), or
+    None if numba cannot be imported after all. The other branch's shapes are declined (``DECLINED``)."""
+    if not _solves():
+        return None
+    return _stacked_tpm_tall if tall else _stacked_tpm
 
 
 def _build(solve: int, tall: bool):

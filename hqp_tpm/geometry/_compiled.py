@@ -59,20 +59,20 @@ def sphere_block(C, e_idx, Oc, o_idx, rsum, re, ro, re_zero, ro_zero, dist, norm
     return True
 
 
-@_njit
+@_njit(inline=True)
 def cross_into(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
     """:func:`hqp_tpm.robot.spatial.cross3` on scalars."""
     return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
 
 
-@_njit
+@_njit(inline=True)
 def _rotate(R, x0, x1, x2):  # pragma: no cover - compiled
     """``R x`` row by row, the sums in numpy's order (``R.dot(x)``: equal to the last bit, tested)."""
     return (R[0, 0] * x0 + R[0, 1] * x1 + R[0, 2] * x2, R[1, 0] * x0 + R[1, 1] * x1 + R[1, 2] * x2,
             R[2, 0] * x0 + R[2, 1] * x1 + R[2, 2] * x2)
 
 
-@_njit
+@_njit(inline=True)  # (inlined where avoidance_row calls it; compiled alone when Python calls it)
 def point_jdot_qdot(R, o, v, a, p, out):  # pragma: no cover - compiled
     """:func:`~hqp_tpm.geometry.witness.point_jdot_qdot` into ``out``: the joint's rotation ``R`` and origin ``o``,
     its local velocity ``v`` and acceleration ``a`` (linear, angular), the point ``p`` (world)."""

@@ -170,7 +170,7 @@ def _householder_rows(V, tau, R):
             j += 1
 
 
-@_kernel
+@_inlined
 def _rows_qr(J, p):
     """``(V, tau, R)``: the QR of ``J[:p]^T`` by :func:`_householder_rows` on a copy of the first ``p`` rows."""
     n = J.shape[1]
@@ -768,7 +768,7 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
 # ----------------------------------------------------------------------------------------
 # The general TPM path when m <= n.
 # ----------------------------------------------------------------------------------------
-@_kernel
+@_inlined
 def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
     """The pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its certificate did not decide, by the SVD of the block
     (LAPACK's ``gesdd``; ``damping.inverted_singular_values``' law): 0 regular, 1 damped
@@ -1067,12 +1067,13 @@ def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
                       ranks)
 
 
-@_kernel
 def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
-    """``out <- x`` of TPM in one call: the factorization's kernel (:func:`_past_rank` when ``m > n``, else
-    :func:`_general`) and, on a stack it does not take (a singular pivot, a certificate that cannot decide), the
-    recursion (:func:`_recursion`: the same answer where both apply, the exact one where a pivot is singular).
-    Returns :data:`FACTORED` or :data:`RECURSION`, the path that answered."""
+    """``out <- x`` of TPM: the factorization's kernel (:func:`_past_rank` when ``m > n``, else :func:`_general`)
+    and, on a stack it does not take (a singular pivot, a certificate that cannot decide), the recursion
+    (:func:`_recursion`: the same answer where both apply, the exact one where a pivot is singular). Returns
+    :data:`FACTORED` or :data:`RECURSION`, the path that answered. Python calling the kernels, not a kernel: one
+    kernel holding all three would compile all three on a process's first solve (~15 s of CPU on a first run); this
+    way numba compiles the branch a stack takes, and the recursion when it answers."""
     if J.shape[0] > n:                                 # rank n reached before the last level: x0 has no effect
         status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
     else:
@@ -1085,8 +1086,9 @@ def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
 
 
 def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
-    """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm`, compiled when
-    :data:`ENABLED`, else the same source as Python (its loops are made for the compiler: ~2-8 ms a solve)."""
+    """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm`, its kernels
+    compiled when :data:`ENABLED`, else the same source as Python (its loops are made for the compiler: ~2-8 ms a
+    solve)."""
     use = x0 is not None
     x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
     out = np.empty(n)
@@ -1100,7 +1102,7 @@ def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: flo
     return out
 
 
-_tpm_py = _tpm  # the Python source (the name _tpm becomes the dispatcher when compiled)
+_tpm_py = _tpm  # (the same function: _tpm is no kernel; its callees are the module's kernels)
 
 
 _jit.share_switch(__name__)  # ENABLED, AVAILABLE: hqp_tpm._jit's
