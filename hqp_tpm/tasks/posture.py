@@ -44,7 +44,10 @@ class Posture(Task):
         accepted shapes. Trajectories, ``None`` and ``"hold"`` pass through."""
         if target is None or isinstance(target, (str, Trajectory)):
             return target
-        value = np.asarray(target, dtype=float)
+        try:
+            value = np.asarray(target, dtype=float)
+        except (TypeError, ValueError):
+            return target  # (not numbers: the base class's error names it)
         if value.shape == (self.dim,):
             return value
         if value.shape == (self._nq,):
