@@ -245,9 +245,10 @@ def check_solver_choice(solver, where: str, cls: type[HqpTpmError] = ScenarioErr
 
 
 def resolve_path(spec: str | Path) -> Path:
-    """``spec``: a path to a TOML file or the stem of a file in ``tasks/``."""
+    """``spec``: a path to a TOML file or the stem of a file in ``tasks/`` (also when a folder of that name, e.g. an
+    earlier run's ``--out``, is in the working directory)."""
     p = Path(spec)
-    if p.suffix == ".toml" or p.exists():
+    if p.suffix == ".toml" or (p.exists() and not p.is_dir()):
         if not p.is_file():
             raise ScenarioError(f"scenario file not found: {str(p)!r}")
         return p
@@ -255,7 +256,8 @@ def resolve_path(spec: str | Path) -> Path:
     if candidate.is_file():
         return candidate
     known = sorted(f.stem for f in SCENARIO_DIR.glob("*.toml"))
-    raise ScenarioError(f"unknown scenario {str(spec)!r}; scenarios in {SCENARIO_DIR}: {', '.join(known)}")
+    folder = f"{str(spec)!r} is a folder, not a scenario file; " if p.is_dir() else ""
+    raise ScenarioError(f"{folder}unknown scenario {str(spec)!r}; scenarios in {SCENARIO_DIR}: {', '.join(known)}")
 
 
 def check_nesting(data, where: str, limit: int = MAX_DEPTH) -> None:

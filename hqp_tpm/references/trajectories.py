@@ -12,7 +12,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from hqp_tpm.errors import NonFiniteError, ShapeError
+from hqp_tpm.errors import NonFiniteError, ShapeError, shown
 
 
 def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -185,7 +185,13 @@ def as_trajectory(target, dim: int) -> Trajectory:
         return target
     if target is None or (isinstance(target, str) and target == "hold"):
         return Hold()
-    value = _finite(target, "target")
+    try:
+        value = _finite(target, "target")
+    except (TypeError, ValueError) as exc:
+        if isinstance(exc, NonFiniteError):
+            raise
+        raise ShapeError(f"target {shown(target)} is not {dim} numbers; expected {dim} values, a Trajectory, or "
+                         "None / 'hold' (the start value)") from None
     if value.shape != (dim,):
         raise ShapeError(f"target has shape {value.shape}, expected ({dim},)")
     return Constant(value=value)

@@ -150,7 +150,7 @@ def _set_target(self, value) -> None:
             and value.dtype is _FLOAT64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
         tr.assign(value.copy())
         return
-    if value is None or isinstance(value, str):
+    if value is None or (isinstance(value, str) and value == "hold"):
         raise ParameterError(f"task {self.name!r}: target {shown(value)} (the start value) is a constructor's "
                              f"target only; assign {self.dim} values or a Trajectory")
     new = self._trajectory_of(value)

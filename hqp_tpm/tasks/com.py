@@ -16,6 +16,9 @@ class CenterOfMass(Task):
     the state). The older form without the robot, ``CenterOfMass(target, gains)``, is still accepted."""
 
     target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
+    """The reference the task tracks (its trajectory). Assign a position (one value per axis) or a Trajectory between
+    steps to move it: validated as the constructor's target (ShapeError, NonFiniteError naming the task and
+    the value; a refused target changes nothing), then followed by the next step, compiled or not."""
 
     def __init__(self, robot: Robot | None = None, target=None, gains: Gains | None = None, *, axes: str = "xyz",
                  name: str = "com"):

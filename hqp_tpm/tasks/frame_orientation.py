@@ -31,6 +31,8 @@ class FrameOrientation(Task):
             raise ShapeError(f"FrameOrientation {task!r}: target {shown(np.asarray(target).tolist())} has shape "
                              f"{np.shape(target)}, expected a 3x3 rotation matrix (or None / 'hold': the start "
                              "orientation)")
+        if self._R_target is not None:
+            self._R_target = rotation_matrix(self._R_target, f"FrameOrientation {name or f'{frame}_orientation'!r}")
         super().__init__(name or f"{frame}_orientation", np.zeros(3), gains)
         self.trajectory = Hold() if self._R_target is None else Constant(value=np.zeros(3))
 

@@ -26,6 +26,7 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     if isinstance(target, pin.SE3):
         if not np.isfinite(target.homogeneous).all():
             raise ParameterError(f"FramePose {task!r}: target {target.homogeneous.tolist()} is not finite")
+        rotation_matrix(target.rotation, f"FramePose {task!r}")  # (a pin.SE3 may hold any 3x3 matrix)
         return target.copy()
     what = f"an array of shape {target.shape}" if isinstance(target, np.ndarray) else shown(target)
     bad = ShapeError(f"FramePose {task!r}: target {what} is not a pose; expected {TARGET_FORMS}")
@@ -51,6 +52,16 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     if not np.isfinite(p).all():
         raise ParameterError(f"FramePose {task!r}: target position {p.tolist()} is not finite")
     return pin.SE3(rotation_matrix(R, f"FramePose {task!r}"), p.copy())
+
+
+def is_rotation(R: np.ndarray, tol: float = 1e-7) -> bool:
+    """A quick test (scalar arithmetic) that ``R`` is a finite rotation matrix: rows 0 and 1
+    orthonormal and row 2 their cross product, within ``tol``; stricter than :func:`rotation_matrix`, which decides
+    what fails it."""
+    a, b, c, d, e, f, g, h, i = R.ravel().tolist()
+    return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
+            and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
+            and abs(a * e - b * d - i) < tol)
 
 
 def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
@@ -88,7 +99,8 @@ class FramePose(Task):
     def target(self) -> pin.SE3 | None:
         """The target placement (a copy; None: the start pose, until the first step). Assigning one of
         :data:`TARGET_FORMS` but None/"hold" sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming the
-        value); a finite ``pin.SE3`` is copied into the task's own placement (the one the compiled step reads)."""
+        value; a ``pin.SE3``'s rotation must be a rotation matrix); a valid ``pin.SE3`` is copied into the task's own
+        placement (the one the compiled step reads)."""
         return None if self._M_target is None else self._M_target.copy()
 
     @target.setter
@@ -96,8 +108,7 @@ class FramePose(Task):
         M = self._M_target
         if type(value) is pin.SE3 and M is not None and IN_PLACE:  # the common case, cheap
             p, R = value.translation, value.rotation
-            r = R.T.ravel()  # (a view)
-            if math.isfinite(ddot(p, p) + ddot(r, r)):
+            if math.isfinite(ddot(p, p)) and is_rotation(R):
                 M.translation, M.rotation = p, R
                 return
         if (M := placement_target(value, self.name)) is None:

@@ -25,6 +25,9 @@ class FramePosition(Task):
     """``x = p_frame[axes]``, ``J = J_v[axes]``, ``Jdot qd`` = classical linear acceleration at zero q-ddot."""
 
     target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
+    """The reference the task tracks (its trajectory). Assign a position (one value per axis) or a Trajectory between
+    steps to move it: validated as the constructor's target (ShapeError, NonFiniteError naming the task and
+    the value; a refused target changes nothing), then followed by the next step, compiled or not."""
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
                  axes: str = "xyz", name: str | None = None):

@@ -22,6 +22,9 @@ class Posture(Task):
     ``robot.reference("half_sitting")`` of a floating-base robot): the joints' angles are read from it."""
 
     target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
+    """The reference the task tracks (its trajectory). Assign the joints' angles, a whole configuration or a
+    Trajectory between steps to move it: validated as the constructor's target (ShapeError, NonFiniteError naming
+    the task and the value; a refused target changes nothing), then followed by the next step, compiled or not."""
 
     def __init__(self, robot: Robot, target=None, gains: Gains | None = None, *, joints=None, name: str = "posture"):
         names = [n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
@@ -44,7 +47,10 @@ class Posture(Task):
         accepted shapes. Trajectories, ``None`` and ``"hold"`` pass through."""
         if target is None or isinstance(target, (str, Trajectory)):
             return target
-        value = np.asarray(target, dtype=float)
+        try:
+            value = np.asarray(target, dtype=float)
+        except (TypeError, ValueError):
+            return target  # (not numbers: the base class's error names it)
         if value.shape == (self.dim,):
             return value
         if value.shape == (self._nq,):
