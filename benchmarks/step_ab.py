@@ -3,7 +3,7 @@
 
     OMP_NUM_THREADS=1 python benchmarks/step_ab.py OLD_CHECKOUT [NEW_CHECKOUT]
 
-``OLD_CHECKOUT``: a directory with an earlier commit's files (``git archive 42742a8 | tar -x -C /tmp/old``);
+``OLD_CHECKOUT``: a directory with an earlier commit's files (``mkdir old && git archive 42742a8 | tar -x -C old``);
 ``NEW_CHECKOUT``: default this one. Each checkout's package and benchmark modules are imported in turn (the first
 import's modules dropped from ``sys.modules`` before the second: both stay loaded). The iiwa problems (EE pose >
 posture: ``tpm`` and ``sns_tpm`` at velocity level, ``tpm`` at acceleration level), 20 configurations, 2 x REPEATS

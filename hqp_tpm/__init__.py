@@ -52,7 +52,9 @@ _EXPORTS = {
     **{name: "hqp_tpm.errors" for name in (
         "HqpTpmError", "ShapeError", "NonFiniteError", "MagnitudeError", "UnknownNameError", "UnknownFrameError",
         "RobotFileError", "SolverNotAvailableError", "SolverFailedError", "BoxError", "GeometryError",
-        "ScenarioError")},
+        "ScenarioError", "ParameterError", "ArgumentTypeError", "StateError", "DivergedError", "ExtraNotInstalledError",
+        "SolverBudgetError", "InfeasibleError", "EmptyBoxError", "SweepError", "OutputError", "ResultFolderError",
+        "PlantError")},
 }
 
 __all__ = ["__version__", *sorted(_EXPORTS)]

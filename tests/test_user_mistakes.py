@@ -286,3 +286,17 @@ def test_sweep_with_no_values_is_refused(tmp_path):
     with pytest.raises(SweepError, match=r"planar5_exact: no variants \(a field with no values: policy\.d_m\)"):
         sweep.run_sweep("planar5_exact", tmp_path / "sw", grid={"policy.d_m": []}, workers=0)
     assert not (tmp_path / "sw").exists()
+
+
+def test_every_error_a_user_can_catch_is_exported_at_the_top():
+    """42742a8: ``task.target = ...`` raised ``ParameterError``, which ``hqp_tpm`` did not export (nor StateError,
+    DivergedError, ...): a user catching it had to know the ``hqp_tpm.errors`` module."""
+    import inspect
+
+    import hqp_tpm
+    from hqp_tpm import errors
+
+    kinds = {name for name, obj in vars(errors).items()
+             if inspect.isclass(obj) and issubclass(obj, errors.HqpTpmError) and not name.startswith("_")}
+    assert kinds - set(hqp_tpm.__all__) == set()
+    assert all(vars(errors)[name] is hqp_tpm.__getattr__(name) for name in kinds)
