@@ -738,8 +738,10 @@ def _crossing_rhs(b, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, out
         y = _damped_solve(DV, Dtau, DR, res[:r])
     else:
         y = _solve_upper(RA, res[:r])
-    out[:m1] = z
-    out[m1:m1 + r] = y
+    for i in range(m1):                                # (loops, not slice copies: a slice assignment from an
+        out[i] = z[i]                                  # array compiles numba's shape-error message, ~2 s of CPU)
+    for i in range(r):
+        out[m1 + i] = y[i]
 
 
 @_inlined
@@ -914,7 +916,7 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     if damped:
         _f_times(Fb, b, c)
     else:
-        for i in range(m):                             # (loops, not slice copies: see _copy_into)
+        for i in range(m):                             # (loops, not slice copies: see _crossing_rhs)
             c[i] = b[i]
     if use_x0:
         for i in range(m):
