@@ -143,13 +143,15 @@ def romeo_obstacles(at: int):
 
 
 def test_whole_body_avoidance_steps_equal():
-    """Steps 790-1035 of ``romeo_obstacles_sns_tpm``: the obstacle row, obstacle and self rows, the self row alone and
-    none, each planned again as the stack changes (inequality rows shifted by ``J v`` then kept while active)."""
+    """Steps 790-1090 of ``romeo_obstacles_sns_tpm``: the obstacle row, obstacle and self rows, and none, each planned
+    again as the stack changes (inequality rows shifted by ``J v`` then kept while active). (Since the SNS kernel
+    factorizes damped pivots, the run no longer passes through the self row alone: at step 802 a saturation that
+    was a near tie goes the other way, 7e-12 from the old trajectory.)"""
     ref, fast = romeo_obstacles(790)
-    labels = same_steps(ref, fast, 245)
+    labels = same_steps(ref, fast, 300)
     tail = "com > left_foot > left_hand > right_hand"
     assert {f"right_sole > avoid_obstacle > {tail}", f"right_sole > avoid_obstacle > avoid_self > {tail}",
-            f"right_sole > avoid_self > {tail}", f"right_sole > {tail}"} <= labels
+            f"right_sole > {tail}"} <= labels
 
 
 @pytest.mark.parametrize("name, steps, want", [
