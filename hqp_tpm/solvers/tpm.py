@@ -3,10 +3,11 @@
 * :func:`tpm_reference` follows the paper literally: QR of ``J^T`` (8), ``Fbar = R`` (9),
   Steps 2-4 block by block with the pivot pseudo-inverses, ``F = Fbar^T`` (10) and
   ``J# = Q pinv(R^T)`` (11); :func:`tpm_factors` returns its ``Q``, ``R``, ``F`` and ``J#`` for inspection.
-* :func:`tpm` / :func:`tpm_stacked` run one kernel (:func:`hqp_tpm.solvers._compiled._tpm`, compiled when numba
-  is on): the factorization's kernels (``m <= n``: the Householder QR of ``J^T``, each pivot certified regular or
-  decided and damped by the SVD of its block, ``x = Q R^{-T} F b``; ``m > n`` with rank ``n`` reached before the
-  last level: the shortcut of :mod:`hqp_tpm.solvers._fullrank`) and, on a stack they do not take, the recursion.
+* :func:`tpm` / :func:`tpm_stacked` make one call (:func:`hqp_tpm.solvers._compiled._tpm`, Python calling the
+  kernels, each compiled when numba is on and a stack first takes it): the factorization's kernels (``m <= n``:
+  the Householder QR of ``J^T``, each pivot certified regular or decided and damped by the SVD of its block,
+  ``x = Q R^{-T} F b``; ``m > n`` with rank ``n`` reached before the last level: the shortcut of
+  :mod:`hqp_tpm.solvers._fullrank`, damped pivots factorized) and, on a stack they do not take, the recursion.
   ``HQP_TPM_COMPILED=0``: the same source as Python.
 
 **Exact on every stack.** Steps 2-4 on the pivots are a forward substitution: with every pivot invertible
@@ -139,7 +140,7 @@ def tpm_factors(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
 
 
 # ----------------------------------------------------------------------------------------
-# The solver: one kernel (hqp_tpm.solvers._compiled._tpm).
+# The solver: one call (hqp_tpm.solvers._compiled._tpm, calling the kernels).
 # ----------------------------------------------------------------------------------------
 def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
         x0: np.ndarray | None = None, n: int | None = None) -> np.ndarray:
