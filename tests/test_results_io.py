@@ -233,3 +233,20 @@ def test_blocks_of_a_memory_mapped_column_and_of_its_views(tmp_path):
         over = list(blocks(view, rows=6, overlap=1))
         assert [i for i, _ in over] == list(range(0, len(expect), 6))
         np.testing.assert_array_equal(over[1][1], expect[5:12])
+
+
+def test_crosscheck_on_no_same_problem_step_is_no_agreement():
+    """42742a8: a run whose every step had a binding box one solver ignores (romeo_sns_tpm ``--crosscheck``) wrote
+    ``crosscheck_max_diff_same_problem: 0.0``, a maximum over no step that reads as agreement; now null, with why."""
+    from hqp_tpm.app.results import dumps, metrics
+
+    n = 5
+    arrays = {"t": np.arange(n) * 1e-3, "dq": np.zeros((n, 2)), "stack": np.zeros(n, dtype=np.int64),
+              "crosscheck_diff": np.full(n, 0.3), "crosscheck_same_problem": np.zeros(n)}
+    data = json.loads(dumps(metrics(arrays, {}, {})))
+    assert data["crosscheck_max_diff_same_problem"] is None
+    assert "no step" in data["crosscheck_max_diff_same_problem_reason"]
+    assert data["crosscheck_steps_different_problems"] == n and data["crosscheck_max_diff"] == 0.3
+    arrays["crosscheck_same_problem"][2] = 1.0  # one step solved the same problem: its difference
+    data = json.loads(dumps(metrics(arrays, {}, {})))
+    assert data["crosscheck_max_diff_same_problem"] == 0.3 and data["crosscheck_steps_different_problems"] == n - 1

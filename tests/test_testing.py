@@ -287,14 +287,24 @@ def test_sns_tpm_fast_path_equals_algorithm_1_as_written(case):
 
 def test_run_crosscheck_separates_steps_where_the_problems_differ(tmp_path):
     """hqp-tpm run --crosscheck on SNS-TPM: where the box binds, SNS-TPM and the QP solve different problems
-    (reported apart); on the other steps the commands agree."""
+    (reported apart); on the other steps the commands agree. In papers/002's box (``command_rate = false``): the
+    scenario's rate box binds on every step (42742a8 then reported a difference of 0.0 over no step; now null)."""
     from hqp_tpm.app.cli import run_scenario
+    from hqp_tpm.app.scenario import SCENARIO_DIR
 
-    summary = run_scenario("romeo_sns_tpm", tmp_path, crosscheck=True, steps=150, figures=False, replay=False,
+    text = (SCENARIO_DIR / "romeo_sns_tpm.toml").read_text(encoding="utf-8")
+    assert "command_rate = true" in text
+    paper_box = tmp_path / "romeo_paper_box.toml"
+    paper_box.write_text(text.replace("command_rate = true", "command_rate = false"), encoding="utf-8")
+    summary = run_scenario(paper_box, tmp_path / "paper", crosscheck=True, steps=150, figures=False, replay=False,
                            progress=False)
-    assert summary["crosscheck_steps_different_problems"] > 0
+    assert 0 < summary["crosscheck_steps_different_problems"] < 150
     assert summary["crosscheck_max_diff"] > 1e-3  # the binding steps
     assert summary["crosscheck_max_diff_same_problem"] < 1e-6
+    summary = run_scenario("romeo_sns_tpm", tmp_path / "rate", crosscheck=True, steps=20, figures=False,
+                           replay=False, progress=False)
+    assert summary["crosscheck_steps_different_problems"] == 20
+    assert summary["crosscheck_max_diff_same_problem"] is None
 
 
 def test_crosscheck_replays_the_blend_of_a_blending_policy():

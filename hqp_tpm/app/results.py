@@ -98,7 +98,8 @@ METRICS: dict[str, tuple[str, str]] = {
                             "level)"),
     "crosscheck_max_diff_same_problem": ("rad/s or rad/s²", "``crosscheck_max_diff`` over the steps where the two "
                                          "solvers solve the same problem (no box binds that one of them ignores "
-                                         "or scales differently)"),
+                                         "or scales differently); null, with a ``_reason``, when there is no such "
+                                         "step"),
     "crosscheck_steps_different_problems": ("1", "steps where a binding box makes the two solvers solve different "
                                             "problems (SNS-TPM's uniform scale vs the lexicographic QP, TPM vs a "
                                             "boxed solver)"),
@@ -335,12 +336,18 @@ def metrics(arrays: dict, timing: dict, tasks: dict[str, Task]) -> dict:
         diff = arrays["crosscheck_diff"]
         out["crosscheck_max_diff"] = _reduce(np.max, (b.max() for _, b in blocks(diff)))
         if "crosscheck_same_problem" in arrays:
-            top, different = 0.0, 0
+            top, different, checked = 0.0, 0, 0
             for (_, d), (_, s) in zip(blocks(diff), blocks(arrays["crosscheck_same_problem"]), strict=True):
                 same = s > 0.5
                 top = _top(top, float(d[same].max(initial=0.0)))
                 different += int((~same).sum())
-            out["crosscheck_max_diff_same_problem"] = top
+                checked += same.size
+            if different < checked:
+                out["crosscheck_max_diff_same_problem"] = top
+            else:  # (a maximum over no step is no agreement: 0.0 here read as one)
+                out["crosscheck_max_diff_same_problem"] = None
+                out["crosscheck_max_diff_same_problem_reason"] = ("no step where both solvers solved the same "
+                                                                  "problem (a binding box one of them ignores)")
             out["crosscheck_steps_different_problems"] = different
     if "scale" in arrays:
         out["scale_min"] = _reduce(np.min, (b.min() for _, b in blocks(arrays["scale"])))
