@@ -275,11 +275,8 @@ class LeanStep(CompiledStep):
                 x = np.zeros(self.n) if x0 is None else x0.copy()
         elif solver == "sns_tpm":
             lo, up = self._box(st, t) or (np.full(self.n, -np.inf), np.full(self.n, np.inf))
-            sizes = self.sizes
-            if x0 is not None:  # the x0 damping level appended as the registry does (LeanStep.of)
-                J, b, sizes = np.vstack((J, np.eye(self.n))), np.concatenate((b, x0)), sizes + (self.n,)
-            x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True)
+            x, sinfo = sns_tpm_stacked(J, b, self.sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
+                                       return_info=True, x0=x0)
             info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         else:
             x, info = solve(solver, self.levels, self.n, x0=x0, box=self._box(st, t), lambda_max=self.lambda_max,

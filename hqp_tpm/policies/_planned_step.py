@@ -98,7 +98,7 @@ class PlannedStep(CompiledStep):
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info", "_eye",
+                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
                  "_bs", "_stack", "_box_now")
 
     @staticmethod
@@ -146,7 +146,6 @@ class PlannedStep(CompiledStep):
         self.rate = self.sns and ctrl.order == 1 and rate_limited(ctrl.box)
         self.box = JointBox(ctrl.box) if ctrl.box is not None else None
         self.info: dict = {}
-        self._eye = np.eye(self.n)
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
         self._stack = self._box_now = None
         return self
@@ -332,15 +331,12 @@ class PlannedStep(CompiledStep):
                     bs[a:a + k] = b[a:a + k]
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
-            d, sinfo = sns_tpm_stacked(np.concatenate((J, self._eye)), np.concatenate((bs, -v)), (*sizes, n),
-                                       lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps, return_info=True)
+            d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
+                                       return_info=True, x0=-v)
             x = np.minimum(np.maximum(v + d, lo), up)
         else:
-            x0 = ctrl.null_space_term(ctrl._v)
-            if x0 is not None:  # the joint-space term must respect the box too: one more (lowest) level
-                J, b, sizes = np.concatenate((J, self._eye)), np.concatenate((b, x0)), (*sizes, n)
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True)
+                                       return_info=True, x0=ctrl.null_space_term(ctrl._v))
         if not all_finite(x):
             raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
         self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}

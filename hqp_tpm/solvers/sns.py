@@ -398,11 +398,14 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
 
 
 def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambda_max: float = 0.0,
-                    eps: float = 0.0, return_info: bool = False):
+                    eps: float = 0.0, return_info: bool = False, x0: np.ndarray | None = None):
     """:func:`sns_tpm` of a stack already stacked: ``J`` (m x n) and ``xd`` finite floats, ``sizes`` the row
     counts of the levels (a tuple, summing to m). The box is checked as by :func:`sns_tpm`, the stack is not
-    (the compiled step, :mod:`hqp_tpm.control._lean`, checks it once per step). Same result as :func:`sns_tpm`."""
+    (the compiled steps check it once per step). Same result as :func:`sns_tpm`. ``x0``: the joint-space term as
+    one more, lowest level ``I x = x0``, as the registry adds it (the term must respect the box too)."""
     n = J.shape[1]
+    if x0 is not None:
+        J, xd, sizes = np.vstack((J, np.eye(n))), np.concatenate((xd, x0)), (*sizes, n)
     if not (type(lower) is np.ndarray and type(upper) is np.ndarray and lower.dtype == np.float64
             and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
         lower, upper = _box(lower, upper, n)     # (else the kernel tests the box: BAD_BOX, then _box raises)
