@@ -126,11 +126,14 @@ def _listen() -> None:
     _COMPILE["listening"] = True
 
 
-def kernel(fn=None, *, inline: bool = False):
+def kernel(fn=None, *, inline: bool = False, into: tuple[str, str] | None = None):
     """Mark ``fn`` as a kernel of its module (plain Python until :func:`compile_module`). ``inline=True``: numba
-    inlines it where compiled code calls it (its IR, before LLVM: the same operations in the same order)."""
+    inlines it where compiled code calls it (its IR, before LLVM: the same operations in the same order). ``into =
+    (module, name)``: a function of another module compiled as the global ``name`` of ``module`` (its own stays
+    Python)."""
     def mark(f):
-        _KERNELS.setdefault(f.__module__, []).append((f.__name__, inline))
+        module, name = into or (f.__module__, f.__name__)
+        _KERNELS.setdefault(module, []).append((name, inline))
         return f
     return mark if fn is None else mark(fn)
 

@@ -1,8 +1,8 @@
 """The jit layer (:mod:`hqp_tpm._jit`, issue 28 item 5): one switch, a cache that survives damage, read-only installs.
 
-Each run is a subprocess (:data:`PROBE`: the robot kernels ``feedback2`` and ``velocity_box`` and, where the test
-says, a small ``tpm_stacked`` solve through the compiled TPM kernel) with its own ``NUMBA_CACHE_DIR``, warmed once
-for the module (the solve's kernels take ~15 s of CPU to compile cold; the robot kernels ~1 s).
+Each run is a subprocess (:data:`PROBE`: the robot kernels ``acceleration_step`` and ``velocity_box`` and, where
+the test says, a small ``tpm_stacked`` solve through the compiled TPM kernel) with its own ``NUMBA_CACHE_DIR``,
+warmed once for the module (the solve's kernels take ~15 s of CPU to compile cold; the robot kernels ~1 s).
 """
 
 from __future__ import annotations
@@ -23,7 +23,7 @@ import pytest
 import hqp_tpm
 
 #: the probe's numbers from the robot kernels (then, with ``solve``, x and the solvers' switch)
-ROBOT = 9
+ROBOT = 13
 
 pytestmark = pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="numba is not installed")
 
@@ -37,9 +37,9 @@ import numpy as np
 from hqp_tpm.robot import _compiled as rc
 out = []
 e = np.array([1.0, -2.0, 0.5, 3.0])
-b = np.zeros(4)
-rc.feedback2(b, e, 0.5 * e, 0.25 * e, -e, 0.1 * e, 2.0, 3.0)
-out += b.tolist()
+dq, v_next = np.zeros(4), np.zeros(4)
+rc.acceleration_step(e, 0.1 * e, 0.3, dq, v_next)
+out += dq.tolist() + v_next.tolist()
 P = np.array([[-1.0, -2.0], [1.0, 2.0], [0.5, 0.7], [3.0, 4.0], [6.0, 8.0], [0.03, 0.04]])
 idx = np.array([[0, 1], [0, 1]], dtype=np.int64)
 lo, up = np.zeros(2), np.zeros(2)
@@ -89,7 +89,7 @@ def warm(tmp_path_factory):
     return cache, want
 
 
-def cache_files(cache: Path, suffix: str, names=("feedback2", "velocity_box")) -> list[Path]:
+def cache_files(cache: Path, suffix: str, names=("acceleration_step", "velocity_box")) -> list[Path]:
     """The probe's kernels' cache files of one kind (``.nbi`` index, ``.nbc`` data) under ``cache``."""
     return sorted(p for p in cache.rglob(f"*{suffix}") if any(f".{n}-" in p.name for n in names))
 
@@ -212,7 +212,7 @@ def test_switched_on_later_compiles_then(warm):
     cache, want = warm
     probe = PROBE.replace("out = []", "out = []\nassert 'numba' not in sys.modules and not rc.ENABLED\n"
                           "from hqp_tpm.solvers import _compiled as sc\nsc.ENABLED = True\n"
-                          "assert rc.ENABLED and type(rc.feedback2).__name__ == 'CPUDispatcher'")
+                          "assert rc.ENABLED and type(rc.acceleration_step).__name__ == 'CPUDispatcher'")
     got = run({"NUMBA_CACHE_DIR": str(cache), "HQP_TPM_COMPILED": "0"}, "solve", probe=probe)
     assert ok(got) == want and got.stderr == "", got.stderr
 

@@ -261,74 +261,6 @@ def test_non_finite_rows_raise_like_the_readable_step_and_change_nothing(solver,
 
 
 # -- the pieces ------------------------------------------------------------------------------------
-def _writer_cases():
-    from hqp_tpm import CenterOfMass, FrameOrientation, FramePose, FramePosition, Gains, Harmonic, Posture
-    from hqp_tpm.robot.model import Robot
-    from hqp_tpm.tasks.joint_velocity import JointVelocity
-
-    iiwa, romeo = Robot.load("iiwa7"), Robot.load("romeo21")
-    g = Gains(7.0, 3.0)
-    circle = Harmonic(center=np.array([0.4, 0.1, 0.5]), cos_amplitude=np.array([0.0, 0.1, 0.0]),
-                      sin_amplitude=np.array([0.0, 0.0, 0.1]), omega=2.0)
-    return [
-        (iiwa, [FramePose(iiwa, "iiwa_ee", None, g), FramePosition(iiwa, "iiwa_ee", circle, g),
-                FramePosition(iiwa, "iiwa_link_4", [0.1, 0.3], g, axes="xz"),
-                FrameOrientation(iiwa, "iiwa_ee", None, g), Posture(iiwa, np.linspace(-1, 1, 7), g),
-                Posture(iiwa, None, g, joints=["iiwa_joint_2", "iiwa_joint_5"]),
-                CenterOfMass(iiwa, [0.0, 0.1], g, axes="xy"), JointVelocity(7)]),
-        (romeo, [FramePose(romeo, "r_sole", None, g), CenterOfMass(romeo, None, g),
-                 CenterOfMass(romeo, None, g, axes="xz"), FramePosition(romeo, "l_gripper", None, g, axes="zy"),
-                 Posture(romeo, None, g)]),
-    ]
-
-
-@pytest.mark.parametrize("compiled", PATHS, indirect=True)
-@pytest.mark.parametrize("order", [1, 2])
-def test_row_writers_equal_jacobian_and_command(order, compiled):
-    """Every row writer gives its task's ``jacobian`` and ``command`` to the last bit, at random states."""
-    import pinocchio as pin
-
-    from hqp_tpm.robot.state import State
-    from hqp_tpm.tasks.base import Task
-    from hqp_tpm.tasks.joint_velocity import JointVelocity
-
-    rng = np.random.default_rng(3)
-    for robot, tasks in _writer_cases():
-        ref, st = State(robot), State(robot)
-        q0 = robot.neutral()
-        ref.update(q0, np.zeros(robot.nv))
-        for task in tasks:
-            task.start(ref)
-        tasks = [task for task in tasks if not (order == 2 and isinstance(task, JointVelocity))]
-        J = np.full((sum(task.dim for task in tasks), robot.nv), np.nan)
-        b = np.full(J.shape[0], np.nan)
-        rows, a = [], 0
-        for task in tasks:
-            rows.append(slice(a, a + task.dim))
-            a += task.dim
-        writers = [task.row_writer(st, order, J[r], b[r]) for task, r in zip(tasks, rows, strict=True)]
-        own = [type(task).row_writer is not Task.row_writer for task in tasks]
-        # FramePosition writes its own rows (Posture its constant J once); the other classes' writer is jacobian and
-        # command (their compiled copy is their row program, compared with the readable step)
-        assert {type(task).__name__ for task, o in zip(tasks, own, strict=True) if o} == \
-            {"FramePosition", "Posture"} & {type(task).__name__ for task in tasks}
-        frames = tuple(robot.frame_id(task.frame) for task in tasks if task.frame is not None)
-        for k in range(20):
-            q = pin.integrate(robot.model, q0, rng.normal(0.0, 0.4, robot.nv))
-            v = rng.normal(0.0, 1.0, robot.nv)
-            t = 0.01 * k
-            for task in tasks:
-                if isinstance(task, JointVelocity):
-                    task.assign(rng.normal(size=task.dim))
-            ref.update(q, v, t)
-            st.update(q, v, t, frames=frames, velocities=order == 2)
-            for write in writers:
-                write(t)
-            for task, r in zip(tasks, rows, strict=True):
-                np.testing.assert_array_equal(J[r], task.jacobian(ref), err_msg=task.name)
-                np.testing.assert_array_equal(b[r], task.command(ref, t, order), err_msg=task.name)
-
-
 @pytest.mark.parametrize("compiled", PATHS, indirect=True)
 @pytest.mark.parametrize("position", [True, False])
 @pytest.mark.parametrize("order", [1, 2])
@@ -644,10 +576,8 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
     ref, fast = make(), make()
     lean = Lean.of(fast)
     assert lean._kernel is not None and lean._program.ints[5] >= 2
-    harmonic = [t for t in fast.policy.stack.tasks() if type(t) is FramePosition and type(t.trajectory) is Harmonic]
-    for task in harmonic:  # its row writer, not a program
-        i = lean.tasks.index(task)
-        assert lean._fused[i] is lean.writers[i]
+    for i, task in enumerate(lean.tasks):  # a frame position a row program (a Harmonic reference too: copied)
+        assert type(task) is not FramePosition or lean._fused[i] is not lean.writers[i]
     target = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.3, 0.2, 0.7]))
     wave = Harmonic(center=np.array([0.2, 0.3]), cos_amplitude=np.array([0.1, 0.0]),
                     sin_amplitude=np.array([0.0, 0.1]), omega=3.0)
@@ -655,7 +585,7 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
         for ctrl in (ref, fast):
             for task in ctrl.policy.stack.tasks():
                 if i == 10 and type(task) is FramePose:
-                    task._M_target = target.copy()
+                    task.target = target
                 if i == 20:
                     task.gains = Gains(2.0, 5.0)
                 if i == 30 and type(task) is Posture:
@@ -703,7 +633,7 @@ def test_targets_assigned_every_step_are_followed_without_edit_counters():
             for ctrl in (ref, fast):
                 pose, point, posture = ctrl.policy.stack.tasks()
                 if i % 3:
-                    pose._M_target = M.copy()
+                    pose.target = M
                 point.trajectory.value = x
                 posture.trajectory.value = q_d
                 if i % 4 == 0:
@@ -957,9 +887,8 @@ def test_copied_and_pickled_lean_steps_step_their_own_controller():
 def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
     """At velocity level the fused kernel places the frames of its frame tasks itself (pinocchio's
     updateFramePlacement left out of the state update): pinocchio's oMf after a lean step is the full update's, to
-    the bit, and so is the command of a lean step whose frames the state update places; a frame a row writer reads
-    before the kernel (a Harmonic reference has no row program) is still placed by the state update (its
-    orientation task's row program reads it too: independent rows, no level repeating another's)."""
+    the bit, and so is the command of a lean step whose frames the state update places; with a Harmonic reference
+    and an orientation task on the same frame too (independent rows, no level repeating another's)."""
     import pinocchio as pin
 
     from hqp_tpm import Controller, FrameOrientation, FramePose, FramePosition, Gains, Posture, Robot, Stack
@@ -978,7 +907,7 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
         levels = [FramePose(robot, "r_sole", pin.SE3(pin.exp3(rng.normal(0.0, 0.2, 3)), rng.normal(0.0, 0.3, 3)), g),
                   (FramePosition(robot, "l_gripper", rng.normal(0.0, 0.5, 3), g),
                    FramePosition(robot, "r_gripper", circle if harmonic else rng.normal(0.0, 0.5, 3), g))]
-        if harmonic:                                   # r_gripper read by a row writer and by a row program
+        if harmonic:                                   # r_gripper read by two row programs
             levels.append(FrameOrientation(robot, "r_gripper", pin.exp3(rng.normal(0.0, 0.3, 3)), g))
         stack = Stack.of(*levels, Posture(robot, None, g))
         ref, fast, placed_by_state = (Controller(robot, stack, order=1, dt=1e-3, q0=q0, solver="tpm")
@@ -988,7 +917,7 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
             m.setattr(State, "frame_placement_source", lambda self, fid: None)
             other = Lean.of(placed_by_state)
         assert lean._program.placed == set(fids) and not other._program.placed
-        assert lean._fused_frames == ((fids[2],) if harmonic else ())
+        assert lean._fused_frames == ()  # (a Harmonic reference too: its rows are the kernel's)
         for _ in range(5):
             x = lean.step()
             np.testing.assert_array_equal(x, other.step())

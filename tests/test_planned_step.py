@@ -282,57 +282,6 @@ def test_pointing_and_avoidance_row_writers_equal_the_readable_rows(order, enabl
             close(b, b_ref)
 
 
-@pytest.mark.parametrize("enabled", [True, False], ids=["compiled", "numpy"])
-@pytest.mark.parametrize("order", [1, 2])
-def test_frame_position_writer_with_harmonic_reference_and_extra_equals_the_readable_rows(order, enabled,
-                                                                                         monkeypatch):
-    """The EE position task's row writer (a Harmonic reference: one compiled call) with and without the extra
-    command of Algorithm 1 (EE repulsion (30)), against jacobian/command (bit for bit: the same operations), at
-    random states and times; also after the trajectory, its origin (a relative circle) or its numbers are
-    replaced mid-run (the packed numbers follow)."""
-    from hqp_tpm.references.trajectories import Harmonic
-    from hqp_tpm.robot import _compiled
-    from hqp_tpm.tasks.base import Gains
-    from hqp_tpm.tasks.frame_position import FramePosition
-
-    monkeypatch.setattr(_compiled, "ENABLED", enabled)
-    ctrl = lwr()
-    robot, st = ctrl.robot, ctrl.state
-    rng = np.random.default_rng(10 + order)
-    frame = ctrl.policy.ee_task.frame
-    circle = Harmonic(center=np.array([0.1, 0.6, -0.2]), cos_amplitude=np.array([0.2, 0.0, 0.3]),
-                      sin_amplitude=np.array([0.0, -0.1, 0.05]), omega=1.7, phase=0.3)
-    tasks = [ctrl.policy.ee_task, FramePosition(robot, frame, circle, Gains(7.0, 3.0)),
-             FramePosition(robot, frame, Harmonic(center=np.array([0.0, 0.1]), cos_amplitude=np.array([0.2, 0.0]),
-                                                  sin_amplitude=np.array([0.0, 0.3]), omega=2.0, relative=True),
-                           Gains(3.0, 1.0), axes="zx")]
-    n = robot.nv
-    st.update(ctrl.q, ctrl.v, 0.0)
-    tasks[2].start(st)
-    bufs = [(np.zeros((t.dim, n)), np.zeros(t.dim)) for t in tasks]
-    writers = [t.row_writer(st, order, J, b) for t, (J, b) in zip(tasks, bufs, strict=True)]
-    assert all(type(t).row_writer_takes_extra for t in tasks)
-    for i in range(200):
-        q = robot.neutral() + rng.uniform(-2, 2, robot.nq)
-        v = rng.normal(size=n) * rng.choice([1e-3, 1.0, 10.0])
-        t = float(rng.uniform(0, 20))
-        st.update(q, v, t)
-        if i == 100:  # mid-run changes: a new numbers array, a new omega, a new start of the relative circle
-            circle.center = np.array([0.3, 0.2, 0.1])
-            circle.omega = 0.5
-            tasks[0].trajectory = Harmonic(center=np.array([0.0, 0.5, 0.1]), cos_amplitude=np.array([0.1, 0.1, 0.0]),
-                                           sin_amplitude=np.array([0.0, 0.2, 0.2]), omega=3.0)
-            tasks[2].start(st)
-        for task, write, (J, b) in zip(tasks, writers, bufs, strict=True):
-            extra = rng.normal(size=task.dim) if i % 2 else None
-            write(t) if extra is None else write(t, extra)
-            J_ref = task.jacobian(st)
-            np.testing.assert_array_equal(J, J_ref)
-            np.testing.assert_array_equal(b, task.command(st, t, order, extra, J_ref))
-    with pytest.raises(Exception, match="extra command has shape"):
-        writers[0](1.0, np.zeros(2))
-
-
 def test_planned_step_grows_its_stacked_rows_mid_step():
     """The row writers write straight into the stacked rows; when the stack outgrows them mid-step the rows are
     reallocated (the rows written so far kept) and the writers placed again: the readable numbers still."""

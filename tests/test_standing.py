@@ -123,7 +123,7 @@ def test_contact_qp_infeasible_and_bad_inputs(romeo):
     st.v[:] = 0.0
     a_star = np.zeros(romeo.nv)
     cid.contacts[0].task.gains = Gains(1e7, 0.0)  # the sole task asks for an enormous acceleration: infeasible
-    cid.contacts[0].task._M_target = pin.SE3(np.eye(3), st.placement(cid.contacts[0].task.fid).translation + 0.1)
+    cid.contacts[0].task.target = pin.SE3(np.eye(3), st.placement(cid.contacts[0].task.fid).translation + 0.1)
     with pytest.raises(SolverFailedError, match="friction cones"):
         cid.solve(st, 0.0, a_star)
     with pytest.raises(ParameterError, match="mu"):

@@ -41,7 +41,7 @@ def test_targets_assigned_through_the_property_are_followed(iiwa, order):
     ref.step(record=True)
     assert type(fast._compiled_step()) is LeanStep
     pose = fast.policy.stack.tasks()[0]
-    placement = pose._M_target
+    held = pose.row_source()  # the arrays the compiled step reads
     for i in range(25):
         M = pin.SE3(pin.rpy.rpyToMatrix(*rng.uniform(-0.3, 0.3, 3)), rng.uniform(0.2, 0.6, 3))
         x, q_d = rng.uniform(-0.2, 0.4, 2), rng.uniform(-1.0, 1.0, 7)
@@ -51,8 +51,9 @@ def test_targets_assigned_through_the_property_are_followed(iiwa, order):
             posture.target = q_d if i % 2 else list(q_d)  # (a list: the validated path)
         got, want = fast.step().command, ref.step(record=True).command
         assert np.abs(got - want).max() <= ROUNDING * max(1.0, np.abs(want).max()), (i, got, want)
-        np.testing.assert_array_equal(pose._M_target.translation, M.translation)  # (what the readable step reads)
-    assert pose._M_target is placement  # (written in place)
+        np.testing.assert_array_equal(pose.target.translation, M.translation)
+        np.testing.assert_array_equal(held.p_d, M.translation)  # (written in place: what the compiled step reads)
+        np.testing.assert_array_equal(held.R_d, M.rotation)
 
 
 def test_pose_target_getter_and_forms(iiwa):

@@ -33,7 +33,7 @@ def test_frame_pose_takes_a_homogeneous_matrix_and_a_pair(iiwa):
         task = FramePose(iiwa, "iiwa_ee", target)
         ctrl = Controller(iiwa, Stack.of(task), order=1)
         ctrl.start()  # a given target is kept, not replaced by the start pose
-        M = task._M_target
+        M = task.target
         np.testing.assert_allclose(M.translation, p)
         np.testing.assert_allclose(M.rotation, R)
         start = ctrl.state.placement(task.fid)
@@ -70,8 +70,8 @@ def test_frame_orientation_target_not_a_rotation_matrix(iiwa, target):
 
 def test_frame_orientation_still_takes_a_matrix_and_hold(iiwa):
     R = pin.utils.rpyToMatrix(0.1, 0.2, 0.3)
-    np.testing.assert_array_equal(FrameOrientation(iiwa, "iiwa_ee", R)._R_target, R)
-    assert FrameOrientation(iiwa, "iiwa_ee", "hold")._R_target is None
+    np.testing.assert_array_equal(FrameOrientation(iiwa, "iiwa_ee", R).target, R)
+    assert FrameOrientation(iiwa, "iiwa_ee", "hold").target is None
 
 
 # 3., 4. what a stack level is -------------------------------------------------------------------------------------

@@ -27,10 +27,12 @@ import math
 import numpy as np
 
 from hqp_tpm import _jit
+from hqp_tpm.references.trajectories import harmonic_point
 from hqp_tpm.robot import _compiled as _robot_compiled
 from hqp_tpm.solvers import _compiled, _compiled_sns
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ
+from hqp_tpm.tasks.base import tracking_command
 
 SOLVED, DECLINED, UNDECIDED = _compiled.SOLVED, _compiled.DECLINED, _compiled.UNDECIDED
 #: ``J`` or ``b`` holds a non-finite value, or their sum of squares exceeds ``levels.MAX_SUMSQ`` (nothing solved).
@@ -51,6 +53,10 @@ ROWS, TPM, SNS = 0, 1, 2
 SELECTION, FRAME = 0, 1
 #: ``jsrc`` of a frame entry whose Jacobian slot holds the Jacobian transposed (:meth:`Program.add_frame`).
 TRANSPOSED = -2
+#: ``ixd`` of a frame entry whose reference is a Harmonic's terms, computed at ``floats[TIME]`` (``Program.switches``).
+HARMONIC = -2
+#: ``floats[TIME]``: the time of the step (a Harmonic reference's).
+TIME = 5
 #: ``ints[:HEAD]``: m, n, use_x0, the level count, order, the task count, solve, the address tables' offsets.
 HEAD = 9
 
@@ -59,6 +65,7 @@ _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
 _write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
 _frame_jacobian = _rotation_error = _frame_placement = _mat = _vec = None
+_command, _harmonic = tracking_command, harmonic_point  # (Task.command's, Harmonic.reference's; compiled by _build)
 
 
 def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -69,21 +76,18 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
     mn = m * n
     J = buf[:mn].reshape((m, n))
     b = buf[mn: mn + m]
-    pi, pf = HEAD + nlev, 5
+    pi, pf = HEAD + nlev, TIME + 1
     for _ in range(count):  # the program's tasks: their rows of J and b
         kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
         kp, kd = floats[pf], floats[pf + 1]
-        if kind == SELECTION:  # the posture rows (Task.command)
+        if kind == SELECTION:  # the posture rows (Task.command: tracking_command, Jdot qd = 0)
             for i in range(dim):
                 e = floats[pf + 2 + i] - q[ints[pi + 3 + i]]
-                xd = floats[pf + 2 + dim + i]
-                if order == 1:
-                    b[r0 + i] = xd + kp * e
-                else:
-                    b[r0 + i] = floats[pf + 2 + 2 * dim + i] + kd * (xd - v[ints[pi + 3 + dim + i]]) + kp * e - 0.0
+                b[r0 + i] = _command(order, e, floats[pf + 2 + dim + i], floats[pf + 2 + 2 * dim + i],
+                                     v[ints[pi + 3 + dim + i]], 0.0, kp, kd)
             pi += 3 + 2 * dim
             pf += 2 + 3 * dim
-        else:  # FRAME: hqp_tpm.robot._compiled.rows1 / rows2
+        else:  # FRAME: the frame's rows, b by tracking_command
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
             place = ints[pi + 11]                      # the frame's placement from its joint's (else the caller's)
@@ -108,6 +112,15 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                         acc += S[src, c] * v[c]
                     rate[i] = acc
             fx, fxd = pf + 2, pf + 2 + k
+            harmonic = ixd == HARMONIC
+            if harmonic:  # Harmonic.reference's terms: base, a, b per row in place of x_d, xd, xdd; omega, phase
+                hw = floats[fxd + 2 * dim]
+                arg = hw * floats[TIME] + floats[fxd + 2 * dim + 1]
+                hc, hs = math.cos(arg), math.sin(arg)
+            tail = pi + 12 + dim + k + nc + (1 if place >= 0 else 0)
+            iex = ints[tail]  # the extra command's slot (-1: none)
+            if iex >= 0:
+                ex = _vec(ints, iex)
             if k:
                 x = _vec(ints, iv)
                 if ixd >= 0:
@@ -122,18 +135,24 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                 else:
                     for c in range(n):
                         J[r0 + i, c] = S[src, c]
+                xd, xdd = floats[fxd + i], floats[fxd + dim + i]
                 if i < k:
-                    x_d = x_dv[i] if ixd >= 0 else floats[fx + i]
+                    if harmonic:
+                        x_d, xd, xdd = _harmonic(floats[fx + i], xd, xdd, hw, hc, hs)
+                    else:
+                        x_d = x_dv[i] if ixd >= 0 else floats[fx + i]
                     e = x_d - x[ints[at + dim + i]]
                 else:
                     e = w[i - k]
-                xd = floats[fxd + i]
-                if order == 1:
-                    b[r0 + i] = xd + kp * e
+                if order == 1:  # (Task.command: the extra command added to b at order 1, to xdd at order 2)
+                    bb = _command(1, e, xd, 0.0, 0.0, 0.0, kp, kd)
+                    b[r0 + i] = bb + ex[i] if iex >= 0 else bb
                 else:
-                    b[r0 + i] = floats[fxd + dim + i] + kd * (xd - rate[i]) + kp * e - jdq[i]
-            pi += 12 + dim + k + nc + (1 if place >= 0 else 0)
-            pf += 2 + k + 2 * dim
+                    if iex >= 0:
+                        xdd = xdd + ex[i]
+                    b[r0 + i] = _command(2, e, xd, xdd, rate[i], jdq[i], kp, kd)
+            pi = tail + 1
+            pf += 4 + k + 2 * dim
     s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(mn + m):
         s += buf[i] * buf[i]
@@ -316,7 +335,7 @@ def _build(solve: int, tall: bool):
     step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
     ``m > n`` kernel); None if numba cannot be imported."""
     global _write_rows, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
-    global _frame_jacobian, _rotation_error, _mat, _vec
+    global _frame_jacobian, _rotation_error, _mat, _vec, _command, _harmonic
     if not _solves():
         return None
     if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
@@ -328,6 +347,8 @@ def _build(solve: int, tall: bool):
         if readers is None:
             return None
         _mat, _vec = readers
+        _command = _jit.dispatcher(tracking_command, inline=True)
+        _harmonic = _jit.dispatcher(harmonic_point, inline=True)
         _write_rows = _jit.dispatcher(_rows)
     if solve == SNS and not _compiled_sns._READY:
         try:
@@ -373,7 +394,7 @@ class Program:
         self._box: list = [BOX_GIVEN, 0, 0]
         self._dt = 0.0
         self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), 0, 0, *sizes]
-        self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND]
+        self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND, 0.0]  # (then the step's time)
         #: the arrays the kernel reads (2-D, 1-D; float64, C-contiguous) by slot: a task owns its slots (it puts its
         #: arrays there before :meth:`build`; after it, :meth:`bind_mat` and :meth:`bind_vec` replace one)
         self.mats: list[np.ndarray] = []
@@ -454,9 +475,15 @@ class Program:
             self.mats += [RiT, np.ascontiguousarray(P, dtype=float), RfT]
             tail = [self._slot(self.vecs, pi)]
             self.placed.add(int(fid))
+        ixd = len(self._ints) + 6
         self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), place,
-                       *rows, *xrows, *cols, *tail]
-        return self._gains(kp, kd, k + 2 * dim), mat, vec, rot
+                       *rows, *xrows, *cols, *tail, -1]
+        self.vecs.append(np.zeros(dim))  # (the extra command's, bound to the entry while it has one)
+        #: where the last frame entry's ``ixd`` and extra slot are in :attr:`ints` (:data:`HARMONIC`: its reference
+        #: from ``[base, a, b]`` per row and ``omega, phase`` at the end of its floats; a slot: its extra command
+        #: there, added as :meth:`~hqp_tpm.tasks.base.Task.command` adds it), and the extra command's slot
+        self.switches = (ixd, len(self._ints) - 1, len(self.vecs) - 1)
+        return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot
 
     @staticmethod
     def _slot(arrays: list, a: np.ndarray) -> int:

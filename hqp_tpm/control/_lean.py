@@ -7,12 +7,12 @@ kinematics, only the frames and passes the rows read: :meth:`hqp_tpm.robot.state
 level), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve, and the
 controller's integration.
 
-With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that have a row program
-(:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture of
-revolute/prismatic joints) copy only changed references into the program (:class:`~hqp_tpm.tasks.base.ReferenceSlots`),
+With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that describe their rows
+(:meth:`hqp_tpm.tasks.base.Task.row_source`: frame pose, position, orientation, the CoM at velocity level, posture of
+revolute/prismatic joints; :mod:`hqp_tpm.control._task_rows`) copy only changed references into the program,
 and one compiled call writes their rows from pinocchio's data read in place (frame placements and Jacobians, rotation
 errors ``log3(R_d R^T)``), tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in the joint limits' box), solves;
-the other tasks' row writers (:meth:`hqp_tpm.tasks.base.Task.row_writer`) run before it and other solvers after it,
+the other tasks' ``jacobian`` and ``command`` run before it and other solvers after it,
 through the registry on levels that are views of ``J`` and ``b``.
 
 Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
+from hqp_tpm.control._task_rows import program_rows
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
@@ -38,7 +39,17 @@ from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
 from hqp_tpm.solvers.registry import ANALYTIC, solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
-from hqp_tpm.tasks.base import Task, own_rows, row_writer
+from hqp_tpm.tasks.base import Task
+
+
+def _writer(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
+    """``write(t)``: ``task``'s :meth:`~Task.jacobian` and :meth:`~Task.command` at ``state`` into its rows ``J``,
+    ``b`` (views of the stacked arrays)."""
+    def write(t: float) -> None:
+        Jt = task.jacobian(state)
+        J[...] = Jt
+        b[...] = task.command(state, t, order, None, Jt)
+    return write
 
 
 class JointBox:
@@ -144,8 +155,8 @@ class LeanStep(CompiledStep):
         self.b = self._flat[a * n:]
         self._out = self._buf[a * n + a + n: a * n + a + 2 * n]
         st = ctrl.state
-        self.writers = tuple(row_writer(task, st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
-                                                                                                        strict=True))
+        self.writers = tuple(_writer(task, st, self.order, self.J[r], self.b[r]) for task, r in zip(tasks, rows,
+                                                                                                     strict=True))
         # the solver's levels, built once: views of J and b (their rows change in place every step)
         levels = [Level(self.J[r], self.b[r], name=name, defer_finite=True) for r, name in spans]
         self.x0 = self._buf[a * n + a: a * n + a + n] if self.damping else None
@@ -170,7 +181,7 @@ class LeanStep(CompiledStep):
                                              self.x0 is not None, solve=mode)
             fused, written = [], set()
             for task, r, write in zip(tasks, rows, self.writers, strict=True):
-                gather = task.row_program(st, self.order, program, r.start) if own_rows(type(task)) else None
+                gather = program_rows(task, st, self.order, program, r.start, self.J[r])
                 fused.append(write if gather is None else gather)
                 if gather is None and task.frame is not None:
                     written.add(ctrl.robot.frame_id(task.frame))

@@ -12,10 +12,8 @@ does per step:
 
 1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field, operator);
 2. the plan (or stack), and each task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
-   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its row writer (:meth:`Task.row_writer
-   <hqp_tpm.tasks.base.Task.row_writer>`, when it has its own and either no extra command is added or the writer
-   takes it, as :meth:`FramePosition.row_writer <hqp_tpm.tasks.frame_position.FramePosition.row_writer>` does) or
-   its own ``jacobian`` and ``command``, an :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a
+   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its ``jacobian`` and ``command``, an
+   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a
    :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's cone row while ``e > 0``, target = its command) by
    their row writers (one compiled call each: the numbers of their ``level``); any other task through its level's
    analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes; when the box
@@ -47,6 +45,7 @@ import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._lean import JointBox
+from hqp_tpm.control._task_rows import TaskProgram
 from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack, merge_levels
@@ -60,7 +59,7 @@ from hqp_tpm.solvers.registry import solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance
-from hqp_tpm.tasks.base import Task, own_rows
+from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.pointing import Pointing
 
 
@@ -98,7 +97,7 @@ class PlannedStep(CompiledStep):
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_own", "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
+                 "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
                  "_bs", "_stack", "_box_now")
 
     @staticmethod
@@ -131,12 +130,8 @@ class PlannedStep(CompiledStep):
         self._extras: dict = {}
         self._made: list = []  # per level of the last step: (task, first row, rows, its Level or None: equality rows)
         self._labels: dict[tuple[str, ...], str] = {}
-        # equality tasks with their own row writer (hqp_tpm.tasks.base.Task.row_writer: the numbers of jacobian and
-        # command in fewer calls), the pointing and the avoidance tasks write straight into the stacked rows: one
-        # writer per (task, first row), built on first use (_place)
-        self._own = {id(task) for task in ctrl.policy.tasks()
-                     if type(task).level is Task.level and type(task).row_writer is not Task.row_writer
-                     and own_rows(type(task))}
+        # the pointing and the avoidance tasks write straight into the stacked rows (their row writers: one compiled
+        # call each): one writer per (task, first row), built on first use (_place)
         self._placed: dict[tuple[int, int], tuple | bool] = {}
         self._kernel, self._x0 = [None, None], np.zeros(self.n)  # the compiled solves of m <= n, m > n
         # sns_tpm: the stacked rows solved in the joint limits' box (JointBox: the box's numbers in fewer calls), the
@@ -152,17 +147,17 @@ class PlannedStep(CompiledStep):
 
     def _place(self, task: Task, a: int) -> tuple | bool:
         """The row writer of ``task`` writing rows ``a...`` of ``self.J``, ``self.b`` as ``(write, cone, takes_extra,
-        dim, task)``, or False for a task without one (an inequality pointing task's ``write`` returns its error:
-        its row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
-        kind = type(task)
-        if id(task) in self._own or kind is Avoidance or (kind is Pointing and not (self.rate and task.inequality)):
-            dim = task.dim
-            if a + dim > self.J.shape[0]:
-                self._grow(a + dim)
-            write = task.row_writer(self.ctrl.state, self.order, self.J[a:a + dim], self.b[a:a + dim])
-            w = (write, kind is Pointing and task.inequality, kind.row_writer_takes_extra, dim, task)
-        else:
-            w = False
+        dim, task)``, or False for a task without one (an inequality pointing task's ``write`` returns its error: its
+        row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
+        kind, dim, w = type(task), task.dim, False
+        if a + dim > self.J.shape[0]:
+            self._grow(a + dim)
+        J, b = self.J[a:a + dim], self.b[a:a + dim]
+        if kind is Avoidance or (kind is Pointing and not (self.rate and task.inequality)):
+            w = (task.row_writer(self.ctrl.state, self.order, J, b), kind is Pointing and task.inequality, False, dim,
+                 task)
+        elif kind.level is Task.level and (write := TaskProgram.of(task, self.ctrl.state, self.order, J, b)):
+            w = (write, False, True, dim, task)  # (its row source: the compiled rows kernel)
         self._placed[(id(task), a)] = w
         return w
 

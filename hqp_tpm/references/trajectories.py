@@ -86,7 +86,7 @@ class Constant(Trajectory):
     def assign(self, x: np.ndarray) -> None:
         """``value = x`` without another copy: ``x`` a new float64 vector the caller checked (finite), kept and made
         read-only. Without an origin the reference is ``(x, 0, 0)`` at once (``x + 0`` but for the sign of a zero),
-        the zeros the previous reference's (the same objects: :class:`~hqp_tpm.tasks.base.ReferenceSlots` copies
+        the zeros the previous reference's (the same objects: :class:`~hqp_tpm.control._task_rows.ReferenceSlots` copies
         ``x`` only); with one, the next :meth:`reference` adds it."""
         x.setflags(write=False)
         object.__setattr__(self, "value", x)
@@ -132,6 +132,13 @@ class Hold(Trajectory):
         return self._ref
 
 
+def harmonic_point(base: float, a: float, b: float, w: float, c: float, s: float) -> tuple[float, float, float]:
+    """One entry of :meth:`Harmonic.reference` with ``c, s = cos(w t + phase), sin(w t + phase)``: ``x = base + a c +
+    b s``, ``xd = w (-a s + b c)``, ``xdd = -w^2 (a c + b s)`` (also compiled into the planned steps' kernel,
+    :mod:`hqp_tpm.control._compiled_step`: the same operations)."""
+    return base + a * c + b * s, w * (-a * s + b * c), (-w * w) * (a * c + b * s)
+
+
 @dataclass
 class Harmonic(Trajectory):
     """``x_d(t) = center + a cos(w t + phi) + b sin(w t + phi)`` with analytic derivatives.
@@ -157,25 +164,32 @@ class Harmonic(Trajectory):
             raise ShapeError(f"center, cos_amplitude, sin_amplitude must have one shape, got {self.center.shape}, "
                              f"{self.cos_amplitude.shape}, {self.sin_amplitude.shape}")
         _finite([self.omega, self.phase], "omega/phase")
+        self._terms = None
 
-    def reference(self, t: float):
-        w = self.omega
-        c, s = math.cos(w * t + self.phase), math.sin(w * t + self.phase)  # equal to np.cos/np.sin (tested)
-        # per entry on floats: the IEEE operations of the array expressions
-        #   x = center + offset + a c + b s,  xd = w (-a s + b c),  xdd = -w^2 (a c + b s)
-        # without numpy's per-call overhead on 3-vectors; center + offset and the fields as floats are kept
-        # between calls (assigning a frozen field or starting again drops them)
+    def terms(self) -> tuple[float, float, tuple[tuple[float, float, float], ...]]:
+        """``(omega, phase, ((center + offset, a, b) per entry))`` as floats, what :meth:`reference` computes from
+        (:func:`harmonic_point`); the same tuple while none of them changes (assigning a frozen field or starting again
+        builds it anew)."""
         fields = self._ref
         if fields is None:
             offset = [0.0] * self.center.size if self.origin is None else self.origin.tolist()
             fields = self._ref = tuple(zip([ci + oi for ci, oi in zip(self.center.tolist(), offset, strict=True)],
                                            self.cos_amplitude.tolist(), self.sin_amplitude.tolist(), strict=True))
-        ww = -w * w
+        terms = self._terms
+        if terms is None or terms[2] is not fields or terms[0] != self.omega or terms[1] != self.phase:
+            terms = self._terms = (float(self.omega), float(self.phase), fields)
+        return terms
+
+    def reference(self, t: float):
+        w, phase, fields = self.terms()
+        c, s = math.cos(w * t + phase), math.sin(w * t + phase)  # equal to np.cos/np.sin (tested)
+        # per entry on floats: the IEEE operations of the array expressions, without numpy's per-call overhead
         x, xd, xdd = [], [], []
         for base, ai, bi in fields:
-            x.append(base + ai * c + bi * s)
-            xd.append(w * (-ai * s + bi * c))
-            xdd.append(ww * (ai * c + bi * s))
+            xi, xdi, xddi = harmonic_point(base, ai, bi, w, c, s)
+            x.append(xi)
+            xd.append(xdi)
+            xdd.append(xddi)
         return np.array(x), np.array(xd), np.array(xdd)
 
 

@@ -101,13 +101,6 @@ def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
 
 
 @_njit
-def feedback2(b, e, xd, xdd, rate, jdq, kp, kd):  # pragma: no cover - compiled
-    """``b = xdd + kd (xd - rate) + kp e - jdq`` (:meth:`Task.command`, order 2), entry by entry."""
-    for i in range(b.shape[0]):
-        b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e[i] - jdq[i]
-
-
-@_njit
 def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
     """``dq = v dt + a dt^2 / 2`` and ``v_next = v + a dt`` (:meth:`State.integrate`, order 2), entry by entry."""
     for i in range(v.shape[0]):
@@ -126,40 +119,6 @@ def euclidean_step(q, v, a, dt, order, q_next, v_next):  # pragma: no cover - co
         else:
             q_next[i] = q[i] + (v[i] * dt + 0.5 * a[i] * dt * dt)
             v_next[i] = v[i] + a[i] * dt
-
-
-@_njit
-def copy_rows(J, Jsrc, rows):  # pragma: no cover - compiled
-    """``J[i] = Jsrc[rows[i]]`` for every row of ``J``."""
-    for i in range(J.shape[0]):
-        r = rows[i]
-        for c in range(J.shape[1]):
-            J[i, c] = Jsrc[r, c]
-
-
-@_njit
-def rows1(J, Jsrc, rows, b, x_d, x, xrows, w, xd, kp):  # pragma: no cover - compiled
-    """A task's rows at order 1: ``J[i] = Jsrc[rows[i]]``; ``e = [x_d - x[xrows], w]`` (``w``: the rows after ``x_d``,
-    e.g. a frame's rotation error); ``b = xd + kp e`` (:meth:`Task.command`)."""
-    m = J.shape[0]
-    copy_rows(J, Jsrc, rows)
-    k = x_d.shape[0]
-    for i in range(k):
-        b[i] = xd[i] + kp * (x_d[i] - x[xrows[i]])
-    for i in range(k, m):
-        b[i] = xd[i] + kp * w[i - k]
-
-
-@_njit
-def rows2(J, Jsrc, rows, b, x_d, x, xrows, w, rate, jdq, xd, xdd, kp, kd):  # pragma: no cover - compiled
-    """A task's rows at order 2: ``J`` and ``e`` as :func:`rows1`, ``b = xdd + kd (xd - rate) + kp e - jdq`` (``rate = J
-    qd`` computed by the caller with numpy's dot, as :meth:`Task.command` does)."""
-    m = J.shape[0]
-    copy_rows(J, Jsrc, rows)
-    k = x_d.shape[0]
-    for i in range(m):
-        e = x_d[i] - x[xrows[i]] if i < k else w[i - k]
-        b[i] = xdd[i] + kd * (xd[i] - rate[i]) + kp * e - jdq[i]
 
 
 @_njit

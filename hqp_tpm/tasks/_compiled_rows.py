@@ -1,4 +1,4 @@
-"""Compiled (numba) row writers of the pointing (19), (21), 1-D avoidance (29) and frame position tasks (private;
+"""Compiled (numba) row writers of the pointing (19), (21) and 1-D avoidance (29) tasks (private;
 the planned step).
 
 Each kernel writes a task's row ``J`` and right-hand side ``b`` with the floating-point operations of the readable
@@ -17,6 +17,9 @@ import math
 
 from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
+from hqp_tpm.tasks.base import tracking_command
+
+_command = _njit(tracking_command, inline=True, into=(__name__, "_command"))  # Task.command's law, compiled here
 
 
 @_njit
@@ -41,7 +44,7 @@ def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order, lim
         J[0, c] = c0 * Jf[3, c] + c1 * Jf[4, c] + c2 * Jf[5, c]
     e = x_d[0] - (z_d[0] * z0 + z_d[1] * z1 + z_d[2] * z2)
     if order == 1:
-        b[0] = xd[0] + kp * e
+        b[0] = _command(1, e, xd[0], 0.0, 0.0, 0.0, kp, kd)
         return e
     rate = 0.0
     for c in range(n):
@@ -50,7 +53,7 @@ def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order, lim
     u0, u1, u2 = _cross(vel[3], vel[4], vel[5], z0, z1, z2)
     w0, w1, w2 = _cross(vel[3], vel[4], vel[5], u0, u1, u2)
     jdq = z_d[0] * (a0 + w0) + z_d[1] * (a1 + w1) + z_d[2] * (a2 + w2)
-    b[0] = xdd[0] + kd * (xd[0] - rate) + kp * e - jdq
+    b[0] = _command(2, e, xd[0], xdd[0], rate, jdq, kp, kd)
     if limit < math.inf:
         s = 0.0
         for c in range(n):
@@ -70,38 +73,6 @@ def avoidance_row(J, b, normal, Jc, jdq, magnitude, order):  # pragma: no cover 
         b[0] = r
     else:
         b[0] = r - (normal[0] * jdq[0] + normal[1] * jdq[1] + normal[2] * jdq[2])
-
-
-@_njit
-def harmonic_position_rows(J, b, Jf, rows, p, rate, acc, h, t, kp, kd, extra, has_extra, order):  # pragma: no cover
-    """A frame position task's rows with a :class:`~hqp_tpm.references.trajectories.Harmonic` reference.
-
-    ``J[i] = Jf[rows[i]]``; the reference of ``Harmonic.reference(t)`` from ``h = [w, phase, (center, offset,
-    cos_amplitude, sin_amplitude) per row]`` (the same operations on floats); ``e = x_d - p[rows]``; ``b`` as
-    :meth:`Task.command` with the extra command (EE repulsion (30)) when ``has_extra``: ``xd + kp e (+ extra)`` at
-    order 1, ``(xdd (+ extra)) + kd (xd - rate) + kp e - acc[rows]`` at order 2 (``rate = J qd`` by the caller,
-    with numpy's dot as :meth:`Task.command`; ``acc`` the frame's ``J̇ q̇``). The same numbers to the last bit.
-    """
-    w = h[0]
-    arg = w * t + h[1]
-    c, s = math.cos(arg), math.sin(arg)
-    n = J.shape[1]
-    for i in range(rows.shape[0]):
-        r = rows[i]
-        for col in range(n):
-            J[i, col] = Jf[r, col]
-        ci, oi, ai, bi = h[2 + 4 * i], h[3 + 4 * i], h[4 + 4 * i], h[5 + 4 * i]
-        x_d = ci + oi + ai * c + bi * s
-        xd = w * (-ai * s + bi * c)
-        e = x_d - p[r]
-        if order == 1:
-            bb = xd + kp * e
-            b[i] = bb + extra[i] if has_extra else bb
-            continue
-        xdd = -w * w * (ai * c + bi * s)
-        if has_extra:
-            xdd = xdd + extra[i]
-        b[i] = xdd + kd * (xd - rate[i]) + kp * e - acc[r]
 
 
 _jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on

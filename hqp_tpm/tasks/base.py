@@ -9,9 +9,8 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from collections.abc import Callable
 from dataclasses import dataclass
-from functools import cache, partial
+from typing import NamedTuple
 
 import numpy as np
 from scipy.linalg.blas import ddot as _ddot
@@ -20,6 +19,45 @@ from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Constant, Trajectory, as_trajectory
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
+
+
+def tracking_command(order: int, e, xd, xdd, rate, jdq, kp: float, kd: float):
+    """The task's right-hand side ``b`` from its error ``e = x_d - x``: ``xd + kp e`` (eq. (7) of papers/000, order
+    1) or ``xdd + kd (xd - J qd) + kp e - Jdot qd`` (eq. (12), order 2; ``rate = J qd``, ``jdq = Jdot qd``).
+
+    The one home of the tracking law: :meth:`Task.command` calls it on arrays, the compiled row kernels
+    (:mod:`hqp_tpm.tasks._compiled_rows`, :mod:`hqp_tpm.control._compiled_step`) on each row's scalars, with the
+    same operations in the same order."""
+    if order == 1:
+        return xd + kp * e
+    return xdd + kd * (xd - rate) + kp * e - jdq
+
+
+class FrameRows(NamedTuple):
+    """A frame task's rows (:meth:`Task.row_source`): rows ``rows`` (0-2 linear, 3-5 angular) of frame ``fid``'s
+    world-aligned Jacobian; the error ``x_d - p[position[i]]`` on the first ``len(position)`` rows (``x_d`` the
+    reference's, or ``p_d``, an array the task updates in place) and ``log3(R_d R^T)`` on the others (``R_d`` the
+    target rotation, a Fortran-ordered array the task updates in place)."""
+
+    fid: int
+    rows: tuple[int, ...]
+    position: tuple[int, ...]
+    p_d: np.ndarray | None = None
+    R_d: np.ndarray | None = None
+
+
+class SelectionRows(NamedTuple):
+    """Rows of a constant selection Jacobian (:meth:`Task.row_source`): ``x = q[qidx]``, ``J qd = v[vidx]``,
+    ``Jdot qd = 0``."""
+
+    qidx: tuple[int, ...]
+    vidx: tuple[int, ...]
+
+
+class CenterOfMassRows(NamedTuple):
+    """Rows ``rows`` of the centre of mass and its Jacobian (:meth:`Task.row_source`)."""
+
+    rows: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -98,38 +136,20 @@ class Task(ABC):
                 raise ShapeError(f"task {self.name!r}: extra command has shape {extra.shape}, expected ({self.dim},)")
             if not np.isfinite(extra).all():
                 raise NonFiniteError(f"task {self.name!r}: extra command holds non-finite values: {extra}")
+        g = self.gains
         if order == 1:
-            b = xd_d + self.gains.kp * e
+            b = tracking_command(1, e, xd_d, 0.0, 0.0, 0.0, g.kp, g.kd)
             return b if extra is None else b + extra
         if order != 2:
             raise ParameterError(f"order must be 1 (velocity) or 2 (acceleration), got {order!r}")
         xdd = xdd_d if extra is None else xdd_d + extra
         rate = (self.jacobian(state) if J is None else J).dot(state.v)
-        return xdd + self.gains.kd * (xd_d - rate) + self.gains.kp * e - self.jdot_qdot(state)
+        return tracking_command(2, e, xd_d, xdd, rate, self.jdot_qdot(state), g.kp, g.kd)
 
-    #: Whether :meth:`row_writer`'s ``write`` also takes an extra command, ``write(t, extra)`` (added to the command
-    #: as :meth:`command` adds it; Algorithm 1's planned step passes its EE repulsion so).
-    row_writer_takes_extra: bool = False
-
-    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
-        """``write(t)`` for the lean step (:mod:`hqp_tpm.control._lean`): this task's rows at ``state``'s current
-        kinematics written in place into ``J`` (``dim x n``) and ``b`` (``dim``), views of the stacked arrays.
-
-        The numbers of :meth:`jacobian` and :meth:`command` (without an extra command); built once, called every step
-        after the state update. This default calls them; the frame, CoM, posture and joint velocity tasks write with
-        fewer calls (``tests/test_lean.py`` compares every writer with them)."""
-        def write(t: float) -> None:
-            Jt = self.jacobian(state)
-            J[...] = Jt
-            b[...] = self.command(state, t, order, None, Jt)
-        return write
-
-    def row_program(self, state: State, order: int, program, row: int) -> Callable[[float], None] | None:
-        """For the lean step's fused kernel (:mod:`hqp_tpm.control._compiled_step`): register this task's rows (starting
-        at stacked row ``row``) with ``program`` and return ``gather(t)``, which writes the step's pinocchio outputs
-        into the program's slot arrays (``program.mats``, ``program.vecs``; a replaced array is bound with
-        ``program.bind_mat``/``bind_vec``) and changed references into ``program.floats``; the kernel then writes the
-        numbers of :meth:`jacobian` and :meth:`command`. None (this default): the task's row writer runs instead."""
+    def row_source(self) -> FrameRows | SelectionRows | CenterOfMassRows | None:
+        """What this task's rows are made of, for the compiled step (:mod:`hqp_tpm.control._task_rows` writes them
+        from it with :func:`tracking_command`, the numbers of :meth:`jacobian` and :meth:`command`); None (this
+        default): the step calls :meth:`jacobian` and :meth:`command`."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -167,74 +187,6 @@ trajectory_target = property(lambda self: self.trajectory, _set_target, doc="""T
     constructor's target (:class:`ShapeError`, :class:`NonFiniteError` naming the task; a relative constant stays
     relative); a constant array given to a constant trajectory is stored in it with one copy (:meth:`Constant.assign`).
     """)
-
-
-#: The methods a row writer or row program repeats (:func:`own_rows`).
-_REPEATED = ("value", "jacobian", "jdot_qdot", "error", "reference", "command", "level")
-
-
-@cache
-def own_rows(kind: type[Task]) -> bool:
-    """Whether the row writer and row program of task class ``kind`` repeat its own methods: no class below the one that
-    defines them overrides one of the methods they repeat (a subclass that changes ``jacobian`` only, say, is written by
-    the default :meth:`Task.row_writer`, which calls it)."""
-    def owner(name: str) -> type:
-        return next(k for k in kind.__mro__ if name in vars(k))
-
-    writers = [k for k in (owner("row_writer"), owner("row_program")) if k is not Task]  # (Task's: the methods)
-    return all(issubclass(w, owner(name)) for name in _REPEATED for w in writers)
-
-
-def row_writer(task: Task, state: State, order: int, J: np.ndarray, b: np.ndarray) -> Callable[[float], None]:
-    """``task``'s row writer (:meth:`Task.row_writer`) where it repeats the task's own methods (:func:`own_rows`), else
-    the default one, which calls them."""
-    kind = task.row_writer if own_rows(type(task)) else partial(Task.row_writer, task)
-    return kind(state, order, J, b)
-
-
-def kernel_placement(state: State, fid: int, inside: bool):
-    """``add_frame``'s ``placement`` (:meth:`hqp_tpm.control._compiled_step.Program.add_frame`) of a frame task's row
-    program: frame ``fid`` placed by the fused kernel when it also computes the frame's Jacobian (``inside``) and the
-    state gives views (:meth:`~hqp_tpm.robot.state.State.frame_placement_source`); else None. (At order 2 the row
-    programs read ``Jdot qd`` with ``getFrameClassicalAcceleration``, which reads the joint's placement, not the
-    frame's.)"""
-    if not inside:
-        return None
-    source = state.frame_placement_source(fid)
-    return None if source is None else (fid, *source)
-
-
-class ReferenceSlots:
-    """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a fused program's
-    floats (:meth:`Task.row_program`) when they are not the ones copied last (compared by identity, part by part): a
-    constant reference is one read-only tuple between starts and assignments (copied once; an assigned constant changes
-    ``x_d`` only, :meth:`Constant.assign`); any other is copied every step."""
-
-    __slots__ = ("program", "parts", "last", "gains", "gains_at", "task", "views")
-
-    def __init__(self, task: Task, program, gains_at: int, at: int, parts: tuple[tuple[int, int], ...]):
-        """``kp, kd`` at ``program.floats[gains_at:]``, the reference parts ``(index, entries)`` from ``at`` on."""
-        self.task, self.program, self.gains_at, self.parts = task, program, gains_at, []
-        for i, size in parts:  # (index into the reference, its slice of the floats), laid out one after the other
-            self.parts.append((i, slice(at, at + size)))
-            at += size
-        self.last, self.gains, self.views = (None, None, None), task.gains, None
-
-    def refresh(self, t: float) -> None:
-        task = self.task
-        ref = task.trajectory.reference(t)
-        last = self.last
-        if ref is not last:
-            if self.views is None:  # (the program's floats exist once its row programs are built)
-                self.views = [self.program.floats[s] for _, s in self.parts]
-            for (i, _), view in zip(self.parts, self.views, strict=True):
-                if ref[i] is not last[i]:
-                    view[...] = ref[i]
-            frozen = not (ref[0].flags.writeable or ref[1].flags.writeable or ref[2].flags.writeable)
-            self.last = ref if frozen else (None, None, None)
-        if task.gains is not self.gains:
-            self.gains = g = task.gains
-            self.program.floats[self.gains_at: self.gains_at + 2] = g.kp, g.kd
 
 
 def select_axes(axes: str) -> np.ndarray:

@@ -6,7 +6,7 @@ import numpy as np
 
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, row_selector, select_axes, trajectory_target
+from hqp_tpm.tasks.base import CenterOfMassRows, Gains, Task, row_selector, select_axes, trajectory_target
 
 
 class CenterOfMass(Task):
@@ -40,23 +40,5 @@ class CenterOfMass(Task):
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.com_jdot_qdot()[self._sel]
 
-    def row_program(self, state: State, order: int, program, row: int):
-        """:meth:`Task.row_program` at velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the
-        kernel's slots, filled by ``jacobianCenterOfMass`` every step (in the lean step's state update,
-        :meth:`State.update_positions` with ``com``, else :meth:`State.com_kinematics`), and the reference into its
-        floats; the kernel then writes the numbers of :meth:`jacobian` and :meth:`command`. At acceleration level: None
-        (the row writer runs)."""
-        views = state.com_views()
-        if views is None or order != 1:
-            return None
-        com, Jcom, _ = views
-        d, g = self.dim, self.gains
-        at, _, _, _ = program.add_frame(row, self.rows, self.rows, g.kp, g.kd, x_d_vec=False, x=com,
-                                        transposed=Jcom.T)  # (pinocchio updates both in place)
-        refresh = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
-        program.com_in_update = True  # (the lean step's state update computes them: com_kinematics then returns)
-
-        def gather(t: float) -> None:
-            refresh(t)
-            state.com_kinematics(1)  # (nothing when the lean step's state update computed them: com_in_update)
-        return gather
+    def row_source(self) -> CenterOfMassRows:
+        return CenterOfMassRows(tuple(int(r) for r in self.rows))

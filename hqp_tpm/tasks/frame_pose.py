@@ -11,8 +11,8 @@ from scipy.linalg.blas import ddot
 from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.robot.state import LWA, State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
+from hqp_tpm.robot.state import State
+from hqp_tpm.tasks.base import FrameRows, Gains, Task
 
 #: the target forms :class:`FramePose` accepts (named by its errors)
 TARGET_FORMS = ("a pinocchio.SE3, a 4x4 homogeneous matrix [[R, p], [0, 0, 0, 1]], a pair (position 3-vector, "
@@ -73,13 +73,6 @@ def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
     return R.copy()
 
 
-_PROBE = pin.SE3.Identity()
-_VIEW, _PROBE.translation = _PROBE.translation, np.ones(3)
-#: assigning an ``SE3``'s translation (rotation) writes into the memory its earlier views read: a task keeps one target
-#: placement (whose memory the fused kernel reads) and its ``target`` setter writes into it
-IN_PLACE = bool(_VIEW[0] == 1.0)
-
-
 class FramePose(Task):
     """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
 
@@ -91,7 +84,12 @@ class FramePose(Task):
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *, name: str | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
-        self._M_target = placement_target(target, name or f"{frame}_pose")
+        M = placement_target(target, name or f"{frame}_pose")
+        # the target placement, written in place (the compiled step reads these arrays); held: the start pose's
+        self._p_d, self._R_d = np.zeros(3), np.asfortranarray(np.eye(3))
+        self._held = M is None
+        if M is not None:
+            self._p_d[:], self._R_d[:] = M.translation, M.rotation
         super().__init__(name or f"{frame}_pose", None, gains)
         self.trajectory = Hold()
 
@@ -99,26 +97,28 @@ class FramePose(Task):
     def target(self) -> pin.SE3 | None:
         """The target placement (a copy; None: the start pose, until the first step). Assigning one of
         :data:`TARGET_FORMS` but None/"hold" sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming the
-        value; a ``pin.SE3``'s rotation must be a rotation matrix); a valid ``pin.SE3`` is copied into the task's own
-        placement (the one the compiled step reads)."""
-        return None if self._M_target is None else self._M_target.copy()
+        value; a ``pin.SE3``'s rotation must be a rotation matrix); a refused target changes nothing."""
+        return None if self._held else pin.SE3(self._R_d.copy(), self._p_d.copy())
 
     @target.setter
     def target(self, value) -> None:
-        M = self._M_target
-        if type(value) is pin.SE3 and M is not None and IN_PLACE:  # the common case, cheap
+        if type(value) is pin.SE3:  # the common case, cheap
             p, R = value.translation, value.rotation
             if math.isfinite(ddot(p, p)) and is_rotation(R):
-                M.translation, M.rotation = p, R
+                self._p_d[:], self._R_d[:] = p, R
+                self._held = False
                 return
         if (M := placement_target(value, self.name)) is None:
             raise ParameterError(f"FramePose {self.name!r}: target {shown(value)} (the start pose) is a "
                                  f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
-        self._M_target = M
+        self._p_d[:], self._R_d[:] = M.translation, M.rotation
+        self._held = False
 
     def start(self, state: State) -> None:
-        if self._M_target is None:
-            self._M_target = state.placement(self.fid).copy()
+        if self._held:
+            M = state.placement(self.fid)
+            self._p_d[:], self._R_d[:] = M.translation, M.rotation
+            self._held = False
         self.trajectory.start(np.zeros(6))
 
     def value(self, state: State) -> np.ndarray:
@@ -127,8 +127,7 @@ class FramePose(Task):
 
     def error(self, state: State, x_d) -> np.ndarray:
         M = state.placement(self.fid)
-        return np.concatenate([self._M_target.translation - M.translation,
-                               pin.log3(self._M_target.rotation.dot(M.rotation.T))])
+        return np.concatenate([self._p_d - M.translation, pin.log3(self._R_d.dot(M.rotation.T))])
 
     def jacobian(self, state: State) -> np.ndarray:
         return state.jacobian(self.fid)
@@ -136,42 +135,5 @@ class FramePose(Task):
     def jdot_qdot(self, state: State) -> np.ndarray:
         return state.jdot_qdot(self.fid)
 
-    def row_program(self, state: State, order: int, program, row: int):
-        """:meth:`Task.row_program`: ``p`` and the target translation (at order 2 also ``Jdot qd``) into the kernel's
-        slots; the kernel computes the frame Jacobian from the joint Jacobians and ``w = log3(R_d R^T)`` where the state
-        gives views of them (:meth:`State.frame_jacobian_source`), else they are gathered here."""
-        views = state.frame_views(self.fid)
-        if views is None:
-            return None
-        model, data, fid = state.model, state.data, self.fid
-        p, R = views
-        g = self.gains
-        RT = R.T  # a view, as R
-        source = state.frame_jacobian_source(fid)
-        inside = source is not None  # the frame Jacobian and the rotation error computed in the kernel
-        at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True, x=p,
-                                              jacobian=(*source, p) if inside else None,
-                                              rotation=(RT, np.eye(3)) if inside else None,  # (the target's: below)
-                                              placement=kernel_placement(state, fid, inside))
-        refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
-        target = [None, None, None]  # the target placement and views of its translation and rotation
-        xd_slot = vec + (4 if order == 2 else 2)
-        S, w = program.mats[mat], program.vecs[vec + 1]  # the program's arrays (written here if not inside)
-        rate, jdq = (program.vecs[vec + 2], program.vecs[vec + 3]) if order == 2 else (None, None)
-
-        def gather(t: float) -> None:
-            refresh(t)
-            M = self._M_target
-            if M is not target[0]:
-                target[:] = M, M.translation, M.rotation
-                program.bind_vec(xd_slot, target[1])
-                if inside:
-                    program.bind_mat(rot + 1, target[2].T)
-            if not inside:
-                S[...] = pin.getFrameJacobian(model, data, fid, LWA)
-                w[:3] = pin.log3(target[2].dot(RT))
-                if order == 2:
-                    np.dot(S, state.v, out=rate)
-            if order == 2:
-                jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-        return gather
+    def row_source(self) -> FrameRows:
+        return FrameRows(self.fid, (0, 1, 2, 3, 4, 5), (0, 1, 2), self._p_d, self._R_d)

@@ -129,10 +129,12 @@ class Pointing(Task):
         (the inequality's row is in the stack only while it is positive). For the planned step."""
         model, data, fid = state.model, state.data, self.fid
         views = state.frame_views(fid)
-        none, plain = np.zeros(6), super().row_writer(state, order, J, b)  # (jacobian and command)
+        none = np.zeros(6)
 
         def readable(t: float) -> float:
-            plain(t)
+            Jt = self.jacobian(state)
+            J[...] = Jt
+            b[...] = self.command(state, t, order, None, Jt)
             return self.pointing_error(state)
 
         if views is None:

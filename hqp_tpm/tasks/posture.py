@@ -11,7 +11,7 @@ from hqp_tpm.errors import ShapeError
 from hqp_tpm.references.trajectories import Trajectory
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, trajectory_target
+from hqp_tpm.tasks.base import Gains, SelectionRows, Task, trajectory_target
 from hqp_tpm.tasks.manipulability import JointAngles
 
 
@@ -73,17 +73,8 @@ class Posture(Task):
     def jdot_qdot(self, state: State) -> np.ndarray:
         return np.zeros(self.dim)
 
-    def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """:meth:`Task.row_writer`, with the constant selection rows written at once (the row program's kernel writes
-        ``b`` only)."""
-        J[...] = self._J
-        return super().row_writer(state, order, J, b)
-
-    def row_program(self, state: State, order: int, program, row: int):
-        """:meth:`Task.row_program`: revolute/prismatic joints only (the kernel writes ``b`` from ``q``, ``v``)."""
+    def row_source(self) -> SelectionRows | None:
+        """Revolute and prismatic joints only (a continuous joint's error is a wrapped difference)."""
         if not self.angles._plain:
             return None
-        g, d = self.gains, self.dim
-        at = program.add_selection(row, self.angles.idx, self.cols, g.kp, g.kd)
-        slots = ReferenceSlots(self, program, at - 2, at, ((0, d), (1, d), (2, d)))
-        return slots.refresh
+        return SelectionRows(tuple(int(i) for i in self.angles.idx), tuple(int(c) for c in self.cols))
