@@ -58,7 +58,7 @@ HEAD = 9
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
 _write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
-_frame_jacobian = _rotation_error = _frame_placement = _mat = _vec = None
+_frame_jacobian = _rotation_error = _frame_placement = _frame_jdot_qdot = _mat = _vec = None
 
 
 def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -86,11 +86,11 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
         else:  # FRAME: hqp_tpm.robot._compiled.rows1 / rows2
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
-            place = ints[pi + 11]                      # the frame's placement from its joint's (else the caller's)
-            at = pi + 12                               # the rows, xrows, then the Jacobian's columns
+            place, acc = ints[pi + 11], ints[pi + 12]  # the frame's placement from its joint's (else the caller's)
+            at = pi + 13                               # the rows, xrows, the Jacobian's columns, (acc) their ends
             if place >= 0:                             # mats: R_i^T, P, R_f^T from slot place; vecs: p_i, p
-                _frame_placement(_mat(ints, place), _vec(ints, ints[at + dim + k + nc]), _mat(ints, place + 1),
-                                 _mat(ints, place + 2), _vec(ints, ip))
+                _frame_placement(_mat(ints, place), _vec(ints, ints[at + dim + k + nc + (nc if acc else 0)]),
+                                 _mat(ints, place + 1), _mat(ints, place + 2), _vec(ints, ip))
             S = _mat(ints, jm)
             if jsrc >= 0:  # the frame Jacobian from the joint Jacobians (else the caller put it in mats[jm])
                 _frame_jacobian(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc], _vec(ints, ip), S)
@@ -103,10 +103,13 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
             if jsrc >= 0 and order == 2:  # J qd of the task's rows
                 for i in range(dim):
                     src = ints[at + i]
-                    acc = 0.0
+                    r = 0.0
                     for c in range(n):
-                        acc += S[src, c] * v[c]
-                    rate[i] = acc
+                        r += S[src, c] * v[c]
+                    rate[i] = r
+                if acc:  # Jdot qd from the joint Jacobians (else the caller put it in vecs[rs + 1])
+                    _frame_jdot_qdot(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc],
+                                     ints[at + dim + k + nc: at + dim + k + 2 * nc], v, _vec(ints, ip), jdq)
             fx, fxd = pf + 2, pf + 2 + k
             if k:
                 x = _vec(ints, iv)
@@ -132,7 +135,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     b[r0 + i] = xd + kp * e
                 else:
                     b[r0 + i] = floats[fxd + dim + i] + kd * (xd - rate[i]) + kp * e - jdq[i]
-            pi += 12 + dim + k + nc + (1 if place >= 0 else 0)
+            pi += 13 + dim + k + nc + (nc if acc else 0) + (1 if place >= 0 else 0)
             pf += 2 + k + 2 * dim
     s = 0.0                                            # NaN, inf and too large rows all fail one sum of squares
     for i in range(mn + m):
@@ -316,14 +319,14 @@ def _build(solve: int, tall: bool):
     step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
     ``m > n`` kernel); None if numba cannot be imported."""
     global _write_rows, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
-    global _frame_jacobian, _rotation_error, _mat, _vec
+    global _frame_jacobian, _rotation_error, _frame_jdot_qdot, _mat, _vec
     if not _solves():
         return None
     if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
         return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
-        _frame_placement = _robot_compiled.frame_placement
+        _frame_placement, _frame_jdot_qdot = _robot_compiled.frame_placement, _robot_compiled.frame_jdot_qdot
         readers = _jit.address_readers()
         if readers is None:
             return None
@@ -384,6 +387,9 @@ class Program:
         #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the lean step's state update
         #: at velocity level computes them in its pinocchio pass (:meth:`hqp_tpm.robot.state.State.update_positions`)
         self.com_in_update = False
+        #: a task's rows read pinocchio's velocity pass (at order 2, a frame's ``Jdot qd`` not computed in the kernel:
+        #: :meth:`add_frame` without ``jdot``); else the lean step's state update runs the position pass only
+        self.velocity_pass = False
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
         self._ints[5] += 1
@@ -402,7 +408,7 @@ class Program:
 
     def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, x: np.ndarray | None = None,
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
-                  placement=None) -> tuple[int, int, int, int]:
+                  placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
         len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at order 2 ``rate = J
@@ -420,7 +426,10 @@ class Program:
         RfT)`` (with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
         places frame ``fid`` first (its rotation and its position ``p``,
         :func:`hqp_tpm.robot._compiled.frame_placement`), and :attr:`placed` gets ``fid``: the caller need not place
-        it. Returns ``(at, mat, vec, rot)``:
+        it. ``jdot`` (order 2, with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_jdot_source`, one entry per
+        column): the kernel computes ``Jdot qd`` of the frame from the joint Jacobians and ``qd``
+        (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`; the caller need not put it in its slot, nor pinocchio run its
+        velocity pass for it). Returns ``(at, mat, vec, rot)``:
         ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1
         without ``rotation``).
         """
@@ -445,6 +454,13 @@ class Program:
         if rotation is not None:
             rot = len(self.mats)
             self.mats += [rotation[0], rotation[1]]
+        ends: list[int] = []
+        if self.order == 2 and jdot is None:
+            self.velocity_pass = True
+        if jdot is not None:
+            if self.order != 2 or jacobian is None or len(jdot) != len(cols):
+                raise ValueError("jdot: order 2, with the joint-Jacobian source, one entry per column")
+            ends = [int(e) for e in jdot]
         place, tail = -1, []
         if placement is not None:
             if jacobian is None:
@@ -455,7 +471,7 @@ class Program:
             tail = [self._slot(self.vecs, pi)]
             self.placed.add(int(fid))
         self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), place,
-                       *rows, *xrows, *cols, *tail]
+                       int(jdot is not None), *rows, *xrows, *cols, *ends, *tail]
         return self._gains(kp, kd, k + 2 * dim), mat, vec, rot
 
     @staticmethod
