@@ -74,8 +74,8 @@ class LeanStep(CompiledStep):
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
-                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack", "_levels", "_spans",
-                 "_label")
+                 "_velocities", "_positions", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack",
+                 "_levels", "_spans", "_label")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -164,7 +164,7 @@ class LeanStep(CompiledStep):
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
         self._kernel = self._program = self._fused = None
         self._fused_frames = self.frames
-        self._com = False
+        self._com = self._positions = False
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
                                              self.x0 is not None, solve=mode)
@@ -183,6 +183,9 @@ class LeanStep(CompiledStep):
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
             self._com = program.com_in_update  # (set by a row program at velocity level only)
+            # order 2, every task in the program and every Jdot qd computed in the kernel: the position pass only
+            self._positions = self._velocities and not program.velocity_pass and all(
+                gather is not write for gather, write in zip(self._fused, self.writers, strict=True))
             self._kernel = _compiled_step.kernel(mode, tall=a > n)
         return self
 
@@ -227,7 +230,7 @@ class LeanStep(CompiledStep):
         kernel, status = self._kernel, None
         fused = kernel is not None and _compiled.ENABLED  # (one switch: hqp_tpm._jit, shared by the kernel modules)
         frames = self._fused_frames if fused else self.frames  # (the kernel places the frames its tasks read)
-        if self._velocities:
+        if self._velocities and not (fused and self._positions):
             st = ctrl.state.update(q, v, t, validate=False, frames=frames)
         else:  # (the CoM with them when the kernel reads it)
             st = ctrl.state.update_positions(q, v, t, frames, fused and self._com)

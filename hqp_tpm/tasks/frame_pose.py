@@ -149,10 +149,11 @@ class FramePose(Task):
         RT = R.T  # a view, as R
         source = state.frame_jacobian_source(fid)
         inside = source is not None  # the frame Jacobian and the rotation error computed in the kernel
+        ends = state.frame_jdot_source(fid) if inside and order == 2 else None  # (then Jdot qd too)
         at, mat, vec, rot = program.add_frame(row, range(6), range(3), g.kp, g.kd, x_d_vec=True, x=p,
                                               jacobian=(*source, p) if inside else None,
                                               rotation=(RT, np.eye(3)) if inside else None,  # (the target's: below)
-                                              placement=kernel_placement(state, fid, inside))
+                                              placement=kernel_placement(state, fid, inside), jdot=ends)
         refresh = ReferenceSlots(self, program, at - 2, at + 3, ((1, 6), (2, 6))).refresh
         target = [None, None, None]  # the target placement and views of its translation and rotation
         xd_slot = vec + (4 if order == 2 else 2)
@@ -172,6 +173,6 @@ class FramePose(Task):
                 w[:3] = pin.log3(target[2].dot(RT))
                 if order == 2:
                     np.dot(S, state.v, out=rate)
-            if order == 2:
+            if order == 2 and ends is None:
                 jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
         return gather
