@@ -246,6 +246,37 @@ def frame_jdot_qdot(JT, cols, ends, v, p, jdq):  # pragma: no cover - compiled
     jdq[5] = b2
 
 
+#: How far from orthonormal (rows 0, 1) and right-handed (row 2 their cross product) a rotation may be in
+#: :func:`rotation_rows` (entry by entry; :func:`hqp_tpm.tasks.frame_pose.rotation_matrix` decides what fails it).
+ROTATION_TOL = 1e-7
+
+
+@_njit
+def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
+    """Whether ``[[a, b, c], [d, e, f], [g, h, i]]`` is a finite rotation matrix to :data:`ROTATION_TOL`: rows 0 and 1
+    of unit length and orthogonal, row 2 their cross product (NaN fails every test)."""
+    tol = ROTATION_TOL
+    return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
+            and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
+            and abs(a * e - b * d - i) < tol)
+
+
+@_njit
+def pose_into(H, p, RT):  # pragma: no cover - compiled
+    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``p`` (translation) and ``RT``
+    (rotation transposed: views of a task's own placement) if its translation is finite and its rotation passes
+    :func:`rotation_rows`; False (nothing written) else."""
+    if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])):
+        return False
+    if not rotation_rows(H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 0], H[2, 1], H[2, 2]):
+        return False
+    for r in range(3):
+        p[r] = H[r, 3]
+        for c in range(3):
+            RT[c, r] = H[r, c]
+    return True
+
+
 _EPS = 2.220446049250313e-16        # numpy.finfo(float).eps, Eigen's NumTraits<double>::epsilon()
 _PREC = _EPS ** (1.0 / 3.0)         # pinocchio's TaylorSeriesExpansion<double>::precision<2>()
 

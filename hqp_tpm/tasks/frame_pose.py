@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.blas import ddot
 
 from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Hold
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import Gains, ReferenceSlots, Task, kernel_placement
@@ -54,16 +52,6 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     return pin.SE3(rotation_matrix(R, f"FramePose {task!r}"), p.copy())
 
 
-def is_rotation(R: np.ndarray, tol: float = 1e-7) -> bool:
-    """A quick test (scalar arithmetic) that ``R`` is a finite rotation matrix: rows 0 and 1
-    orthonormal and row 2 their cross product, within ``tol``; stricter than :func:`rotation_matrix`, which decides
-    what fails it."""
-    a, b, c, d, e, f, g, h, i = R.ravel().tolist()
-    return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
-            and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
-            and abs(a * e - b * d - i) < tol)
-
-
 def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
     """A copy of the 3x3 matrix ``R`` if it is a finite rotation matrix, else :class:`ParameterError` (``what``: the
     task, for the message)."""
@@ -92,6 +80,7 @@ class FramePose(Task):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         self._M_target = placement_target(target, name or f"{frame}_pose")
+        self._views = None  # (M, views of its translation and rotation transposed): the target setter writes there
         super().__init__(name or f"{frame}_pose", None, gains)
         self.trajectory = Hold()
 
@@ -106,15 +95,19 @@ class FramePose(Task):
     @target.setter
     def target(self, value) -> None:
         M = self._M_target
-        if type(value) is pin.SE3 and M is not None and IN_PLACE:  # the common case, cheap
-            p, R = value.translation, value.rotation
-            if math.isfinite(ddot(p, p)) and is_rotation(R):
-                M.translation, M.rotation = p, R
+        if type(value) is pin.SE3 and M is not None and IN_PLACE:  # the common case: checked and copied in one call
+            views = self._views
+            if views is None or views[0] is not M:
+                views = self._views = (M, M.translation, M.rotation.T)
+            if _compiled.pose_into(value.homogeneous, views[1], views[2]):
                 return
         if (M := placement_target(value, self.name)) is None:
             raise ParameterError(f"FramePose {self.name!r}: target {shown(value)} (the start pose) is a "
                                  f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
         self._M_target = M
+
+    def __getstate__(self) -> dict:
+        return {**self.__dict__, "_views": None}  # (a copy's views are made again, of its own placement)
 
     def start(self, state: State) -> None:
         if self._M_target is None:
