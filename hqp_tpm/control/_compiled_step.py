@@ -107,9 +107,12 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     for c in range(n):
                         r += S[src, c] * v[c]
                     rate[i] = r
-                if acc:  # Jdot qd from the joint Jacobians (else the caller put it in vecs[rs + 1])
+                if acc:  # Jdot qd of the task's rows from the joint Jacobians (else the caller put it in its slot)
+                    full = np.empty(6)
                     _frame_jdot_qdot(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc],
-                                     ints[at + dim + k + nc: at + dim + k + 2 * nc], v, _vec(ints, ip), jdq)
+                                     ints[at + dim + k + nc: at + dim + k + 2 * nc], v, _vec(ints, ip), full)
+                    for i in range(dim):
+                        jdq[i] = full[ints[at + i]]
             fx, fxd = pf + 2, pf + 2 + k
             if k:
                 x = _vec(ints, iv)
@@ -512,6 +515,7 @@ class Program:
         self._ints[8] = len(self._ints)
         self._ints += [0] * (2 * len(self.vecs))
         self.ints = np.array(self._ints, dtype=np.int64)
+        self._sns_view = self.ints[self._sns_at[0]: self._sns_at[0] + 3 + n]  # (sns_outputs copies it)
         for i, a in enumerate(self.mats):
             self.bind_mat(i, a)
         for i, a in enumerate(self.vecs):
@@ -544,8 +548,7 @@ class Program:
     def sns_outputs(self) -> tuple[np.ndarray, float]:
         """A copy of the SNS loop's outputs of the last solve (nsat, iterations, feasible, the saturated joints; the
         scale), for :meth:`sns_info`."""
-        i, f = self._sns_at
-        return self.ints[i: i + 3 + self.ints[1]].copy(), self.floats.item(f)
+        return self._sns_view.copy(), self.floats.item(self._sns_at[1])
 
     def sns_info(self, outputs: tuple) -> dict:
         """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of :meth:`sns_outputs`, as the readable step
