@@ -3,14 +3,15 @@
 :func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`: each compiles only what it
 calls). Each writes the program's rows (posture tasks: ``b`` of a selection of revolute or prismatic joints; frame
 tasks: the frame Jacobian from the joint Jacobians ``data.J`` with pinocchio's operations,
-:func:`hqp_tpm.robot._compiled.frame_jacobian`, and ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
-within a few ulps of pinocchio's) and tests ``J`` and ``b`` for finiteness; :data:`TPM` then runs the TPM kernel
-:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last bit), :data:`SNS` the SNS-TPM loop
-:func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf`` (the joint limits' box computed
-here, :meth:`Program.set_box`, else written by the caller; its info in the tails of ``ints`` and ``floats``,
-:meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel takes five: ``buf``
-(``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of the arrays the tasks
-read) and the floats of a :class:`Program`, ``q``, ``v``.
+:func:`hqp_tpm.robot._compiled.frame_jacobian`, ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
+within a few ulps of pinocchio's, and at order 2 ``J-dot q-dot`` from ``data.J`` and ``qd``,
+:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`, within ~1e-15 of pinocchio's) and tests ``J`` and ``b`` for finiteness;
+:data:`TPM` then runs the TPM kernel :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last
+bit), :data:`SNS` the SNS-TPM loop :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf``
+(the joint limits' box computed here, :meth:`Program.set_box`, else written by the caller; its info in the tails of
+``ints`` and ``floats``, :meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel
+takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of
+the arrays the tasks read) and the floats of a :class:`Program`, ``q``, ``v``.
 
 A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises the typed
 error naming the task), :data:`NONFINITE_X`, ``DECLINED``/``UNDECIDED`` (``tpm_stacked``'s numpy reference decides),

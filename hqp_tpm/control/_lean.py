@@ -4,8 +4,8 @@ The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds a 
 one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks them and looks the solver up every step. For a
 *fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (pinocchio's
 kinematics, only the frames and passes the rows read: :meth:`hqp_tpm.robot.state.State.update_positions` at velocity
-level), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve, and the
-controller's integration.
+level, and at acceleration level when the kernel computes every ``J-dot q-dot``), the tasks' rows written in place
+into one stacked ``J``, ``b``, one finiteness test, one solve, and the controller's integration.
 
 With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that have a row program
 (:meth:`hqp_tpm.tasks.base.Task.row_program`: frame pose, position, orientation, the CoM at velocity level, posture of
@@ -16,10 +16,11 @@ the other tasks' row writers (:meth:`hqp_tpm.tasks.base.Task.row_writer`) run be
 through the registry on levels that are views of ``J`` and ``b``.
 
 Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
-error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` (to 1e-12). Supported (else
-:meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a :class:`~hqp_tpm.control.stack.FixedStack`
-without extra commands of equality tasks, no crosscheck, a policy that neither updates nor blends. A step whose rows are
-not finite is handed to the readable path, which raises the typed error naming the task."""
+error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` and ``J-dot q-dot`` (to 1e-12).
+Supported (else :meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a
+:class:`~hqp_tpm.control.stack.FixedStack` without extra commands of equality tasks, no crosscheck, a policy that
+neither updates nor blends. A step whose rows are not finite is handed to the readable path, which raises the typed
+error naming the task."""
 
 from __future__ import annotations
 
