@@ -3,14 +3,15 @@
 :func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`: each compiles only what it
 calls). Each writes the program's rows (posture tasks: ``b`` of a selection of revolute or prismatic joints; frame
 tasks: the frame Jacobian from the joint Jacobians ``data.J`` with pinocchio's operations,
-:func:`hqp_tpm.robot._compiled.frame_jacobian`, and ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
-within a few ulps of pinocchio's) and tests ``J`` and ``b`` for finiteness; :data:`TPM` then runs the TPM kernel
-:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last bit), :data:`SNS` the SNS-TPM loop
-:func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf`` (the joint limits' box computed
-here, :meth:`Program.set_box`, else written by the caller; its info in the tails of ``ints`` and ``floats``,
-:meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel takes five: ``buf``
-(``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of the arrays the tasks
-read) and the floats of a :class:`Program`, ``q``, ``v``.
+:func:`hqp_tpm.robot._compiled.frame_jacobian`, ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
+within a few ulps of pinocchio's, and at order 2 ``J-dot q-dot`` from ``data.J`` and ``qd``,
+:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`, within ~1e-15 of pinocchio's) and tests ``J`` and ``b`` for finiteness;
+:data:`TPM` then runs the TPM kernel :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last
+bit), :data:`SNS` the SNS-TPM loop :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf``
+(the joint limits' box computed here, :meth:`Program.set_box`, else written by the caller; its info in the tails of
+``ints`` and ``floats``, :meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel
+takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of
+the arrays the tasks read) and the floats of a :class:`Program`, ``q``, ``v``.
 
 A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises the typed
 error naming the task), :data:`NONFINITE_X`, ``DECLINED``/``UNDECIDED`` (``tpm_stacked``'s numpy reference decides),
@@ -64,7 +65,7 @@ HEAD = 9
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
 _write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
-_frame_jacobian = _rotation_error = _frame_placement = _mat = _vec = None
+_frame_jacobian = _rotation_error = _frame_placement = _frame_jdot_qdot = _mat = _vec = None
 _command, _harmonic = tracking_command, harmonic_point  # (Task.command's, Harmonic.reference's; compiled by _build)
 
 
@@ -90,11 +91,11 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
         else:  # FRAME: the frame's rows, b by tracking_command
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
-            place = ints[pi + 11]                      # the frame's placement from its joint's (else the caller's)
-            at = pi + 12                               # the rows, xrows, then the Jacobian's columns
+            place, acc = ints[pi + 11], ints[pi + 12]  # the frame's placement from its joint's (else the caller's)
+            at = pi + 13                               # the rows, xrows, the Jacobian's columns, (acc) their ends
             if place >= 0:                             # mats: R_i^T, P, R_f^T from slot place; vecs: p_i, p
-                _frame_placement(_mat(ints, place), _vec(ints, ints[at + dim + k + nc]), _mat(ints, place + 1),
-                                 _mat(ints, place + 2), _vec(ints, ip))
+                _frame_placement(_mat(ints, place), _vec(ints, ints[at + dim + k + nc + (nc if acc else 0)]),
+                                 _mat(ints, place + 1), _mat(ints, place + 2), _vec(ints, ip))
             S = _mat(ints, jm)
             if jsrc >= 0:  # the frame Jacobian from the joint Jacobians (else the caller put it in mats[jm])
                 _frame_jacobian(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc], _vec(ints, ip), S)
@@ -107,17 +108,23 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
             if jsrc >= 0 and order == 2:  # J qd of the task's rows
                 for i in range(dim):
                     src = ints[at + i]
-                    acc = 0.0
+                    r = 0.0
                     for c in range(n):
-                        acc += S[src, c] * v[c]
-                    rate[i] = acc
+                        r += S[src, c] * v[c]
+                    rate[i] = r
+                if acc:  # Jdot qd of the task's rows from the joint Jacobians (else the caller put it in its slot)
+                    full = np.empty(6)
+                    _frame_jdot_qdot(_mat(ints, jsrc), ints[at + dim + k: at + dim + k + nc],
+                                     ints[at + dim + k + nc: at + dim + k + 2 * nc], v, _vec(ints, ip), full)
+                    for i in range(dim):
+                        jdq[i] = full[ints[at + i]]
             fx, fxd = pf + 2, pf + 2 + k
             harmonic = ixd == HARMONIC
             if harmonic:  # Harmonic.reference's terms: base, a, b per row in place of x_d, xd, xdd; omega, phase
                 hw = floats[fxd + 2 * dim]
                 arg = hw * floats[TIME] + floats[fxd + 2 * dim + 1]
                 hc, hs = math.cos(arg), math.sin(arg)
-            tail = pi + 12 + dim + k + nc + (1 if place >= 0 else 0)
+            tail = pi + 13 + dim + k + nc + (nc if acc else 0) + (1 if place >= 0 else 0)
             iex = ints[tail]  # the extra command's slot (-1: none)
             if iex >= 0:
                 ex = _vec(ints, iex)
@@ -335,14 +342,14 @@ def _build(solve: int, tall: bool):
     step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
     ``m > n`` kernel); None if numba cannot be imported."""
     global _write_rows, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
-    global _frame_jacobian, _rotation_error, _mat, _vec, _command, _harmonic
+    global _frame_jacobian, _rotation_error, _frame_jdot_qdot, _mat, _vec, _command, _harmonic
     if not _solves():
         return None
     if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
         return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
-        _frame_placement = _robot_compiled.frame_placement
+        _frame_placement, _frame_jdot_qdot = _robot_compiled.frame_placement, _robot_compiled.frame_jdot_qdot
         readers = _jit.address_readers()
         if readers is None:
             return None
@@ -405,6 +412,9 @@ class Program:
         #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the lean step's state update
         #: at velocity level computes them in its pinocchio pass (:meth:`hqp_tpm.robot.state.State.update_positions`)
         self.com_in_update = False
+        #: a task's rows read pinocchio's velocity pass (at order 2, a frame's ``Jdot qd`` not computed in the kernel:
+        #: :meth:`add_frame` without ``jdot``); else the lean step's state update runs the position pass only
+        self.velocity_pass = False
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
         self._ints[5] += 1
@@ -423,7 +433,7 @@ class Program:
 
     def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, x: np.ndarray | None = None,
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
-                  placement=None) -> tuple[int, int, int, int]:
+                  placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
         len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at order 2 ``rate = J
@@ -441,7 +451,10 @@ class Program:
         RfT)`` (with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
         places frame ``fid`` first (its rotation and its position ``p``,
         :func:`hqp_tpm.robot._compiled.frame_placement`), and :attr:`placed` gets ``fid``: the caller need not place
-        it. Returns ``(at, mat, vec, rot)``:
+        it. ``jdot`` (order 2, with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_jdot_source`, one entry per
+        column): the kernel computes ``Jdot qd`` of the frame from the joint Jacobians and ``qd``
+        (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`; the caller need not put it in its slot, nor pinocchio run its
+        velocity pass for it). Returns ``(at, mat, vec, rot)``:
         ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1
         without ``rotation``).
         """
@@ -466,6 +479,13 @@ class Program:
         if rotation is not None:
             rot = len(self.mats)
             self.mats += [rotation[0], rotation[1]]
+        ends: list[int] = []
+        if self.order == 2 and jdot is None:
+            self.velocity_pass = True
+        if jdot is not None:
+            if self.order != 2 or jacobian is None or len(jdot) != len(cols):
+                raise ValueError("jdot: order 2, with the joint-Jacobian source, one entry per column")
+            ends = [int(e) for e in jdot]
         place, tail = -1, []
         if placement is not None:
             if jacobian is None:
@@ -477,7 +497,7 @@ class Program:
             self.placed.add(int(fid))
         ixd = len(self._ints) + 6
         self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), place,
-                       *rows, *xrows, *cols, *tail, -1]
+                       int(jdot is not None), *rows, *xrows, *cols, *ends, *tail, -1]
         self.vecs.append(np.zeros(dim))  # (the extra command's, bound to the entry while it has one)
         #: where the last frame entry's ``ixd`` and extra slot are in :attr:`ints` (:data:`HARMONIC`: its reference
         #: from ``[base, a, b]`` per row and ``omega, phase`` at the end of its floats; a slot: its extra command
@@ -523,6 +543,7 @@ class Program:
         self._ints[8] = len(self._ints)
         self._ints += [0] * (2 * len(self.vecs))
         self.ints = np.array(self._ints, dtype=np.int64)
+        self._sns_view = self.ints[self._sns_at[0]: self._sns_at[0] + 3 + n]  # (sns_outputs copies it)
         for i, a in enumerate(self.mats):
             self.bind_mat(i, a)
         for i, a in enumerate(self.vecs):
@@ -555,8 +576,7 @@ class Program:
     def sns_outputs(self) -> tuple[np.ndarray, float]:
         """A copy of the SNS loop's outputs of the last solve (nsat, iterations, feasible, the saturated joints; the
         scale), for :meth:`sns_info`."""
-        i, f = self._sns_at
-        return self.ints[i: i + 3 + self.ints[1]].copy(), self.floats.item(f)
+        return self._sns_view.copy(), self.floats.item(self._sns_at[1])
 
     def sns_info(self, outputs: tuple) -> dict:
         """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of :meth:`sns_outputs`, as the readable step

@@ -4,8 +4,8 @@ The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds a 
 one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks them and looks the solver up every step. For a
 *fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (pinocchio's
 kinematics, only the frames and passes the rows read: :meth:`hqp_tpm.robot.state.State.update_positions` at velocity
-level), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve, and the
-controller's integration.
+level, and at acceleration level when the kernel computes every ``J-dot q-dot``), the tasks' rows written in place
+into one stacked ``J``, ``b``, one finiteness test, one solve, and the controller's integration.
 
 With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that describe their rows
 (:meth:`hqp_tpm.tasks.base.Task.row_source`: frame pose, position, orientation, the CoM at velocity level, posture of
@@ -16,10 +16,11 @@ the other tasks' ``jacobian`` and ``command`` run before it and other solvers af
 through the registry on levels that are views of ``J`` and ``b``.
 
 Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
-error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` (to 1e-12). Supported (else
-:meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a :class:`~hqp_tpm.control.stack.FixedStack`
-without extra commands of equality tasks, no crosscheck, a policy that neither updates nor blends. A step whose rows are
-not finite is handed to the readable path, which raises the typed error naming the task."""
+error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` and ``J-dot q-dot`` (to 1e-12).
+Supported (else :meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a
+:class:`~hqp_tpm.control.stack.FixedStack` without extra commands of equality tasks, no crosscheck, a policy that
+neither updates nor blends. A step whose rows are not finite is handed to the readable path, which raises the typed
+error naming the task."""
 
 from __future__ import annotations
 
@@ -85,8 +86,8 @@ class LeanStep(CompiledStep):
 
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
-                 "_velocities", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack", "_levels", "_spans",
-                 "_label")
+                 "_velocities", "_positions", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack",
+                 "_levels", "_spans", "_label")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -175,7 +176,7 @@ class LeanStep(CompiledStep):
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
         self._kernel = self._program = self._fused = None
         self._fused_frames = self.frames
-        self._com = False
+        self._com = self._positions = False
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
             program = _compiled_step.Program(a, n, self.sizes, self.order, self.lambda_max, self.eps,
                                              self.x0 is not None, solve=mode)
@@ -194,6 +195,9 @@ class LeanStep(CompiledStep):
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
             self._com = program.com_in_update  # (set by a row program at velocity level only)
+            # order 2, every task in the program and every Jdot qd computed in the kernel: the position pass only
+            self._positions = self._velocities and not program.velocity_pass and all(
+                gather is not write for gather, write in zip(self._fused, self.writers, strict=True))
             self._kernel = _compiled_step.kernel(mode, tall=a > n)
         return self
 
@@ -238,7 +242,7 @@ class LeanStep(CompiledStep):
         kernel, status = self._kernel, None
         fused = kernel is not None and _compiled.ENABLED  # (one switch: hqp_tpm._jit, shared by the kernel modules)
         frames = self._fused_frames if fused else self.frames  # (the kernel places the frames its tasks read)
-        if self._velocities:
+        if self._velocities and not (fused and self._positions):
             st = ctrl.state.update(q, v, t, validate=False, frames=frames)
         else:  # (the CoM with them when the kernel reads it)
             st = ctrl.state.update_positions(q, v, t, frames, fused and self._com)

@@ -142,8 +142,8 @@ def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: i
 def _frame(task: Task, source: FrameRows, state: State, order: int, program, row: int, place: bool, inside: bool):
     """A frame task's rows: where the state gives views of pinocchio's joint Jacobians and placements
     (:meth:`State.frame_jacobian_source`, :meth:`State.frame_placement_source`) the kernel places the frame, computes
-    its Jacobian, ``log3(R_d R^T)`` and (order 2) ``J qd`` itself; else they are gathered here. At order 2 ``Jdot qd``
-    is gathered here (``getFrameClassicalAcceleration`` reads the joint's placement, not the frame's)."""
+    its Jacobian, ``log3(R_d R^T)`` and (order 2) ``J qd`` and, where the state offers it
+    (:meth:`State.frame_jdot_source`), ``Jdot qd`` itself; else they are gathered here."""
     fid, rows, position = source.fid, source.rows, source.position
     views = state.frame_views(fid)
     if views is None:
@@ -158,11 +158,12 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
     placement = None
     if place and inside and (placed := state.frame_placement_source(fid)) is not None:
         placement = (fid, *placed)
+    ends = state.frame_jdot_source(fid) if inside and order == 2 else None  # (then Jdot qd in the kernel too)
     at, mat, vec, _ = program.add_frame(
         row, rows, position, g.kp, g.kd, x_d_vec=source.p_d is not None, x=p if k else None,
         jacobian=(*jsource, p) if inside else None,
         rotation=(RT, source.R_d.T) if inside and angular else None,  # (R_d: Fortran-ordered, R_d.T row-major)
-        placement=placement)
+        placement=placement, jdot=ends)
     if source.p_d is not None:  # x_d: the task's array (bound once: the task writes it in place)
         program.vecs[vec + (1 if k else 0) + (1 if angular else 0) + (2 if order == 2 else 0)] = source.p_d
         parts = ((1, d), (2, d))
@@ -188,7 +189,7 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
                 w[:3] = pin.log3(R_d.dot(RT))
             if order == 2:
                 np.dot(S[sel], state.v, out=rate)
-        if order == 2:
+        if order == 2 and ends is None:
             jdq[...] = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector[sel]
     return gather
 

@@ -89,16 +89,17 @@ class Constant(Trajectory):
         the zeros the previous reference's (the same objects: :class:`~hqp_tpm.control._task_rows.ReferenceSlots` copies
         ``x`` only); with one, the next :meth:`reference` adds it."""
         x.setflags(write=False)
-        object.__setattr__(self, "value", x)
-        ref = self._ref
-        if self.origin is not None:
+        d = self.__dict__  # (what object.__setattr__ writes, in fewer steps)
+        d["value"] = x
+        old = d["_ref"]
+        if d["origin"] is not None:
             ref = None
-        elif ref is not None and ref[1].shape == x.shape:
-            ref = (x, ref[1], ref[2])
+        elif old is not None and old[1].shape == x.shape:
+            ref = (x, old[1], old[2])
         else:
             z = np.zeros_like(x)
             ref = _frozen(x, z) + (z,)
-        object.__setattr__(self, "_ref", ref)
+        d["_ref"] = ref
 
     def reference(self, t: float):
         if self._ref is None:  # constant between starts: computed once, read-only

@@ -157,6 +157,85 @@ def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
         S[5, c] = a2
 
 
+@_njit
+def frame_jdot_qdot(JT, cols, ends, v, p, jdq):  # pragma: no cover - compiled
+    """``jdq <- J-dot q-dot`` of a frame at ``p`` (world-aligned, as ``pin.getFrameClassicalAcceleration(...,
+    LOCAL_WORLD_ALIGNED)`` after a forward pass with zero ``q-ddot``) from the joint Jacobians ``JT = data.J.T`` (nv x
+    6, world frame at the world origin) and ``v``, without pinocchio's velocity pass: along the supporting columns
+    ``cols`` (root first; ``ends[i]`` 1 where column ``cols[i]`` is its joint's last), with ``V`` the parent body's
+    spatial velocity and ``V_J`` the joint's (world), the spatial acceleration is ``A = sum V x V_J`` (a joint's motion
+    subspace constant in its child frame), and the frame's classical acceleration ``[a + alpha x p + w x (u + w x p),
+    alpha]`` (``V = [u, w]``, ``A = [a, alpha]``). Rounds otherwise than pinocchio's recursion (within ~1e-15 relative:
+    :func:`hqp_tpm.robot.state.verify_source`)."""
+    u0 = u1 = u2 = w0 = w1 = w2 = 0.0           # the parent body's velocity V = [u, w]
+    j0 = j1 = j2 = k0 = k1 = k2 = 0.0           # the joint's velocity V_J = [j, k] (its columns summed)
+    a0 = a1 = a2 = b0 = b1 = b2 = 0.0           # A = [a, b]
+    for i in range(cols.shape[0]):
+        c = cols[i]
+        qd = v[c]
+        j0 += JT[c, 0] * qd
+        j1 += JT[c, 1] * qd
+        j2 += JT[c, 2] * qd
+        k0 += JT[c, 3] * qd
+        k1 += JT[c, 4] * qd
+        k2 += JT[c, 5] * qd
+        if ends[i]:                             # V x V_J = [w x j + u x k, w x k], then V += V_J
+            a0 += (w1 * j2 - w2 * j1) + (u1 * k2 - u2 * k1)
+            a1 += (w2 * j0 - w0 * j2) + (u2 * k0 - u0 * k2)
+            a2 += (w0 * j1 - w1 * j0) + (u0 * k1 - u1 * k0)
+            b0 += w1 * k2 - w2 * k1
+            b1 += w2 * k0 - w0 * k2
+            b2 += w0 * k1 - w1 * k0
+            u0 += j0
+            u1 += j1
+            u2 += j2
+            w0 += k0
+            w1 += k1
+            w2 += k2
+            j0 = j1 = j2 = k0 = k1 = k2 = 0.0
+    p0, p1, p2 = p[0], p[1], p[2]
+    s0 = u0 + (w1 * p2 - w2 * p1)               # the frame origin's velocity u + w x p
+    s1 = u1 + (w2 * p0 - w0 * p2)
+    s2 = u2 + (w0 * p1 - w1 * p0)
+    jdq[0] = a0 + (b1 * p2 - b2 * p1) + (w1 * s2 - w2 * s1)
+    jdq[1] = a1 + (b2 * p0 - b0 * p2) + (w2 * s0 - w0 * s2)
+    jdq[2] = a2 + (b0 * p1 - b1 * p0) + (w0 * s1 - w1 * s0)
+    jdq[3] = b0
+    jdq[4] = b1
+    jdq[5] = b2
+
+
+#: How far from orthonormal (rows 0, 1) and right-handed (row 2 their cross product) a rotation may be in
+#: :func:`rotation_rows` (entry by entry; :func:`hqp_tpm.tasks.frame_pose.rotation_matrix` decides what fails it).
+ROTATION_TOL = 1e-7
+
+
+@_njit
+def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
+    """Whether ``[[a, b, c], [d, e, f], [g, h, i]]`` is a finite rotation matrix to :data:`ROTATION_TOL`: rows 0 and 1
+    of unit length and orthogonal, row 2 their cross product (NaN fails every test)."""
+    tol = ROTATION_TOL
+    return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
+            and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
+            and abs(a * e - b * d - i) < tol)
+
+
+@_njit
+def pose_into(H, p, RT):  # pragma: no cover - compiled
+    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``p`` (translation) and ``RT``
+    (rotation transposed: views of a task's own placement) if its translation is finite and its rotation passes
+    :func:`rotation_rows`; False (nothing written) else."""
+    if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])):
+        return False
+    if not rotation_rows(H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 0], H[2, 1], H[2, 2]):
+        return False
+    for r in range(3):
+        p[r] = H[r, 3]
+        for c in range(3):
+            RT[c, r] = H[r, c]
+    return True
+
+
 _EPS = 2.220446049250313e-16        # numpy.finfo(float).eps, Eigen's NumTraits<double>::epsilon()
 _PREC = _EPS ** (1.0 / 3.0)         # pinocchio's TaylorSeriesExpansion<double>::precision<2>()
 

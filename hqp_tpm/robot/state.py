@@ -18,6 +18,7 @@ from hqp_tpm.robot.model import Robot
 from hqp_tpm.solvers.levels import all_finite
 
 LWA = pin.ReferenceFrame.LOCAL_WORLD_ALIGNED
+_ARRAY, _FLOAT64 = np.ndarray, np.dtype(np.float64)
 #: joint models whose configuration is a vector their velocity is added to (pinocchio's VectorSpace Lie group:
 #: bounded revolute and prismatic joints); continuous joints (SO(2)), free flyers, spherical joints are not
 _EUCLIDEAN = frozenset(f"JointModel{k}" for k in ("RX", "RY", "RZ", "PX", "PY", "PZ", "RevoluteUnaligned",
@@ -52,9 +53,12 @@ class State:
 
     def check(self, q, v=None) -> tuple[np.ndarray, np.ndarray]:
         """Validated copies of ``q`` and ``v`` (shape and finiteness; ``v`` None: zeros), without touching the state."""
-        nq, nv = self._sizes
-        q = np.array(q, dtype=float)
-        v = np.zeros(nv) if v is None else np.array(v, dtype=float)
+        nq, nv = self._sizes  # (a float64 array: its copy() is np.array(x, dtype=float), in half the time)
+        q = q.copy() if type(q) is _ARRAY and q.dtype is _FLOAT64 else np.array(q, dtype=float)
+        if v is None:
+            v = np.zeros(nv)
+        else:
+            v = v.copy() if type(v) is _ARRAY and v.dtype is _FLOAT64 else np.array(v, dtype=float)
         if q.shape == (nq,) and v.shape == (nv,) and math.isfinite(_ddot(q, q) + _ddot(v, v)):
             return q, v  # (the common case: one sum of squares says both are finite)
         for arr, what, size in ((q, "q", nq), (v, "v", nv)):
@@ -212,6 +216,16 @@ class State:
             self._joint_jacobians_T = JT
         return JT, _cols(model, fid)
 
+    def frame_jdot_source(self, fid: int) -> np.ndarray | None:
+        """``ends`` (``ends[i]`` 1 where column ``i`` of :meth:`frame_jacobian_source`'s ``cols`` is its joint's last),
+        from which the lean step's kernel computes frame ``fid``'s ``J-dot q-dot`` from the joint Jacobians and ``qd``
+        (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`: no velocity pass); None where that source is None or the
+        kernel is not ``pin.getFrameClassicalAcceleration`` to :data:`JDOT_TOLERANCE` on a probe state
+        (:func:`verify_source`: e.g. a joint whose motion subspace changes with ``q``)."""
+        if self.frame_jacobian_source(fid) is None or not self._verified_source("jdot", fid):
+            return None
+        return _ends(self.model, fid)
+
     def _verified_source(self, what: str, fid: int) -> bool:
         """Does the fused step's reading of pinocchio's memory by address reproduce pinocchio's own API for frame
         ``fid`` (checked once per state and frame: :func:`verify_source`)? If not, the source methods return None and
@@ -287,6 +301,18 @@ def _cols(model, fid: int) -> np.ndarray:
                     dtype=np.int64)
 
 
+def _ends(model, fid: int) -> np.ndarray:
+    """Per column of :func:`_cols`: 1 where it is its joint's last (:meth:`State.frame_jdot_source`)."""
+    joint = model.frames[fid].parentJoint
+    return np.array([int(c == model.idx_vs[j] + model.nvs[j] - 1) for j in model.supports[joint]
+                     for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])], dtype=np.int64)
+
+
+#: How far the kernel's ``J-dot q-dot`` (:meth:`State.frame_jdot_source`) may be from pinocchio's on the probe state,
+#: relative to ``max(1, |Jdot qd|)``: its sums round otherwise (~1e-15); a wrong formula is off by O(1).
+JDOT_TOLERANCE = 1e-12
+
+
 def verify_source(model, what: str, fid: int) -> bool:
     """Check, on a fresh ``data`` of ``model`` and a probe configuration, what the fused step
     (:mod:`hqp_tpm.control._compiled_step`) assumes when it reads and writes pinocchio's memory by address for frame
@@ -297,7 +323,8 @@ def verify_source(model, what: str, fid: int) -> bool:
     ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``; ``"placement"``,
     :func:`~hqp_tpm.robot._compiled.frame_placement` from the parent joint's placement equals
     ``pin.updateFramePlacement``, and writes through the views of ``data.oMf[fid]`` are what pinocchio's
-    ``data.oMf[fid]`` then reads."""
+    ``data.oMf[fid]`` then reads; ``"jdot"``, :func:`~hqp_tpm.robot._compiled.frame_jdot_qdot` equals
+    ``pin.getFrameClassicalAcceleration(..., LOCAL_WORLD_ALIGNED)`` to :data:`JDOT_TOLERANCE` (every joint moving)."""
     data = model.createData()
     frame = model.frames[fid]
     try:
@@ -307,6 +334,14 @@ def verify_source(model, what: str, fid: int) -> bool:
         q = pin.integrate(model, pin.neutral(model), v)
         pin.computeJointJacobians(model, data, q)
         M = pin.updateFramePlacement(model, data, fid)
+        if what == "jdot":
+            pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
+            pin.computeJointJacobians(model, data)
+            M = pin.updateFramePlacement(model, data, fid)
+            out = np.zeros(6)
+            _compiled.frame_jdot_qdot(JT, _cols(model, fid), _ends(model, fid), v, np.array(M.translation), out)
+            want = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
+            return bool(np.abs(out - want).max() <= JDOT_TOLERANCE * max(1.0, np.abs(want).max()))
         if what == "jacobian":
             S = np.zeros((6, model.nv))
             _compiled.frame_jacobian(JT, _cols(model, fid), np.array(M.translation), S)

@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pinocchio as pin
-from scipy.linalg.blas import ddot
 
 from hqp_tpm.errors import ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Hold
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import FrameRows, Gains, Task
@@ -54,16 +52,6 @@ def placement_target(target, task: str) -> pin.SE3 | None:
     return pin.SE3(rotation_matrix(R, f"FramePose {task!r}"), p.copy())
 
 
-def is_rotation(R: np.ndarray, tol: float = 1e-7) -> bool:
-    """A quick test (scalar arithmetic) that ``R`` is a finite rotation matrix: rows 0 and 1
-    orthonormal and row 2 their cross product, within ``tol``; stricter than :func:`rotation_matrix`, which decides
-    what fails it."""
-    a, b, c, d, e, f, g, h, i = R.ravel().tolist()
-    return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
-            and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
-            and abs(a * e - b * d - i) < tol)
-
-
 def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
     """A copy of the 3x3 matrix ``R`` if it is a finite rotation matrix, else :class:`ParameterError` (``what``: the
     task, for the message)."""
@@ -102,12 +90,9 @@ class FramePose(Task):
 
     @target.setter
     def target(self, value) -> None:
-        if type(value) is pin.SE3:  # the common case, cheap
-            p, R = value.translation, value.rotation
-            if math.isfinite(ddot(p, p)) and is_rotation(R):
-                self._p_d[:], self._R_d[:] = p, R
-                self._held = False
-                return
+        if type(value) is pin.SE3 and _compiled.pose_into(value.homogeneous, self._p_d, self._R_d.T):
+            self._held = False  # (the common case: checked and copied in one call)
+            return
         if (M := placement_target(value, self.name)) is None:
             raise ParameterError(f"FramePose {self.name!r}: target {shown(value)} (the start pose) is a "
                                  f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
