@@ -266,3 +266,28 @@ def test_probe_equals_a_field_updated_at_the_record_range():
     far.update(state, 0.0)
     d_obs, d_self = far.field.nearest_within(far.record_field.surveillance)
     assert d_obs == np.inf and (d_self == np.inf or d_self <= 0.05)
+
+
+def test_every_stacked_task_is_one_of_the_policys_tasks(romeo):
+    """The avoidance levels plan() stacks are among tasks() (the policy contract: the controller starts them,
+    ``--explain`` accounts for them; 312f146 left both out)."""
+    from hqp_tpm.app.explain import Explainer
+    from hqp_tpm.control.controller import Controller
+
+    seen = set()
+    for yaw, dz in ((-0.3, 0.09), (0.3, 0.40)):
+        q = romeo.configuration({"LShoulderPitch": 0.8, "LShoulderYaw": yaw, "RShoulderYaw": -0.8})
+        st = State(romeo).update(q, np.zeros(romeo.nv))
+        hand = st.position(romeo.frame_id("l_gripper"))
+        pol, st = _policy(romeo, q, [Obstacle.sphere("ball", hand - [0.0, 0.0, dz], 0.03)])
+        ctrl = Controller(romeo, pol, order=1, solver="tpm", lambda_max=0.05, eps=0.1, q0=q)
+        ex = Explainer(ctrl)
+        assert ex.tasks == [task.name for task in pol.tasks()]
+        res = ctrl.step(record=True)
+        stacked = [task for level in res.stack.levels for task in level]
+        assert set(stacked) <= set(pol.tasks())
+        frac = ex.probe(ctrl, res)["explain_fraction"]
+        for name in ("avoid_obstacle", "avoid_self"):
+            assert np.isnan(frac[ex.tasks.index(name)]) == (name not in res.stack.label())
+            seen.add((name, name in res.stack.label()))
+    assert seen == {("avoid_obstacle", True), ("avoid_obstacle", False), ("avoid_self", True), ("avoid_self", False)}

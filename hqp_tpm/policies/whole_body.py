@@ -229,7 +229,9 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         self._last = {"n_avoid_obstacle": 0.0, "n_avoid_self": 0.0}
 
     def tasks(self) -> list[Task]:
-        return [*self.top, *self.below]
+        """Every task :meth:`plan` may stack, in stack order: the top tasks, the two avoidance levels, the rest (what
+        the controller starts and ``--explain``/``hqp-tpm explain`` account for)."""
+        return [*self.top, self.avoid_obstacle, self.avoid_self, *self.below]
 
     def scene(self) -> SceneItems:
         return SceneItems(self.obstacles, field=self.record_field, targets=moving_targets(self.tasks()))
