@@ -229,3 +229,56 @@ def test_points_only_short_update_equals_the_full_update():
         for x, y in zip(_records(f), _records(full), strict=True):
             np.testing.assert_array_equal(x, y)
         assert f.t == full.t
+
+
+def _romeo_fields(surveillance: float, self_surveillance: float):
+    """Two fields of romeo_obstacles_sns_tpm's collision model, self pairs and obstacles (a sphere and a box), plus
+    a box whose face passes through a control point (coinciding witness points: the fallback normal)."""
+    from hqp_tpm.policies import whole_body as wb
+
+    ctx = build(load("romeo_obstacles_sns_tpm"))
+    robot, policy = ctx[0], ctx[3]
+    data = robot.model.createData()
+    q0 = ctx[1].q.copy()
+    pin.framesForwardKinematics(robot.model, data, q0)
+    p = data.oMf[robot.model.getFrameId("l_gripper")].translation
+    touching = Obstacle.box("touch", p + [0.0, 0.0, 0.05], [0.05, 0.05, 0.05])
+    obstacles = [*policy.obstacles, touching]
+    fields = [DistanceField(robot.model, wb.control_geometries(robot), ["l_gripper", "r_gripper"], obstacles,
+                            surveillance=surveillance, self_pairs=policy.pairs, self_surveillance=self_surveillance)
+              for _ in range(2)]
+    return robot, q0, fields
+
+
+@pytest.mark.parametrize("surveillance", [0.1, 0.5])  # few pairs queried (one at a time) and many (in a batch)
+def test_compiled_update_equals_the_readable_update_with_meshes_and_self_pairs(surveillance, monkeypatch):
+    """Convex meshes, control points, sphere and box obstacles, self pairs: the compiled update (bounding-sphere
+    centres, the coal queries' records, the self pairs' records in compiled calls) writes the records of the
+    readable update bit for bit, at 150 configurations around romeo's (q0 itself: a control point on a box's face)."""
+    robot, q0, (fast, slow) = _romeo_fields(surveillance, surveillance / 2)
+    data = robot.model.createData()
+    rng = np.random.default_rng(4)
+    queried = set()
+    for i in range(150):
+        q = q0.copy()
+        if i:
+            q[7:] += rng.normal(scale=0.4, size=robot.model.nq - 7)
+        pin.framesForwardKinematics(robot.model, data, q)
+        monkeypatch.setattr(_compiled, "ENABLED", True)
+        fast.update(data, None, 0.001 * i)
+        monkeypatch.setattr(_compiled, "ENABLED", False)
+        slow.update(data, None, 0.001 * i)
+        for x, y in zip(_records(fast), _records(slow), strict=True):
+            np.testing.assert_array_equal(x, y)
+        for x, y in zip((fast.self_distance, fast.self_p1, fast.self_p2, fast.self_normal, fast.self_computed,
+                         fast.self_in_range, fast.snapshot()[2]),
+                        (slow.self_distance, slow.self_p1, slow.self_p2, slow.self_normal, slow.self_computed,
+                         slow.self_in_range, slow.snapshot()[2]), strict=True):
+            np.testing.assert_array_equal(x, y)
+        close(fast._elem_center, slow._elem_center)  # (bit for bit where Eigen sums SE3.act as the kernel does)
+        queried.add((int(fast.computed.sum()) >= 8, bool(fast.self_computed.any())))
+        if i == 0:  # the control point on the box's face: witness points coincide, coal's normal (pointing out)
+            e, j = fast.element_index("l_gripper"), fast.obstacle_index("touch")
+            assert fast.distance[e, j] == pytest.approx(0.0, abs=1e-9)
+            np.testing.assert_allclose(fast.normal[e, j], [0.0, 0.0, -1.0], atol=1e-9)
+    assert (True, True) in queried if surveillance > 0.2 else (False, True) in queried

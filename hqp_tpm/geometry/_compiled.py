@@ -166,4 +166,46 @@ def near_pairs(Ca, ia, Cb, ib, ra, rb, surveillance):  # pragma: no cover - comp
     return out[:n]
 
 
+@_njit
+def centres(R, T, c, out):  # pragma: no cover - compiled
+    """``out[i] = R[i] c[i] + T[i]``: the world centres of the elements' bounding spheres from their placements, in
+    the order of ``pin.SE3.act`` on x86-64 (Eigen: rows 0 and 1 as one packet summed in order, row 2 as
+    ``r0 + (r1 + r2)``: equal to the last bit there; elsewhere within an ulp, tests/test_geometry_compiled.py).
+    They serve the broad phase only (lower bounds of distances)."""
+    for i in range(R.shape[0]):
+        for k in range(2):
+            out[i, k] = ((R[i, k, 0] * c[i, 0] + R[i, k, 1] * c[i, 1]) + R[i, k, 2] * c[i, 2]) + T[i, k]
+        out[i, 2] = (R[i, 2, 0] * c[i, 0] + (R[i, 2, 1] * c[i, 1] + R[i, 2, 2] * c[i, 2])) + T[i, 2]
+
+
+@_njit
+def scatter_pairs(D, P1, P2, index, dist, p1, p2, normal, last, computed, tiny, bad):  # pragma: no cover - compiled
+    """The queried pairs ``i`` (distance ``D[i]``, witness points ``P1[i]``, ``P2[i]``) into the records' flat rows
+    ``index[i]``: distance, witness points, ``normal = sign(d) (p1 - p2)/||p1 - p2||`` (the readable path's
+    operations, :meth:`DistanceField._normals`), its copy in ``last``, ``computed``. Rows whose witness points
+    coincide (not ``||p1 - p2|| > tiny``) get no normal: their ``i`` go to ``bad``; returns how many."""
+    nb = 0
+    for i in range(D.shape[0]):
+        r = index[i]
+        d = D[i]
+        u0 = P1[i, 0] - P2[i, 0]
+        u1 = P1[i, 1] - P2[i, 1]
+        u2 = P1[i, 2] - P2[i, 2]
+        nu = math.sqrt((u0 * u0 + u2 * u2) + u1 * u1)  # numpy's einsum order, tested
+        dist[r] = d
+        for k in range(3):
+            p1[r, k] = P1[i, k]
+            p2[r, k] = P2[i, k]
+        computed[r] = True
+        if not nu > tiny:
+            bad[nb] = i
+            nb += 1
+            continue
+        s = (1.0 if d >= 0.0 else -1.0) / nu
+        normal[r, 0] = last[r, 0] = u0 * s
+        normal[r, 1] = last[r, 1] = u1 * s
+        normal[r, 2] = last[r, 2] = u2 * s
+    return nb
+
+
 _jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on
