@@ -291,3 +291,33 @@ def test_every_stacked_task_is_one_of_the_policys_tasks(romeo):
             assert np.isnan(frac[ex.tasks.index(name)]) == (name not in res.stack.label())
             seen.add((name, name in res.stack.label()))
     assert seen == {("avoid_obstacle", True), ("avoid_obstacle", False), ("avoid_self", True), ("avoid_self", False)}
+
+
+def test_pair_rows_seen_from_v_are_the_shifted_levels_active_rows():
+    """PairAvoidance.rows_from (the planned step's rows under a command-rate bound) gives what
+    command_rate.shifted(level, v).as_equality() gives, bit for bit, rows dropped where lower - J v <= 0 included;
+    None (that path then raises the typed error) for a NaN bound or a J the level's checks refuse."""
+    from hqp_tpm.control.command_rate import shifted
+    from hqp_tpm.errors import MagnitudeError, NonFiniteError
+    from hqp_tpm.tasks.avoidance import PairAvoidance
+
+    rng = np.random.default_rng(6)
+    task = PairAvoidance("avoid_obstacle")
+    kept = set()
+    for _ in range(300):
+        m = int(rng.integers(1, 4))
+        J, v = rng.normal(size=(m, 27)), rng.normal(size=27) * 0.1
+        lower = J @ v + rng.normal(size=m) * 0.05  # about half the rows active from v
+        task.assign(J, lower, np.full(m, 0.05))
+        J_a, b_a = shifted(task.level(None, 0.0, 1).check_finite(), v).as_equality()
+        rows = task.rows_from(v)
+        np.testing.assert_array_equal(rows[0], J_a)
+        np.testing.assert_array_equal(rows[1], b_a)
+        kept.add(rows[1].size)
+    assert kept >= {0, 1, 2}
+    for J, lower, error in ((np.ones((1, 27)), [np.nan], NonFiniteError), (np.full((1, 27), np.inf), [0.1], None),
+                            (np.full((1, 27), 1e-160), [0.1], MagnitudeError)):
+        task.assign(J, lower, [0.05])
+        assert task.rows_from(np.zeros(27)) is None
+        with pytest.raises(error or NonFiniteError, match="avoid_obstacle"):
+            shifted(task.level(None, 0.0, 1).check_finite(), np.zeros(27)).as_equality()

@@ -68,7 +68,7 @@ from hqp_tpm.geometry.obstacles import Obstacle, convexified
 from hqp_tpm.geometry.witness import point_jacobian
 from hqp_tpm.policies._planned_step import PlanningPolicy
 from hqp_tpm.robot.state import State
-from hqp_tpm.solvers.levels import Level
+from hqp_tpm.tasks.avoidance import PairAvoidance
 from hqp_tpm.tasks.base import Task
 
 #: Arm parts (upper arm, forearm, wrist, hand) per side, torso/pelvis and legs of romeo21's collision model.
@@ -151,45 +151,6 @@ def repulsive_bound(d, d_activation: float, d_safe: float, xi: float) -> np.ndar
     return xi * (d_activation - np.asarray(d, dtype=float)) / (d_activation - d_safe)
 
 
-class PairAvoidance(Task):
-    """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair), rebuilt by the policy every step."""
-
-    dim = 0
-
-    def __init__(self, name: str):
-        super().__init__(name, None)
-        self.J = np.zeros((0, 0))
-        self.lower = np.zeros(0)
-        self.distance = np.zeros(0)
-
-    def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
-        self.J, self.lower, self.distance = np.atleast_2d(J), np.asarray(lower, float), np.asarray(distance, float)
-        self.dim = self.lower.size
-
-    def value(self, state: State) -> np.ndarray:
-        return self.distance
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return self.J
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        raise NotImplementedError("whole_body avoidance is velocity-level only")
-
-    def start(self, state: State) -> None:
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
-        return np.zeros(self.dim)
-
-    def reference(self, t: float):
-        return np.zeros(self.dim), np.zeros(self.dim), np.zeros(self.dim)
-
-    def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        if order != 1:
-            raise ScenarioError("the whole_body policy works at velocity level only")
-        return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name)
-
-
 class WholeBody(DistancePolicy, PlanningPolicy):
     """Dynamic stack: sole hold > obstacle avoidance > self avoidance > CoM > left foot > hands."""
 
@@ -245,10 +206,11 @@ class WholeBody(DistancePolicy, PlanningPolicy):
             return []
         if self.obstacle_rows == "closest":
             e, j = np.unravel_index(int(np.argmin(D)), D.shape)
-            cand = [(int(e), int(j))]
-        else:
-            cand = [(int(np.argmin(D[:, j])), j) for j in range(D.shape[1])]
-        return [(e, j, float(D[e, j])) for e, j in cand if D[e, j] < self.d_obs[0]]
+            d = float(D[e, j])
+            return [(int(e), int(j), d)] if d < self.d_obs[0] else []
+        closest = D.argmin(axis=0)  # per obstacle, its first nearest element (as np.argmin(D[:, j]) chooses)
+        d = D[closest, np.arange(D.shape[1])].tolist()
+        return [(e, j, d[j]) for j, e in enumerate(closest.tolist()) if d[j] < self.d_obs[0]]
 
     def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict]:
         """This step's tasks, one per level (highest first), no extra command (``__call__`` wraps them in a
