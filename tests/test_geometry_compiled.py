@@ -282,3 +282,50 @@ def test_compiled_update_equals_the_readable_update_with_meshes_and_self_pairs(s
             assert fast.distance[e, j] == pytest.approx(0.0, abs=1e-9)
             np.testing.assert_allclose(fast.normal[e, j], [0.0, 0.0, -1.0], atol=1e-9)
     assert (True, True) in queried if surveillance > 0.2 else (False, True) in queried
+
+
+def test_normal_jacobian_kernel_equals_normal_times_the_point_jacobian(monkeypatch):
+    """The whole-body obstacle rows n^T J_c, compiled (numpy's dot for both products) and readable
+    (``normal @ jacobian``), at 300 random Romeo configurations and witness points (:func:`close`; bit for bit where
+    numba and numpy call the same BLAS kernels)."""
+    robot, q0, (field, _) = _romeo_fields(9.0, 0.05)
+    model, data = robot.model, robot.model.createData()
+    rng = np.random.default_rng(12)
+    for _ in range(300):
+        q = q0.copy()
+        q[7:] += rng.normal(scale=0.4, size=model.nq - 7)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        e, j = int(rng.integers(field.n_elements)), int(rng.integers(field.n_obstacles))
+        field.p_robot[e, j] = rng.uniform(-1, 1, 3)
+        field.normal[e, j] = rng.normal(size=3)
+        monkeypatch.setattr(_compiled, "ENABLED", True)
+        fast = field.normal_jacobian(data, e, j, np.empty(model.nv))
+        monkeypatch.setattr(_compiled, "ENABLED", False)
+        slow = field.normal_jacobian(data, e, j, np.empty(model.nv))
+        close(fast, slow)
+        np.testing.assert_array_equal(slow, field.normal[e, j] @ field.jacobian(data, e, j))
+
+
+def test_closest_per_obstacle_kernel_takes_the_readable_choices(monkeypatch):
+    """WholeBody.obstacle_pairs ("per_obstacle"), compiled and readable: the same (element, obstacle, distance) on
+    random grids with ties, culled (+inf) pairs, pairs out of range and beyond the activation distance."""
+    from hqp_tpm.policies.whole_body import WholeBody
+
+    policy = build(load("romeo_obstacles_sns_tpm"))[3]
+    assert isinstance(policy, WholeBody) and policy.obstacle_rows == "per_obstacle"
+    f = policy.field
+    rng = np.random.default_rng(21)
+    sizes = set()
+    for _ in range(500):
+        D = rng.choice([-0.01, 0.02, 0.05, 0.09, 0.099, 0.1, 0.2, np.inf], size=f.distance.shape)
+        D[rng.random(D.shape) < 0.3] = rng.uniform(-0.02, 0.3)
+        f.distance[...] = D
+        f.in_range[...] = (D <= f.surveillance) & (rng.random(D.shape) < rng.choice([0.03, 0.1, 0.9]))
+        both = []
+        for enabled in (True, False):
+            monkeypatch.setattr(_compiled, "ENABLED", enabled)
+            both.append(policy.obstacle_pairs())
+        assert both[0] == both[1]
+        sizes.add(len(both[0]))
+    assert sizes == {0, 1, 2}

@@ -208,4 +208,44 @@ def scatter_pairs(D, P1, P2, index, dist, p1, p2, normal, last, computed, tiny, 
     return nb
 
 
+@_njit
+def normal_row(Jj, o, p, normal, out):  # pragma: no cover - compiled
+    """``out = n^T J_c``: the rate of a pair's distance per joint velocity, ``J_c`` the Jacobian of the witness point
+    ``p`` fixed to a joint (:func:`~hqp_tpm.geometry.witness.point_jacobian`: ``J_v - [r]x J_w``), with numpy's
+    ``dot`` for both products (the same BLAS calls as ``normal @ point_jacobian(...)``: equal to the last bit where
+    numba and numpy call the same BLAS kernels, tests/test_geometry_compiled.py).
+
+    ``Jj`` the joint's 6 x n world-aligned Jacobian, ``o`` its origin."""
+    r0, r1, r2 = p[0] - o[0], p[1] - o[1], p[2] - o[2]
+    S = np.zeros((3, 3))
+    S[0, 1], S[0, 2], S[1, 0], S[1, 2], S[2, 0], S[2, 1] = -r2, r1, r2, -r0, -r1, r0
+    Jc = np.ascontiguousarray(Jj[:3]) - np.dot(S, np.ascontiguousarray(Jj[3:]))
+    out[:] = np.dot(normal, Jc)
+
+
+@_njit
+def closest_per_column(distance, in_range, below, element, value):  # pragma: no cover - compiled
+    """Per column ``j`` (an obstacle) of the in-range distances (out of range: +inf), its first minimum's row, as
+    ``np.argmin`` chooses it (the first NaN if any); the columns whose minimum is ``< below`` go to ``element``,
+    ``value`` (column ``j`` at ``element[j]``, ``value[j]``; others ``-1``). Returns how many."""
+    M, H = distance.shape
+    n = 0
+    for j in range(H):
+        be, bd = 0, distance[0, j] if in_range[0, j] else math.inf
+        if bd == bd:
+            for r in range(1, M):
+                x = distance[r, j] if in_range[r, j] else math.inf
+                if x != x:
+                    be, bd = r, x
+                    break
+                if x < bd:
+                    be, bd = r, x
+        if bd < below:
+            element[j], value[j] = be, bd
+            n += 1
+        else:
+            element[j], value[j] = -1, math.inf
+    return n
+
+
 _jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on

@@ -640,6 +640,20 @@ class DistanceField:
         """``J_c`` (28) of the robot witness point of pair (element, obstacle); see :func:`point_jacobian`."""
         return point_jacobian(self.model, data, self.joint_ids[element], self.p_robot[element, obstacle])
 
+    def normal_jacobian(self, data: pin.Data, element: int, obstacle: int, out: np.ndarray) -> np.ndarray:
+        """``n^T J_c`` (nv) of pair (element, obstacle) into ``out``: its distance's rate per joint velocity,
+        ``normal @ jacobian(data, element, obstacle)`` (compiled kernels on: one compiled call, the same numbers)."""
+        if not _compiled.ENABLED:
+            np.matmul(self.normal[element, obstacle], self.jacobian(data, element, obstacle), out=out)
+            return out
+        jid = int(self.joint_ids[element])
+        views = self._joint_views.get((id(data), jid))
+        if views is None or views[4] is not data:
+            views = self._views_of_joint(data, jid)
+        _kernels.normal_row(pin.getJointJacobian(self.model, data, jid, _LWA), views[1],
+                            self.p_robot[element, obstacle], self.normal[element, obstacle], out)
+        return out
+
     def jdot_qdot(self, data: pin.Data, element: int, obstacle: int) -> np.ndarray:
         """``J̇_c q̇`` of the robot witness point of pair (element, obstacle); see :func:`point_jdot_qdot`."""
         if _compiled.ENABLED:  # one compiled call, the same operations

@@ -63,10 +63,12 @@ import pinocchio as pin
 
 from hqp_tpm.control.policy import DistancePolicy, SceneItems, moving_targets
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
+from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle, convexified
 from hqp_tpm.geometry.witness import point_jacobian
 from hqp_tpm.policies._planned_step import PlanningPolicy
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.avoidance import PairAvoidance
 from hqp_tpm.tasks.base import Task
@@ -188,6 +190,7 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         self.thresholds = {"d_obstacle": {"activation": d_obstacle_activation, "safe": d_obstacle_safe},
                            "d_self": {"activation": d_self_activation, "safe": d_self_safe}}
         self._last = {"n_avoid_obstacle": 0.0, "n_avoid_self": 0.0}
+        self._closest = (np.zeros(len(self.obstacles), dtype=np.int64), np.zeros(len(self.obstacles)))
 
     def tasks(self) -> list[Task]:
         """Every task :meth:`plan` may stack, in stack order: the top tasks, the two avoidance levels, the rest (what
@@ -201,9 +204,14 @@ class WholeBody(DistancePolicy, PlanningPolicy):
     def obstacle_pairs(self) -> list[tuple[int, int, float]]:
         """(element, obstacle, distance) of the pairs to avoid: per obstacle (or overall) closest, within activation."""
         f = self.field
-        D = np.where(f.in_range, f.distance, np.inf)
-        if D.size == 0:
+        if f.distance.size == 0:
             return []
+        if self.obstacle_rows == "per_obstacle" and _compiled.ENABLED:  # one compiled call, the same choices
+            element, value = self._closest
+            if not _kernels.closest_per_column(f.distance, f.in_range, self.d_obs[0], element, value):
+                return []
+            return [(e, j, d) for j, (e, d) in enumerate(zip(element.tolist(), value.tolist(), strict=True)) if e >= 0]
+        D = np.where(f.in_range, f.distance, np.inf)
         if self.obstacle_rows == "closest":
             e, j = np.unravel_index(int(np.argmin(D)), D.shape)
             d = float(D[e, j])
@@ -219,7 +227,9 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         levels: list[Task] = list(self.top)
         rows = self.obstacle_pairs()
         if rows:
-            J = np.vstack([f.normal[e, j] @ f.jacobian(data, e, j) for e, j, _ in rows])
+            J = np.empty((len(rows), model.nv))
+            for i, (e, j, _) in enumerate(rows):  # n^T J_c per pair
+                f.normal_jacobian(data, e, j, J[i])
             d = np.array([r[2] for r in rows])
             self.avoid_obstacle.assign(J, repulsive_bound(d, *self.d_obs), d)
             levels.append(self.avoid_obstacle)
