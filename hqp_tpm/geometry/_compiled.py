@@ -216,11 +216,30 @@ def normal_row(Jj, o, p, normal, out):  # pragma: no cover - compiled
     numba and numpy call the same BLAS kernels, tests/test_geometry_compiled.py).
 
     ``Jj`` the joint's 6 x n world-aligned Jacobian, ``o`` its origin."""
+    Jc = np.empty((3, Jj.shape[1]))
+    _point_jacobian(Jj, o, p, Jc)
+    out[:] = np.dot(normal, Jc)
+
+
+@_njit
+def self_normal_row(Ja, oa, pa, Jb, ob, pb, normal, out):  # pragma: no cover - compiled
+    """``out = n^T (J_a - J_b)``: the rate of a self pair's distance per joint velocity, ``J_a``, ``J_b`` the
+    Jacobians of its witness points ``pa``, ``pb`` fixed to their joints (Jacobians ``Ja``, ``Jb``, origins ``oa``,
+    ``ob``), in the operations of ``normal @ (point_jacobian(a) - point_jacobian(b))`` (:func:`normal_row`)."""
+    Jc = np.empty((3, Ja.shape[1]))
+    Jd = np.empty((3, Ja.shape[1]))
+    _point_jacobian(Ja, oa, pa, Jc)
+    _point_jacobian(Jb, ob, pb, Jd)
+    out[:] = np.dot(normal, Jc - Jd)
+
+
+@_njit(inline=True)
+def _point_jacobian(Jj, o, p, out):  # pragma: no cover - compiled
+    """``out = J_v - [p - o]x J_w`` (:func:`~hqp_tpm.geometry.witness.point_jacobian`, numpy's ``dot``)."""
     r0, r1, r2 = p[0] - o[0], p[1] - o[1], p[2] - o[2]
     S = np.zeros((3, 3))
     S[0, 1], S[0, 2], S[1, 0], S[1, 2], S[2, 0], S[2, 1] = -r2, r1, r2, -r0, -r1, r0
-    Jc = np.ascontiguousarray(Jj[:3]) - np.dot(S, np.ascontiguousarray(Jj[3:]))
-    out[:] = np.dot(normal, Jc)
+    out[:] = np.ascontiguousarray(Jj[:3]) - np.dot(S, np.ascontiguousarray(Jj[3:]))
 
 
 @_njit

@@ -654,6 +654,26 @@ class DistanceField:
                             self.p_robot[element, obstacle], self.normal[element, obstacle], out)
         return out
 
+    def self_normal_jacobian(self, data: pin.Data, k: int, out: np.ndarray) -> np.ndarray:
+        """``n^T (J_1 - J_2)`` (nv) of self pair ``k`` into ``out``: its distance's rate per joint velocity, ``J_1``,
+        ``J_2`` the Jacobians of its witness points (:func:`point_jacobian`); compiled kernels on: one compiled call,
+        the same numbers."""
+        a, b = self._self_a_list[k], self._self_b_list[k]
+        ja, jb = int(self.joint_ids[a]), int(self.joint_ids[b])
+        if not _compiled.ENABLED:
+            np.matmul(self.self_normal[k], point_jacobian(self.model, data, ja, self.self_p1[k])
+                      - point_jacobian(self.model, data, jb, self.self_p2[k]), out=out)
+            return out
+        va, vb = (self._joint_views.get((id(data), j)) for j in (ja, jb))
+        if va is None or va[4] is not data:
+            va = self._views_of_joint(data, ja)
+        if vb is None or vb[4] is not data:
+            vb = self._views_of_joint(data, jb)
+        _kernels.self_normal_row(pin.getJointJacobian(self.model, data, ja, _LWA), va[1], self.self_p1[k],
+                                 pin.getJointJacobian(self.model, data, jb, _LWA), vb[1], self.self_p2[k],
+                                 self.self_normal[k], out)
+        return out
+
     def jdot_qdot(self, data: pin.Data, element: int, obstacle: int) -> np.ndarray:
         """``J̇_c q̇`` of the robot witness point of pair (element, obstacle); see :func:`point_jdot_qdot`."""
         if _compiled.ENABLED:  # one compiled call, the same operations

@@ -66,7 +66,6 @@ from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle, convexified
-from hqp_tpm.geometry.witness import point_jacobian
 from hqp_tpm.policies._planned_step import PlanningPolicy
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
@@ -236,10 +235,8 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         k, d_s = f.nearest_self()
         has_self = k >= 0 and d_s < self.d_self[0]
         if has_self:
-            a, b = f.self_pairs[k]
-            J = (point_jacobian(model, data, f.joint_ids[a], f.self_p1[k])
-                 - point_jacobian(model, data, f.joint_ids[b], f.self_p2[k]))
-            self.avoid_self.assign(f.self_normal[k] @ J, repulsive_bound([d_s], *self.d_self), [d_s])
+            J = f.self_normal_jacobian(data, k, np.empty(model.nv))
+            self.avoid_self.assign(J, repulsive_bound([d_s], *self.d_self), [d_s])
             levels.append(self.avoid_self)
         levels += self.below
         self._last = {"n_avoid_obstacle": float(len(rows)), "n_avoid_self": float(has_self)}
