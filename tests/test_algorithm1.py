@@ -131,3 +131,24 @@ def test_nearest_from_one_masked_grid_equals_nearest_element(lwr):
                 np.testing.assert_array_equal(a, b)
         seen.add((k >= 0, j_ee >= 0))
     assert seen == {(True, True), (True, False), (False, True), (False, False)}
+
+
+@pytest.mark.parametrize("where", ["lwr_cp_6", "lwr_cp_3"])  # avoidance above the EE task, appended last
+def test_explain_accounts_for_the_avoidance_task(lwr, where):
+    """Every task plan() stacks is one of tasks() (the policy contract), so the ``--explain`` record and ``hqp-tpm
+    explain`` account for the avoidance task: its fraction met, desired and achieved rows (312f146: no ``avoid``)."""
+    from hqp_tpm.app.explain import Explainer
+    from hqp_tpm.control.controller import Controller
+
+    pol, st = make(lwr, [Obstacle.sphere("o", point_near(lwr, where, 0.03 if where == "lwr_cp_6" else 0.10))])
+    ctrl = Controller(lwr, pol, order=2, solver="tpm", lambda_max=0.05, eps=0.1, q0=Q0)
+    ex = Explainer(ctrl)
+    res = ctrl.step(record=True)
+    stacked = [task for level in res.stack.levels for task in level]
+    assert pol.avoid in stacked and set(stacked) <= set(pol.tasks())
+    row = ex.probe(ctrl, res)
+    i = ex.tasks.index("avoid")
+    level = next(lv for lv in res.levels if lv.name == "avoid")
+    np.testing.assert_array_equal(row["explain_desired_avoid"], level.b)
+    np.testing.assert_allclose(row["explain_achieved_avoid"], level.J @ res.command, rtol=0, atol=1e-12)
+    assert 0.0 <= row["explain_fraction"][i] <= 1.0

@@ -229,3 +229,129 @@ def test_points_only_short_update_equals_the_full_update():
         for x, y in zip(_records(f), _records(full), strict=True):
             np.testing.assert_array_equal(x, y)
         assert f.t == full.t
+
+
+def _romeo_fields(surveillance: float, self_surveillance: float):
+    """Two fields of romeo_obstacles_sns_tpm's collision model, self pairs and obstacles (a sphere and a box), plus
+    a box whose face passes through a control point (coinciding witness points: the fallback normal)."""
+    from hqp_tpm.policies import whole_body as wb
+
+    ctx = build(load("romeo_obstacles_sns_tpm"))
+    robot, policy = ctx[0], ctx[3]
+    data = robot.model.createData()
+    q0 = ctx[1].q.copy()
+    pin.framesForwardKinematics(robot.model, data, q0)
+    p = data.oMf[robot.model.getFrameId("l_gripper")].translation
+    touching = Obstacle.box("touch", p + [0.0, 0.0, 0.05], [0.05, 0.05, 0.05])
+    obstacles = [*policy.obstacles, touching]
+    fields = [DistanceField(robot.model, wb.control_geometries(robot), ["l_gripper", "r_gripper"], obstacles,
+                            surveillance=surveillance, self_pairs=policy.pairs, self_surveillance=self_surveillance)
+              for _ in range(2)]
+    return robot, q0, fields
+
+
+@pytest.mark.parametrize("surveillance", [0.1, 0.5])  # few pairs queried (one at a time) and many (in a batch)
+def test_compiled_update_equals_the_readable_update_with_meshes_and_self_pairs(surveillance, monkeypatch):
+    """Convex meshes, control points, sphere and box obstacles, self pairs: the compiled update (bounding-sphere
+    centres, the coal queries' records, the self pairs' records in compiled calls) writes the records of the
+    readable update bit for bit, at 150 configurations around romeo's (q0 itself: a control point on a box's face)."""
+    robot, q0, (fast, slow) = _romeo_fields(surveillance, surveillance / 2)
+    data = robot.model.createData()
+    rng = np.random.default_rng(4)
+    queried = set()
+    for i in range(150):
+        q = q0.copy()
+        if i:
+            q[7:] += rng.normal(scale=0.4, size=robot.model.nq - 7)
+        pin.framesForwardKinematics(robot.model, data, q)
+        monkeypatch.setattr(_compiled, "ENABLED", True)
+        fast.update(data, None, 0.001 * i)
+        monkeypatch.setattr(_compiled, "ENABLED", False)
+        slow.update(data, None, 0.001 * i)
+        for x, y in zip(_records(fast), _records(slow), strict=True):
+            np.testing.assert_array_equal(x, y)
+        for x, y in zip((fast.self_distance, fast.self_p1, fast.self_p2, fast.self_normal, fast.self_computed,
+                         fast.self_in_range, fast.snapshot()[2]),
+                        (slow.self_distance, slow.self_p1, slow.self_p2, slow.self_normal, slow.self_computed,
+                         slow.self_in_range, slow.snapshot()[2]), strict=True):
+            np.testing.assert_array_equal(x, y)
+        close(fast._elem_center, slow._elem_center)  # (bit for bit where Eigen sums SE3.act as the kernel does)
+        queried.add((int(fast.computed.sum()) >= 8, bool(fast.self_computed.any())))
+        if i == 0:  # the control point on the box's face: witness points coincide, coal's normal (pointing out)
+            e, j = fast.element_index("l_gripper"), fast.obstacle_index("touch")
+            assert fast.distance[e, j] == pytest.approx(0.0, abs=1e-9)
+            np.testing.assert_allclose(fast.normal[e, j], [0.0, 0.0, -1.0], atol=1e-9)
+    assert (True, True) in queried if surveillance > 0.2 else (False, True) in queried
+
+
+def test_normal_jacobian_kernel_equals_normal_times_the_point_jacobian(monkeypatch):
+    """The whole-body obstacle rows n^T J_c, compiled (numpy's dot for both products) and readable
+    (``normal @ jacobian``), at 300 random Romeo configurations and witness points (:func:`close`; bit for bit where
+    numba and numpy call the same BLAS kernels)."""
+    robot, q0, (field, _) = _romeo_fields(9.0, 0.05)
+    model, data = robot.model, robot.model.createData()
+    rng = np.random.default_rng(12)
+    for _ in range(300):
+        q = q0.copy()
+        q[7:] += rng.normal(scale=0.4, size=model.nq - 7)
+        pin.computeJointJacobians(model, data, q)
+        pin.updateFramePlacements(model, data)
+        e, j = int(rng.integers(field.n_elements)), int(rng.integers(field.n_obstacles))
+        field.p_robot[e, j] = rng.uniform(-1, 1, 3)
+        field.normal[e, j] = rng.normal(size=3)
+        monkeypatch.setattr(_compiled, "ENABLED", True)
+        fast = field.normal_jacobian(data, e, j, np.empty(model.nv))
+        monkeypatch.setattr(_compiled, "ENABLED", False)
+        slow = field.normal_jacobian(data, e, j, np.empty(model.nv))
+        close(fast, slow)
+        np.testing.assert_array_equal(slow, field.normal[e, j] @ field.jacobian(data, e, j))
+
+
+def test_closest_per_obstacle_kernel_takes_the_readable_choices(monkeypatch):
+    """WholeBody.obstacle_pairs ("per_obstacle"), compiled and readable: the same (element, obstacle, distance) on
+    random grids with ties, culled (+inf) pairs, pairs out of range and beyond the activation distance."""
+    from hqp_tpm.policies.whole_body import WholeBody
+
+    policy = build(load("romeo_obstacles_sns_tpm"))[3]
+    assert isinstance(policy, WholeBody) and policy.obstacle_rows == "per_obstacle"
+    f = policy.field
+    rng = np.random.default_rng(21)
+    sizes = set()
+    for _ in range(500):
+        D = rng.choice([-0.01, 0.02, 0.05, 0.09, 0.099, 0.1, 0.2, np.inf], size=f.distance.shape)
+        D[rng.random(D.shape) < 0.3] = rng.uniform(-0.02, 0.3)
+        f.distance[...] = D
+        f.in_range[...] = (D <= f.surveillance) & (rng.random(D.shape) < rng.choice([0.03, 0.1, 0.9]))
+        both = []
+        for enabled in (True, False):
+            monkeypatch.setattr(_compiled, "ENABLED", enabled)
+            both.append(policy.obstacle_pairs())
+        assert both[0] == both[1]
+        sizes.add(len(both[0]))
+    assert sizes == {0, 1, 2}
+
+
+def test_self_normal_jacobian_kernel_equals_the_readable_self_row(monkeypatch):
+    """The whole-body self row n^T (J_1 - J_2), compiled and readable, at 300 random Romeo configurations and witness
+    points (:func:`close`; bit for bit where numba and numpy call the same BLAS kernels)."""
+    from hqp_tpm.geometry.witness import point_jacobian
+
+    robot, q0, (field, _) = _romeo_fields(0.1, 0.05)
+    model, data = robot.model, robot.model.createData()
+    rng = np.random.default_rng(13)
+    for _ in range(300):
+        q = q0.copy()
+        q[7:] += rng.normal(scale=0.4, size=model.nq - 7)
+        pin.computeJointJacobians(model, data, q)
+        k = int(rng.integers(len(field.self_pairs)))
+        field.self_p1[k], field.self_p2[k] = rng.uniform(-1, 1, (2, 3))
+        field.self_normal[k] = rng.normal(size=3)
+        monkeypatch.setattr(_compiled, "ENABLED", True)
+        fast = field.self_normal_jacobian(data, k, np.empty(model.nv))
+        monkeypatch.setattr(_compiled, "ENABLED", False)
+        slow = field.self_normal_jacobian(data, k, np.empty(model.nv))
+        close(fast, slow)
+        a, b = field.self_pairs[k]
+        np.testing.assert_array_equal(slow, field.self_normal[k] @ (
+            point_jacobian(model, data, field.joint_ids[a], field.self_p1[k])
+            - point_jacobian(model, data, field.joint_ids[b], field.self_p2[k])))

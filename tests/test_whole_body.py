@@ -266,3 +266,58 @@ def test_probe_equals_a_field_updated_at_the_record_range():
     far.update(state, 0.0)
     d_obs, d_self = far.field.nearest_within(far.record_field.surveillance)
     assert d_obs == np.inf and (d_self == np.inf or d_self <= 0.05)
+
+
+def test_every_stacked_task_is_one_of_the_policys_tasks(romeo):
+    """The avoidance levels plan() stacks are among tasks() (the policy contract: the controller starts them,
+    ``--explain`` accounts for them; 312f146 left both out)."""
+    from hqp_tpm.app.explain import Explainer
+    from hqp_tpm.control.controller import Controller
+
+    seen = set()
+    for yaw, dz in ((-0.3, 0.09), (0.3, 0.40)):
+        q = romeo.configuration({"LShoulderPitch": 0.8, "LShoulderYaw": yaw, "RShoulderYaw": -0.8})
+        st = State(romeo).update(q, np.zeros(romeo.nv))
+        hand = st.position(romeo.frame_id("l_gripper"))
+        pol, st = _policy(romeo, q, [Obstacle.sphere("ball", hand - [0.0, 0.0, dz], 0.03)])
+        ctrl = Controller(romeo, pol, order=1, solver="tpm", lambda_max=0.05, eps=0.1, q0=q)
+        ex = Explainer(ctrl)
+        assert ex.tasks == [task.name for task in pol.tasks()]
+        res = ctrl.step(record=True)
+        stacked = [task for level in res.stack.levels for task in level]
+        assert set(stacked) <= set(pol.tasks())
+        frac = ex.probe(ctrl, res)["explain_fraction"]
+        for name in ("avoid_obstacle", "avoid_self"):
+            assert np.isnan(frac[ex.tasks.index(name)]) == (name not in res.stack.label())
+            seen.add((name, name in res.stack.label()))
+    assert seen == {("avoid_obstacle", True), ("avoid_obstacle", False), ("avoid_self", True), ("avoid_self", False)}
+
+
+def test_pair_rows_seen_from_v_are_the_shifted_levels_active_rows():
+    """PairAvoidance.rows_from (the planned step's rows under a command-rate bound) gives what
+    command_rate.shifted(level, v).as_equality() gives, bit for bit, rows dropped where lower - J v <= 0 included;
+    None (that path then raises the typed error) for a NaN bound or a J the level's checks refuse."""
+    from hqp_tpm.control.command_rate import shifted
+    from hqp_tpm.errors import MagnitudeError, NonFiniteError
+    from hqp_tpm.tasks.avoidance import PairAvoidance
+
+    rng = np.random.default_rng(6)
+    task = PairAvoidance("avoid_obstacle")
+    kept = set()
+    for _ in range(300):
+        m = int(rng.integers(1, 4))
+        J, v = rng.normal(size=(m, 27)), rng.normal(size=27) * 0.1
+        lower = J @ v + rng.normal(size=m) * 0.05  # about half the rows active from v
+        task.assign(J, lower, np.full(m, 0.05))
+        J_a, b_a = shifted(task.level(None, 0.0, 1).check_finite(), v).as_equality()
+        rows = task.rows_from(v)
+        np.testing.assert_array_equal(rows[0], J_a)
+        np.testing.assert_array_equal(rows[1], b_a)
+        kept.add(rows[1].size)
+    assert kept >= {0, 1, 2}
+    for J, lower, error in ((np.ones((1, 27)), [np.nan], NonFiniteError), (np.full((1, 27), np.inf), [0.1], None),
+                            (np.full((1, 27), 1e-160), [0.1], MagnitudeError)):
+        task.assign(J, lower, [0.05])
+        assert task.rows_from(np.zeros(27)) is None
+        with pytest.raises(error or NonFiniteError, match="avoid_obstacle"):
+            shifted(task.level(None, 0.0, 1).check_finite(), np.zeros(27)).as_equality()

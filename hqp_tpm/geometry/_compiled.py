@@ -166,4 +166,105 @@ def near_pairs(Ca, ia, Cb, ib, ra, rb, surveillance):  # pragma: no cover - comp
     return out[:n]
 
 
+@_njit
+def centres(R, T, c, out):  # pragma: no cover - compiled
+    """``out[i] = R[i] c[i] + T[i]``: the world centres of the elements' bounding spheres from their placements, in
+    the order of ``pin.SE3.act`` on x86-64 (Eigen: rows 0 and 1 as one packet summed in order, row 2 as
+    ``r0 + (r1 + r2)``: equal to the last bit there; elsewhere within an ulp, tests/test_geometry_compiled.py).
+    They serve the broad phase only (lower bounds of distances)."""
+    for i in range(R.shape[0]):
+        for k in range(2):
+            out[i, k] = ((R[i, k, 0] * c[i, 0] + R[i, k, 1] * c[i, 1]) + R[i, k, 2] * c[i, 2]) + T[i, k]
+        out[i, 2] = (R[i, 2, 0] * c[i, 0] + (R[i, 2, 1] * c[i, 1] + R[i, 2, 2] * c[i, 2])) + T[i, 2]
+
+
+@_njit
+def scatter_pairs(D, P1, P2, index, dist, p1, p2, normal, last, computed, tiny, bad):  # pragma: no cover - compiled
+    """The queried pairs ``i`` (distance ``D[i]``, witness points ``P1[i]``, ``P2[i]``) into the records' flat rows
+    ``index[i]``: distance, witness points, ``normal = sign(d) (p1 - p2)/||p1 - p2||`` (the readable path's
+    operations, :meth:`DistanceField._normals`), its copy in ``last``, ``computed``. Rows whose witness points
+    coincide (not ``||p1 - p2|| > tiny``) get no normal: their ``i`` go to ``bad``; returns how many."""
+    nb = 0
+    for i in range(D.shape[0]):
+        r = index[i]
+        d = D[i]
+        u0 = P1[i, 0] - P2[i, 0]
+        u1 = P1[i, 1] - P2[i, 1]
+        u2 = P1[i, 2] - P2[i, 2]
+        nu = math.sqrt((u0 * u0 + u2 * u2) + u1 * u1)  # numpy's einsum order, tested
+        dist[r] = d
+        for k in range(3):
+            p1[r, k] = P1[i, k]
+            p2[r, k] = P2[i, k]
+        computed[r] = True
+        if not nu > tiny:
+            bad[nb] = i
+            nb += 1
+            continue
+        s = (1.0 if d >= 0.0 else -1.0) / nu
+        normal[r, 0] = last[r, 0] = u0 * s
+        normal[r, 1] = last[r, 1] = u1 * s
+        normal[r, 2] = last[r, 2] = u2 * s
+    return nb
+
+
+@_njit
+def normal_row(Jj, o, p, normal, out):  # pragma: no cover - compiled
+    """``out = n^T J_c``: the rate of a pair's distance per joint velocity, ``J_c`` the Jacobian of the witness point
+    ``p`` fixed to a joint (:func:`~hqp_tpm.geometry.witness.point_jacobian`: ``J_v - [r]x J_w``), with numpy's
+    ``dot`` for both products (the same BLAS calls as ``normal @ point_jacobian(...)``: equal to the last bit where
+    numba and numpy call the same BLAS kernels, tests/test_geometry_compiled.py).
+
+    ``Jj`` the joint's 6 x n world-aligned Jacobian, ``o`` its origin."""
+    Jc = np.empty((3, Jj.shape[1]))
+    _point_jacobian(Jj, o, p, Jc)
+    out[:] = np.dot(normal, Jc)
+
+
+@_njit
+def self_normal_row(Ja, oa, pa, Jb, ob, pb, normal, out):  # pragma: no cover - compiled
+    """``out = n^T (J_a - J_b)``: the rate of a self pair's distance per joint velocity, ``J_a``, ``J_b`` the
+    Jacobians of its witness points ``pa``, ``pb`` fixed to their joints (Jacobians ``Ja``, ``Jb``, origins ``oa``,
+    ``ob``), in the operations of ``normal @ (point_jacobian(a) - point_jacobian(b))`` (:func:`normal_row`)."""
+    Jc = np.empty((3, Ja.shape[1]))
+    Jd = np.empty((3, Ja.shape[1]))
+    _point_jacobian(Ja, oa, pa, Jc)
+    _point_jacobian(Jb, ob, pb, Jd)
+    out[:] = np.dot(normal, Jc - Jd)
+
+
+@_njit(inline=True)
+def _point_jacobian(Jj, o, p, out):  # pragma: no cover - compiled
+    """``out = J_v - [p - o]x J_w`` (:func:`~hqp_tpm.geometry.witness.point_jacobian`, numpy's ``dot``)."""
+    r0, r1, r2 = p[0] - o[0], p[1] - o[1], p[2] - o[2]
+    S = np.zeros((3, 3))
+    S[0, 1], S[0, 2], S[1, 0], S[1, 2], S[2, 0], S[2, 1] = -r2, r1, r2, -r0, -r1, r0
+    out[:] = np.ascontiguousarray(Jj[:3]) - np.dot(S, np.ascontiguousarray(Jj[3:]))
+
+
+@_njit
+def closest_per_column(distance, in_range, below, element, value):  # pragma: no cover - compiled
+    """Per column ``j`` (an obstacle) of the in-range distances (out of range: +inf), its first minimum's row, as
+    ``np.argmin`` chooses it (the first NaN if any); the columns whose minimum is ``< below`` go to ``element``,
+    ``value`` (column ``j`` at ``element[j]``, ``value[j]``; others ``-1``). Returns how many."""
+    M, H = distance.shape
+    n = 0
+    for j in range(H):
+        be, bd = 0, distance[0, j] if in_range[0, j] else math.inf
+        if bd == bd:
+            for r in range(1, M):
+                x = distance[r, j] if in_range[r, j] else math.inf
+                if x != x:
+                    be, bd = r, x
+                    break
+                if x < bd:
+                    be, bd = r, x
+        if bd < below:
+            element[j], value[j] = be, bd
+            n += 1
+        else:
+            element[j], value[j] = -1, math.inf
+    return n
+
+
 _jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on

@@ -163,6 +163,13 @@ class DistanceField:
         self._coal_buffers = (np.zeros(len(part.coal_e)), np.zeros((len(part.coal_e), 3)),
                               np.zeros((len(part.coal_e), 3)))
         self._coal_fun = part.coal_fun
+        # the compiled update's arguments: each coal pair's flat row in the records (e * H + j), views of the records
+        # as flat rows (C-contiguous arrays: reshape gives views), the rows whose witness points coincide
+        self._coal_flat = (np.asarray(part.coal_e, dtype=np.int64) * H + np.asarray(part.coal_o, dtype=np.int64))
+        self._coal_points = bool(npts) and bool((part.coal_e >= ng).any())
+        self._flat = (self.distance.reshape(-1), self.p_robot.reshape(-1, 3), self.p_obstacle.reshape(-1, 3),
+                      self.normal.reshape(-1, 3), self._last_normal.reshape(-1, 3), self.computed.reshape(-1))
+        self._bad = np.zeros(max(len(part.coal_e), 1), dtype=np.int64)
 
         # ---- self pairs
         pairs = self_pair_indices(elements.geometry_names, self_pairs)
@@ -170,6 +177,9 @@ class DistanceField:
         self.self_pairs = np.array(pairs, dtype=int).reshape(S, 2)
         self._self_fun = [coal.ComputeDistance(self._shapes[a], self._shapes[b]) for a, b in pairs]
         self._self_a_list, self._self_b_list = [a for a, _ in pairs], [b for _, b in pairs]
+        self._self_a = np.array(self._self_a_list, dtype=np.int64)
+        self._self_b = np.array(self._self_b_list, dtype=np.int64)
+        self._self_bad = np.zeros(max(S, 1), dtype=np.int64)
         self._self_buffers = (np.zeros(S), np.zeros((S, 3)), np.zeros((S, 3)))
         self.self_record = SelfPairRecord(S)
         r = self.self_record
@@ -183,6 +193,9 @@ class DistanceField:
         self._point_M = [pin.SE3.Identity() for _ in range(npts)]
         self._elem_M: list[pin.SE3 | None] = [None] * ng + list(self._point_M)
         self._refs_key = None
+        self._geom_views = None  # views of the geometry placements pinocchio updates in place: rotations, origins
+        self._local_centres = np.array([np.zeros(3) if c is None else c for c in self._elem_local_center],
+                                       dtype=float).reshape(ng, 3)
         self._nearest_last = [-1, -1]  # nearest_within's last nearest obstacle and self pair
         self._rsums = None  # nearest_within's sums of the bounding radii of the obstacle and of the self pairs
         self._joint_views: dict = {}  # (id(data), joint) -> views of its placement, velocity, acceleration
@@ -245,6 +258,10 @@ class DistanceField:
             self._frame_views = views if all(np.shares_memory(x, y) for x, y in zip(views, again, strict=True)) \
                 else None
             self._elem_M[: self.n_geometries] = self._geom_refs
+            rot, org = [M.rotation for M in self._geom_refs], [M.translation for M in self._geom_refs]
+            again = [M.rotation for M in self._geom_refs] + [M.translation for M in self._geom_refs]
+            shared = all(np.shares_memory(x, y) for x, y in zip(rot + org, again, strict=True))
+            self._geom_views = (rot, org) if shared else None
             self._refs_key = key
             self._refs_objects = (data, geom_data)  # keep the owners alive while we hold references
 
@@ -269,9 +286,12 @@ class DistanceField:
         self.t = t = float(t)
         ng = self.n_geometries
         C = self._elem_center
-        for i, Mg in enumerate(self._geom_refs):
-            c = self._elem_local_center[i]
-            C[i] = Mg.translation if c is None else Mg.act(c)
+        if self._geom_views is not None and _compiled.ENABLED and ng:  # one compiled call, SE3.act's operations
+            _kernels.centres(np.array(self._geom_views[0]), np.array(self._geom_views[1]), self._local_centres, C)
+        else:
+            for i, Mg in enumerate(self._geom_refs):
+                c = self._elem_local_center[i]
+                C[i] = Mg.translation if c is None else Mg.act(c)
         if self._frame_refs:
             views = self._frame_views
             C[ng:] = [Mf.translation for Mf in self._frame_refs] if views is None else views
@@ -352,6 +372,15 @@ class DistanceField:
         self.p_obstacle[grid] = co[None, :, :] if self._sph_ro_zero else co[None] + self._sph_ro[None, :, None] * n
         self.computed[grid] = True
 
+    def _self_fallback_normal(self, k: int, coal_normal) -> np.ndarray:
+        """Normal of self pair ``k`` when its witness points coincide: coal's (from the second body to the first),
+        else the pair's last normal, else world +z."""
+        n = None if coal_normal is None else -np.asarray(coal_normal, dtype=float)
+        if n is None or not (np.all(np.isfinite(n)) and abs(n @ n - 1.0) < 1e-6):
+            last = self._self_last_normal[k]
+            n = last.copy() if last @ last > 0.5 else _EZ.copy()
+        return n
+
     def _fallback_normal(self, e: int, j: int, p_robot, coal_normal) -> np.ndarray:
         """Normal when the witness points coincide (see the module docstring)."""
         if coal_normal is not None:
@@ -399,12 +428,13 @@ class DistanceField:
 
     def _update_coal(self):
         ce, co = self._coal_e, self._coal_o
-        if self.broad_phase and _compiled.ENABLED:  # one compiled call, the same operations
+        if self.broad_phase and _compiled.ENABLED:  # the broad phase and the records in compiled calls, the same
             todo = _kernels.near_pairs(self._elem_center, ce, self._obs_center, co, self._elem_radius,
                                        self._obs_radius, self.surveillance)
-            if todo.size == 0:
-                return
-        elif self.broad_phase:
+            if todo.size:
+                self._scatter_coal(todo)
+            return
+        if self.broad_phase:
             todo = near_pairs(self._elem_center[ce], self._obs_center[co], self._elem_radius[ce],
                                self._obs_radius[co], self.surveillance)
             if todo.size == 0:
@@ -433,6 +463,28 @@ class DistanceField:
         self.normal[E, J] = N
         self._last_normal[E, J] = N
         self.computed[E, J] = True
+
+    def _scatter_coal(self, todo: np.ndarray) -> None:
+        """:meth:`_update_coal`'s queries ``todo`` written into the records by one compiled call
+        (:func:`~hqp_tpm.geometry._compiled.scatter_pairs`: the operations of the numpy paths)."""
+        ng = self.n_geometries
+        if self._coal_points:
+            for k in todo.tolist():
+                e = self._coal_e_list[k]
+                if e >= ng:
+                    self._point_M[e - ng].translation = self._elem_center[e]
+        D, P1, P2, touching = self._query(self._coal_fun, self._coal_e_list, self._coal_o_list, self._elem_M,
+                                          self.obstacle_placements, todo, self._coal_buffers)
+        if self._coal_points:
+            E = self._coal_e[todo]
+            points = E >= ng
+            P1[points] = self._elem_center[E[points]]  # a control point's witness is the point itself
+        f = self._flat
+        nb = _kernels.scatter_pairs(D, P1, P2, self._coal_flat[todo], f[0], f[1], f[2], f[3], f[4], f[5], _TINY,
+                                    self._bad)
+        for i in self._bad[:nb].tolist():
+            e, j = self._coal_e_list[todo[i]], self._coal_o_list[todo[i]]
+            self.normal[e, j] = self._last_normal[e, j] = self._fallback_normal(e, j, P1[i], touching.get(i))
 
     def _update_coal_pairwise(self, todo):
         """Same as the batched path of :meth:`_update_coal`, one pair at a time (cheaper for few pairs)."""
@@ -467,10 +519,21 @@ class DistanceField:
     def _update_self(self):
         self.self_record.clear()
         a, b = self.self_pairs[:, 0], self.self_pairs[:, 1]
-        if self.broad_phase and _compiled.ENABLED:  # one compiled call, the same operations
-            todo = _kernels.near_pairs(self._elem_center, a, self._elem_center, b, self._elem_radius,
-                                       self._elem_radius, self.self_surveillance)
-        elif self.broad_phase:
+        if self.broad_phase and _compiled.ENABLED:  # the broad phase and the records in compiled calls, the same
+            todo = _kernels.near_pairs(self._elem_center, self._self_a, self._elem_center, self._self_b,
+                                       self._elem_radius, self._elem_radius, self.self_surveillance)
+            if todo.size:
+                D, P1, P2, touching = self._query(self._self_fun, self._self_a_list, self._self_b_list, self._elem_M,
+                                                  self._elem_M, todo, self._self_buffers)
+                nb = _kernels.scatter_pairs(D, P1, P2, todo, self.self_distance, self.self_p1, self.self_p2,
+                                            self.self_normal, self._self_last_normal, self.self_computed, _TINY,
+                                            self._self_bad)
+                for i in self._self_bad[:nb].tolist():
+                    k = int(todo[i])
+                    self.self_normal[k] = self._self_last_normal[k] = self._self_fallback_normal(k, touching.get(i))
+            np.less_equal(self.self_distance, self.self_surveillance, out=self.self_in_range)
+            return
+        if self.broad_phase:
             todo = near_pairs(self._elem_center[a], self._elem_center[b], self._elem_radius[a],
                                self._elem_radius[b], self.self_surveillance)
         else:
@@ -480,12 +543,7 @@ class DistanceField:
                                               self._elem_M, todo, self._self_buffers)
             N, bad = self._normals(D, P1, P2)
             for i in bad:
-                n = touching.get(i)
-                n = None if n is None else -np.asarray(n, dtype=float)
-                if n is None or not (np.all(np.isfinite(n)) and abs(n @ n - 1.0) < 1e-6):
-                    last = self._self_last_normal[todo[i]]
-                    n = last.copy() if last @ last > 0.5 else _EZ.copy()
-                N[i] = n
+                N[i] = self._self_fallback_normal(int(todo[i]), touching.get(i))
             self.self_distance[todo] = D
             self.self_p1[todo] = P1
             self.self_p2[todo] = P2
@@ -581,6 +639,40 @@ class DistanceField:
     def jacobian(self, data: pin.Data, element: int, obstacle: int) -> np.ndarray:
         """``J_c`` (28) of the robot witness point of pair (element, obstacle); see :func:`point_jacobian`."""
         return point_jacobian(self.model, data, self.joint_ids[element], self.p_robot[element, obstacle])
+
+    def normal_jacobian(self, data: pin.Data, element: int, obstacle: int, out: np.ndarray) -> np.ndarray:
+        """``n^T J_c`` (nv) of pair (element, obstacle) into ``out``: its distance's rate per joint velocity,
+        ``normal @ jacobian(data, element, obstacle)`` (compiled kernels on: one compiled call, the same numbers)."""
+        if not _compiled.ENABLED:
+            np.matmul(self.normal[element, obstacle], self.jacobian(data, element, obstacle), out=out)
+            return out
+        jid = int(self.joint_ids[element])
+        views = self._joint_views.get((id(data), jid))
+        if views is None or views[4] is not data:
+            views = self._views_of_joint(data, jid)
+        _kernels.normal_row(pin.getJointJacobian(self.model, data, jid, _LWA), views[1],
+                            self.p_robot[element, obstacle], self.normal[element, obstacle], out)
+        return out
+
+    def self_normal_jacobian(self, data: pin.Data, k: int, out: np.ndarray) -> np.ndarray:
+        """``n^T (J_1 - J_2)`` (nv) of self pair ``k`` into ``out``: its distance's rate per joint velocity, ``J_1``,
+        ``J_2`` the Jacobians of its witness points (:func:`point_jacobian`); compiled kernels on: one compiled call,
+        the same numbers."""
+        a, b = self._self_a_list[k], self._self_b_list[k]
+        ja, jb = int(self.joint_ids[a]), int(self.joint_ids[b])
+        if not _compiled.ENABLED:
+            np.matmul(self.self_normal[k], point_jacobian(self.model, data, ja, self.self_p1[k])
+                      - point_jacobian(self.model, data, jb, self.self_p2[k]), out=out)
+            return out
+        va, vb = (self._joint_views.get((id(data), j)) for j in (ja, jb))
+        if va is None or va[4] is not data:
+            va = self._views_of_joint(data, ja)
+        if vb is None or vb[4] is not data:
+            vb = self._views_of_joint(data, jb)
+        _kernels.self_normal_row(pin.getJointJacobian(self.model, data, ja, _LWA), va[1], self.self_p1[k],
+                                 pin.getJointJacobian(self.model, data, jb, _LWA), vb[1], self.self_p2[k],
+                                 self.self_normal[k], out)
+        return out
 
     def jdot_qdot(self, data: pin.Data, element: int, obstacle: int) -> np.ndarray:
         """``J̇_c q̇`` of the robot witness point of pair (element, obstacle); see :func:`point_jdot_qdot`."""

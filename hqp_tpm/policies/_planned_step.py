@@ -58,7 +58,7 @@ from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
 from hqp_tpm.solvers.registry import solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
-from hqp_tpm.tasks.avoidance import Avoidance
+from hqp_tpm.tasks.avoidance import Avoidance, PairAvoidance
 from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.pointing import Pointing
 
@@ -205,7 +205,8 @@ class PlannedStep(CompiledStep):
                     if lv.b is not None:
                         Jt, bt = lv.J, lv.b
                     elif self.rate:  # its active rows seen from v (command_rate.shifted), written shifted
-                        Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
+                        rows = task.rows_from(st.v) if kind is PairAvoidance else None  # (the same, fewer calls)
+                        Jt, bt = rows or shifted(lv.check_finite(), st.v).as_equality()
                     else:
                         Jt, bt = lv.check_finite().as_equality()
                 m = Jt.shape[0]

@@ -88,7 +88,9 @@ class Algorithm1(DistancePolicy, PlanningPolicy):
 
     # hooks ---------------------------------------------------------------------------------
     def tasks(self) -> list[Task]:
-        return [t for t in (self.ee_task, self.pointing) if t is not None]
+        """The EE task, the pointing task (if any) and the avoidance task: every task :meth:`plan` may stack (what
+        the controller starts and ``--explain``/``hqp-tpm explain`` account for)."""
+        return [t for t in (self.ee_task, self.pointing, self.avoid) if t is not None]
 
     def scene(self) -> SceneItems:
         return SceneItems(self.obstacles, self.control_points, self.ee_frame, self.ee_task, self.pointing, self.field)

@@ -63,12 +63,13 @@ import pinocchio as pin
 
 from hqp_tpm.control.policy import DistancePolicy, SceneItems, moving_targets
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
+from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle, convexified
-from hqp_tpm.geometry.witness import point_jacobian
 from hqp_tpm.policies._planned_step import PlanningPolicy
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
-from hqp_tpm.solvers.levels import Level
+from hqp_tpm.tasks.avoidance import PairAvoidance
 from hqp_tpm.tasks.base import Task
 
 #: Arm parts (upper arm, forearm, wrist, hand) per side, torso/pelvis and legs of romeo21's collision model.
@@ -151,45 +152,6 @@ def repulsive_bound(d, d_activation: float, d_safe: float, xi: float) -> np.ndar
     return xi * (d_activation - np.asarray(d, dtype=float)) / (d_activation - d_safe)
 
 
-class PairAvoidance(Task):
-    """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair), rebuilt by the policy every step."""
-
-    dim = 0
-
-    def __init__(self, name: str):
-        super().__init__(name, None)
-        self.J = np.zeros((0, 0))
-        self.lower = np.zeros(0)
-        self.distance = np.zeros(0)
-
-    def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
-        self.J, self.lower, self.distance = np.atleast_2d(J), np.asarray(lower, float), np.asarray(distance, float)
-        self.dim = self.lower.size
-
-    def value(self, state: State) -> np.ndarray:
-        return self.distance
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return self.J
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        raise NotImplementedError("whole_body avoidance is velocity-level only")
-
-    def start(self, state: State) -> None:
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
-        return np.zeros(self.dim)
-
-    def reference(self, t: float):
-        return np.zeros(self.dim), np.zeros(self.dim), np.zeros(self.dim)
-
-    def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        if order != 1:
-            raise ScenarioError("the whole_body policy works at velocity level only")
-        return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name)
-
-
 class WholeBody(DistancePolicy, PlanningPolicy):
     """Dynamic stack: sole hold > obstacle avoidance > self avoidance > CoM > left foot > hands."""
 
@@ -227,9 +189,12 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         self.thresholds = {"d_obstacle": {"activation": d_obstacle_activation, "safe": d_obstacle_safe},
                            "d_self": {"activation": d_self_activation, "safe": d_self_safe}}
         self._last = {"n_avoid_obstacle": 0.0, "n_avoid_self": 0.0}
+        self._closest = (np.zeros(len(self.obstacles), dtype=np.int64), np.zeros(len(self.obstacles)))
 
     def tasks(self) -> list[Task]:
-        return [*self.top, *self.below]
+        """Every task :meth:`plan` may stack, in stack order: the top tasks, the two avoidance levels, the rest (what
+        the controller starts and ``--explain``/``hqp-tpm explain`` account for)."""
+        return [*self.top, self.avoid_obstacle, self.avoid_self, *self.below]
 
     def scene(self) -> SceneItems:
         return SceneItems(self.obstacles, field=self.record_field, targets=moving_targets(self.tasks()))
@@ -238,15 +203,21 @@ class WholeBody(DistancePolicy, PlanningPolicy):
     def obstacle_pairs(self) -> list[tuple[int, int, float]]:
         """(element, obstacle, distance) of the pairs to avoid: per obstacle (or overall) closest, within activation."""
         f = self.field
-        D = np.where(f.in_range, f.distance, np.inf)
-        if D.size == 0:
+        if f.distance.size == 0:
             return []
+        if self.obstacle_rows == "per_obstacle" and _compiled.ENABLED:  # one compiled call, the same choices
+            element, value = self._closest
+            if not _kernels.closest_per_column(f.distance, f.in_range, self.d_obs[0], element, value):
+                return []
+            return [(e, j, d) for j, (e, d) in enumerate(zip(element.tolist(), value.tolist(), strict=True)) if e >= 0]
+        D = np.where(f.in_range, f.distance, np.inf)
         if self.obstacle_rows == "closest":
             e, j = np.unravel_index(int(np.argmin(D)), D.shape)
-            cand = [(int(e), int(j))]
-        else:
-            cand = [(int(np.argmin(D[:, j])), j) for j in range(D.shape[1])]
-        return [(e, j, float(D[e, j])) for e, j in cand if D[e, j] < self.d_obs[0]]
+            d = float(D[e, j])
+            return [(int(e), int(j), d)] if d < self.d_obs[0] else []
+        closest = D.argmin(axis=0)  # per obstacle, its first nearest element (as np.argmin(D[:, j]) chooses)
+        d = D[closest, np.arange(D.shape[1])].tolist()
+        return [(e, j, d[j]) for j, e in enumerate(closest.tolist()) if d[j] < self.d_obs[0]]
 
     def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict]:
         """This step's tasks, one per level (highest first), no extra command (``__call__`` wraps them in a
@@ -255,17 +226,17 @@ class WholeBody(DistancePolicy, PlanningPolicy):
         levels: list[Task] = list(self.top)
         rows = self.obstacle_pairs()
         if rows:
-            J = np.vstack([f.normal[e, j] @ f.jacobian(data, e, j) for e, j, _ in rows])
+            J = np.empty((len(rows), model.nv))
+            for i, (e, j, _) in enumerate(rows):  # n^T J_c per pair
+                f.normal_jacobian(data, e, j, J[i])
             d = np.array([r[2] for r in rows])
             self.avoid_obstacle.assign(J, repulsive_bound(d, *self.d_obs), d)
             levels.append(self.avoid_obstacle)
         k, d_s = f.nearest_self()
         has_self = k >= 0 and d_s < self.d_self[0]
         if has_self:
-            a, b = f.self_pairs[k]
-            J = (point_jacobian(model, data, f.joint_ids[a], f.self_p1[k])
-                 - point_jacobian(model, data, f.joint_ids[b], f.self_p2[k]))
-            self.avoid_self.assign(f.self_normal[k] @ J, repulsive_bound([d_s], *self.d_self), [d_s])
+            J = f.self_normal_jacobian(data, k, np.empty(model.nv))
+            self.avoid_self.assign(J, repulsive_bound([d_s], *self.d_self), [d_s])
             levels.append(self.avoid_self)
         levels += self.below
         self._last = {"n_avoid_obstacle": float(len(rows)), "n_avoid_self": float(has_self)}

@@ -1,4 +1,4 @@
-"""Collision avoidance tasks of papers/000: 1-D relaxed (29) and 3-D (28).
+"""Collision avoidance tasks: papers/000's 1-D relaxed (29) and 3-D (28), and the whole-body pairs' one-sided rows.
 
 The avoided pair (robot point, obstacle) changes from step to step, so the policy that owns
 the distance field calls :meth:`Avoidance.assign` each step with the witness point's
@@ -7,16 +7,21 @@ Jacobian ``J_c``, its ``Jdot_c qd``, the repulsion direction ``n`` and magnitude
 * 1-D (29): ``J_n = n^T J_c``, command ``r - n^T Jdot_c qd`` (acceleration level) or ``r``
   (velocity level): push the point towards any point of a plane orthogonal to ``n``.
 * 3-D (28): ``J_c``, command ``r n - Jdot_c qd`` (or ``r n``).
+
+:class:`PairAvoidance` is the whole-body policy's (:mod:`hqp_tpm.policies.whole_body`): one row
+``n_k^T J_k qd >= lower_k`` per avoided pair, a one-sided inequality level, assigned every step.
 """
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-from hqp_tpm.errors import ParameterError, StateError
+from hqp_tpm.errors import ParameterError, ScenarioError, StateError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
-from hqp_tpm.solvers.levels import Level
+from hqp_tpm.solvers.levels import MAX_SUMSQ, MIN_SUMSQ, Level, sumsq
 from hqp_tpm.tasks import _compiled_rows
 from hqp_tpm.tasks.base import Task
 
@@ -102,3 +107,54 @@ class Avoidance(Task):
             J[...] = self.jacobian(state)
             b[...] = self.command(state, t, order)
         return write
+
+
+class PairAvoidance(Task):
+    """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair), rebuilt by the policy every step."""
+
+    dim = 0
+
+    def __init__(self, name: str):
+        super().__init__(name, None)
+        self.J = np.zeros((0, 0))
+        self.lower = np.zeros(0)
+        self.distance = np.zeros(0)
+
+    def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
+        self.J, self.lower, self.distance = np.atleast_2d(J), np.asarray(lower, float), np.asarray(distance, float)
+        self.dim = self.lower.size
+
+    def value(self, state: State) -> np.ndarray:
+        return self.distance
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return self.J
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        raise NotImplementedError("whole_body avoidance is velocity-level only")
+
+    def start(self, state: State) -> None:
+        return None
+
+    def error(self, state: State, x_d) -> np.ndarray:
+        return np.zeros(self.dim)
+
+    def reference(self, t: float):
+        return np.zeros(self.dim), np.zeros(self.dim), np.zeros(self.dim)
+
+    def level(self, state: State, t: float, order: int, extra=None) -> Level:
+        if order != 1:
+            raise ScenarioError("the whole_body policy works at velocity level only")
+        return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name, defer_finite=True)
+
+    def rows_from(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(J_a, lower_a - J_a v)``: the rows of :meth:`level` seen from ``v`` that the analytic solvers keep (those
+        with ``lower - J v > 0``), what ``command_rate.shifted(level, v).as_equality()`` gives, the same numbers in
+        fewer calls; None when ``J`` or ``lower`` would fail the level's checks (then that path raises the typed
+        error naming the level)."""
+        J = self.J
+        if not MIN_SUMSQ <= sumsq(J) <= MAX_SUMSQ or math.isnan(sumsq(self.lower)):
+            return None
+        lower = self.lower - J @ v
+        keep = lower > 0.0
+        return J[keep], lower[keep]
