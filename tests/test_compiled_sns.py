@@ -463,15 +463,15 @@ def test_downdated_factorization_equals_the_free_columns():
     assert status == _compiled.SOLVED and (m1, mk) == (17, 21)
     CT, Rt = BT.copy(), np.zeros((n, m1))
     Rt[:m1] = R1
-    cs, sn, w = np.zeros((n, n)), np.zeros((n, n)), np.empty(n)
+    QT, w = _compiled_sns._basis(V, tau, m1, n), np.empty(n)
+    Q0 = np.eye(n)                                              # rows e_i -> Q e_i: Q = Q0^T
+    _compiled._apply_q_rows(Q0, V, tau, m1)
+    assert np.abs(QT - Q0).max() < 1e-14                        # the explicit basis is the reflectors' Q
     free = np.ones(n, dtype=bool)
     crossings = set()
     for s, j in enumerate(rng.permutation(n)[:16]):
         free[j] = False
-        _compiled_sns._q_row(j, V, tau, m1, cs, sn, s, w)
-        _compiled_sns._downdate(w, CT, Rt, s, m1, cs, sn)
-        QT = np.eye(n)                                          # rows e_i -> Q~ e_i: Q~ = QT^T
-        _compiled_sns._q_times_rows(QT, V, tau, m1, cs, sn, s + 1)
+        _compiled_sns._downdate(j, QT, CT, Rt, s, m1, w)
         Q = QT.T
         Qf = Q[free][:, s + 1:]
         R1s = Rt[s + 1:s + 1 + m1]
