@@ -109,11 +109,12 @@ def _gather_free(J, free, out):
 
 
 @_kernel
-def _saturated_rows(J, order, nsat, xN, c):
-    """``c <- J xN`` over the saturated joints ``order[:nsat]`` (in saturation order)."""
+def _saturated_rows(J, order, t0, nsat, xN, c):
+    """``c <- c + J xN`` over the joints ``order[t0:nsat]`` saturated since ``c`` was last updated (``c = J xN`` over
+    the saturated joints in saturation order, kept from one saturation to the next: the same sums, term by term)."""
     for i in range(J.shape[0]):
-        s = 0.0
-        for t in range(nsat):
+        s = c[i]
+        for t in range(t0, nsat):
             s += J[i, order[t]] * xN[order[t]]
         c[i] = s
 
@@ -208,7 +209,9 @@ def _downdate(j, QT, CT, Rt, s, p, w):
         w1 = w[i + 1]
         if w1 == 0.0:
             continue
-        h = math.hypot(w0, w1)
+        h = math.sqrt(w0 * w0 + w1 * w1)               # (|w| <= 1: a row of Q~; hypot where the squares underflow)
+        if h < 1e-150:
+            h = math.hypot(w0, w1)
         c = w0 / h
         sv = w1 / h
         w[i] = h
@@ -470,7 +473,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     V = np.empty((mg, n))
     tau = np.empty(mg)
     R = np.zeros((mg, mg))
-    c = np.empty(m)
+    c = np.zeros(m)                                    # J xN
     Fc = np.empty(mg)
     downdating = extended and not rec                  # (the first pass's factors exist)
     Xr = np.empty((0, 2))                              # rec: (J W)# F_W [xd - J xN, xd] by the recursion
@@ -493,8 +496,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
         iterations += 1
         if nsat:                                       # x = (J W)# F_W (xd - J xN) + xN: one right-hand side; a (and
             nf = n - nsat                              # b = x - a) below, only if a bound is violated
-            if not extended:
-                _saturated_rows(J, order, nsat, xN, c)
+            if not extended:                           # (c = J xN: updated at the saturation)
                 if damped:                             # F (J xN)
                     _compiled._f_times(Fb, c, Fc)
                     for i in range(m):
@@ -508,7 +510,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                     _svd_solve(SU, Ssv, SVt, dc, yf[:nf])
                 else:
                     _q_rinv_t(V[:, :nf], tau, R, dc, yf[:nf])
-            else:                                      # (c = J xN: computed at the saturation)
+            else:
                 for i in range(m):
                     dc[i] = xd[i] - c[i]
                 if rec:
@@ -564,6 +566,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             best_b[:] = b
         stop = j < 0
         if j >= 0:
+            n0 = nsat
             if nsat == 0 and nwarm > 0:                # (warm start: the previous call's joints beyond a bound)
                 for t in range(nwarm):
                     jj = warm[t]
@@ -582,6 +585,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 order[nsat] = j
                 nsat += 1
             nf = n - nsat
+            _saturated_rows(J, order, n0, nsat, xN, c)  # the next pass's J xN
             if not extended:
                 rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R, rw)
                 use_svd = rank < 0
@@ -598,7 +602,6 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif nf == 0:
                 stop = True
             else:
-                _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN
                 if downdating:                         # the upper levels' QR downdated (saturation nsat - 1)
                     if nsat == 1:
                         CT = PBT                       # (the first pass's, not read again)
