@@ -21,7 +21,8 @@ clip into the exact box at the end:
   the SVD of ``D J W`` decides and applies ``(J W)#``).
 
 Each pass after a saturation solves one right-hand side, ``x = (J W)# (xd - J xN) + xN``; ``a = (J W)# xd`` (and
-``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two.
+``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two (the downdated
+factors solve both at once: one sweep of ``Q~``).
 
 No stack leaves the kernel inside a solve; it returns :data:`BAD_BOX` (the caller raises the box's typed error) or
 :data:`SHIFT` (no scale factor in ``[0, 1]`` keeps a box without 0: the caller solves around the box point,
@@ -279,22 +280,29 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, R1, BT, lambda_max
 
 
 @_kernel
-def _downdated_rhs(rhs, free, nsat, m1, mk, QT, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v, acc, xf):
-    """``xf <- (J W)# rhs`` (the free joints' entries, in order) from :func:`_downdated_factor`'s factors (``m1``,
-    ``mk``: the crossing level's): ``x = Q~ [0; z; y]``, ``Q~ = QT^T`` (``v``, ``acc``: scratch of length ``n``)."""
+def _downdated_rhs(r1, r2, free, nsat, m1, mk, QT, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, sc, x1, x2):
+    """``x1 <- (J W)# r1``, ``x2 <- (J W)# r2`` (the free joints' entries, in order) from :func:`_downdated_factor`'s
+    factors (``m1``, ``mk``: the crossing level's): ``x = Q~ [0; z; y]``, ``Q~ = QT^T``, both in one sweep of ``QT``
+    (``sc``: scratch, ``4 x n``)."""
     n = free.shape[0]
     r = n - nsat - m1
-    _compiled._crossing_rhs(rhs, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v[nsat:])
+    v1, v2, acc1, acc2 = sc[0], sc[1], sc[2], sc[3]
+    _compiled._crossing_rhs(r1, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v1[nsat:])
+    _compiled._crossing_rhs(r2, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v2[nsat:])
     for t in range(n):
-        acc[t] = 0.0
+        acc1[t] = 0.0
+        acc2[t] = 0.0
     for c in range(nsat, n):                           # x = sum_c v_c Q~[:, c] (rows of QT, contiguous)
-        vc = v[c]
+        c1 = v1[c]
+        c2 = v2[c]
         for t in range(n):
-            acc[t] += vc * QT[c, t]
+            acc1[t] += c1 * QT[c, t]
+            acc2[t] += c2 * QT[c, t]
     f = 0
     for t in range(n):
         if free[t]:
-            xf[f] = acc[t]
+            x1[f] = acc1[t]
+            x2[f] = acc2[t]
             f += 1
 
 
@@ -433,11 +441,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             scale = max(scale, abs(up[j]))
     if not scale > 0.0:
         scale = 1.0
-    ws = np.empty((15, n))                             # the loop's vectors: one allocation, a row each
+    ws = np.empty((17, n))                             # the loop's vectors: one allocation, a row each
     tlo, tup, wlo, wup, xN, a, b, smax, best_a, best_b, xf, yf, w = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5],
                                                                      ws[6], ws[7], ws[8], ws[9], ws[10], ws[11],
                                                                      ws[12])
-    vv, acc = ws[13], ws[14]
+    sc = ws[13:17]                                     # (_downdated_rhs's scratch)
     for j in range(n):
         tlo[j] = 1e-10 * (scale + abs(lo[j]))          # sns.VIOLATION_TOL
         tup[j] = 1e-10 * (scale + abs(up[j]))
@@ -495,7 +503,8 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     while True:
         iterations += 1
         if nsat:                                       # x = (J W)# F_W (xd - J xN) + xN: one right-hand side; a (and
-            nf = n - nsat                              # b = x - a) below, only if a bound is violated
+            nf = n - nsat                              # b = x - a) below, only if a bound is violated (downdated:
+                                                       # both at once)
             if not extended:                           # (c = J xN: updated at the saturation)
                 if damped:                             # F (J xN)
                     _compiled._f_times(Fb, c, Fc)
@@ -515,9 +524,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                     dc[i] = xd[i] - c[i]
                 if rec:
                     yf[:nf] = Xr[:, 0]
-                elif downdating:
-                    _downdated_rhs(dc, free, nsat, dm1, dmk, QT, DR1, DBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
-                                   vv, acc, yf)
+                elif downdating:                       # (and a = (J W)# xd, read below if a bound is violated)
+                    _downdated_rhs(dc, xd, free, nsat, dm1, dmk, QT, DR1, DBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
+                                   sc, yf, xf)
                 else:
                     _refactored_rhs(dc, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
                                     lambda_max, eps, yf[:nf])
@@ -545,8 +554,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif rec:
                 xf[:nf] = Xr[:, 1]
             elif downdating:
-                _downdated_rhs(xd, free, nsat, dm1, dmk, QT, DR1, DBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, vv,
-                               acc, xf)
+                pass                                   # (xf: solved with x above)
             else:
                 _refactored_rhs(xd, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
                                 lambda_max, eps, xf[:nf])
