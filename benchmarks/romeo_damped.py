@@ -1,13 +1,16 @@
 """Damped Romeo, solve alone: sns_tpm and tpm on the 200 peers configurations with the library's damping.
 
-    OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py [--configs 200] [--repeats 3] [--warm]
+    OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py [--configs 200] [--repeats 3] [--warm] [--ab COMMIT]
 
 The stacks are those of :mod:`benchmarks.peers.problems`' ``romeo_vel`` (6 levels, m > n) with kp = 100 and
 ``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute(record=True)``, the readable step). Prints,
 per solver, the median and p99 of the solve alone (thread CPU time, ``sns_tpm_stacked`` / ``tpm_stacked`` on the
 captured arrays, one BLAS thread), the SNS passes (median, max), how many ``sns_tpm`` solves left the compiled
 loop and how many ``tpm`` solves its kernel answered by the recursion. ``--warm``: the warm-start experiment
-(closed loops; :func:`warm_start`).
+(closed loops; :func:`warm_start`). ``--ab COMMIT``: the SNS-TPM kernel of this tree against that commit's, one
+process (:func:`kernels_at` loads the commit's kernel modules under another name), interleaved per configuration
+and call, thread CPU time of ``_compiled_sns.sns_tpm_loop`` (the kernel and its small wrapper), per-configuration
+ratios; also the largest difference of the two commands and whether the decisions agree.
 """
 
 from __future__ import annotations
@@ -15,7 +18,9 @@ from __future__ import annotations
 import argparse
 import collections
 import importlib
+import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -84,7 +89,11 @@ def main(argv=None) -> int:
     ap.add_argument("--configs", type=int, default=P.N_CONFIGS)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--warm", action="store_true")
+    ap.add_argument("--ab", metavar="COMMIT", help="time this tree's SNS-TPM kernel against COMMIT's (one process)")
     args = ap.parse_args(argv)
+    if args.ab:
+        with common.one_blas_thread():
+            return ab(args.ab, args.configs, args.repeats)
     from hqp_tpm.solvers.sns import sns_tpm_stacked
     from hqp_tpm.solvers.tpm import tpm_stacked
 
@@ -119,6 +128,67 @@ def main(argv=None) -> int:
             print(f"  (kernel outcomes not reported by this tree: {e})")
         if args.warm:
             warm_start(robot, prob)
+    return 0
+
+
+def kernels_at(commit: str):
+    """``_compiled_sns`` of ``commit`` (with that commit's ``_compiled``), loaded as the package ``ab_<commit>`` from
+    ``git show`` into a directory of the temporary directory (kept, so numba's cache finds the same files again)."""
+    root = common.ROOT
+    sha = subprocess.run(["git", "rev-parse", "--short", commit], cwd=root, capture_output=True, text=True,
+                         check=True).stdout.strip()
+    pkg = f"ab_{sha}"
+    where = Path(tempfile.gettempdir()) / "hqp_tpm_ab" / pkg
+    where.mkdir(parents=True, exist_ok=True)
+    (where / "__init__.py").write_text("")
+    for name in ("_compiled", "_compiled_sns"):
+        src = subprocess.run(["git", "show", f"{sha}:hqp_tpm/solvers/{name}.py"], cwd=root, capture_output=True,
+                             text=True, check=True).stdout
+        src = src.replace("from hqp_tpm.solvers import _compiled\n", f"from {pkg} import _compiled\n")
+        path = where / f"{name}.py"
+        if not path.exists() or path.read_text() != src:
+            path.write_text(src)
+    if str(where.parent) not in sys.path:
+        sys.path.insert(0, str(where.parent))
+    return importlib.import_module(f"{pkg}._compiled_sns"), sha
+
+
+def ab(commit: str, n_configs: int, repeats: int) -> int:
+    """This tree's ``sns_tpm_loop`` against ``commit``'s on the damped Romeo stacks (module doc)."""
+    from hqp_tpm.solvers import _compiled_sns as new
+
+    old, sha = kernels_at(commit)
+    _, _, cases = stacks(n_configs)
+    for J, b, sizes, lo, up in cases:  # compile / warm up; the two commands and decisions
+        new.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+        old.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+    t_new, t_old, ratios, diff, same = [], [], [], 0.0, 0
+    for k, (J, b, sizes, lo, up) in enumerate(cases):
+        tn, to = [], []
+        for r in range(repeats):
+            for which in ((new, old) if (k + r) % 2 == 0 else (old, new)):
+                t0 = time.thread_time_ns()
+                out = which.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+                (tn if which is new else to).append(time.thread_time_ns() - t0)
+                if which is new:
+                    o_new = out
+                else:
+                    o_old = out
+        t_new += tn
+        t_old += to
+        ratios.append(np.median(tn) / np.median(to))
+        diff = max(diff, float(np.max(np.abs(o_new[1] - o_old[1]))) / max(1.0, float(np.max(np.abs(o_old[1])))))
+        same += o_new[0] == o_old[0] and o_new[2] == o_old[2] and o_new[4] == o_old[4] and o_new[5] == o_old[5]
+    t_new, t_old = np.array(t_new) / 1e3, np.array(t_old) / 1e3
+    print(f"damped Romeo SNS-TPM kernel, this tree vs {sha}: {len(cases)} configurations x {repeats} calls each, "
+          f"interleaved, thread CPU time, one BLAS thread")
+    for name, v in (("this tree", t_new), (sha, t_old)):
+        print(f"  {name:10s} median {np.median(v):7.1f} us  p99 {np.percentile(v, 99):7.1f} us")
+    print(f"  ratio this/{sha}: median {np.median(t_new) / np.median(t_old):.3f}, p99 "
+          f"{np.percentile(t_new, 99) / np.percentile(t_old, 99):.3f}, median of per-configuration ratios "
+          f"{np.median(ratios):.3f}")
+    print(f"  same decisions (status, saturated joints, passes, feasibility): {same} of {len(cases)}; largest "
+          f"command difference (relative to max(1, |x|)): {diff:.2e}")
     return 0
 
 

@@ -463,15 +463,15 @@ def test_downdated_factorization_equals_the_free_columns():
     assert status == _compiled.SOLVED and (m1, mk) == (17, 21)
     CT, Rt = BT.copy(), np.zeros((n, m1))
     Rt[:m1] = R1
-    cs, sn, w = np.zeros((n, n)), np.zeros((n, n)), np.empty(n)
+    QT, w = _compiled_sns._basis(V, tau, m1, n), np.empty(n)
+    Q0 = np.eye(n)                                              # rows e_i -> Q e_i: Q = Q0^T
+    _compiled._apply_q_rows(Q0, V, tau, m1)
+    assert np.abs(QT - Q0).max() < 1e-14                        # the explicit basis is the reflectors' Q
     free = np.ones(n, dtype=bool)
     crossings = set()
     for s, j in enumerate(rng.permutation(n)[:16]):
         free[j] = False
-        _compiled_sns._q_row(j, V, tau, m1, cs, sn, s, w)
-        _compiled_sns._downdate(w, CT, Rt, s, m1, cs, sn)
-        QT = np.eye(n)                                          # rows e_i -> Q~ e_i: Q~ = QT^T
-        _compiled_sns._q_times_rows(QT, V, tau, m1, cs, sn, s + 1)
+        _compiled_sns._downdate(j, QT, CT, Rt, s, m1, w)
         Q = QT.T
         Qf = Q[free][:, s + 1:]
         R1s = Rt[s + 1:s + 1 + m1]
@@ -486,3 +486,31 @@ def test_downdated_factorization_equals_the_free_columns():
         assert np.abs(Qf[:, :m1k] @ R1k - J[:m1k, free].T).max() < 1e-13 * np.abs(J).max()
         assert np.abs(J[m1k:m1k + mkk, free] @ Qf - BTk.T).max() < 1e-13 * np.abs(J).max()
     assert crossings == {4, 3, 2}, crossings                # (the posture level, then the levels above it)
+
+
+@pytest.mark.parametrize("tiny", [1e-200, 1e-170, 0.0])
+def test_downdate_where_the_rotations_squares_underflow(tiny):
+    """A saturated joint whose row of ``Q~`` has entries whose squares underflow (``|w_i| < 1e-154``): the
+    downdate's rotations (``sqrt(w0^2 + w1^2)``, ``hypot`` where that underflows) still turn the row into ``+-e_s``
+    and keep ``Q~`` orthogonal, ``R~`` exact on the joints left (no NaN, no zero division). Compiled and as Python."""
+    n, p, j = 6, 3, 2
+    w = np.array([0.6, tiny, tiny, 0.8, tiny, tiny])
+    u = np.eye(n)[j] - w
+    Q = np.eye(n) - 2.0 * np.outer(u, u) / (u @ u)              # orthogonal (a reflector), row j = w
+    rng = np.random.default_rng(3)
+    R1 = np.triu(rng.standard_normal((p, p))) + 3.0 * np.eye(p)
+    Rt = np.zeros((n, p))
+    Rt[:p] = R1
+    M = Q[:, :p] @ R1                                            # the upper levels' J^T, n joints x p rows
+    _compiled_sns._compile()                                     # (the kernels as numba dispatchers)
+    for enabled in (True, False):
+        QT, R = Q.T.copy(), Rt.copy()
+        if enabled:
+            _compiled_sns._downdate(j, QT, np.empty((0, 0)), R, 0, p, np.empty(n))
+        else:
+            _compiled_sns._downdate.py_func(j, QT, np.empty((0, 0)), R, 0, p, np.empty(n))
+        assert np.isfinite(QT).all() and np.isfinite(R).all()
+        assert abs(abs(QT[0, j]) - 1.0) < 1e-15 and np.abs(QT[1:, j]).max() < 1e-15
+        assert np.abs(QT @ QT.T - np.eye(n)).max() < 1e-15
+        keep = np.arange(n) != j
+        assert np.abs(QT.T[keep][:, 1:p + 1] @ R[1:p + 1] - M[keep]).max() < 1e-14

@@ -7,12 +7,13 @@ clip into the exact box at the end:
 
 * ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack by the full-rank shortcut
   :func:`hqp_tpm.solvers._compiled._past_rank` and of each free-column stack ``J W`` by the same shortcut on the
-  upper levels' QR *downdated* when a joint saturates (Givens rotations, below; the certificates of ``_past_rank``
-  on the downdated factors, damped pivots by the SVD of their blocks; when a level above crosses rank, its factors
-  are already in the downdated ``R~``: :func:`_downdated_views`). Where the shortcut's certificates do not take a
-  stack (a singular or nearly singular pivot above the crossing level, a crossing level without a clear full column
-  rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols` solves it, both right-hand sides of a pass
-  with one SVD per level, and reports the first level's rank for the rank test;
+  upper levels' QR *downdated* when a joint saturates (Givens rotations on an explicit basis, below; the
+  certificates of ``_past_rank`` on the downdated factors, damped pivots by the SVD of their blocks; when a level
+  above crosses rank, its factors are already in the downdated ``R~``: :func:`_downdated_views`). Where the
+  shortcut's certificates do not take a stack (a singular or nearly singular pivot above the crossing level, a
+  crossing level without a clear full column rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols`
+  solves it, both right-hand sides of a pass with one SVD per level, and reports the first level's rank for the
+  rank test;
 * ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
   :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
   when a pivot is singular), ``(J W)#`` by the QR of ``(D J W)^T`` and the rank test ``rank(J W) < m`` of
@@ -20,7 +21,8 @@ clip into the exact box at the end:
   the SVD of ``D J W`` decides and applies ``(J W)#``).
 
 Each pass after a saturation solves one right-hand side, ``x = (J W)# (xd - J xN) + xN``; ``a = (J W)# xd`` (and
-``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two.
+``b = x - a``) only when ``x`` leaves the box, so the last pass costs one solve instead of two (the downdated
+factors solve both at once: one sweep of ``Q~``).
 
 No stack leaves the kernel inside a solve; it returns :data:`BAD_BOX` (the caller raises the box's typed error) or
 :data:`SHIFT` (no scale factor in ``[0, 1]`` keeps a box without 0: the caller solves around the box point,
@@ -108,11 +110,12 @@ def _gather_free(J, free, out):
 
 
 @_kernel
-def _saturated_rows(J, order, nsat, xN, c):
-    """``c <- J xN`` over the saturated joints ``order[:nsat]`` (in saturation order)."""
+def _saturated_rows(J, order, t0, nsat, xN, c):
+    """``c <- c + J xN`` over the joints ``order[t0:nsat]`` saturated since ``c`` was last updated (``c = J xN`` over
+    the saturated joints in saturation order, kept from one saturation to the next: the same sums, term by term)."""
     for i in range(J.shape[0]):
-        s = 0.0
-        for t in range(nsat):
+        s = c[i]
+        for t in range(t0, nsat):
             s += J[i, order[t]] * xN[order[t]]
         c[i] = s
 
@@ -144,37 +147,47 @@ def _free_columns(J, free, nf, tol, V, tau, R, rw):
 # ----------------------------------------------------------------------------------------
 # m > n: the upper levels' QR downdated when a joint saturates (instead of refactorizing J W).
 #
-# After s saturations the factorization is kept in "extended" coordinates: Q~ = H D_0 ... D_{s-1} (n x n; H the
-# Householder reflectors of the first pass's J_<k^T, D_t the Givens rotations of saturation t), R~ (n x m1, its
-# rows s .. s + m1 - 1 hold R1) and C~^T = (J_k Q~)^T (n x mk). The factorization of J_<k W^T is
+# After s saturations the factorization is kept in "extended" coordinates: Q~ (n x n, orthogonal; kept explicitly
+# as QT = Q~^T, its columns as rows: :func:`_basis` builds it from the first pass's Householder reflectors), R~
+# (n x m1, its rows s .. s + m1 - 1 hold R1) and C~^T = (J_k Q~)^T (n x mk). The factorization of J_<k W^T is
 # Q~[free rows, s:] R1 and J_k W Q~[free rows, s:] = C~[:, s:]. Saturating joint j: rotate coordinates
 # (i, i + 1), i = n - 2 .. s, so that row j of Q~ becomes (.., +-1, 0, ..) at coordinate s; then coordinate s
 # (and row j) drop out: R~'s row s and C~'s column s belong to joint j alone (Golub & Van Loan, deleting a row
 # of a QR factorization). Orthogonal rotations: backward stable, as the refactorization.
 # ----------------------------------------------------------------------------------------
 @_kernel
-def _q_row(j, V, tau, p, cs, sn, s, w):
-    """``w <- e_j^T Q~`` after ``s`` saturations (``Q~ = H D_0 ... D_{s-1}``, ``H`` the ``p`` reflectors of ``V``)."""
-    n = w.shape[0]
+def _basis(V, tau, p, n):
+    """``QT = Q^T`` (``n x n``, row ``c`` = column ``c`` of ``Q = H_0 ... H_{p-1}``), ``H_i`` the ``p`` reflectors of
+    ``V`` (:func:`_compiled._householder_rows`): ``Q^T = H_{p-1} ... H_0`` applied to ``I``, each reflector to whole
+    contiguous rows (``M <- M - tau_i v (v^T M)``)."""
+    QT = np.zeros((n, n))
     for i in range(n):
-        w[i] = 0.0
-    w[j] = 1.0
-    _compiled._apply_qt(w, V, tau, p)                 # (e_j^T H)^T = H^T e_j
-    for t in range(s):                                 # w^T D_t: saturation t's rotations in their order
-        for i in range(n - 2, t - 1, -1):
-            sv = sn[t, i]
-            if sv != 0.0:
-                c = cs[t, i]
-                w0 = w[i]
-                w1 = w[i + 1]
-                w[i] = c * w0 + sv * w1
-                w[i + 1] = c * w1 - sv * w0
+        QT[i, i] = 1.0
+    w = np.empty(n)
+    for i in range(p):
+        ti = tau[i]
+        if ti == 0.0:
+            continue
+        for t in range(n):                             # w = v^T M (v = (1, V[i, i+1:]) on rows i..)
+            w[t] = QT[i, t]
+        for c in range(i + 1, n):
+            vc = V[i, c]
+            for t in range(n):
+                w[t] += vc * QT[c, t]
+        for t in range(n):
+            w[t] *= ti
+            QT[i, t] -= w[t]
+        for c in range(i + 1, n):
+            vc = V[i, c]
+            for t in range(n):
+                QT[c, t] -= vc * w[t]
+    return QT
 
 
 @_inlined
 def _rotate_rows(X, i, c, sv):
     """Rows ``i``, ``i + 1`` of ``X`` <- ``(c X_i + s X_{i+1}, c X_{i+1} - s X_i)`` (a rotation of coordinates
-    ``(i, i + 1)`` applied to the rows of ``C~^T`` or ``R~``)."""
+    ``(i, i + 1)`` applied to the rows of ``Q~^T``, ``C~^T`` or ``R~``)."""
     for t in range(X.shape[1]):
         x0 = X[i, t]
         x1 = X[i + 1, t]
@@ -183,26 +196,30 @@ def _rotate_rows(X, i, c, sv):
 
 
 @_kernel
-def _downdate(w, CT, Rt, s, p, cs, sn):
-    """Saturation ``s``: the rotations ``(cs[s, i], sn[s, i])`` of coordinates ``(i, i + 1)``, ``i = n - 2 .. s``, that
-    turn ``w`` (the saturated joint's row of ``Q~``) into ``+-e_s``, applied to the rows of ``CT = (J_k Q~)^T`` and of
-    ``Rt = R~`` (``p`` rows of ``R1`` from row ``s``)."""
-    n = w.shape[0]
+def _downdate(j, QT, CT, Rt, s, p, w):
+    """Saturation ``s`` of joint ``j``: the rotations of coordinates ``(i, i + 1)``, ``i = n - 2 .. s``, that turn
+    ``w`` (``Q~``'s row ``j``, read from ``QT``) into ``+-e_s``, applied to the rows of ``QT = Q~^T``, of
+    ``CT = (J_k Q~)^T`` (none when it has no rows: no longer read) and of ``Rt = R~`` (``p`` rows of ``R1`` from row
+    ``s``)."""
+    n = QT.shape[0]
+    for i in range(s, n):
+        w[i] = QT[i, j]
+    ct = CT.shape[0] > 0
     for i in range(n - 2, s - 1, -1):
         w0 = w[i]
         w1 = w[i + 1]
         if w1 == 0.0:
-            cs[s, i] = 1.0
-            sn[s, i] = 0.0
             continue
-        h = math.hypot(w0, w1)
+        h = math.sqrt(w0 * w0 + w1 * w1)               # (|w| <= 1: a row of Q~; hypot where the squares underflow)
+        if h < 1e-150:
+            h = math.hypot(w0, w1)
         c = w0 / h
         sv = w1 / h
-        cs[s, i] = c
-        sn[s, i] = sv
         w[i] = h
         w[i + 1] = 0.0
-        _rotate_rows(CT, i, c, sv)
+        _rotate_rows(QT, i, c, sv)
+        if ct:
+            _rotate_rows(CT, i, c, sv)
         if i < s + p:                                  # rows of R~ below s + p are zero
             _rotate_rows(Rt, i, c, sv)
 
@@ -220,23 +237,6 @@ def _level_colsq(J, sizes):
         _compiled._sumsq_rows(J, a, e, S[lev])
         a = e
     return S
-
-
-@_kernel
-def _q_times_rows(X, V, tau, p, cs, sn, s):
-    """``X[r] <- Q~ X[r]`` after ``s`` saturations, for every row of ``X`` (the rows interleaved)."""
-    k, n = X.shape
-    for t in range(s - 1, -1, -1):                     # D_t v: its rotations in reverse order
-        for i in range(t, n - 1):
-            sv = sn[t, i]
-            if sv != 0.0:
-                c = cs[t, i]
-                for r in range(k):
-                    v0 = X[r, i]
-                    v1 = X[r, i + 1]
-                    X[r, i] = c * v0 - sv * v1
-                    X[r, i + 1] = sv * v0 + c * v1
-    _compiled._apply_q_rows(X, V, tau, p)
 
 
 @_inlined
@@ -280,18 +280,29 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, R1, BT, lambda_max
 
 
 @_kernel
-def _downdated_rhs(rhs, free, nsat, m1, mk, p, V, tau, cs, sn, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, xf):
-    """``xf <- (J W)# rhs`` (the free joints' entries, in order) from :func:`_downdated_factor`'s factors (``m1``,
-    ``mk``: the crossing level's; ``p``: the first pass's reflectors in ``V``)."""
+def _downdated_rhs(r1, r2, free, nsat, m1, mk, QT, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, sc, x1, x2):
+    """``x1 <- (J W)# r1``, ``x2 <- (J W)# r2`` (the free joints' entries, in order) from :func:`_downdated_factor`'s
+    factors (``m1``, ``mk``: the crossing level's): ``x = Q~ [0; z; y]``, ``Q~ = QT^T``, both in one sweep of ``QT``
+    (``sc``: scratch, ``4 x n``)."""
     n = free.shape[0]
     r = n - nsat - m1
-    v = np.zeros((1, n))
-    _compiled._crossing_rhs(rhs, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v[0, nsat:])
-    _q_times_rows(v, V, tau, p, cs, sn, nsat)
+    v1, v2, acc1, acc2 = sc[0], sc[1], sc[2], sc[3]
+    _compiled._crossing_rhs(r1, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v1[nsat:])
+    _compiled._crossing_rhs(r2, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v2[nsat:])
+    for t in range(n):
+        acc1[t] = 0.0
+        acc2[t] = 0.0
+    for c in range(nsat, n):                           # x = sum_c v_c Q~[:, c] (rows of QT, contiguous)
+        c1 = v1[c]
+        c2 = v2[c]
+        for t in range(n):
+            acc1[t] += c1 * QT[c, t]
+            acc2[t] += c2 * QT[c, t]
     f = 0
     for t in range(n):
         if free[t]:
-            xf[f] = v[0, t]
+            x1[f] = acc1[t]
+            x2[f] = acc2[t]
             f += 1
 
 
@@ -430,10 +441,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             scale = max(scale, abs(up[j]))
     if not scale > 0.0:
         scale = 1.0
-    ws = np.empty((13, n))                             # the loop's vectors: one allocation, a row each
+    ws = np.empty((17, n))                             # the loop's vectors: one allocation, a row each
     tlo, tup, wlo, wup, xN, a, b, smax, best_a, best_b, xf, yf, w = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5],
                                                                      ws[6], ws[7], ws[8], ws[9], ws[10], ws[11],
                                                                      ws[12])
+    sc = ws[13:17]                                     # (_downdated_rhs's scratch)
     for j in range(n):
         tlo[j] = 1e-10 * (scale + abs(lo[j]))          # sns.VIOLATION_TOL
         tup[j] = 1e-10 * (scale + abs(up[j]))
@@ -469,7 +481,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     V = np.empty((mg, n))
     tau = np.empty(mg)
     R = np.zeros((mg, mg))
-    c = np.empty(m)
+    c = np.zeros(m)                                    # J xN
     Fc = np.empty(mg)
     downdating = extended and not rec                  # (the first pass's factors exist)
     Xr = np.empty((0, 2))                              # rec: (J W)# F_W [xd - J xN, xd] by the recursion
@@ -479,8 +491,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     Rt = np.empty((0, 0))
     dm1, dmk = 0, 0                                    # the downdated factorization's crossing level: rows above, its
     DR1, DBT = _downdated_views(CT, Rt, 0, 0, 0, 0, 0)  # rows, R1 and (J_k Q~)^T (views of Rt, CT)
-    cs = np.empty((0, 0))
-    sn = np.empty((0, 0))
+    QT = np.empty((0, 0))                              # Q~^T (the downdated basis, explicit)
     colsq = np.empty((0, 0))
     # the free-column stack's factors (the downdated ones, or J W's own when refactorized): set at each saturation
     none2, none1 = np.empty((0, 0)), np.empty(0)     # (placeholders: two allocations, not ten)
@@ -492,9 +503,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     while True:
         iterations += 1
         if nsat:                                       # x = (J W)# F_W (xd - J xN) + xN: one right-hand side; a (and
-            nf = n - nsat                              # b = x - a) below, only if a bound is violated
-            if not extended:
-                _saturated_rows(J, order, nsat, xN, c)
+            nf = n - nsat                              # b = x - a) below, only if a bound is violated (downdated:
+                                                       # both at once)
+            if not extended:                           # (c = J xN: updated at the saturation)
                 if damped:                             # F (J xN)
                     _compiled._f_times(Fb, c, Fc)
                     for i in range(m):
@@ -508,14 +519,14 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                     _svd_solve(SU, Ssv, SVt, dc, yf[:nf])
                 else:
                     _q_rinv_t(V[:, :nf], tau, R, dc, yf[:nf])
-            else:                                      # (c = J xN: computed at the saturation)
+            else:
                 for i in range(m):
                     dc[i] = xd[i] - c[i]
                 if rec:
                     yf[:nf] = Xr[:, 0]
-                elif downdating:
-                    _downdated_rhs(dc, free, nsat, dm1, dmk, m1, PV, Ptau, cs, sn, DR1, DBT, AT, tauA, RA, DV, Dtau,
-                                   DR, Dp, blk, yf)
+                elif downdating:                       # (and a = (J W)# xd, read below if a bound is violated)
+                    _downdated_rhs(dc, xd, free, nsat, dm1, dmk, QT, DR1, DBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
+                                   sc, yf, xf)
                 else:
                     _refactored_rhs(dc, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
                                     lambda_max, eps, yf[:nf])
@@ -543,8 +554,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif rec:
                 xf[:nf] = Xr[:, 1]
             elif downdating:
-                _downdated_rhs(xd, free, nsat, dm1, dmk, m1, PV, Ptau, cs, sn, DR1, DBT, AT, tauA, RA, DV, Dtau, DR,
-                               Dp, blk, xf)
+                pass                                   # (xf: solved with x above)
             else:
                 _refactored_rhs(xd, fm1, fmk, fr, FV, Ftau, FR1, FBT, AT, tauA, RA, DV, Dtau, DR, Dp, blk,
                                 lambda_max, eps, xf[:nf])
@@ -564,6 +574,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             best_b[:] = b
         stop = j < 0
         if j >= 0:
+            n0 = nsat
             if nsat == 0 and nwarm > 0:                # (warm start: the previous call's joints beyond a bound)
                 for t in range(nwarm):
                     jj = warm[t]
@@ -582,6 +593,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                 order[nsat] = j
                 nsat += 1
             nf = n - nsat
+            _saturated_rows(J, order, n0, nsat, xN, c)  # the next pass's J xN
             if not extended:
                 rank = _free_columns(J, free, nf, tol, V[:, :nf], tau, R, rw)
                 use_svd = rank < 0
@@ -598,18 +610,17 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             elif nf == 0:
                 stop = True
             else:
-                _saturated_rows(J, order, nsat, xN, c)  # the next pass's J xN
                 if downdating:                         # the upper levels' QR downdated (saturation nsat - 1)
                     if nsat == 1:
                         CT = PBT                       # (the first pass's, not read again)
                         Rt = np.zeros((n, m1))
                         Rt[:m1] = PR1
-                        cs = np.empty((n, n))  # (each entry read is written first: _downdate, then _q_row)
-                        sn = np.empty((n, n))
+                        QT = _basis(PV, Ptau, m1, n)
                         colsq = _level_colsq(J, sizes)
-                    _q_row(j, PV, Ptau, m1, cs, sn, nsat - 1, w)
-                    _downdate(w, CT, Rt, nsat - 1, m1, cs, sn)
+                    _downdate(j, QT, CT, Rt, nsat - 1, m1, w)
                     dk, dm1, dmk, _ = _compiled._crossing_level(sizes, nf)  # (k0, or a level above it)
+                    if dk != k0:                       # (C~ is read for k0 only; the crossing level only rises)
+                        CT = none2
                     DR1, DBT = _downdated_views(CT, Rt, nsat, dk, dm1, dmk, k0)
                     status, AT, tauA, RA, DV, Dtau, DR, Dp, blk = _downdated_factor(
                         J, sizes, colsq, free, nsat, dk, dm1, dmk, DR1, DBT, lambda_max, eps, unit, margin, cond)

@@ -7,7 +7,8 @@
   is exactly :func:`hqp_tpm.solvers.tpm.tpm`. The reference path follows the algorithm line by
   line with ``n x n`` matrices; :func:`sns_tpm` runs every pass in one kernel
   (:mod:`hqp_tpm.solvers._compiled_sns`: the TPM factorization of the stack, then the columns of the
-  free joints, one QR per saturation, the recursion or an SVD where the QR's certificates cannot
+  free joints: with more rows than joints the upper levels' QR downdated by Givens rotations at each
+  saturation, else one QR per saturation; the recursion or an SVD where the QR's certificates cannot
   decide). ``tests/test_sns.py`` and ``tests/test_compiled_sns.py`` prove them equal.
 * :func:`sns`: the multi-task SNS of Flacco, De Luca, Khatib (T-RO 2015): level by level, higher
   first, each with its own scale factor (the largest one that keeps the box, i.e. scaled by the
