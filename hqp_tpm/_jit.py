@@ -29,6 +29,8 @@
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import hashlib
 import importlib.util
 import io
@@ -58,10 +60,11 @@ _COMPILED: set[str] = set()
 _PENDING: dict[str, dict] = {}                      # modules compiled when the switch is turned on
 _LOCK = threading.RLock()
 _CACHE: list = []                                   # [the cache directory or None], once known
+_KERNEL_CACHE: list = []                            # [kernel_cache()'s class or None], once known
 _NOTICE = [None]                                    # [a writer of notice lines, or None: stderr]
 #: The notice printed the first time in a process numba compiles a kernel of the package (not when it loads one).
 COMPILING = "compiling kernels: first run on this machine only"
-_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False}
+_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False, "gc": True}
 _IMPORTS_JIT = re.compile(r"^\s*(?:from\s+hqp_tpm\s+import\s+[^\n]*\b_jit\b|from\s+hqp_tpm\._jit\s+import|"
                           r"import\s+hqp_tpm\._jit)", re.M)
 _FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)", re.M)
@@ -114,12 +117,16 @@ def _listen() -> None:
         def on_start(self, ev):
             if _COMPILE["depth"] == 0:
                 _COMPILE["start"] = time.perf_counter()
+                _COMPILE["gc"] = gc.isenabled()
+                gc.disable()
             _COMPILE["depth"] += 1
 
         def on_end(self, ev):
             _COMPILE["depth"] = max(_COMPILE["depth"] - 1, 0)
             if _COMPILE["depth"] == 0:
                 _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
+                if _COMPILE["gc"]:
+                    gc.enable()
 
     event.register("numba:compile", Compiling())
     event.register("numba:compiler_lock", Locked())
@@ -173,12 +180,68 @@ def set_enabled(value: bool) -> None:
                 compile_module(namespace)
 
 
+def _numba():
+    """numba, imported with the cyclic garbage collector paused (:func:`gc_paused`)."""
+    with gc_paused():
+        import numba
+    return numba
+
+
+@contextlib.contextmanager
+def gc_paused():
+    """The cyclic garbage collector off inside (as it was after): importing numba, and numba compiling or loading a
+    kernel (the listener of ``numba:compiler_lock`` does the same), make hundreds of thousands of objects that live as
+    long as the process; each collection meanwhile walks them all again (15 % of a first run's CPU, a third of a warm
+    process's kernel load). Nothing is computed differently; the garbage of those spans is collected after."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def kernel_cache():
+    """The class of the package's kernels' disk cache (or None: numba's own), a subclass of numba's
+    ``FunctionCache`` whose ``load_overload`` loads a kernel without numba's ``target_context.refresh()`` first: that
+    refresh imports and registers the typing and lowering of everything numba can compile (numpy, linalg, typed
+    containers, random, ...; ~0.25 s of CPU, then more at exit), which compiling needs (numba's compiler refreshes
+    the context itself, whatever the cache did) but loading machine code does not: it needs numba's runtime (NRT),
+    initialized here as numba's refresh does first. The loaded code is the code numba compiled and wrote, the same
+    bits. Should the load meet anything else (another numba), the full refresh runs and numba loads it its way."""
+    if not _KERNEL_CACHE:
+        cls = None
+        try:
+            from numba.core.caching import FunctionCache
+            from numba.core.runtime import rtsys
+
+            if all(hasattr(FunctionCache, a) for a in ("_guard_against_spurious_io_errors", "_load_overload")) \
+                    and hasattr(rtsys, "initialize"):
+                class KernelCache(FunctionCache):
+                    """numba's cache of one kernel, loaded without refreshing numba's compiler registries."""
+
+                    def load_overload(self, sig, target_context):
+                        try:
+                            rtsys.initialize(target_context)
+                            with self._guard_against_spurious_io_errors():
+                                return self._load_overload(sig, target_context)
+                        except Exception:  # noqa: BLE001 - numba's own way then
+                            return super().load_overload(sig, target_context)
+
+                cls = KernelCache
+        except ImportError:  # pragma: no cover - another numba: its own cache class
+            cls = None
+        _KERNEL_CACHE.append(cls)
+    return _KERNEL_CACHE[0]
+
+
 def dispatcher(fn, inline: bool = False):
-    """``fn`` as a numba dispatcher (``nogil``; cached in :func:`cache_dir` when there is one, else compiled in
-    memory), or None if numba cannot be imported."""
+    """``fn`` as a numba dispatcher (``nogil``; cached in :func:`cache_dir` when there is one, loaded by
+    :func:`kernel_cache`'s class, else compiled in memory), or None if numba cannot be imported."""
     with _LOCK:
         try:
-            import numba
+            numba = _numba()
         except ImportError as e:  # found but broken (e.g. llvmlite): the readable paths from now on
             _SWITCH["available"] = _SWITCH["enabled"] = False
             notice(f"numba cannot be imported ({e}): the compiled kernels are off")
@@ -186,16 +249,22 @@ def dispatcher(fn, inline: bool = False):
         _listen()
         where = cache_dir()
         options = {"nogil": True, "inline": "always" if inline else "never"}
+        d = numba.njit(**options)(fn)
         if where is None:
-            return numba.njit(**options)(fn)
+            return d
         before = numba.config.CACHE_DIR
         numba.config.CACHE_DIR = str(where)  # read once, by the dispatcher's cache locator (restored below)
         try:
-            return numba.njit(cache=True, **options)(fn)
+            cache = kernel_cache()
+            if cache is None:
+                d.enable_caching()  # (numba's njit(cache=True))
+            else:
+                d._cache = cache(d.py_func)  # (what enable_caching sets, with this cache class)
         except RuntimeError:  # no cache locator after all (the directory went away): in memory
-            return numba.njit(**options)(fn)
+            pass
         finally:
             numba.config.CACHE_DIR = before
+        return d
 
 
 def share_switch(module_name: str) -> None:
@@ -256,7 +325,7 @@ def kernel_files() -> list[Path]:
 
 def source_key() -> str:
     """Hash of the numba version, the Python version and the content of :func:`kernel_files` (16 hex digits)."""
-    import numba
+    numba = _numba()
 
     h = hashlib.sha256(f"{numba.__version__} {sys.version}".encode())
     for path in kernel_files():
@@ -401,7 +470,7 @@ def address_readers():
     with _LOCK:
         if _float_pointer is None:
             try:
-                import numba as nb
+                nb = _numba()
                 from numba.extending import intrinsic
             except ImportError:
                 return None
