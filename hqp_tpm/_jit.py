@@ -64,7 +64,8 @@ _KERNEL_CACHE: list = []                            # [kernel_cache()'s class or
 _NOTICE = [None]                                    # [a writer of notice lines, or None: stderr]
 #: The notice printed the first time in a process numba compiles a kernel of the package (not when it loads one).
 COMPILING = "compiling kernels: first run on this machine only"
-_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False, "gc": True}
+_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False, "gc": True,
+            "frozen": False}
 _IMPORTS_JIT = re.compile(r"^\s*(?:from\s+hqp_tpm\s+import\s+[^\n]*\b_jit\b|from\s+hqp_tpm\._jit\s+import|"
                           r"import\s+hqp_tpm\._jit)", re.M)
 _FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)", re.M)
@@ -181,9 +182,16 @@ def set_enabled(value: bool) -> None:
 
 
 def _numba():
-    """numba, imported with the cyclic garbage collector paused (:func:`gc_paused`)."""
+    """numba, imported with the cyclic garbage collector paused (:func:`gc_paused`); the first time, every object
+    alive then is moved to the collector's permanent generation (``gc.freeze()``): numba's import makes tens of
+    thousands of objects that live as long as the process, and each full collection after (and the interpreter's at
+    exit) would walk them all again (~0.13 s of CPU in a 1,000-step script, ``benchmarks/first_run.py``). What is
+    frozen is what the imports so far made (modules, numba's registries) and is never freed before exit anyway."""
     with gc_paused():
         import numba
+    if not _COMPILE["frozen"]:
+        _COMPILE["frozen"] = True
+        gc.freeze()
     return numba
 
 
