@@ -216,6 +216,56 @@ def test_switched_on_later_compiles_then(warm):
     got = run({"NUMBA_CACHE_DIR": str(cache), "HQP_TPM_COMPILED": "0"}, "solve", probe=probe)
     assert ok(got) == want and got.stderr == "", got.stderr
 
+#: The first kernel call of a process (``feedback2``) watched: the collections the cyclic garbage collector started
+#: meanwhile, its switch after, whether numba's import froze the objects alive then, which of numba's compiler modules
+#: had been imported by then, and the kernel's numbers. ``off`` in argv: the program switched the collector off itself.
+LOAD = r"""
+import gc, sys
+import numpy as np
+started, watching = [], [False]
+gc.callbacks.append(lambda phase, info: watching[0] and phase == "start" and started.append(info["generation"]))
+from hqp_tpm.robot import _compiled as rc
+frozen = gc.get_freeze_count()
+if "off" in sys.argv:
+    gc.disable()
+e = np.array([1.0, -2.0, 0.5, 3.0])
+b = np.zeros(4)
+watching[0] = True
+rc.feedback2(b, e, 0.5 * e, 0.25 * e, -e, 0.1 * e, 2.0, 3.0)
+watching[0] = False
+compiler = [m for m in ("numba.np.linalg", "numba.np.arraymath", "numba.typed.typeddict") if m in sys.modules]
+print(repr([started, gc.isenabled(), frozen > 0, compiler, b.tolist()]))
+"""
+
+
+@pytest.mark.parametrize("collector", ["on", "off"])
+def test_a_warm_process_loads_its_kernels_without_numba_s_compiler(warm, collector):
+    """Issue 29 (a 1,000-step script ran slower compiled than with ``HQP_TPM_COMPILED=0`` on main 312f146): a kernel
+    loaded from the cache imports none of what numba's compiler needs (on 312f146 numba refreshed its typing and
+    lowering registries first: numpy's and linalg's implementations, typed containers, ...), the cyclic garbage
+    collector starts no full collection while it loads and is switched back as the program had it, and the objects alive
+    after numba's import are frozen (no collection walks them again); the numbers are the compiled kernel's."""
+    cache, want = warm
+    started, enabled, frozen, compiler, numbers = ast.literal_eval(
+        ok(run({"NUMBA_CACHE_DIR": str(cache)}, collector, probe=LOAD)).strip().splitlines()[-1])
+    assert compiler == []
+    assert 2 not in started  # (no full collection: a young one may run outside numba's compiler lock)
+    assert enabled is (collector == "on")
+    assert frozen
+    assert numbers == ast.literal_eval(want)[:4]
+
+
+def test_compiling_pauses_the_collector_and_switches_it_back(tmp_path):
+    """An empty cache: while numba compiles the kernel no full collection starts (its compiler makes and drops
+    millions of objects: ~15 % of a first run's CPU went to collections on main 312f146), and the collector is on
+    again after;
+    the same numbers as loaded from the cache later."""
+    cold = ast.literal_eval(ok(run({"NUMBA_CACHE_DIR": str(tmp_path)}, probe=LOAD)).strip().splitlines()[-1])
+    assert 2 not in cold[0] and cold[1] is True  # (no full collection; young ones outside numba's lock only)
+    warm_ = ast.literal_eval(ok(run({"NUMBA_CACHE_DIR": str(tmp_path)}, probe=LOAD)).strip().splitlines()[-1])
+    assert warm_[4] == cold[4]
+
+
 def test_one_switch():
     """The solvers' and the robot's ``ENABLED`` are one switch (main 0d7b885 had two, set apart)."""
     from hqp_tpm import _jit
