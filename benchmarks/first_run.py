@@ -98,7 +98,7 @@ def main(argv=None) -> int:
                 common.progress(f"run lwr_relaxed, {what}, {i + 1}/{args.repeat}")
                 out = Path(tmp) / f"{what.split()[0]}{i}"
                 cpu, res = child([sys.executable, "-m", "hqp_tpm.app.cli", "run", "lwr_relaxed", "--steps",
-                                  str(args.steps), "--out", str(out), "--quiet"], env)
+                                  str(args.steps), "--out", str(out)], env)  # (not --quiet: its notice)
                 m = json.loads((out / "metrics.json").read_text())
                 runs[what].append((cpu, "compiling kernels" in res.stderr, m.get("compile_s", float("nan")),
                                    m["wall_time_s"], m["mean_step_us"]))

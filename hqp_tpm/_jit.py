@@ -72,7 +72,7 @@ _NOTICE = [None]                                    # [a writer of notice lines,
 #: The notice printed the first time in a process numba compiles a kernel of the package (not when it loads one).
 COMPILING = "compiling kernels: first run on this machine only"
 _COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False, "gc": True,
-            "frozen": False}
+            "frozen": False, "compiled": False}
 _IMPORTS_JIT = re.compile(r"^\s*(?:from\s+hqp_tpm\s+import\s+[^\n]*\b_jit\b|from\s+hqp_tpm\._jit\s+import|"
                           r"import\s+hqp_tpm\._jit)", re.M)
 _FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)", re.M)
@@ -112,6 +112,7 @@ def _listen() -> None:
 
     class Compiling(event.Listener):
         def on_start(self, ev):
+            _COMPILE["compiled"] = True
             fn = getattr(ev.data.get("dispatcher"), "py_func", None)
             in_memory = bool(_CACHE) and _CACHE[0] is None  # (compiled in every process: cache_dir's notice says so)
             if not _COMPILE["noticed"] and not in_memory and getattr(fn, "__module__", "").startswith("hqp_tpm"):
@@ -132,9 +133,11 @@ def _listen() -> None:
         def on_end(self, ev):
             _COMPILE["depth"] = max(_COMPILE["depth"] - 1, 0)
             if _COMPILE["depth"] == 0:
-                _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
-                if _COMPILE["gc"]:
+                if _COMPILE["gc"]:  # the span's objects collected once, here: not in the caller's next steps
                     gc.enable()
+                    gc.collect(2 if _COMPILE["compiled"] else 0)
+                _COMPILE["compiled"] = False
+                _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
 
     event.register("numba:compile", Compiling())
     event.register("numba:compiler_lock", Locked())
