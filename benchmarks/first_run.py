@@ -1,16 +1,17 @@
 """The first run on a machine and short scripts (issue 29 item 3), each in a fresh process.
 
-    python benchmarks/first_run.py [--steps 200] [--script-steps 1000]
+    python benchmarks/first_run.py [--steps 200] [--script-steps 1000] [--repeat 3]
 
-1. ``hqp-tpm run lwr_relaxed --steps N`` with an empty numba cache (``NUMBA_CACHE_DIR`` a new temporary folder:
-   every kernel the run uses is compiled), then again on that cache (loaded): the process's CPU time (user +
-   system, of the child), whether the compile notice was printed, and the run's ``compile_s``, ``wall_time_s`` and
-   ``mean_step_us`` (metrics.json: compiling is kept out of the last two).
-2. A warm process's kernel load: a short script (iiwa 7, EE pose > posture, ``ctrl.step()``) on a cache of its own,
-   first empty (its kernels compiled), then warm: the CPU time of its first step (kernels compiled or loaded there)
-   and :func:`hqp_tpm._jit.compile_seconds`.
-3. The same script for ``--script-steps`` steps with the kernels on and with ``HQP_TPM_COMPILED=0``: the process's
-   CPU time (import, set-up and steps), the numbers a user of a short script sees.
+1. ``hqp-tpm run lwr_relaxed --steps N`` with an empty numba cache (``NUMBA_CACHE_DIR`` a new temporary folder each
+   time: every kernel the run uses is compiled), then on that cache (loaded), ``--repeat`` times each, interleaved:
+   the process's CPU time (user + system, of the child; median, min, max), whether the compile notice was printed,
+   and the run's ``compile_s``, ``wall_time_s`` and ``mean_step_us`` (metrics.json, medians: compiling is kept out
+   of the last two).
+2. A short script (iiwa 7, EE pose > posture, ``ctrl.step()``) on a cache of its own, once with that cache empty (its
+   kernels compiled), then ``--repeat`` pairs of fresh processes, compiled (warm cache) and ``HQP_TPM_COMPILED=0``
+   in turn: the process's CPU time (import, set-up, steps and exit), the CPU time of the first step (kernels loaded
+   there) and :func:`hqp_tpm._jit.compile_seconds`; medians, and the median of the pairs' CPU ratio compiled /
+   numpy (pairs: the ratio holds when the machine's speed drifts).
 
 Writes ``benchmarks/results/first_run.md``. Absolute times depend on the machine's load (stated).
 """
@@ -29,6 +30,8 @@ from pathlib import Path
 
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+import numpy as np  # noqa: E402
 
 from benchmarks import common  # noqa: E402
 
@@ -67,45 +70,76 @@ def child(cmd: list[str], env: dict[str, str]) -> tuple[float, subprocess.Comple
     return (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime), out
 
 
+def median(values):
+    return float(np.median(values)) if values else float("nan")
+
+
+def spread(values, digits=2) -> str:
+    """``median (min-max)`` of ``values``."""
+    return f"{median(values):.{digits}f} ({min(values):.{digits}f}-{max(values):.{digits}f})"
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--script-steps", type=int, default=1000)
+    ap.add_argument("--repeat", type=int, default=3, help="cold and warm runs, and script pairs (medians)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "first_run.md")
     args = ap.parse_args(argv)
     env0 = common.environment()
     base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != "HQP_TPM_COMPILED"}
     base["PYTHONPATH"] = str(common.ROOT) + os.pathsep + base.get("PYTHONPATH", "")
     base["OMP_NUM_THREADS"] = base["OPENBLAS_NUM_THREADS"] = "1"
-    rows_run, rows_script = [], []
+    runs = {"cold (empty cache)": [], "warm (same cache)": []}
     with tempfile.TemporaryDirectory(prefix="hqp-tpm-first-run-") as tmp:
-        env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / "cache")}
-        for what in ("cold (empty cache)", "warm (same cache)"):
-            common.progress(f"run lwr_relaxed, {what}")
-            out = Path(tmp) / what.split()[0]
-            cpu, res = child([sys.executable, "-m", "hqp_tpm.app.cli", "run", "lwr_relaxed", "--steps",
-                              str(args.steps), "--out", str(out), "--quiet"], env)
-            m = json.loads((out / "metrics.json").read_text())
-            rows_run.append([what, f"{cpu:.1f}", "yes" if "compiling kernels" in res.stderr else "no",
-                             f"{m.get('compile_s', float('nan')):.2f}", f"{m['wall_time_s']:.3f}",
-                             f"{m['mean_step_us']:.0f}"])
+        for i in range(args.repeat):
+            env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / f"cache{i}")}
+            for what in runs:
+                common.progress(f"run lwr_relaxed, {what}, {i + 1}/{args.repeat}")
+                out = Path(tmp) / f"{what.split()[0]}{i}"
+                cpu, res = child([sys.executable, "-m", "hqp_tpm.app.cli", "run", "lwr_relaxed", "--steps",
+                                  str(args.steps), "--out", str(out)], env)  # (not --quiet: its notice)
+                m = json.loads((out / "metrics.json").read_text())
+                runs[what].append((cpu, "compiling kernels" in res.stderr, m.get("compile_s", float("nan")),
+                                   m["wall_time_s"], m["mean_step_us"]))
         script_env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / "script-cache")}  # (its own kernels: lean step)
-        for what, extra in (("compiled (empty cache)", {}), ("compiled (warm cache)", {}),
-                            ("HQP_TPM_COMPILED=0", {"HQP_TPM_COMPILED": "0"})):
-            common.progress(f"{args.script_steps}-step script, {what}")
-            cpu, res = child([sys.executable, "-c", SCRIPT, str(args.script_steps)], {**script_env, **extra})
-            r = ast.literal_eval(res.stdout.strip().splitlines()[-1])
-            rows_script.append([what, f"{cpu:.2f}", f"{r['setup_cpu_s']:.2f}", f"{r['first_step_cpu_s']:.3f}",
-                                f"{r['kernels_s']:.3f}", f"{r['steps_cpu_s']:.3f}"])
+        common.progress(f"{args.script_steps}-step script, compiled (empty cache)")
+        script = {"compiled (empty cache)": [child([sys.executable, "-c", SCRIPT, str(args.script_steps)],
+                                                   script_env)],
+                  "compiled (warm cache)": [], "HQP_TPM_COMPILED=0": []}
+        for i in range(args.repeat):
+            for what, extra in (("compiled (warm cache)", {}), ("HQP_TPM_COMPILED=0", {"HQP_TPM_COMPILED": "0"})):
+                common.progress(f"{args.script_steps}-step script, {what}, {i + 1}/{args.repeat}")
+                script[what].append(child([sys.executable, "-c", SCRIPT, str(args.script_steps)],
+                                          {**script_env, **extra}))
     common.close_environment(env0)
-    run_table = common.md_table([f"`hqp-tpm run lwr_relaxed --steps {args.steps}`", "process CPU s",
-                                 "compile notice", "compile_s", "wall_time_s", "mean_step_us"], rows_run)
-    script_table = common.md_table([f"{args.script_steps}-step script (iiwa 7, `ctrl.step()`)", "process CPU s",
-                                    "import + set-up CPU s", "first step CPU s (kernels made)",
-                                    "kernels made, wall s", "steps CPU s"], rows_script)
+    rows_run = [[what, spread([r[0] for r in rs], 1), "yes" if all(r[1] for r in rs) else
+                 ("no" if not any(r[1] for r in rs) else "some"), f"{median([r[2] for r in rs]):.2f}",
+                 f"{median([r[3] for r in rs]):.3f}", f"{median([r[4] for r in rs]):.0f}"] for what, rs in runs.items()]
+    rows_script = []
+    for what, results in script.items():
+        parsed = [(cpu, ast.literal_eval(res.stdout.strip().splitlines()[-1])) for cpu, res in results]
+        rows_script.append([what, spread([c for c, _ in parsed]),
+                            f"{median([r['setup_cpu_s'] for _, r in parsed]):.2f}",
+                            f"{median([r['first_step_cpu_s'] for _, r in parsed]):.3f}",
+                            f"{median([r['kernels_s'] for _, r in parsed]):.3f}",
+                            f"{median([r['steps_cpu_s'] for _, r in parsed]):.3f}"])
+    ratios = [a[0] / b[0] for a, b in zip(script["compiled (warm cache)"], script["HQP_TPM_COMPILED=0"],
+                                                  strict=True)]
+    run_table = common.md_table([f"`hqp-tpm run lwr_relaxed --steps {args.steps}`",
+                                 f"process CPU s, median (min-max) of {args.repeat}", "compile notice",
+                                 "compile_s", "wall_time_s", "mean_step_us"], rows_run)
+    script_table = common.md_table([f"{args.script_steps}-step script (iiwa 7, `ctrl.step()`)",
+                                    "process CPU s, median (min-max)", "import + set-up CPU s",
+                                    "first step CPU s (kernels made)", "kernels made, wall s", "steps CPU s"],
+                                   rows_script)
+    script_table += (f"\n\nCompiled (warm cache) / `HQP_TPM_COMPILED=0`, process CPU, pair by pair ({len(ratios)} "
+                     f"pairs, run in turn): median {median(ratios):.2f} (min {min(ratios):.2f}, max "
+                     f"{max(ratios):.2f}).")
     common.write_markdown(args.out, "The first run and short scripts", env0, [
-        ("The first run (fresh processes, `NUMBA_CACHE_DIR` a new empty folder, then the same again)", run_table),
-        ("A short script, kernels on (warm cache) and off", script_table),
+        (f"The first run (fresh processes, `NUMBA_CACHE_DIR` a new empty folder, then the same again; {args.repeat} "
+         "times each)", run_table),
+        ("A short script, kernels on (warm cache) and off (medians; the empty-cache row: one run)", script_table),
     ])
     common.progress(f"wrote {args.out}")
     return 0

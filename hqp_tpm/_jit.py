@@ -10,13 +10,15 @@
 * The disk cache lives in a directory named by a hash of the source of every kernel module and the modules they
   import from the package (:func:`source_key`): numba checks a cached function against its own file only, but a
   compiled kernel holds the code of the kernels it calls and the constants it reads, so any change to those files
-  starts a fresh directory (no stale callee is ever loaded; nothing of numba's internals is patched: the
-  directory is numba's documented ``NUMBA_CACHE_DIR`` / ``numba.config.CACHE_DIR``, set while the package's
-  dispatchers are made and restored after). Its root is the first writable of ``$NUMBA_CACHE_DIR/hqp_tpm``, the
-  package's ``__pycache__`` and the user cache directory (``$XDG_CACHE_HOME`` or ``~/.cache``, ``/hqp_tpm``);
-  with none writable (a read-only install run by a user without a home) the kernels compile in memory, once per
-  process, with a one-line notice on stderr. The four most recently used directories (and any used in the last
-  hour) are kept.
+  starts a fresh directory (no stale callee is ever loaded; the directory is numba's documented
+  ``NUMBA_CACHE_DIR`` / ``numba.config.CACHE_DIR``, set while the package's dispatchers are made and restored
+  after). Its root is the first writable of ``$NUMBA_CACHE_DIR/hqp_tpm``, the package's ``__pycache__`` and the
+  user cache directory (``$XDG_CACHE_HOME`` or ``~/.cache``, ``/hqp_tpm``); with none writable (a read-only install
+  run by a user without a home) the kernels compile in memory, once per process, with a one-line notice on stderr.
+  The four most recently used directories (and any used in the last hour) are kept. A kernel found there is loaded
+  by :func:`kernel_cache`'s subclass of numba's cache class, which skips the refresh of numba's compiler registries
+  that loading machine code does not need (the package's dispatchers only; numba's compiler refreshes them itself
+  whenever it compiles).
 * Before numba reads the cache, every cache file (index ``.nbi``, data ``.nbc``) not seen whole before is parsed
   as the pickle stream numba reads (:mod:`pickletools`, nothing is executed); a damaged one (truncated, zeroed) is
   deleted with a one-line notice on stderr, and numba compiles that kernel again and writes it anew. Files seen
@@ -25,10 +27,17 @@
   stderr, once per process (:data:`COMPILING`; none when a notice above already said why they compile), through
   :func:`set_notice_writer`'s writer (e.g. a progress bar's); :func:`compile_seconds` is the time the process
   spent compiling kernels or loading them from the cache, so callers can keep it out of step times.
+* numba is imported, and compiles or loads, with the cyclic garbage collector paused (:func:`gc_paused`); the
+  objects alive after numba's first import are frozen (``gc.freeze()``, :func:`_numba`): later collections and the
+  interpreter's at exit do not walk numba's registries again. With these a process that loads its kernels from the
+  cache spends ~0.1 s of CPU on them (a 1,000-step script is no slower than with ``HQP_TPM_COMPILED=0``;
+  ``benchmarks/first_run.py``).
 """
 
 from __future__ import annotations
 
+import contextlib
+import gc
 import hashlib
 import importlib.util
 import io
@@ -58,10 +67,12 @@ _COMPILED: set[str] = set()
 _PENDING: dict[str, dict] = {}                      # modules compiled when the switch is turned on
 _LOCK = threading.RLock()
 _CACHE: list = []                                   # [the cache directory or None], once known
+_KERNEL_CACHE: list = []                            # [kernel_cache()'s class or None], once known
 _NOTICE = [None]                                    # [a writer of notice lines, or None: stderr]
 #: The notice printed the first time in a process numba compiles a kernel of the package (not when it loads one).
 COMPILING = "compiling kernels: first run on this machine only"
-_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False}
+_COMPILE = {"seconds": 0.0, "depth": 0, "start": 0.0, "noticed": False, "listening": False, "gc": True,
+            "frozen": False, "compiled": False}
 _IMPORTS_JIT = re.compile(r"^\s*(?:from\s+hqp_tpm\s+import\s+[^\n]*\b_jit\b|from\s+hqp_tpm\._jit\s+import|"
                           r"import\s+hqp_tpm\._jit)", re.M)
 _FROM_IMPORT = re.compile(r"^\s*from\s+(hqp_tpm(?:\.\w+)*)\s+import\s+(\([^)]*\)|[^\n]*)", re.M)
@@ -101,6 +112,7 @@ def _listen() -> None:
 
     class Compiling(event.Listener):
         def on_start(self, ev):
+            _COMPILE["compiled"] = True
             fn = getattr(ev.data.get("dispatcher"), "py_func", None)
             in_memory = bool(_CACHE) and _CACHE[0] is None  # (compiled in every process: cache_dir's notice says so)
             if not _COMPILE["noticed"] and not in_memory and getattr(fn, "__module__", "").startswith("hqp_tpm"):
@@ -114,11 +126,17 @@ def _listen() -> None:
         def on_start(self, ev):
             if _COMPILE["depth"] == 0:
                 _COMPILE["start"] = time.perf_counter()
+                _COMPILE["gc"] = gc.isenabled()
+                gc.disable()
             _COMPILE["depth"] += 1
 
         def on_end(self, ev):
             _COMPILE["depth"] = max(_COMPILE["depth"] - 1, 0)
             if _COMPILE["depth"] == 0:
+                if _COMPILE["gc"]:  # the span's objects collected once, here: not in the caller's next steps
+                    gc.enable()
+                    gc.collect(2 if _COMPILE["compiled"] else 0)
+                _COMPILE["compiled"] = False
                 _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
 
     event.register("numba:compile", Compiling())
@@ -176,29 +194,100 @@ def set_enabled(value: bool) -> None:
                 compile_module(namespace)
 
 
+def _numba():
+    """numba, imported with the cyclic garbage collector paused (:func:`gc_paused`); the first time, every object
+    alive then is moved to the collector's permanent generation (``gc.freeze()``): numba's import makes tens of
+    thousands of objects that live as long as the process, and each full collection after (and the interpreter's at
+    exit) would walk them all again (~0.13 s of CPU in a 1,000-step script, ``benchmarks/first_run.py``). What is
+    frozen is what the imports so far made (modules, numba's registries) and is never freed before exit anyway."""
+    with gc_paused():
+        import numba
+    if not _COMPILE["frozen"]:
+        _COMPILE["frozen"] = True
+        gc.freeze()
+    return numba
+
+
+@contextlib.contextmanager
+def gc_paused():
+    """The cyclic garbage collector off inside (as it was after): importing numba, and numba compiling or loading a
+    kernel (the listener of ``numba:compiler_lock`` does the same), make hundreds of thousands of objects that live as
+    long as the process; each collection meanwhile walks them all again (15 % of a first run's CPU, a third of a warm
+    process's kernel load). Nothing is computed differently; the garbage of those spans is collected after."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
+def kernel_cache():
+    """The class of the package's kernels' disk cache (or None: numba's own), a subclass of numba's
+    ``FunctionCache`` whose ``load_overload`` loads a kernel without numba's ``target_context.refresh()`` first: that
+    refresh imports and registers the typing and lowering of everything numba can compile (numpy, linalg, typed
+    containers, random, ...; ~0.25 s of CPU, then more at exit), which compiling needs (numba's compiler refreshes
+    the context itself, whatever the cache did) but loading machine code does not: it needs numba's runtime (NRT),
+    initialized here as numba's refresh does first. The loaded code is the code numba compiled and wrote, the same
+    bits. Should the load meet anything else (another numba), the full refresh runs and numba loads it its way."""
+    if not _KERNEL_CACHE:
+        cls = None
+        try:
+            from numba.core.caching import FunctionCache
+            from numba.core.runtime import rtsys
+
+            if all(hasattr(FunctionCache, a) for a in ("_guard_against_spurious_io_errors", "_load_overload")) \
+                    and hasattr(rtsys, "initialize"):
+                class KernelCache(FunctionCache):
+                    """numba's cache of one kernel, loaded without refreshing numba's compiler registries."""
+
+                    def load_overload(self, sig, target_context):
+                        try:
+                            rtsys.initialize(target_context)
+                            with self._guard_against_spurious_io_errors():
+                                return self._load_overload(sig, target_context)
+                        except Exception:  # noqa: BLE001 - numba's own way then
+                            return super().load_overload(sig, target_context)
+
+                cls = KernelCache
+        except ImportError:  # pragma: no cover - another numba: its own cache class
+            cls = None
+        _KERNEL_CACHE.append(cls)
+    return _KERNEL_CACHE[0]
+
+
 def dispatcher(fn, inline: bool = False):
-    """``fn`` as a numba dispatcher (``nogil``; cached in :func:`cache_dir` when there is one, else compiled in
-    memory), or None if numba cannot be imported."""
+    """``fn`` as a numba dispatcher (``nogil``; cached in :func:`cache_dir` when there is one, loaded by
+    :func:`kernel_cache`'s class, else compiled in memory), or None if numba cannot be imported."""
     with _LOCK:
         try:
-            import numba
+            numba = _numba()
         except ImportError as e:  # found but broken (e.g. llvmlite): the readable paths from now on
             _SWITCH["available"] = _SWITCH["enabled"] = False
             notice(f"numba cannot be imported ({e}): the compiled kernels are off")
             return None
         _listen()
         where = cache_dir()
-        options = {"nogil": True, "inline": "always" if inline else "never"}
+        # no_cfunc_wrapper: no C-callable wrapper (for a kernel passed as a first-class function value, which the
+        # package never does) compiled and optimized beside each kernel: ~5 % of a kernel's compile
+        options = {"nogil": True, "inline": "always" if inline else "never", "no_cfunc_wrapper": True}
+        d = numba.njit(**options)(fn)
         if where is None:
-            return numba.njit(**options)(fn)
+            return d
         before = numba.config.CACHE_DIR
         numba.config.CACHE_DIR = str(where)  # read once, by the dispatcher's cache locator (restored below)
         try:
-            return numba.njit(cache=True, **options)(fn)
+            cache = kernel_cache()
+            if cache is None:
+                d.enable_caching()  # (numba's njit(cache=True))
+            else:
+                d._cache = cache(d.py_func)  # (what enable_caching sets, with this cache class)
         except RuntimeError:  # no cache locator after all (the directory went away): in memory
-            return numba.njit(**options)(fn)
+            pass
         finally:
             numba.config.CACHE_DIR = before
+        return d
 
 
 def share_switch(module_name: str) -> None:
@@ -259,7 +348,7 @@ def kernel_files() -> list[Path]:
 
 def source_key() -> str:
     """Hash of the numba version, the Python version and the content of :func:`kernel_files` (16 hex digits)."""
-    import numba
+    numba = _numba()
 
     h = hashlib.sha256(f"{numba.__version__} {sys.version}".encode())
     for path in kernel_files():
@@ -404,7 +493,7 @@ def address_readers():
     with _LOCK:
         if _float_pointer is None:
             try:
-                import numba as nb
+                nb = _numba()
                 from numba.extending import intrinsic
             except ImportError:
                 return None

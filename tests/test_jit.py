@@ -216,6 +216,61 @@ def test_switched_on_later_compiles_then(warm):
     got = run({"NUMBA_CACHE_DIR": str(cache), "HQP_TPM_COMPILED": "0"}, "solve", probe=probe)
     assert ok(got) == want and got.stderr == "", got.stderr
 
+#: The first kernel call of a process (``feedback2``) watched: the collections the cyclic garbage collector started
+#: meanwhile, its switch after, whether numba's import froze the objects alive then, which of numba's compiler modules
+#: had been imported by then, the kernel's numbers, and the young objects left uncollected after. ``off`` in argv:
+#: the program switched the collector off itself.
+LOAD = r"""
+import gc, sys
+import numpy as np
+started, watching = [], [False]
+gc.callbacks.append(lambda phase, info: watching[0] and phase == "start" and started.append(info["generation"]))
+from hqp_tpm.robot import _compiled as rc
+frozen = gc.get_freeze_count()
+if "off" in sys.argv:
+    gc.disable()
+e = np.array([1.0, -2.0, 0.5, 3.0])
+b = np.zeros(4)
+watching[0] = True
+rc.feedback2(b, e, 0.5 * e, 0.25 * e, -e, 0.1 * e, 2.0, 3.0)
+watching[0] = False
+compiler = [m for m in ("numba.np.linalg", "numba.np.arraymath", "numba.typed.typeddict") if m in sys.modules]
+print(repr([started, gc.isenabled(), frozen > 0, compiler, b.tolist(), gc.get_count()[0]]))
+"""
+
+
+@pytest.mark.parametrize("collector", ["on", "off"])
+def test_a_warm_process_loads_its_kernels_without_numba_s_compiler(warm, collector):
+    """Issue 29 (a 1,000-step script ran slower compiled than with ``HQP_TPM_COMPILED=0`` on main 312f146): a kernel
+    loaded from the cache imports none of what numba's compiler needs (on 312f146 numba refreshed its typing and
+    lowering registries first: numpy's and linalg's implementations, typed containers, ...); the cyclic garbage
+    collector runs no full collection while it loads (a few young ones; ~100 on 312f146) and is switched back as the
+    program had it; the objects alive after numba's import are frozen (no collection walks them again); the numbers
+    are the compiled kernel's."""
+    cache, want = warm
+    started, enabled, frozen, compiler, numbers, _ = ast.literal_eval(
+        ok(run({"NUMBA_CACHE_DIR": str(cache)}, collector, probe=LOAD)).strip().splitlines()[-1])
+    assert compiler == []
+    assert 2 not in started and len(started) <= 5  # (on 312f146: ~100, one full; young ones outside numba's lock)
+    assert enabled is (collector == "on")
+    assert frozen
+    assert numbers == ast.literal_eval(want)[:4]
+
+
+def test_compiling_pauses_the_collector_and_switches_it_back(tmp_path):
+    """An empty cache: while numba compiles the kernel the collector is paused (its compiler makes and drops millions
+    of objects: ~15 % of a first run's CPU went to ~100 collections per kernel on main 312f146), one collection
+    after, inside the compile's time (none of its objects left for the caller's next steps to collect), and the
+    collector on again;
+    the same numbers as loaded from the cache later."""
+    cold = ast.literal_eval(ok(run({"NUMBA_CACHE_DIR": str(tmp_path)}, probe=LOAD)).strip().splitlines()[-1])
+    assert len(cold[0]) <= 5 and cold[1] is True  # (on 312f146: ~110; here the one after the compile, and young
+    # ones outside numba's lock)
+    assert cold[5] < 700  # (the compile's objects were collected in it: none left for the caller's next steps)
+    warm_ = ast.literal_eval(ok(run({"NUMBA_CACHE_DIR": str(tmp_path)}, probe=LOAD)).strip().splitlines()[-1])
+    assert warm_[4] == cold[4]
+
+
 def test_one_switch():
     """The solvers' and the robot's ``ENABLED`` are one switch (main 0d7b885 had two, set apart)."""
     from hqp_tpm import _jit
