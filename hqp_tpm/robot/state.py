@@ -124,13 +124,6 @@ class State:
         pin.updateFramePlacements(self.model, self.data)
         self._partial = False
 
-    def memo(self, key, compute):
-        """``compute()`` once per update under ``key``: a derived quantity shared by its users within a step."""
-        cache = self._cache
-        if key not in cache:
-            cache[key] = compute()
-        return cache[key]
-
     # -- frames --------------------------------------------------------------------------------
     def placement(self, fid: int) -> pin.SE3:
         if self._partial:
