@@ -243,9 +243,11 @@ def test_probe_equals_a_field_updated_at_the_record_range():
     """probe()'s distances (the control field's and the culled pairs that could be nearer, DistanceField.nearest_within)
     equal, bit for bit, those of a field updated with surveillance record_range at the same state: along the first
     1.1 s of romeo_obstacles_sns_tpm (no pair in range, the obstacle row, obstacle and self rows), and at a state
-    where nothing is within record_range (NaN)."""
+    where nothing is within record_range (NaN). With pinocchio 3.4 and hppfcl (``make test-pin-lowest``) within
+    1e-15 relative: there the probe's distance and the reference field's differed by 8.3e-17 (6 ulps) at step 390."""
     ctx = build.build_run(scenario.load("romeo_obstacles_sns_tpm"))
     ctrl, pol = ctx.controller, ctx.policy
+    rel = 0.0 if int(pin.__version__.split(".")[0]) >= 4 else 1e-15
     reference = DistanceField(ctrl.robot.model, pol.record_field.geometry_model, (), pol.obstacles,
                               surveillance=pol.record_field.surveillance, self_pairs=pol.pairs, convexify=False)
     seen = set()
@@ -257,7 +259,10 @@ def test_probe_equals_a_field_updated_at_the_record_range():
         f = reference.update(ctrl.state.data, None, pol.field.t)
         for key, d, inside in (("d_obstacle", f.distance, f.in_range), ("d_self", f.self_distance, f.self_in_range)):
             want = np.where(inside, d, np.inf).min(initial=np.inf)
-            assert got[key] == want if np.isfinite(want) else np.isnan(got[key]), (i, key)
+            if np.isfinite(want):
+                assert abs(got[key] - want) <= rel * want, (i, key, got[key], want)
+            else:
+                assert np.isnan(got[key]), (i, key)
         seen.add(res.label())
     assert len(seen) >= 3
     far = wb.WholeBody(ctrl.robot, pol.top, pol.below, [Obstacle.sphere("far", [5.0, 0.0, 0.0], 0.1)],
