@@ -1,5 +1,7 @@
-"""The task rows the fused kernel writes (private; :mod:`hqp_tpm.control._lean`): a task's
-:meth:`~hqp_tpm.tasks.base.Task.row_source` registered with a :class:`~hqp_tpm.control._compiled_step.Program`.
+"""The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source`
+registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack
+(:mod:`hqp_tpm.control._lean`) or, as a :class:`TaskProgram`, one task's in the planned step of a policy
+(:mod:`hqp_tpm.policies._planned_step`).
 
 One registration for every task that describes its rows (frame position, orientation and pose, the centre of mass at
 velocity level, the posture of revolute and prismatic joints): the kernel reads pinocchio's frame placements and
