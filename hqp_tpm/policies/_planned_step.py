@@ -12,13 +12,15 @@ does per step:
 
 1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field, operator);
 2. the plan (or stack), and each task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
-   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by its ``jacobian`` and ``command``, an
-   :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a
-   :class:`~hqp_tpm.tasks.pointing.Pointing` (an inequality's cone row while ``e > 0``, target = its command) by
-   their row writers (one compiled call each: the numbers of their ``level``); any other task through its level's
-   analytic rows (:meth:`Level.as_equality`, the rows :func:`~hqp_tpm.solvers.levels.stacked` takes; when the box
-   bounds the command's rate, an inequality level is first seen from ``v``:
-   :func:`~hqp_tpm.control.command_rate.shifted`);
+   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by the compiled rows of its row source
+   (:class:`~hqp_tpm.control._task_rows.TaskProgram`: frame positions, the CoM at velocity level, a posture; the
+   extra command, e.g. Algorithm 1's EE repulsion (30), added in the kernel) or by its ``jacobian`` and
+   ``command``, an :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a :class:`~hqp_tpm.tasks.pointing.Pointing` (an
+   inequality's cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the
+   numbers of their ``level``); any other task through its level's analytic rows (:meth:`Level.as_equality`, the
+   rows :func:`~hqp_tpm.solvers.levels.stacked` takes; when the box bounds the command's rate, an inequality level
+   is first seen from ``v``: :func:`~hqp_tpm.control.command_rate.shifted`, or a
+   :class:`~hqp_tpm.tasks.avoidance.PairAvoidance`'s ``rows_from(v)``, the same rows in fewer calls);
 3. ``tpm``: one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
    ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000), the TPM kernel :func:`tpm` calls and the
    finiteness of ``x`` (without numba, or where that kernel declines: the same checks in numpy and
