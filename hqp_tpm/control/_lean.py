@@ -27,7 +27,7 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
-from hqp_tpm.control._task_rows import program_rows
+from hqp_tpm.control._task_rows import program_rows, write_own_rows
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
@@ -44,13 +44,8 @@ from hqp_tpm.tasks.base import Task
 
 
 def _writer(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
-    """``write(t)``: ``task``'s :meth:`~Task.jacobian` and :meth:`~Task.command` at ``state`` into its rows ``J``,
-    ``b`` (views of the stacked arrays)."""
-    def write(t: float) -> None:
-        Jt = task.jacobian(state)
-        J[...] = Jt
-        b[...] = task.command(state, t, order, None, Jt)
-    return write
+    """``write(t)``: ``task``'s own rows at ``state`` into ``J``, ``b`` (:func:`write_own_rows`)."""
+    return lambda t: write_own_rows(task, state, t, order, J, b)
 
 
 class JointBox:

@@ -38,6 +38,20 @@ def described(kind: type[Task]) -> bool:
     return source is not Task and all(issubclass(source, owner(name)) for name in _DESCRIBED)
 
 
+def source_of(task: Task) -> FrameRows | SelectionRows | CenterOfMassRows | None:
+    """``task``'s row source where it stands for its rows (:func:`described`), else None."""
+    return task.row_source() if described(type(task)) else None
+
+
+def write_own_rows(task: Task, state: State, t: float, order: int, J: np.ndarray, b: np.ndarray,
+                   extra=None) -> None:
+    """``task``'s own :meth:`~Task.jacobian` and :meth:`~Task.command` (with ``extra``) at ``state`` into ``J``,
+    ``b`` (views of stacked rows): the steps' rows of a task without compiled ones."""
+    Jt = task.jacobian(state)
+    J[...] = Jt
+    b[...] = task.command(state, t, order, extra, Jt)
+
+
 class ReferenceSlots:
     """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a program's
     floats when they are not the ones copied last (compared by identity, part by part): a constant reference is one
@@ -108,7 +122,7 @@ def program_rows(task: Task, state: State, order: int, program, row: int, J: np.
     kernel places the frames it reads where it can (else the state update places them); ``rate``: at order 2 the kernel
     computes a frame's Jacobian and ``J qd`` where it can (else pinocchio's Jacobian and numpy's ``J qd``, the bits of
     ``command``)."""
-    source = task.row_source() if described(type(task)) else None
+    source = source_of(task)
     if type(source) is SelectionRows:
         J[...] = task.jacobian(state)  # (constant: written once, the kernel writes b only)
         g, d = task.gains, len(source.qidx)
@@ -210,7 +224,7 @@ class TaskProgram:
     def of(cls, task: Task, state: State, order: int, J: np.ndarray, b: np.ndarray) -> TaskProgram | None:
         """``task``'s program writing into ``J`` (``dim x n``), ``b``, or None (no row source without a rotation
         error, or no compiled kernel)."""
-        source = task.row_source() if described(type(task)) else None
+        source = source_of(task)
         if source is None or (type(source) is FrameRows and source.R_d is not None):
             return None
         kernel = _compiled_step.kernel(_compiled_step.ROWS)
@@ -231,26 +245,17 @@ class TaskProgram:
 
     def __call__(self, t: float, extra: np.ndarray | None = None) -> None:
         ints, where = self.program.ints, self.extra
+        if not _compiled_step._compiled.ENABLED or extra is not None and (
+                where is None or type(extra) is not np.ndarray or extra.shape != self.b.shape or extra.dtype != float):
+            # the kernels switched off, or an extra command to convert or refuse as Task.command does
+            write_own_rows(self.task, self.state, t, self.order, self.J, self.b, extra)
+            return
         if extra is not None:
-            if where is None or type(extra) is not np.ndarray or extra.shape != self.b.shape or extra.dtype != float \
-                    or not _compiled_step._compiled.ENABLED:
-                self.readable(t, extra)  # (converted or refused as Task.command does)
-                return
             self.program.vecs[where[1]][...] = extra
             ints[where[0]] = where[1]
-        elif not _compiled_step._compiled.ENABLED:
-            self.readable(t, None)
-            return
         elif where is not None:
             ints[where[0]] = -1
         self.gather(t)
         st = self.state
         self.kernel(self.buf, ints, self.program.floats, st.q, st.v)  # (rows not finite: the step's check finds them)
         self.J[...], self.b[...] = self.rows
-
-    def readable(self, t: float, extra) -> None:
-        """The task's own ``jacobian`` and ``command`` into ``J``, ``b`` (the kernels switched off, an extra command to
-        convert or refuse)."""
-        Jt = self.task.jacobian(self.state)
-        self.J[...] = Jt
-        self.b[...] = self.task.command(self.state, t, self.order, extra, Jt)
