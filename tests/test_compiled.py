@@ -467,7 +467,7 @@ def test_tpm_scenarios_equal_with_the_kernel_on_and_off(name, compiled, monkeypa
     _compiled._sizes((1,))                             # (compiled first: the wrapper below is not)
     kernel = _compiled._tpm
     monkeypatch.setattr(_compiled, "_tpm", lambda *a: paths.append(kernel(*a)) or paths[-1])
-    planned = []  # (a policy's planned step solves through the stacked kernel: hqp_tpm.policies._planned_step)
+    planned = []  # (a policy's planned step solves through the stacked kernel: hqp_tpm.control._planned_step)
     stacked = _compiled_step.stacked_kernel
 
     def counted(tall):

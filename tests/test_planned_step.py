@@ -1,4 +1,4 @@
-"""The compiled step of a planning policy (hqp_tpm.policies._planned_step) equals the readable step.
+"""The compiled step of a planning policy (hqp_tpm.control._planned_step) equals the readable step.
 
 Two controllers built alike, one stepped by ``Controller.step(record=True)`` (the readable path: Stack -> Level ->
 solver, the oracle), the other by ``Controller.step()`` (its compiled step, :class:`Planned`): commands, ``q``,
@@ -15,9 +15,9 @@ import pytest
 
 from hqp_tpm.app.build import build
 from hqp_tpm.app.scenario import load
+from hqp_tpm.control._planned_step import PlannedStep
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
-from hqp_tpm.policies._planned_step import PlannedStep
 
 #: The state of the recorded lwr_relaxed run at step 17,890 (t = 17.89 s): the avoidance goes above the EE
 #: task some 30 steps later (the run's only "avoid > ee > pointing" steps).
@@ -358,3 +358,38 @@ def test_planned_solve_kernel_equals_tpm_stacked():
     assert kernel(J, b, *args) == _compiled_step.NONFINITE_ROWS
     J, b = 1e-160 * np.eye(3), np.full(3, 1e150)  # well conditioned, rows within bounds, x = 1e310 overflows
     assert kernel(J, b, *args) == _compiled_step.NONFINITE_X
+
+
+@pytest.mark.parametrize("name, cone", [("iiwa_first_controller", True), ("lwr_tracking", False)])
+def test_fixed_stack_with_a_pointing_task_runs_the_planned_step(name, cone):
+    """A fixed stack with a pointing task (its own ``level``: the cone (21) as an inequality, or an equality) runs the
+    planned step (it ran the readable step before), with the readable step's numbers and records: an inactive cone's
+    level is in ``res.levels`` too, as :meth:`Pointing.level` gives it."""
+    ref, fast = (build(load(name))[1] for _ in range(2))
+    assert type(fast._compiled_step()) is PlannedStep
+    same_steps(ref, fast, 150)
+    res, want = fast.step(), ref.step(record=True)
+    pointing = [lv for lv in want.levels if lv.name == "pointing"]
+    assert len(pointing) == 1 and (pointing[0].b is None) == cone  # (an inequality level: lower, upper, active)
+    if cone:
+        assert not pointing[0].active_rows().any()  # (this window: inside the cone, the level inactive)
+    same_record(res, want)
+
+
+def test_every_shipped_scenario_with_an_analytic_solver_runs_compiled():
+    """``ctrl.step()`` is the compiled step for every shipped scenario solved by ``tpm`` or ``sns_tpm`` (a fixed
+    stack of equality tasks: LeanStep; any other fixed stack or a shipped policy: PlannedStep)."""
+    from importlib import resources
+
+    from hqp_tpm.app.build import build_run
+
+    names = sorted(p.name[:-5] for p in resources.files("hqp_tpm.data.scenarios").iterdir()
+                   if p.name.endswith(".toml"))
+    checked = []
+    for name in names:
+        ctrl = build_run(load(name)).controller
+        if ctrl.solver in ("tpm", "sns_tpm"):
+            assert ctrl.compiled(), (name, PlannedStep.why_not(ctrl))
+            checked.append(name)
+    assert {"iiwa_first_controller", "lwr_tracking", "iiwa_mujoco", "lwr_relaxed", "romeo_obstacles_sns_tpm"} \
+        <= set(checked)

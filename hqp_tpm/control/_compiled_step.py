@@ -285,7 +285,7 @@ def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled
 
 
 def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
-    """The planned step's solve (:mod:`hqp_tpm.policies._planned_step`) on its stacked ``J`` (``m x n``, ``m <= n``),
+    """The planned step's solve (:mod:`hqp_tpm.control._planned_step`) on its stacked ``J`` (``m x n``, ``m <= n``),
     ``b``: their finiteness, ``x0 = -damping v`` when ``damping`` (:func:`_stacked_rows`), the TPM kernel
     ``tpm_stacked`` would call (``_general``), ``x``'s finiteness (:func:`_x_status`); the statuses of
     :func:`kernel`. Three compiled calls, not one kernel: a kernel calling ``_general`` would compile all of its

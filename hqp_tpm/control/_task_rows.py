@@ -1,7 +1,7 @@
 """The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source`
 registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack
 (:mod:`hqp_tpm.control._lean`) or, as a :class:`TaskProgram`, one task's in the planned step of a policy
-(:mod:`hqp_tpm.policies._planned_step`).
+(:mod:`hqp_tpm.control._planned_step`).
 
 One registration for every task that describes its rows (frame position, orientation and pose, the centre of mass at
 velocity level, the posture of revolute and prismatic joints): the kernel reads pinocchio's frame placements and
@@ -212,7 +212,7 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
 
 class TaskProgram:
     """One task's rows written by the compiled rows kernel into ``J``, ``b`` (the planned step's,
-    :mod:`hqp_tpm.policies._planned_step`): ``write(t, extra=None)`` gives the numbers of the task's ``jacobian`` and
+    :mod:`hqp_tpm.control._planned_step`): ``write(t, extra=None)`` gives the numbers of the task's ``jacobian`` and
     ``command(state, t, order, extra)`` to the last bit, the extra command added in the kernel as ``command`` adds
     it. For the tasks without a rotation error (frame positions, the CoM at velocity level, a posture without an
     extra command; the planned step's state update places every frame, the kernel does not; at order 2 ``J qd`` is

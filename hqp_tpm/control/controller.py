@@ -21,6 +21,7 @@ import numpy as np
 from scipy.linalg.blas import ddot as _ddot
 
 from hqp_tpm.control._lean import LeanStep
+from hqp_tpm.control._planned_step import PlannedStep
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
 from hqp_tpm.control.policy import FunctionPolicy, Policy
@@ -184,13 +185,16 @@ class Controller:
         """The compiled step of the policy under this controller's settings (None: the readable step), planned on first
         use and again when the policy, a setting or the structure of the policy's stack changed.
 
-        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; a policy that plans its stack:
-        its own (:meth:`Policy.compiled_step`, e.g. Algorithm 1's)."""
+        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; any other fixed stack (e.g.
+        with a pointing cone): :class:`hqp_tpm.control._planned_step.PlannedStep`; a policy that plans its stack: its
+        own (:meth:`Policy.compiled_step`, e.g. Algorithm 1's)."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast
         if key != self._fast_key or (fast is not None and not fast.current()):
-            fast = self._fast = LeanStep.of(self) or self._policy.compiled_step(self)
+            policy = self._policy  # (a fixed stack with inequality tasks: the planned step, which writes them)
+            fast = self._fast = LeanStep.of(self) or (PlannedStep.of(self) if type(policy) is FixedStack
+                                                      else policy.compiled_step(self))
             self._fast_key = key
         return fast
 

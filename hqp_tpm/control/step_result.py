@@ -81,7 +81,7 @@ class StepResult:
 
 class CompiledStep:
     """Base of a controller's compiled steps (:class:`hqp_tpm.control._lean.LeanStep`, Algorithm 1's
-    :class:`hqp_tpm.policies._planned_step.PlannedStep`): the readable step's numbers in fewer calls.
+    :class:`hqp_tpm.control._planned_step.PlannedStep`): the readable step's numbers in fewer calls.
 
     ``compute() -> command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it,
     keeping ``(step, q, v, rows, ...)`` (``q``, ``v``: the state it started from; the controller replaces, never writes,

@@ -19,13 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hqp_tpm.control._planned_step import PlanningPolicy
 from hqp_tpm.control.policy import DistancePolicy, SceneItems
 from hqp_tpm.errors import ParameterError, unknown_name
 from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle
 from hqp_tpm.geometry.repulsion import DIRECTIONS, Repulsion, nearest_element
-from hqp_tpm.policies._planned_step import PlanningPolicy
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks import Pointing
@@ -98,7 +98,7 @@ class Algorithm1(DistancePolicy, PlanningPolicy):
     # the algorithm -------------------------------------------------------------------------
     def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict[str, np.ndarray]]:
         """This step's stack as its tasks, one per level (highest first), and the extra commands by task
-        name: what ``__call__`` wraps in a :class:`Stack` and the lean step (:mod:`~hqp_tpm.policies._planned_step`)
+        name: what ``__call__`` wraps in a :class:`Stack` and the lean step (:mod:`~hqp_tpm.control._planned_step`)
         writes as rows."""
         f, th = self.field, self.th
         # EE control point: repulsion added to the EE command (30) while d_ee <= eps_ee; the obstacle of

@@ -56,12 +56,12 @@ import math
 
 import numpy as np
 
+from hqp_tpm.control._planned_step import StackPolicy
 from hqp_tpm.control.policy import DistancePolicy, SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ScenarioError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle
-from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.pwdls import pwdls
 from hqp_tpm.tasks.avoidance import Avoidance

@@ -51,10 +51,10 @@ import math
 
 import numpy as np
 
+from hqp_tpm.control._planned_step import StackPolicy
 from hqp_tpm.control.policy import SceneItems
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError
-from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.references.operator import Operator
 from hqp_tpm.references.trajectories import Constant
 from hqp_tpm.robot.state import State

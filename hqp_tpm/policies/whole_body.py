@@ -61,12 +61,12 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
+from hqp_tpm.control._planned_step import PlanningPolicy
 from hqp_tpm.control.policy import DistancePolicy, SceneItems, moving_targets
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
 from hqp_tpm.geometry.obstacles import Obstacle, convexified
-from hqp_tpm.policies._planned_step import PlanningPolicy
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.avoidance import PairAvoidance
@@ -221,7 +221,7 @@ class WholeBody(DistancePolicy, PlanningPolicy):
 
     def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict]:
         """This step's tasks, one per level (highest first), no extra command (``__call__`` wraps them in a
-        :class:`Stack`; the planned step, :mod:`~hqp_tpm.policies._planned_step`, writes their rows)."""
+        :class:`Stack`; the planned step, :mod:`~hqp_tpm.control._planned_step`, writes their rows)."""
         f, data, model = self.field, state.data, self.robot.model
         levels: list[Task] = list(self.top)
         rows = self.obstacle_pairs()

@@ -50,7 +50,7 @@ from hqp_tpm.control._lean import JointBox
 from hqp_tpm.control._task_rows import TaskProgram
 from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
 from hqp_tpm.control.policy import Policy
-from hqp_tpm.control.stack import Stack, merge_levels
+from hqp_tpm.control.stack import FixedStack, Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot.limits import JointLimits
@@ -106,8 +106,8 @@ class PlannedStep(CompiledStep):
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not isinstance(policy, (PlanningPolicy, StackPolicy)):
-            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()) nor StackPolicy"
+        if not (isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) is FixedStack):
+            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()), StackPolicy nor FixedStack"
         if ctrl.solver not in ("tpm", "sns_tpm"):
             return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
         if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):
@@ -176,8 +176,9 @@ class PlannedStep(CompiledStep):
                 if w is None or (w is not False and w[4] is not task):
                     w = self._place(task, a)
                 if w is not False and (extra is None or w[2]):  # a row writer, writing in place
-                    if w[1]:                  # the cone (21): its row while e > 0
+                    if w[1]:                  # the cone (21): its row while e > 0 (else an inactive level)
                         if not w[0](t) > 0.0:
+                            made.append((task, a, 0, (self.J[a:a + 1].copy(), self.b[a:a + 1].copy()), g))
                             continue
                     elif extra is None:
                         w[0](t)
@@ -197,10 +198,11 @@ class PlannedStep(CompiledStep):
                 elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
                     Jt, bt = task.jacobian(st), task.command(st, t, order)
                 elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
-                    if not task.pointing_error(st) > 0.0:
-                        continue
                     Jt = task.jacobian(st)
                     bt = task.command(st, t, order, extra, Jt)
+                    if not task.pointing_error(st) > 0.0:  # (an inactive level, as in the readable levels)
+                        made.append((task, a, 0, (Jt, bt), g))
+                        continue
                     lv = True
                 else:
                     lv = task.level(st, t, order, extra)
@@ -371,6 +373,8 @@ class PlannedStep(CompiledStep):
                 lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
             elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
                 lv = task.cone_level(J[a:a + k], b[a:a + k], True)
+            elif type(lv) is tuple:  # its row while e <= 0: an inactive level
+                lv = task.cone_level(*lv, False)
             groups.setdefault(g, []).append(lv)
         return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
