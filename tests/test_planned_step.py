@@ -16,6 +16,7 @@ import pytest
 from hqp_tpm.app.build import build
 from hqp_tpm.app.scenario import load
 from hqp_tpm.control._planned_step import PlannedStep
+from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
 
@@ -201,13 +202,26 @@ def test_non_finite_rows_raise_the_readable_error_and_change_nothing(bad):
     np.testing.assert_array_equal(ctrl.policy.snapshot()[1], history[1])
 
 
+class OwnPolicy(Policy):
+    """A third-party policy (not a StackPolicy): the readable step, unless it offers its own compiled step."""
+
+    def __init__(self, task):
+        self.task = task
+
+    def __call__(self, state, t):
+        return Stack.of(self.task)
+
+    def tasks(self):
+        return [self.task]
+
+
 @pytest.mark.parametrize("change, why", [
     (lambda c: setattr(c, "solver", "sns"), "solver 'sns'"),
     (lambda c: setattr(c, "solver", "qp"), "solver 'qp'"),
     (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box"),
     (lambda c: (setattr(c, "solver", "sns_tpm"), setattr(c, "box", lambda st, t: (None, None))), "a box"),
     (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
-    (lambda c: setattr(c, "policy", (lambda task: lambda st, t: Stack.of(task))(c.tasks()[0])), "not a PlanningPolicy"),
+    (lambda c: setattr(c, "policy", OwnPolicy(c.tasks()[0])), "not a PlanningPolicy"),
 ])
 def test_unsupported_set_ups_say_why(change, why):
     ctrl = lwr()
@@ -393,3 +407,21 @@ def test_every_shipped_scenario_with_an_analytic_solver_runs_compiled():
             checked.append(name)
     assert {"iiwa_first_controller", "lwr_tracking", "iiwa_mujoco", "lwr_relaxed", "romeo_obstacles_sns_tpm"} \
         <= set(checked)
+
+
+def test_a_stack_function_runs_the_planned_step():
+    """A plain function ``f(state, t) -> Stack`` given as the policy (a :class:`FunctionPolicy`) runs the planned
+    step with the readable step's numbers, its stack changing between steps (here: the pointing level every other
+    100 steps)."""
+    from hqp_tpm.app.build import build_run
+
+    def controller():
+        ctrl = build_run(load("iiwa_first_controller")).controller
+        ee, pointing, posture = ctrl.tasks()
+        ctrl.policy = lambda st, t: Stack.of(ee, pointing, posture) if int(t * 10) % 2 else Stack.of(ee, posture)
+        return ctrl
+
+    ref, fast = controller(), controller()
+    assert type(fast._compiled_step()) is PlannedStep
+    labels = same_steps(ref, fast, 250)
+    assert labels == {"ee > pointing > posture", "ee > posture"}

@@ -49,7 +49,7 @@ from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._lean import JointBox
 from hqp_tpm.control._task_rows import TaskProgram
 from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
-from hqp_tpm.control.policy import Policy
+from hqp_tpm.control.policy import FunctionPolicy, Policy
 from hqp_tpm.control.stack import FixedStack, Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
@@ -106,8 +106,9 @@ class PlannedStep(CompiledStep):
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not (isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) is FixedStack):
-            return f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()), StackPolicy nor FixedStack"
+        if not (isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) in (FixedStack, FunctionPolicy)):
+            return (f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()), StackPolicy, FixedStack "
+                    "nor FunctionPolicy")
         if ctrl.solver not in ("tpm", "sns_tpm"):
             return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
         if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):

@@ -186,15 +186,16 @@ class Controller:
         use and again when the policy, a setting or the structure of the policy's stack changed.
 
         A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; any other fixed stack (e.g.
-        with a pointing cone): :class:`hqp_tpm.control._planned_step.PlannedStep`; a policy that plans its stack: its
-        own (:meth:`Policy.compiled_step`, e.g. Algorithm 1's)."""
+        with a pointing cone) or a stack function (:class:`FunctionPolicy`):
+        :class:`hqp_tpm.control._planned_step.PlannedStep`; a policy: its own (:meth:`Policy.compiled_step`, the
+        planned step of a ``PlanningPolicy`` or ``StackPolicy``)."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast
         if key != self._fast_key or (fast is not None and not fast.current()):
-            policy = self._policy  # (a fixed stack with inequality tasks: the planned step, which writes them)
-            fast = self._fast = LeanStep.of(self) or (PlannedStep.of(self) if type(policy) is FixedStack
-                                                      else policy.compiled_step(self))
+            policy = self._policy  # (a stack given as levels or a function: the planned step, any task's rows)
+            stack = type(policy) in (FixedStack, FunctionPolicy)
+            fast = self._fast = LeanStep.of(self) or (PlannedStep.of(self) if stack else policy.compiled_step(self))
             self._fast_key = key
         return fast
 
