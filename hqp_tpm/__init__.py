@@ -41,7 +41,8 @@ _EXPORTS = {
     "Stack": "hqp_tpm.control.stack", "FixedStack": "hqp_tpm.control.stack",
     "Controller": "hqp_tpm.control.controller", "StepResult": "hqp_tpm.control.controller",
     "Policy": "hqp_tpm.control.policy", "DistancePolicy": "hqp_tpm.control.policy",
-    "SceneItems": "hqp_tpm.control.policy",
+    "SceneItems": "hqp_tpm.control.policy", "StackPolicy": "hqp_tpm.control.policy",
+    "PlanningPolicy": "hqp_tpm.control.policy",
     # solvers
     **{name: "hqp_tpm.solvers" for name in (
         "Level", "tpm", "tpm_reference", "tpm_factors", "nullspace", "sns_tpm", "sns_tpm_reference", "sns",

@@ -41,15 +41,13 @@ to the readable path, which raises the same typed error naming the task. Transac
 
 from __future__ import annotations
 
-from abc import abstractmethod
-
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._lean import JointBox
 from hqp_tpm.control._task_rows import TaskProgram
 from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
-from hqp_tpm.control.policy import FunctionPolicy, Policy
+from hqp_tpm.control.policy import FunctionPolicy, PlanningPolicy, Policy, StackPolicy
 from hqp_tpm.control.stack import FixedStack, Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
@@ -65,30 +63,10 @@ from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.pointing import Pointing
 
 
-class PlanningPolicy(Policy):
-    """A policy whose stack is one task per level: :meth:`plan` gives it, :meth:`__call__` wraps it in a Stack."""
-
-    @abstractmethod
-    def plan(self, state, t: float) -> tuple[tuple[Task, ...], dict]:
-        """This step's tasks, one per level (highest first), and the extra commands by task name."""
-
-    def __call__(self, state, t: float) -> Stack:
-        tasks, extras = self.plan(state, t)
-        return Stack([(task,) for task in tasks], extras)
-
-    def compiled_step(self, ctrl) -> PlannedStep | None:
-        """:class:`PlannedStep` (solved by ``tpm`` without a box), else None (the readable step)."""
-        return PlannedStep.of(ctrl)
-
-
-class StackPolicy(Policy):
-    """A policy whose stack (its ``__call__``) the planned step takes as it is: it writes the rows of each level's
-    tasks in turn (a level of several tasks: their rows stacked, as :func:`~hqp_tpm.control.stack.merge_levels`
-    merges them) and blends (:meth:`Policy.blend`) as the readable step does."""
-
-    def compiled_step(self, ctrl) -> PlannedStep | None:
-        """:class:`PlannedStep` (solved by ``tpm``, or ``sns_tpm`` in the joint limits' box), else None."""
-        return PlannedStep.of(ctrl)
+def planned(policy: Policy) -> bool:
+    """Whether the planned step takes ``policy``'s stacks: a :class:`PlanningPolicy` or :class:`StackPolicy` (every
+    shipped policy), a :class:`FixedStack` or a stack function (:class:`FunctionPolicy`)."""
+    return isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) in (FixedStack, FunctionPolicy)
 
 
 class PlannedStep(CompiledStep):
@@ -106,7 +84,7 @@ class PlannedStep(CompiledStep):
     def why_not(ctrl) -> str | None:
         """Why the planned step does not apply to ``ctrl`` (None when it does)."""
         policy = ctrl.policy
-        if not (isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) in (FixedStack, FunctionPolicy)):
+        if not planned(policy):
             return (f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()), StackPolicy, FixedStack "
                     "nor FunctionPolicy")
         if ctrl.solver not in ("tpm", "sns_tpm"):

@@ -22,7 +22,9 @@ Optional (defaults do nothing):
                                       scenario's obstacles)
     ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
                                       step changes nothing (:meth:`Controller.step` is transactional)
-    ``compiled_step(ctrl)``           the policy's compiled step (Algorithm 1's), or None
+    ``compiled_step(ctrl)``           the policy's compiled step, or None (the readable step); derive from
+                                      ``StackPolicy`` or ``PlanningPolicy`` (below) to get the planned step
+                                      (every shipped policy does)
 
 :class:`DistancePolicy` is the shared base of the policies driven by a
 :class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body): it updates the
@@ -134,6 +136,27 @@ class Policy(ABC):
 
     def restore(self, snapshot: Any) -> None:  # noqa: B027 - optional, nothing to restore by default
         """Put back a :meth:`snapshot` (a rejected step changes nothing)."""
+
+
+class StackPolicy(Policy):
+    """A policy whose stack (its ``__call__``) the compiled step takes as it is
+    (:mod:`hqp_tpm.control._planned_step`): it writes the rows of each level's tasks in turn and blends
+    (:meth:`Policy.blend`) as the readable step does."""
+
+
+class PlanningPolicy(Policy):
+    """A policy whose stack is one task per level: :meth:`plan` gives it, :meth:`__call__` wraps it in a Stack (the
+    compiled step reads the plan)."""
+
+    @abstractmethod
+    def plan(self, state: State, t: float) -> tuple[tuple[Task, ...], dict]:
+        """This step's tasks, one per level (highest first), and the extra commands by task name."""
+
+    def __call__(self, state: State, t: float) -> Stack:
+        from hqp_tpm.control.stack import Stack  # (stack.py imports this module)
+
+        tasks, extras = self.plan(state, t)
+        return Stack([(task,) for task in tasks], extras)
 
 
 class DistancePolicy(Policy):

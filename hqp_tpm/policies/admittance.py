@@ -20,8 +20,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.control._planned_step import StackPolicy
-from hqp_tpm.control.policy import SceneItems
+from hqp_tpm.control.policy import SceneItems, StackPolicy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError, ScenarioError
 from hqp_tpm.policies.switching import ComanipulationIndices

@@ -19,8 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hqp_tpm.control._planned_step import PlanningPolicy
-from hqp_tpm.control.policy import DistancePolicy, SceneItems
+from hqp_tpm.control.policy import DistancePolicy, PlanningPolicy, SceneItems
 from hqp_tpm.errors import ParameterError, unknown_name
 from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField

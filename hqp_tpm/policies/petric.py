@@ -56,8 +56,7 @@ import math
 
 import numpy as np
 
-from hqp_tpm.control._planned_step import StackPolicy
-from hqp_tpm.control.policy import DistancePolicy, SceneItems
+from hqp_tpm.control.policy import DistancePolicy, SceneItems, StackPolicy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ScenarioError, unknown_name
 from hqp_tpm.geometry.distances import DistanceField

@@ -51,8 +51,7 @@ import math
 
 import numpy as np
 
-from hqp_tpm.control._planned_step import StackPolicy
-from hqp_tpm.control.policy import SceneItems
+from hqp_tpm.control.policy import SceneItems, StackPolicy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ParameterError
 from hqp_tpm.references.operator import Operator

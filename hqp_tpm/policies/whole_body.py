@@ -61,8 +61,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.control._planned_step import PlanningPolicy
-from hqp_tpm.control.policy import DistancePolicy, SceneItems, moving_targets
+from hqp_tpm.control.policy import DistancePolicy, PlanningPolicy, SceneItems, moving_targets
 from hqp_tpm.errors import ParameterError, RobotFileError, ScenarioError
 from hqp_tpm.geometry import _compiled as _kernels
 from hqp_tpm.geometry.distances import DistanceField
