@@ -38,7 +38,7 @@ _EXPORTS = {
         "Task", "Gains", "CenterOfMass", "Force", "FrameOrientation", "FramePose", "FramePosition", "JointLimit",
         "JointVelocity", "Manipulability", "Pointing", "Posture", "QuaternionOrientation")},
     # control
-    "Stack": "hqp_tpm.control.stack", "FixedStack": "hqp_tpm.control.stack",
+    "Stack": "hqp_tpm.control.stack", "FixedStack": "hqp_tpm.control.policy",
     "Controller": "hqp_tpm.control.controller", "StepResult": "hqp_tpm.control.controller",
     "Policy": "hqp_tpm.control.policy", "DistancePolicy": "hqp_tpm.control.policy",
     "SceneItems": "hqp_tpm.control.policy", "StackPolicy": "hqp_tpm.control.policy",

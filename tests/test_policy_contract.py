@@ -11,8 +11,8 @@ import pytest
 
 from hqp_tpm.app import build, scenario
 from hqp_tpm.control.controller import Controller
-from hqp_tpm.control.policy import DistancePolicy, FunctionPolicy, Policy, SceneItems
-from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.control.policy import DistancePolicy, FixedStack, FunctionPolicy, Policy, SceneItems
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.policies.admittance import Admittance
 from hqp_tpm.policies.algorithm1 import Algorithm1
 from hqp_tpm.policies.petric import Petric

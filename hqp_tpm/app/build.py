@@ -7,10 +7,11 @@ import numpy as np
 
 from hqp_tpm.app.context import RunContext
 from hqp_tpm.app.policy_builders import POLICY_BUILDERS
-from hqp_tpm.app.scenario import Scenario, Section, number, vector
+from hqp_tpm.app.scenario import Scenario
+from hqp_tpm.app.scenario_values import Section, number, vector
 from hqp_tpm.control.controller import Controller
-from hqp_tpm.control.policy import DistancePolicy, Policy
-from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.control.policy import DistancePolicy, FixedStack, Policy
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import HqpTpmError, ScenarioError, shown
 from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
 from hqp_tpm.robot.model import Robot

@@ -5,7 +5,7 @@
 
 The folder holds ``trajectory.npz`` (per step: ``t``, ``q``, ``dq``, ``ddq``, ``stack``, ``error_<task>``, ...),
 ``metrics.json``, the figures (``joint_velocities.png``, ``task_errors.png``, ...), ``replay.html`` and
-``manifest.json``, written as the command line writes them (:func:`hqp_tpm.app.cli.run_scenario`). The
+``manifest.json``, written as the command line writes them (:func:`hqp_tpm.app.run_scenario.run_scenario`). The
 figures and the replay need the ``app`` extra (``pip install 'hqp-tpm[app]'``: matplotlib, meshcat).
 """
 
@@ -34,7 +34,7 @@ def record(source, out: str | os.PathLike, *, steps: int | None = None, name: st
     The returned dict is ``metrics.json``'s content plus ``"out"`` (the folder) and ``"files"`` (the files
     written). Read the trajectory back with ``numpy.load(Path(out) / "trajectory.npz")``.
     """
-    from hqp_tpm.app.cli import run_scenario
+    from hqp_tpm.app.run_scenario import run_scenario
     from hqp_tpm.app.scenario import check_steps
     from hqp_tpm.control.controller import Controller
 
@@ -58,7 +58,8 @@ def record(source, out: str | os.PathLike, *, steps: int | None = None, name: st
 def run_context(ctrl, steps: int, *, name: str | None = None, tasks=None, obstacles=()):
     """The :class:`~hqp_tpm.app.context.RunContext` of a controller built in Python (no scenario file)."""
     from hqp_tpm.app.context import RunContext
-    from hqp_tpm.app.scenario import LEVELS, Scenario, Section
+    from hqp_tpm.app.scenario import LEVELS, Scenario
+    from hqp_tpm.app.scenario_values import Section
 
     tasks = list(ctrl.tasks() if tasks is None else tasks)
     by_name = {}

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hqp_tpm.app.scenario import Section
+from hqp_tpm.app.scenario_values import Section
 from hqp_tpm.errors import ParameterError, ScenarioError
 from hqp_tpm.plants.options import INTEGRATORS, KINDS, PlantOptions
 

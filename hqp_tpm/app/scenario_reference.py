@@ -1,6 +1,6 @@
 """The field reference of scenario files, generated from the code that parses them (so it cannot drift).
 
-Every field a scenario file may hold is read through a :class:`~hqp_tpm.app.scenario.Section` accessor
+Every field a scenario file may hold is read through a :class:`~hqp_tpm.app.scenario_values.Section` accessor
 (``number``, ``vector``, ``string``, ``boolean``, ``table``, ``tables``, ``raw``, ``has``) with the field's name
 as a string literal. This module reads those calls from the parser modules' source (``app/scenario.py``,
 ``app/build.py``, ``app/policy_builders/*.py``), with the default and the choices given in the call, and

@@ -235,7 +235,7 @@ def _scalars(summary: dict) -> dict:
 
 def run_job(job: Job) -> dict:
     """Run one variant; returns its row (never raises for a failing variant: the error is in the row)."""
-    from hqp_tpm.app.cli import run_scenario
+    from hqp_tpm.app.run_scenario import run_scenario
 
     v = job.variant
     row: dict = {"variant": v.name, "status": "error", "error": "", "error_type": ""}

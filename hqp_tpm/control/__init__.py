@@ -5,8 +5,16 @@ May import: :mod:`hqp_tpm.tasks`, :mod:`hqp_tpm.references`, :mod:`hqp_tpm.geome
 """
 
 from hqp_tpm.control.controller import Controller, StepResult
-from hqp_tpm.control.policy import DistancePolicy, FunctionPolicy, PlanningPolicy, Policy, SceneItems, StackPolicy
-from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.control.policy import (
+                                    DistancePolicy,
+                                    FixedStack,
+                                    FunctionPolicy,
+                                    PlanningPolicy,
+                                    Policy,
+                                    SceneItems,
+                                    StackPolicy,
+)
+from hqp_tpm.control.stack import Stack
 
 __all__ = ["Controller", "DistancePolicy", "FixedStack", "FunctionPolicy", "PlanningPolicy", "Policy", "SceneItems",
            "Stack", "StackPolicy", "StepResult"]

@@ -18,7 +18,7 @@ through the registry on levels that are views of ``J`` and ``b``.
 Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
 error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` and ``J-dot q-dot`` (to 1e-12).
 Supported (else :meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a
-:class:`~hqp_tpm.control.stack.FixedStack` without extra commands of equality tasks, no crosscheck, a policy that
+:class:`~hqp_tpm.control.policy.FixedStack` without extra commands of equality tasks, no crosscheck, a policy that
 neither updates nor blends. A step whose rows are not finite is handed to the readable path, which raises the typed
 error naming the task."""
 
@@ -29,8 +29,7 @@ import numpy as np
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._task_rows import program_rows, write_own_rows
 from hqp_tpm.control.command_rate import rate_limited, solve_around
-from hqp_tpm.control.policy import Policy
-from hqp_tpm.control.stack import FixedStack
+from hqp_tpm.control.policy import FixedStack, Policy
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled

@@ -47,8 +47,8 @@ from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._lean import JointBox
 from hqp_tpm.control._task_rows import TaskProgram
 from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
-from hqp_tpm.control.policy import FunctionPolicy, PlanningPolicy, Policy, StackPolicy
-from hqp_tpm.control.stack import FixedStack, Stack, merge_levels
+from hqp_tpm.control.policy import FixedStack, FunctionPolicy, PlanningPolicy, Policy, StackPolicy
+from hqp_tpm.control.stack import Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot.limits import JointLimits

@@ -24,8 +24,8 @@ from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.control._planned_step import PlannedStep, planned
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
-from hqp_tpm.control.policy import FunctionPolicy, Policy
-from hqp_tpm.control.stack import FixedStack, Stack
+from hqp_tpm.control.policy import FixedStack, FunctionPolicy, Policy
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.control.step_result import StepResult
 from hqp_tpm.errors import ArgumentTypeError, NonFiniteError, ParameterError, SolverFailedError
 from hqp_tpm.robot.limits import JointLimits

@@ -35,18 +35,18 @@ from __future__ import annotations
 
 import dataclasses
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, ClassVar
 
 import numpy as np
 
+from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import ArgumentTypeError
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Task
 
 if TYPE_CHECKING:
-    from hqp_tpm.control.stack import Stack
     from hqp_tpm.control.step_result import StepResult
     from hqp_tpm.geometry.distances import DistanceField
     from hqp_tpm.geometry.obstacles import Obstacle
@@ -153,8 +153,6 @@ class PlanningPolicy(Policy):
         """This step's tasks, one per level (highest first), and the extra commands by task name."""
 
     def __call__(self, state: State, t: float) -> Stack:
-        from hqp_tpm.control.stack import Stack  # (stack.py imports this module)
-
         tasks, extras = self.plan(state, t)
         return Stack([(task,) for task in tasks], extras)
 
@@ -197,8 +195,6 @@ class FunctionPolicy(Policy):
         self._entered: dict[int, Task] = {}  # id -> task: the tasks not in ``tasks`` started so far
 
     def __call__(self, state: State, t: float) -> Stack:
-        from hqp_tpm.control.stack import Stack  # (stack.py imports this module)
-
         stack = self.fn(state, t)
         if not isinstance(stack, Stack):
             raise ArgumentTypeError(f"the policy function {self.fn!r} returned {type(stack).__name__}, expected a "
@@ -217,3 +213,19 @@ class FunctionPolicy(Policy):
 
     def restore(self, snapshot: Any) -> None:
         self._entered = dict(snapshot)
+
+
+class FixedStack(Policy):
+    """The policy that returns the same stack at every step."""
+
+    def __init__(self, stack: Stack | Sequence):
+        self.stack = stack if isinstance(stack, Stack) else Stack.of(*stack)
+
+    def tasks(self) -> list[Task]:
+        return self.stack.tasks()
+
+    def __call__(self, state: State, t: float) -> Stack:
+        return self.stack
+
+    def __repr__(self) -> str:
+        return f"FixedStack({self.stack.label()!r})"

@@ -3,7 +3,7 @@
 A :class:`Stack` is a list of levels (highest first), each one or more tasks of equal
 priority, plus optional extra commands added to a task's command (eq. (30) of papers/000).
 A *policy* (:class:`~hqp_tpm.control.policy.Policy`) gives the stack of every step;
-:class:`FixedStack` returns the same stack every step, dynamic policies (Algorithm 1 of
+:class:`~hqp_tpm.control.policy.FixedStack` returns the same stack every step, dynamic policies (Algorithm 1 of
 papers/000, the switching of papers/003) rebuild it from the state.
 """
 
@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hqp_tpm.control.policy import Policy
 from hqp_tpm.errors import ArgumentTypeError, ParameterError, shown
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
@@ -90,19 +89,3 @@ def merge_levels(parts: Sequence[Level]) -> Level:
     up = np.concatenate([p.b if p.is_equality else p.upper for p in parts])
     act = np.concatenate([p.active_rows() for p in parts])
     return Level(J, lower=lo, upper=up, active=act, name=name)
-
-
-class FixedStack(Policy):
-    """The policy that returns the same stack at every step."""
-
-    def __init__(self, stack: Stack | Sequence):
-        self.stack = stack if isinstance(stack, Stack) else Stack.of(*stack)
-
-    def tasks(self) -> list[Task]:
-        return self.stack.tasks()
-
-    def __call__(self, state: State, t: float) -> Stack:
-        return self.stack
-
-    def __repr__(self) -> str:
-        return f"FixedStack({self.stack.label()!r})"
