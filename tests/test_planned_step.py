@@ -294,6 +294,10 @@ def test_pointing_and_avoidance_row_writers_equal_the_readable_rows(order, enabl
                 b_ref = task.command(st, t, order)
             close(J, J_ref.reshape(task.dim, n))
             close(b, b_ref)
+            if isinstance(task, Pointing):  # its row: the same three products summed in order, on any CPU
+                np.testing.assert_array_equal(J, J_ref)
+                if order == 1:
+                    np.testing.assert_array_equal(b, b_ref)
 
 
 def test_planned_step_grows_its_stacked_rows_mid_step():
@@ -425,3 +429,33 @@ def test_a_stack_function_runs_the_planned_step():
     assert type(fast._compiled_step()) is PlannedStep
     labels = same_steps(ref, fast, 250)
     assert labels == {"ee > pointing > posture", "ee > posture"}
+
+
+def test_fixed_stack_pointing_cone_under_sns_tpm_equal_to_the_bit():
+    """A pointing cone in a fixed stack solved by ``sns_tpm`` in the joint limits' box: its scaled steps amplify the
+    rows' last bits (a compiled row a few ulps off the readable one once gave commands 1.9e-11 apart, relative), so
+    the planned step's rows must be the readable rows to the bit, and so are the commands (velocity level)."""
+    from hqp_tpm import FramePosition, Gains, Pointing, Posture, Robot
+    from hqp_tpm.control.controller import Controller
+    from hqp_tpm.robot.limits import JointLimits
+
+    robot = Robot.load("iiwa7")
+    q0 = np.deg2rad([0, 30, 0, -60, 0, 90, 0])
+    for order in (1, 2):
+        runs = []
+        for record in (False, True):
+            ee = FramePosition(robot, "iiwa_ee", [-0.3, 0.2, 0.3], Gains(kp=20.0, kd=8.0), name="ee")
+            cone = Pointing(robot, "iiwa_ee", [0, 0, -1], np.deg2rad(10), Gains(kp=10.0, kd=6.0), name="pointing")
+            ctrl = Controller(robot, Stack.of(ee, cone, Posture(robot, q0, Gains(kp=1.0, kd=2.0))), order=order,
+                              solver="sns_tpm", box=JointLimits(robot, order=order, dt=1e-3), q0=q0)
+            runs.append((ctrl, [ctrl.step(record=record) for _ in range(300)]))
+        (fast, got), (ref, want) = runs
+        assert type(fast._compiled_step()) is PlannedStep
+        if order == 1:
+            assert any(r.info["scale"] < 1.0 for r in want)  # (scaled steps: the case that amplifies)
+        for r, w in zip(got, want, strict=True):
+            if order == 1:  # (order 2: J qd, numpy's dot, and the kernel's sum may round apart: close)
+                np.testing.assert_array_equal(r.command, w.command)
+                assert r.info == w.info
+            else:
+                close(r.command, w.command)

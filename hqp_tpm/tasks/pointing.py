@@ -55,7 +55,7 @@ class Pointing(Task):
             raise ParameterError(f"cone half-angle alpha_d = {alpha_d!r} must be in [0, pi) radians")
         self.z_d = z_d / norm
         self.alpha_d = float(alpha_d)
-        self._cos = np.cos(self.alpha_d)
+        self._cos = float(np.cos(self.alpha_d))
         self._column = None  # (state, view of its frame rotation's z column), see pointing_error
         self.inequality = inequality
         if drift_limit is not None and not (isinstance(drift_limit, (int, float)) and not isinstance(drift_limit, bool)
@@ -70,12 +70,14 @@ class Pointing(Task):
 
     def value(self, state: State) -> np.ndarray:
         """``p_rp = z_d^T z_e`` (16)."""
-        return np.array([self.z_d.dot(self.axis(state))])
+        return np.array([dot3(self.z_d, self.axis(state))])
 
     def jacobian(self, state: State) -> np.ndarray:
         z_e = self.axis(state)
         # z_d^T S(z_e)^T J_O = (z_e x z_d)^T J_O, since S(z_e)^T w = w x z_e                  eq. (19)
-        return cross(z_e, self.z_d).dot(state.jacobian(self.fid)[3:]).reshape(1, -1)
+        c, J_O = cross(z_e, self.z_d), state.jacobian(self.fid)[3:]
+        # (the three products summed left to right, as the compiled row does: a BLAS kernel may fuse them, FMA)
+        return (c[0] * J_O[0] + c[1] * J_O[1] + c[2] * J_O[2]).reshape(1, -1)
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         z_e = self.axis(state).tolist()
@@ -101,11 +103,11 @@ class Pointing(Task):
         # z_e read through a view of the rotation pinocchio updates in place, once the state is complete
         c = self._column
         if c is not None and c[0] is state and not state._partial:
-            return float(self._cos - self.z_d.dot(c[1]))
+            return self._cos - dot3(self.z_d, c[1])
         z_e = state.rotation(self.fid)[:, 2]
         views = state.frame_views(self.fid)
         self._column = None if views is None else (state, views[1][:, 2])
-        return float(self._cos - self.z_d.dot(z_e))
+        return self._cos - dot3(self.z_d, z_e)
 
     def is_active(self, state: State) -> bool:
         """Equality: always; inequality (21): while ``e > 0``."""
@@ -155,6 +157,13 @@ class Pointing(Task):
             return _compiled_rows.pointing_row(J, b, R, self.z_d, Jf, state.v, vel, acc, ref[0], ref[1], ref[2],
                                                g.kp, g.kd, order, limit)
         return write
+
+
+def dot3(a: np.ndarray, b: np.ndarray) -> float:
+    """``a . b`` of two 3-vectors summed left to right, as the compiled row does (a BLAS dot may fuse the products,
+    FMA, and round otherwise: the readable and compiled rows stay equal to the bit on any CPU)."""
+    x, y = a.tolist(), b.tolist()
+    return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
 
 
 def drift_left_out(jdq: float, row: np.ndarray, limit: float) -> bool:
