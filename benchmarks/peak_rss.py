@@ -2,7 +2,7 @@
 
     python benchmarks/peak_rss.py [--scenario lwr_relaxed] [--steps 18850 94250] [--figures] [--other CHECKOUT]
 
-Each run is a fresh process (``hqp_tpm.app.cli.run_scenario``, no progress bar; figures and replay only with
+Each run is a fresh process (``hqp_tpm.app.run_scenario.run_scenario``, no progress bar; figures and replay only with
 ``--figures``) that prints its ``ru_maxrss`` at the end; ``--other`` runs the same in another checkout (e.g. a
 worktree of an earlier commit) for comparison. Prints the peak RSS per run and the growth per extra step.
 A measurement, not a test: the numbers depend on the machine, only their growth with the steps matters.

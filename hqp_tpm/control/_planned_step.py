@@ -1,12 +1,13 @@
-"""The planned step of every shipped policy (``ctrl.step()`` runs it): same numbers as the readable step, fewer
-objects.
+"""The planned step of every shipped policy, of a fixed stack the lean step does not take (e.g. with a pointing
+cone) and of a stack function (``ctrl.step()`` runs it): same numbers as the readable step, fewer objects.
 
 The readable step (:meth:`hqp_tpm.control.controller.Controller.step` with ``record=True``) builds every step a
 :class:`~hqp_tpm.control.stack.Stack`, one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks
 them, looks the solver up by name and wraps the result in a ``StepResult``. Two kinds of policy step without that:
 a :class:`PlanningPolicy` (its stack is ``plan(state, t) -> (tasks, extras)``: one task per level, highest first,
-and extra commands by task name; Algorithm 1, the whole-body avoidance) and a :class:`StackPolicy` (its stack as
-``__call__`` gives it, levels of one or more tasks; the switching, admittance and papers/004 policies), solved by
+and extra commands by task name; Algorithm 1, the whole-body avoidance) and a :class:`StackPolicy`, a
+:class:`FixedStack` or a :class:`FunctionPolicy` (its stack as ``__call__`` gives it, levels of one or more tasks;
+the switching, admittance and papers/004 policies), solved by
 ``tpm`` without a box or by ``sns_tpm`` in a :class:`~hqp_tpm.robot.limits.JointLimits` box. :class:`PlannedStep`
 does per step:
 
