@@ -8,7 +8,8 @@ a :class:`PlanningPolicy` (its stack is ``plan(state, t) -> (tasks, extras)``: o
 and extra commands by task name; Algorithm 1, the whole-body avoidance) and a :class:`StackPolicy`, a
 :class:`FixedStack` or a :class:`FunctionPolicy` (its stack as ``__call__`` gives it, levels of one or more tasks;
 the switching, admittance and papers/004 policies), solved by
-``tpm`` without a box or by ``sns_tpm`` in a :class:`~hqp_tpm.robot.limits.JointLimits` box. :class:`PlannedStep`
+``tpm`` without a box, ``sns_tpm`` or any other solver (the last through the registry, on the readable step's
+levels made of the rows written here). :class:`PlannedStep`
 does per step:
 
 1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field, operator);
@@ -56,7 +57,7 @@ from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
-from hqp_tpm.solvers.registry import solve
+from hqp_tpm.solvers.registry import ANALYTIC, solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance, PairAvoidance
@@ -79,7 +80,7 @@ class PlannedStep(CompiledStep):
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
                  "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
-                 "_bs", "_stack", "_box_now")
+                 "_bs", "_stack", "_box_now", "other")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -88,10 +89,8 @@ class PlannedStep(CompiledStep):
         if not planned(policy):
             return (f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()), StackPolicy, FixedStack "
                     "nor FunctionPolicy")
-        if ctrl.solver not in ("tpm", "sns_tpm"):
-            return f"solver {ctrl.solver!r} (the planned step solves with 'tpm' or 'sns_tpm')"
-        if ctrl.box is not None and not (ctrl.solver == "sns_tpm" and type(ctrl.box) is JointLimits):
-            return "a box other than JointLimits (with 'sns_tpm') is set"
+        if ctrl.box is not None and ctrl.solver == "tpm":
+            return "a box with solver 'tpm', which ignores it"
         if ctrl.crosscheck is not None:
             return "a crosscheck solver is set"
         return None
@@ -120,8 +119,12 @@ class PlannedStep(CompiledStep):
         # null-space term x0 one more, lowest level (as the registry adds it); the box bounds the command's rate
         # (velocity level): the rows shifted by J v and solved for the change (command_rate.solve_around)
         self.sns = ctrl.solver == "sns_tpm"
-        self.rate = self.sns and ctrl.order == 1 and rate_limited(ctrl.box)
-        self.box = JointBox(ctrl.box) if ctrl.box is not None else None
+        # any other solver (nullspace, sns, the cascaded QP): the readable step's levels, made of the rows written
+        # here, solved through the registry (hqp_tpm.solvers.registry.solve), as Controller._solve_step does
+        self.other = ctrl.solver not in ("tpm", "sns_tpm")
+        self.rate = ctrl.solver not in ANALYTIC and ctrl.order == 1 and rate_limited(ctrl.box)
+        joint = type(ctrl.box) is JointLimits
+        self.box = JointBox(ctrl.box) if joint else (lambda st, box=ctrl.box: box(st, ctrl.t)) if ctrl.box else None
         self.info: dict = {}
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
         self._stack = self._box_now = None
@@ -135,7 +138,7 @@ class PlannedStep(CompiledStep):
         if a + dim > self.J.shape[0]:
             self._grow(a + dim)
         J, b = self.J[a:a + dim], self.b[a:a + dim]
-        if kind is Avoidance or (kind is Pointing and not (self.rate and task.inequality)):
+        if kind is Avoidance or (kind is Pointing and not (self.rate and not self.other and task.inequality)):
             w = (task.row_writer(self.ctrl.state, self.order, J, b), kind is Pointing and task.inequality, False, dim,
                  task)
         elif kind.level is Task.level and (write := TaskProgram.of(task, self.ctrl.state, self.order, J, b)):
@@ -177,7 +180,8 @@ class PlannedStep(CompiledStep):
                     bt = task.command(st, t, order, extra, Jt)
                 elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
                     Jt, bt = task.jacobian(st), task.command(st, t, order)
-                elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
+                elif kind is Pointing and task.inequality and (self.other or not self.rate):  # Pointing.level: its
+                    # cone row while e > 0
                     Jt = task.jacobian(st)
                     bt = task.command(st, t, order, extra, Jt)
                     if not task.pointing_error(st) > 0.0:  # (an inactive level, as in the readable levels)
@@ -188,7 +192,8 @@ class PlannedStep(CompiledStep):
                     lv = task.level(st, t, order, extra)
                     if lv.b is not None:
                         Jt, bt = lv.J, lv.b
-                    elif self.rate:  # its active rows seen from v (command_rate.shifted), written shifted
+                    elif self.rate and not self.other:  # its active rows seen from v (command_rate.shifted),
+                        # written shifted
                         rows = task.rows_from(st.v) if kind is PairAvoidance else None  # (the same, fewer calls)
                         Jt, bt = rows or shifted(lv.check_finite(), st.v).as_equality()
                     else:
@@ -263,6 +268,8 @@ class PlannedStep(CompiledStep):
         J, b = self.J[:m], self.b[:m]
         if self.sns:
             return self._sns(st, t, J, b, sizes)
+        if self.other:
+            return self._registry(st, t, J, b)
         status = None  # (the compiled kernel's answer, if it ran and declined)
         if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
             tall = m > self.n
@@ -322,6 +329,26 @@ class PlannedStep(CompiledStep):
         self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         return x
 
+    def _registry(self, st, t: float, J: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The command of any other solver: the readable step's levels (:meth:`levels_of` of the rows written)
+        solved through the registry, or around ``v`` when the box bounds the command's rate (as
+        :meth:`Controller._solve_step`)."""
+        ctrl = self.ctrl
+        if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
+            return ctrl._compute().command      # the readable path raises the typed error naming the task
+        self._box_now = box = self.box(st) if self.box is not None else None
+        levels = self._levels(J, b, self._made)
+        if self.rate:
+            x, info = solve_around(ctrl.solver, levels, self.n, ctrl._v, box, lambda_max=self.lambda_max,
+                                   eps=self.eps, solve=solve)
+        else:
+            x, info = solve(ctrl.solver, levels, self.n, x0=ctrl.null_space_term(ctrl._v), box=box,
+                            lambda_max=self.lambda_max, eps=self.eps)
+        if not all_finite(x):
+            raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
+        self.info = info
+        return x
+
     def _load_kernel(self, tall: bool):
         """The compiled solve of :meth:`compute` for ``m > n`` rows (``tall``) or not
         (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
@@ -338,7 +365,7 @@ class PlannedStep(CompiledStep):
         made = self._made
         m = made[-1][1] + made[-1][2] if made else 0
         rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras, self._stack)
-        return StepResult(t, LAZY, LAZY, x, self.info if self.sns else {}, LAZY, LAZY, (self, q, v, rows))
+        return StepResult(t, LAZY, LAZY, x, self.info if self.sns or self.other else {}, LAZY, LAZY, (self, q, v, rows))
 
     def stack_of(self, kept: tuple) -> Stack:
         if kept[3][5] is not None:  # (the stack a StackPolicy policy gave)
@@ -346,7 +373,11 @@ class PlannedStep(CompiledStep):
         return Stack([(task,) for task in kept[3][3]], kept[3][4])
 
     def levels_of(self, kept: tuple) -> list[Level]:
-        J, b, made = kept[3][:3]
+        return self._levels(*kept[3][:3])
+
+    @staticmethod
+    def _levels(J: np.ndarray, b: np.ndarray, made: list) -> list[Level]:
+        """The readable step's levels of the rows ``J``, ``b`` written as ``made`` says."""
         groups: dict[int, list[Level]] = {}
         for task, a, k, lv, g in made:
             if lv is False:
