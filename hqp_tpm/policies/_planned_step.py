@@ -177,7 +177,8 @@ class PlannedStep(CompiledStep):
                     w = self._place(task, a)
                 if w is not False and (extra is None or w[2]):  # a row writer, writing in place
                     if w[1]:                  # the cone (21): its row while e > 0
-                        if not w[0](t) > 0.0:
+                        if not w[0](t) > 0.0:     # (inactive: no row solved, its level recorded as the readable's)
+                            made.append((task, a, 0, (self.J[a].copy(), self.b[a:a + 1].copy()), g))
                             continue
                     elif extra is None:
                         w[0](t)
@@ -197,10 +198,11 @@ class PlannedStep(CompiledStep):
                 elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
                     Jt, bt = task.jacobian(st), task.command(st, t, order)
                 elif kind is Pointing and task.inequality and not self.rate:  # Pointing.level: its cone row while e > 0
-                    if not task.pointing_error(st) > 0.0:
-                        continue
                     Jt = task.jacobian(st)
                     bt = task.command(st, t, order, extra, Jt)
+                    if not task.pointing_error(st) > 0.0:
+                        made.append((task, a, 0, task.cone_level(Jt, bt, False), g))
+                        continue
                     lv = True
                 else:
                     lv = task.level(st, t, order, extra)
@@ -371,6 +373,8 @@ class PlannedStep(CompiledStep):
                 lv = Level(J[a:a + k], b[a:a + k], name=task.name, defer_finite=True)
             elif lv is True:  # a pointing cone's row while e > 0 (Pointing.level)
                 lv = task.cone_level(J[a:a + k], b[a:a + k], True)
+            elif type(lv) is tuple:  # an inactive cone: its row, not solved (Pointing.level's inactive level)
+                lv = task.cone_level(lv[0].reshape(1, -1), lv[1], False)
             groups.setdefault(g, []).append(lv)
         return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
