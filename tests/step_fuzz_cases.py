@@ -420,7 +420,7 @@ def draw_case(rng, robot_name: str, order: int, solver: str, policy: str, n_leve
 
 
 EVENTS = ("target", "target", "trajectory", "harmonic_edit", "gains", "add_level", "remove_level", "replace_level",
-          "replace_policy", "settings", "set_state", "glitch", "glitch", "bad_rows", "compute")
+          "replace_policy", "settings", "set_state", "glitch", "glitch", "bad_rows", "compute", "solver", "box", "copy")
 
 
 def draw_event(rng, rob, st, case: Case):
@@ -444,6 +444,19 @@ def draw_event(rng, rob, st, case: Case):
                 float(rng.choice([0.0, 3.0])))
     if kind == "set_state":
         return (kind, rng.normal(0.0, 0.02, rob.nv).tolist(), rng.normal(0.0, 0.1, rob.nv).tolist())
-    if kind == "glitch":
-        return (kind, pick, float(rng.choice([np.nan, np.inf, 1e160, 1e153])))
+    if kind == "solver" and case.solver.startswith("qp"):
+        return ("compute",)
+    if kind == "solver":  # another solver of the same kind (boxed or not)
+        if case.policy != "fixed":
+            return (kind, str(rng.choice(["tpm", "sns_tpm"])))
+        return (kind, str(rng.choice(["sns_tpm", "sns"] if case.box is not None else ["tpm", "nullspace"])))
+    if kind == "box":  # the box replaced (None: taken away)
+        if case.box is None:
+            return ("compute",)
+        return (kind, None if rng.random() < 0.3 else {"velocity_scale": float(rng.choice([0.05, 0.3, 1.0]))})
+    if kind == "glitch":  # (not on a pointing cone: its reference, see test_step_fuzz.py's xfail)
+        vector = [r[1] for lv in case.levels for r in lv if r[0] not in ("pointing", "avoid")]
+        if not vector:
+            return ("compute",)
+        return (kind, str(rng.choice(vector)), float(rng.choice([np.nan, np.inf, 1e160, 1e153])))
     return (kind,)

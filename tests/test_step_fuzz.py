@@ -23,15 +23,29 @@ takes the readable one's state (``set_state``), so that each step is compared fr
 
 from __future__ import annotations
 
-import math
+import copy
+import os
 
 import numpy as np
 import pinocchio as pin
+import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from step_fuzz_cases import Case, Glitch, JointSum, ScheduledStacks, build, draw_case, make_task, robot
+from step_fuzz_cases import (
+    EVENTS,
+    POLICY_KINDS,
+    Case,
+    Glitch,
+    JointSum,
+    ScheduledStacks,
+    build,
+    draw_case,
+    make_task,
+)
 
-from hqp_tpm import Constant, FixedStack, Gains, Harmonic, HqpTpmError, Stack
+from hqp_tpm import Constant, FixedStack, Gains, Harmonic, HqpTpmError, JointLimits, NonFiniteError, Stack, Trajectory
+from hqp_tpm.control.command_rate import solve_around
+from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.solvers.registry import solve
 
 #: docs/guarantees.md: a compiled step within 1e-12 of the readable one (relative to max(1, |x|)); the QP 1e-9.
@@ -80,8 +94,15 @@ def same_fields(res, want, label, tol, solver, info=True):
         info, winfo = res.info, want.info
         assert set(info) == set(winfo), (info, winfo)
         for key, value in winfo.items():
-            if key in ("scale", "scales"):
-                close(info[key], value, tol, key)
+            if key in ("scale", "scales") and not np.allclose(info[key], value, rtol=0.0, atol=tol):
+                assert not rows_equal(res, want), (key, info[key], value)  # (at a tie: below)
+            elif key in ("scale", "scales"):
+                pass
+            elif key in ("saturated", "iterations") and info[key] != value:
+                # rows that are not bit-equal (a rotation error, order 2, a compiled row writer): at a tie (joints
+                # that saturate at the same scale, the two legs of Romeo; a joint whose command is at its bound to
+                # the last bits) the loop saturates them in another order or not at all, with the same command
+                assert not rows_equal(res, want), (key, info[key], value)
             else:
                 assert info[key] == value, (key, info[key], value)
 
@@ -201,6 +222,13 @@ def apply_event(event, ctrl, tasks, case):
         q = pin.integrate(rob.model, ctrl.q, np.array(event[1]))
         ctrl.set_state(q, ctrl.v + np.array(event[2]) if ctrl.order == 2 else ctrl.v)
         return None
+    if kind == "solver":
+        if ctrl.box is None or event[1] in ("sns_tpm", "sns"):
+            ctrl.solver = event[1]
+        return None
+    if kind == "box":
+        ctrl.box = None if event[1] is None else JointLimits(rob, order=ctrl.order, dt=ctrl.dt, **event[1])
+        return None
     if kind == "glitch":
         task = tasks[event[1]]
         old = task.trajectory
@@ -229,32 +257,51 @@ def exact_step(ctrl, case) -> bool:
             and not any(type(t).__name__ in ROTATION_KINDS for t in policy.stack.tasks()))
 
 
-#: The events that change a stack's levels in place.
+#: The events that change a stack's levels in place; the faults (undone after the step).
 STRUCTURE = ("add_level", "remove_level", "replace_level")
+FAULTS = ("glitch", "bad_rows")
+#: A state beyond these (rad, rad/s) has diverged (an undamped singular stack at acceleration level): the case ends
+#: there (the rows' terms grow as v^2 and cancel; their rounding is no longer relative to the rows).
+DIVERGED = 50.0
+#: A blended command from rows that agree to TOL but not to the bit: their rounding amplified by the solves.
+BLENDED = 1e-9
 
 
-def sensitive_solve(res, want, ref, tol, stats) -> bool:
+def rows_equal(res, want) -> bool:
+    """Whether the two results' levels are equal to the bit."""
+    return all(np.array_equal(a.J, b.J) and all(np.array_equal(getattr(a, p), getattr(b, p))
+                                                for p in ("b", "lower", "upper"))
+               for a, b in zip(res.levels, want.levels, strict=True))
+
+
+def solve_like(ctrl, res, v):
+    """The command ``ctrl``'s solver gives on ``res``'s levels, as the readable step solves them from velocity ``v``."""
+    if ctrl.box is not None and ctrl.order == 1 and ctrl.box.command_rate:
+        return solve_around(ctrl.solver, res.levels, ctrl.robot.nv, v, res.box, lambda_max=ctrl.lambda_max,
+                            eps=ctrl.eps)[0]
+    return solve(ctrl.solver, res.levels, ctrl.robot.nv, x0=res.x0, box=res.box, lambda_max=ctrl.lambda_max,
+                 eps=ctrl.eps)[0]
+
+
+def sensitive_solve(res, want, ref, v, tol, stats) -> bool:
     """Whether the commands of one step differ beyond ``tol`` because the solver is discontinuous at the step's rows:
     the rows (levels) of both agree to ``tol`` but are not bit-equal, and the compiled command is the solver's own
     answer to its rows (an SNS saturation decision at a tie flips with the rows' last bits; docs/guarantees.md
     leaves such draws out). Checked where the step is one solve of its levels (no blend, no command-rate box)."""
+    scale = max(1.0, np.abs(want.command).max())
     diff = np.abs(res.command - want.command).max()
-    if diff <= tol * max(1.0, np.abs(want.command).max()):
-        return False
-    policy = ref.policy
-    if policy.blends or (ref.box is not None and ref.order == 1 and ref.box.command_rate):
+    if diff <= tol * scale:
         return False
     same_fields(res, want, want.label(), tol, ref.solver, info=False)  # the rows agree to the tolerance...
-    if all(np.array_equal(a.J, b.J) and all(np.array_equal(getattr(a, p), getattr(b, p)) for p in ("b", "lower",
-                                                                                                    "upper"))
-           for a, b in zip(res.levels, want.levels, strict=True)):
+    if rows_equal(res, want):
         return False  # ...and are not bit-equal (equal rows, different commands: a real difference)
-    x, _ = solve(ref.solver, res.levels, ref.robot.nv, x0=res.x0, box=res.box, lambda_max=ref.lambda_max,
-                 eps=ref.eps)
-    close(x, res.command, tol, "the solver on the compiled step's rows")
-    y, _ = solve(ref.solver, want.levels, ref.robot.nv, x0=want.x0, box=want.box, lambda_max=ref.lambda_max,
-                 eps=ref.eps)
-    close(y, want.command, tol, "the solver on the readable step's rows")
+    if ref.policy.blends:  # (the blend's other solves are not reproduced here: their rounding amplified, bounded)
+        assert diff <= BLENDED * scale, f"blended command: {diff:.3g} > {BLENDED:g} * {scale:.3g}"
+        if stats is not None:
+            stats["amplified"] = stats.get("amplified", 0) + 1
+        return True
+    close(solve_like(ref, res, v), res.command, tol, "the solver on the compiled step's rows")
+    close(solve_like(ref, want, v), want.command, tol, "the solver on the readable step's rows")
     if stats is not None:
         stats["sensitive"] = stats.get("sensitive", 0) + 1
     return True
@@ -277,9 +324,13 @@ def run_case(case: Case, stats: dict | None = None) -> None:
         compute = False
         if late is not None and any(e[0] in STRUCTURE for e in case.events.get(k, [])):
             late = (late[0], late[1], None)  # (a readable record's stack is the live one: its label changed)
-        for event in case.events.get(k, []):
-            if event[0] == "compute":
+        for event in sorted(case.events.get(k, []), key=lambda e: e[0] in FAULTS):  # (faults last: the
+            if event[0] == "compute":                                               # others read references)
                 compute = True
+                continue
+            if event[0] == "copy":  # both controllers go on as deep copies (a copy plans its own compiled step)
+                (fast, fast_tasks), (ref, ref_tasks) = copy.deepcopy((fast, fast_tasks)), copy.deepcopy((ref,
+                                                                                                          ref_tasks))
                 continue
             for ctrl, tasks in ((ref, ref_tasks), (fast, fast_tasks)):
                 u = apply_event(event, ctrl, tasks, case)
@@ -287,7 +338,7 @@ def run_case(case: Case, stats: dict | None = None) -> None:
                     undo.append(u)
         if compute:
             xf, ef = attempt(fast.compute)
-            xr, er = attempt(lambda: ref.compute(record=True))
+            xr, er = attempt(lambda ref=ref: ref.compute(record=True))
             assert type(ef) is type(er), (k, ef, er)
             if er is None:
                 close(xf.command, xr.command, tol, f"compute at step {k}")
@@ -295,8 +346,8 @@ def run_case(case: Case, stats: dict | None = None) -> None:
         before = [(c.q, c.v, c.t, c.steps) for c in (fast, ref)]
         exact = exact_step(ref, case)
         res, err = attempt(fast.step)
-        want, werr = attempt(lambda: ref.step(record=True))
-        for u in undo:
+        want, werr = attempt(lambda ref=ref: ref.step(record=True))
+        for u in reversed(undo):
             u()
         assert type(err) is type(werr), f"step {k}: compiled {err!r}, readable {werr!r}"
         if werr is not None:  # a failed step changed nothing, on both paths
@@ -312,7 +363,7 @@ def run_case(case: Case, stats: dict | None = None) -> None:
             np.testing.assert_array_equal(res.command, want.command, err_msg=f"step {k} (bit for bit)")
             np.testing.assert_array_equal(fast.q, ref.q, err_msg=f"step {k} q")
             np.testing.assert_array_equal(fast.v, ref.v, err_msg=f"step {k} v")
-        sensitive = not exact and sensitive_solve(res, want, ref, tol, stats)
+        sensitive = not exact and sensitive_solve(res, want, ref, before[1][1], tol, stats)
         if not exact and not sensitive:
             close(res.command, want.command, tol, f"step {k} command")
             close(fast.q, ref.q, tol, f"step {k} q")
@@ -332,6 +383,10 @@ def run_case(case: Case, stats: dict | None = None) -> None:
             stats["exact"] = stats.get("exact", 0) + exact
         if not (np.array_equal(fast.q, ref.q) and np.array_equal(fast.v, ref.v)):
             fast.set_state(ref.q, ref.v)  # (each step compared from the same state)
+        if max(np.abs(ref.q).max(), np.abs(ref.v).max()) > DIVERGED:
+            if stats is not None:
+                stats["diverged"] = stats.get("diverged", 0) + 1
+            break
     if late is not None:
         same_fields(*late, tol, ref.solver)
 
@@ -342,6 +397,8 @@ SOLVERS = ("tpm", "tpm", "sns_tpm", "sns_tpm", "nullspace", "sns", "qp:daqp")
 
 @st.composite
 def cases(draw):
+    """A case: its structure drawn by hypothesis (shrinking to fewer levels, steps and events), its numbers from a
+    drawn seed."""
     name = draw(st.sampled_from(ROBOTS))
     policy = draw(st.sampled_from(("fixed", "fixed", "stacks", "plan")))
     solver = draw(st.sampled_from(SOLVERS if policy == "fixed" else ("tpm", "sns_tpm")))
@@ -353,19 +410,56 @@ def cases(draw):
     return draw_case(np.random.default_rng(seed), name, order, solver, policy, n_levels, steps, n_events)
 
 
-@settings(max_examples=60, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
-@given(cases())
-def test_compiled_step_equals_the_readable_step(case):
+def seeded_case(seed: int) -> Case:
+    """Case ``seed`` of the seeded sweep: structure and numbers from one generator."""
+    r = np.random.default_rng(seed)
+    name = ROBOTS[r.integers(len(ROBOTS))]
+    policy = ("fixed", "fixed", "stacks", "plan")[r.integers(4)]
+    solvers = SOLVERS if policy == "fixed" else ("tpm", "sns_tpm")
+    solver = solvers[r.integers(len(solvers))]
+    order = int(r.integers(1, 3))
+    return draw_case(r, name, order, solver, policy, int(r.integers(1, 6)),
+                     int(r.integers(2, 7 if name == "romeo21" else 15)), int(r.integers(0, 7)))
+
+
+def checked(case: Case, stats: dict | None = None) -> None:
     try:
-        run_case(case)
+        run_case(case, stats)
     except AssertionError as exc:
         raise AssertionError(f"{case.describe()}\n{exc}") from exc
 
 
-def test_robots_load():
-    for name in ROBOTS:
-        assert robot(name).nv > 0
-    assert math.isfinite(TOL)
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow, HealthCheck.data_too_large])
+@given(cases())
+def test_compiled_step_equals_the_readable_step(case):
+    checked(case)
+
+
+#: The seeded sweep's cases (``HQP_TPM_FUZZ_CASES`` sets the count: a long hunt).
+SWEEP = int(os.environ.get("HQP_TPM_FUZZ_CASES", "1000"))
+
+
+def test_seeded_sweep_equals_and_covers_the_mix():
+    """The same check on ``SWEEP`` seeded cases, which must cover what the test is for: steps that ran compiled
+    (most of them), bit-equal steps, failed steps (both paths raising the same typed error), every event kind, every
+    task kind, solver and policy."""
+    stats: dict = {}
+    seen: set = set()
+    for seed in range(SWEEP):
+        case = seeded_case(seed)
+        seen |= {case.solver, case.policy, case.robot, f"order{case.order}"}
+        seen |= {r[0] for lv in case.levels for r in lv}
+        seen |= {e[0] for events in case.events.values() for e in events}
+        try:
+            checked(case, stats)
+        except AssertionError as exc:
+            raise AssertionError(f"seeded case {seed}: {exc}") from exc
+    if SWEEP < 1000:
+        return
+    assert stats["compiled"] >= 0.7 * stats["steps"], stats
+    assert stats["exact"] >= 0.05 * stats["steps"] and stats["errors"] >= 0.02 * stats["steps"], stats
+    want = {*SOLVERS, "fixed", "stacks", "plan", *ROBOTS, "order1", "order2", *EVENTS, *POLICY_KINDS}
+    assert want <= seen, want - seen
 
 
 # -- what the fuzzing found, reduced ----------------------------------------------------------------------------------
@@ -426,3 +520,64 @@ def test_a_compiled_steps_result_keeps_its_x0_and_box():
         same_fields(res, want, want.label(), TOL, "sns_tpm")
         np.testing.assert_array_equal(res.x0, want.x0)
         np.testing.assert_array_equal(res.box[1], want.box[1])
+
+
+class _OneStack(StackPolicy):
+    """A stack policy that returns one stack (the planned step's)."""
+
+    def __init__(self, stack):
+        self.stack = stack
+
+    def tasks(self):
+        return self.stack.tasks()
+
+    def __call__(self, state, t):
+        return self.stack
+
+
+def _cone_pair(reference):
+    """Two iiwa controllers (compiled, readable) with a pointing cone above a posture in a stack policy, the cone's
+    axis 6 degrees from the EE's z axis (inside its 0.5 rad cone: inactive by ``alpha_d``), the cone's reference
+    replaced by ``reference``."""
+    from hqp_tpm import Controller, Pointing, Posture, Robot, State
+
+    rob = Robot.load("iiwa7")
+    q0 = np.linspace(-0.5, 0.5, 7)
+    z = State(rob).update(q0, np.zeros(7)).rotation(rob.frame_id("iiwa_ee"))[:, 2]
+    axis = 0.9 * z + 0.1 * np.array([1.0, 0.0, 0.0])
+
+    def make():
+        cone = Pointing(rob, "iiwa_ee", axis, 0.5, name="cone")
+        cone.trajectory = reference
+        return Controller(rob, _OneStack(Stack.of(cone, Posture(rob, None, name="post"))), order=1, q0=q0)
+    return make(), make()
+
+
+@pytest.mark.xfail(strict=True, reason="the planned step decides a cone's activity from its reference (pointing_row: "
+                   "e = x_d - z_d.z_e), the readable step from alpha_d (Pointing.pointing_error)")
+def test_a_cone_with_another_reference_is_active_alike():
+    """A pointing cone whose reference is not ``cos(alpha_d)`` (here 0.999, a narrower cone): the readable step
+    keeps the cone inactive (``pointing_error`` from ``alpha_d``) and gives a zero command, the planned step makes it
+    active (its row writer's ``e`` from the reference) and moves the arm."""
+    fast, ref = _cone_pair(Constant(value=np.array([0.999])))
+    res, want = fast.step(), ref.step(record=True)
+    close(res.command, want.command, TOL, "command")
+
+
+class _NaNReference(Trajectory):
+    def reference(self, t):
+        return np.array([np.nan]), np.zeros(1), np.zeros(1)
+
+
+@pytest.mark.xfail(strict=True, reason="the planned step skips an inactive cone's row without testing it: a NaN "
+                   "reference is solved, the readable step raises NonFiniteError")
+def test_a_cone_with_a_nan_reference_fails_alike():
+    """A NaN reference on a pointing cone: the readable step raises NonFiniteError naming the level and keeps its
+    state; the planned step (its row writer's ``e`` is NaN: the cone inactive, its row not tested) steps."""
+    fast, ref = _cone_pair(_NaNReference())
+    with pytest.raises(NonFiniteError, match="cone"):
+        ref.step(record=True)
+    q = fast.q
+    with pytest.raises(NonFiniteError, match="cone"):
+        fast.step()
+    assert fast.q is q
