@@ -95,6 +95,38 @@ class Glitch(Trajectory):
         return np.full_like(x, self.bad), xd, xdd
 
 
+class InPlace(Trajectory):
+    """A user's trajectory that writes its reference into the same (writable) arrays at every call."""
+
+    def __init__(self, center, amplitude):
+        super().__init__()
+        for k, value in (("center", np.array(center)), ("amplitude", np.array(amplitude)),
+                         ("out", tuple(np.zeros(len(center)) for _ in range(3)))):
+            object.__setattr__(self, k, value)
+
+    def reference(self, t):
+        x, xd, xdd = self.out
+        x[...] = self.center + self.amplitude * math.sin(3.0 * t)
+        xd[...] = 3.0 * self.amplitude * math.cos(3.0 * t)
+        xdd[...] = -9.0 * self.amplitude * math.sin(3.0 * t)
+        return self.out
+
+
+class ShiftedHarmonic(Harmonic):
+    """A user's subclass of Harmonic with its own reference (not the Harmonic's terms)."""
+
+    def reference(self, t):
+        x, xd, xdd = super().reference(t)
+        return x + 0.01, xd, xdd
+
+
+class OffsetPosition(FramePosition):
+    """A user's subclass of FramePosition that changes its error (its rows are then its own methods')."""
+
+    def error(self, state, x_d):
+        return super().error(state, x_d) + 0.001
+
+
 # -- recipes ---------------------------------------------------------------------------------------------------
 def _trajectory(spec):
     kind = spec[0]
@@ -114,6 +146,8 @@ def _trajectory(spec):
 def make_task(recipe, rob: Robot) -> Task:
     kind, name, p = recipe
     g = Gains(*p["gains"])
+    if kind == "offset_position":
+        return OffsetPosition(rob, p["frame"], _trajectory(p["target"]), g, axes=p["axes"], name=name)
     if kind == "position":
         return FramePosition(rob, p["frame"], _trajectory(p["target"]), g, axes=p["axes"], name=name)
     if kind == "com":
@@ -312,7 +346,7 @@ def draw_task(rng, rob: Robot, st: State, order: int, kinds, name: str, absolute
             if not absolute or spec[0] == "const" or (spec[0] == "harmonic" and not spec[-1]):
                 return spec
 
-    if kind == "position":
+    if kind in ("position", "offset_position"):
         axes = _axes(rng)
         rows = ["xyz".index(a) for a in axes]
         return (kind, name, {"frame": frame, "axes": axes, "gains": g, "target": target(st.position(fid)[rows], 0.05)})
@@ -364,7 +398,7 @@ def _qidx(rob: Robot, col: int) -> int:
 #: The task kinds by where they go: a fixed stack's (equality rows the compiled step writes, rows of the tasks'
 #: own methods, inequality rows), a policy's (avoidance: assigned by its update).
 FIXED_KINDS = ("position", "position", "pose", "orientation", "com", "posture", "posture", "joint_limit",
-               "manipulability", "quaternion", "joint_sum", "pointing")
+               "manipulability", "quaternion", "joint_sum", "pointing", "offset_position")
 POLICY_KINDS = (*FIXED_KINDS, "avoid")
 
 
@@ -420,14 +454,15 @@ def draw_case(rng, robot_name: str, order: int, solver: str, policy: str, n_leve
 
 
 EVENTS = ("target", "target", "trajectory", "harmonic_edit", "gains", "add_level", "remove_level", "replace_level",
-          "replace_policy", "settings", "set_state", "glitch", "glitch", "bad_rows", "compute", "solver", "box", "copy")
+          "replace_policy", "settings", "set_state", "glitch", "glitch", "bad_rows", "compute", "solver", "box", "copy",
+          "restart")
 
 
 def draw_event(rng, rob, st, case: Case):
     kind = str(rng.choice(EVENTS))
     names = [r[1] for lv in case.levels for r in lv]
     pick = str(rng.choice(names))
-    if kind in ("target", "trajectory", "harmonic_edit"):
+    if kind in ("target", "trajectory", "harmonic_edit", "restart"):
         return (kind, pick, int(rng.integers(1 << 30)))
     if kind == "gains":
         return (kind, pick, _gains(rng, case.order))

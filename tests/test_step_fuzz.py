@@ -36,8 +36,10 @@ from step_fuzz_cases import (
     POLICY_KINDS,
     Case,
     Glitch,
+    InPlace,
     JointSum,
     ScheduledStacks,
+    ShiftedHarmonic,
     build,
     draw_case,
     make_task,
@@ -131,12 +133,17 @@ def apply_event(event, ctrl, tasks, case):
         name = type(task).__name__
         x_d = task.reference(ctrl.t)[0]
         if kind == "target":
-            if name in ("FramePosition", "CenterOfMass", "Posture"):
+            if name == "Posture" and rng.random() < 0.3:  # a whole configuration (its joints' angles read)
+                q = ctrl.q.copy()
+                q[task.angles.idx] = x_d + rng.normal(0.0, 0.03, task.dim)
+                task.target = q
+            elif name in ("FramePosition", "CenterOfMass", "Posture", "OffsetPosition"):
                 task.target = x_d + rng.normal(0.0, 0.03, task.dim)
             elif name == "FramePose":
                 M = task.target
-                task.target = pin.SE3(pin.exp3(rng.normal(0.0, 0.1, 3)) @ M.rotation, M.translation +
-                                      rng.normal(0.0, 0.03, 3))
+                M = pin.SE3(pin.exp3(rng.normal(0.0, 0.1, 3)) @ M.rotation, M.translation + rng.normal(0.0, 0.03, 3))
+                form = rng.integers(3)  # (the target forms: SE3, 4 x 4 matrix, (position, rotation))
+                task.target = M if form == 0 else M.homogeneous if form == 1 else (M.translation, M.rotation)
             elif name == "FrameOrientation":
                 task.target = pin.exp3(rng.normal(0.0, 0.1, 3)) @ task.target
             elif name in ("JointLimit", "Manipulability", "JointSum"):
@@ -148,13 +155,26 @@ def apply_event(event, ctrl, tasks, case):
             traj = Harmonic(center=(x_d if name not in ROTATION_KINDS else np.zeros(d)) + rng.normal(0, 0.02, d),
                             cos_amplitude=rng.normal(0, 0.03, d), sin_amplitude=rng.normal(0, 0.03, d),
                             omega=float(rng.uniform(1, 5)), phase=float(rng.uniform(-1, 1)))
-            if rng.random() < 0.5 and name in ("FramePosition", "CenterOfMass", "Posture"):
+            which = rng.integers(4)
+            if which == 0 and name not in ROTATION_KINDS:  # a user's trajectories
+                traj = InPlace(x_d + rng.normal(0, 0.02, d), rng.normal(0, 0.03, d))
+            elif which == 1:
+                traj = ShiftedHarmonic(center=traj.center, cos_amplitude=traj.cos_amplitude,
+                                       sin_amplitude=traj.sin_amplitude, omega=traj.omega)
+            elif which == 2 and name not in ROTATION_KINDS:  # a relative constant (origin: none until started)
+                traj = Constant(value=rng.normal(0, 0.02, d), relative=True)
+            if rng.random() < 0.5 and name in ("FramePosition", "CenterOfMass", "Posture", "OffsetPosition"):
                 task.target = traj
             else:
                 task.trajectory = traj if name not in ROTATION_KINDS or rng.random() < 0.5 else \
                     Constant(value=np.zeros(d))
+        elif kind == "restart":  # the trajectory started again from a new value (relative ones move)
+            if name not in ("Avoidance",):
+                task.trajectory.start(x_d + rng.normal(0.0, 0.02, x_d.size) if x_d.size else x_d)
         else:
             traj = task.trajectory
+            if type(traj) is Constant and traj.value.size:
+                traj.value = traj.value + rng.normal(0.0, 0.02, traj.value.size)
             if type(traj) is Harmonic:
                 what = rng.integers(4)
                 if what == 0:
@@ -220,7 +240,11 @@ def apply_event(event, ctrl, tasks, case):
         return None
     if kind == "set_state":
         q = pin.integrate(rob.model, ctrl.q, np.array(event[1]))
-        ctrl.set_state(q, ctrl.v + np.array(event[2]) if ctrl.order == 2 else ctrl.v)
+        v = ctrl.v + np.array(event[2]) if ctrl.order == 2 else ctrl.v
+        if event[1][0] > 0:
+            ctrl.set_state(q, v)
+        else:  # (the property setters)
+            ctrl.q, ctrl.v = q, v
         return None
     if kind == "solver":
         if ctrl.box is None or event[1] in ("sns_tpm", "sns"):
