@@ -128,9 +128,11 @@ def apply_event(event, ctrl, tasks, case):
     """Apply ``event`` to ``ctrl`` (its tasks ``tasks``); returns an undo to run after the next step, or None."""
     kind = event[0]
     rob = ctrl.robot
-    if kind in ("target", "trajectory", "harmonic_edit"):
+    if kind in ("target", "trajectory", "harmonic_edit", "restart"):
         task, rng = tasks[event[1]], _rng(event[2])
         name = type(task).__name__
+        if name == "Pointing":  # (a cone's reference other than cos(alpha_d): the xfails below)
+            return None
         x_d = task.reference(ctrl.t)[0]
         if kind == "target":
             if name == "Posture" and rng.random() < 0.3:  # a whole configuration (its joints' angles read)
@@ -287,7 +289,8 @@ FAULTS = ("glitch", "bad_rows")
 #: A state beyond these (rad, rad/s) has diverged (an undamped singular stack at acceleration level): the case ends
 #: there (the rows' terms grow as v^2 and cancel; their rounding is no longer relative to the rows).
 DIVERGED = 50.0
-#: A blended command from rows that agree to TOL but not to the bit: their rounding amplified by the solves.
+#: A blended command from rows that agree to TOL but not to the bit: beyond the main solve's difference, the
+#: rounding of the blend's other solves amplified.
 BLENDED = 1e-9
 
 
@@ -319,13 +322,15 @@ def sensitive_solve(res, want, ref, v, tol, stats) -> bool:
     same_fields(res, want, want.label(), tol, ref.solver, info=False)  # the rows agree to the tolerance...
     if rows_equal(res, want):
         return False  # ...and are not bit-equal (equal rows, different commands: a real difference)
-    if ref.policy.blends:  # (the blend's other solves are not reproduced here: their rounding amplified, bounded)
-        assert diff <= BLENDED * scale, f"blended command: {diff:.3g} > {BLENDED:g} * {scale:.3g}"
+    xc, xr = solve_like(ref, res, v), solve_like(ref, want, v)
+    if ref.policy.blends:  # (1 - w) x + w x_other, clipped: x_other from both steps' readable calls, the same
+        bound = (1.0 - ref.policy.weight) * np.abs(xc - xr).max() + BLENDED * scale
+        assert diff <= bound, f"blended command: {diff:.3g} > {bound:.3g}"
         if stats is not None:
-            stats["amplified"] = stats.get("amplified", 0) + 1
+            stats["sensitive"] = stats.get("sensitive", 0) + 1
         return True
-    close(solve_like(ref, res, v), res.command, tol, "the solver on the compiled step's rows")
-    close(solve_like(ref, want, v), want.command, tol, "the solver on the readable step's rows")
+    close(xc, res.command, tol, "the solver on the compiled step's rows")
+    close(xr, want.command, tol, "the solver on the readable step's rows")
     if stats is not None:
         stats["sensitive"] = stats.get("sensitive", 0) + 1
     return True
