@@ -45,7 +45,18 @@ from step_fuzz_cases import (
     make_task,
 )
 
-from hqp_tpm import Constant, FixedStack, Gains, Harmonic, HqpTpmError, JointLimits, NonFiniteError, Stack, Trajectory
+from hqp_tpm import (
+    Constant,
+    FixedStack,
+    Gains,
+    Harmonic,
+    HqpTpmError,
+    JointLimits,
+    NonFiniteError,
+    Pointing,
+    Stack,
+    Trajectory,
+)
 from hqp_tpm.control.command_rate import solve_around
 from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.solvers.registry import solve
@@ -336,6 +347,19 @@ def sensitive_solve(res, want, ref, v, tol, stats) -> bool:
     return True
 
 
+def same_words(err, want) -> bool:
+    """The same error message, but the readable step's ``(step at t = ... from max|q| ...)``, which a compiled step's
+    error raised in a blend's other solve does not have (reported)."""
+    if err is None or want is None:
+        return err is want
+    return str(want).startswith(str(err)) and str(want)[len(str(err)):] in ("", f"{ctrl_where(str(want))}")
+
+
+def ctrl_where(text: str) -> str:
+    at = text.rfind(" (step at t = ")
+    return text[at:] if at >= 0 else ""
+
+
 def attempt(fn):
     try:
         return fn(), None
@@ -360,6 +384,9 @@ def run_case(case: Case, stats: dict | None = None) -> None:
             if event[0] == "copy":  # both controllers go on as deep copies (a copy plans its own compiled step)
                 (fast, fast_tasks), (ref, ref_tasks) = copy.deepcopy((fast, fast_tasks)), copy.deepcopy((ref,
                                                                                                           ref_tasks))
+                for task in (*fast_tasks.values(), *ref_tasks.values()):
+                    if type(task) is Pointing:  # (its cached z column is copied frozen: the xfail below)
+                        task._column = None
                 continue
             for ctrl, tasks in ((ref, ref_tasks), (fast, fast_tasks)):
                 u = apply_event(event, ctrl, tasks, case)
@@ -368,8 +395,8 @@ def run_case(case: Case, stats: dict | None = None) -> None:
         if compute:
             xf, ef = attempt(fast.compute)
             xr, er = attempt(lambda ref=ref: ref.compute(record=True))
-            assert type(ef) is type(er), (k, ef, er)
-            if er is None:
+            assert type(ef) is type(er) and same_words(ef, er), (k, ef, er)
+            if er is None and not sensitive_solve(xf, xr, ref, ref.v, tol, stats):
                 close(xf.command, xr.command, tol, f"compute at step {k}")
                 same_fields(xf, xr, xr.label(), tol, ref.solver)
         before = [(c.q, c.v, c.t, c.steps) for c in (fast, ref)]
@@ -379,6 +406,7 @@ def run_case(case: Case, stats: dict | None = None) -> None:
         for u in reversed(undo):
             u()
         assert type(err) is type(werr), f"step {k}: compiled {err!r}, readable {werr!r}"
+        assert same_words(err, werr), f"step {k}: compiled {err!r}, readable {werr!r}"
         if werr is not None:  # a failed step changed nothing, on both paths
             for c, (q, v, t, steps) in zip((fast, ref), before, strict=True):
                 np.testing.assert_array_equal(c.q, q)
@@ -610,3 +638,23 @@ def test_a_cone_with_a_nan_reference_fails_alike():
     with pytest.raises(NonFiniteError, match="cone"):
         fast.step()
     assert fast.q is q
+
+
+@pytest.mark.xfail(strict=True, reason="Pointing caches (state, view of the z column); copied, the view is a frozen "
+                   "array and pointing_error reads it while the copied state moves")
+def test_a_copied_pointing_task_follows_its_state():
+    """A deep-copied or unpickled controller with a pointing cone: its ``pointing_error`` (the cone's activity on
+    the readable path, the policies' switching) follows the copy's state. Fails: it reads the z column as it was
+    when copied (-0.045 for +0.036 at ``q = 0.6``: the cone taken as inactive)."""
+    import pickle
+
+    from hqp_tpm import Controller, Posture, Robot
+
+    rob = Robot.load("iiwa7")
+    cone = Pointing(rob, "iiwa_ee", [0.0, 0.0, 1.0], 0.3, name="cone")
+    ctrl = Controller(rob, Stack.of(cone, Posture(rob, None)), order=1, q0=np.linspace(-0.5, 0.5, 7))
+    ctrl.step(record=True)
+    for twin in (copy.deepcopy(ctrl), pickle.loads(pickle.dumps(ctrl))):
+        task = twin.policy.stack.levels[0][0]
+        st = twin.state.update(np.full(7, 0.6), np.zeros(7))
+        assert task.pointing_error(st) == pytest.approx(task._cos - task.value(st)[0], abs=1e-12)
