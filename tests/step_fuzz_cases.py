@@ -45,6 +45,7 @@ FRAMES = {
     "lwr4": ("lwr_ee", "lwr_link_4", "lwr_link_3"),
     "planar5": ("planar5_ee", "planar5_link_3", "planar5_link_4"),
     "romeo21": ("r_gripper", "l_gripper", "r_sole", "l_sole"),
+    "talos": ("arm_left_7_link", "arm_right_7_link", "left_sole_link", "right_sole_link"),
 }
 
 _ROBOTS: dict[str, Robot] = {}

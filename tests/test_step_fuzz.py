@@ -467,16 +467,17 @@ def cases(draw):
     return draw_case(np.random.default_rng(seed), name, order, solver, policy, n_levels, steps, n_events)
 
 
-def seeded_case(seed: int) -> Case:
-    """Case ``seed`` of the seeded sweep: structure and numbers from one generator."""
+def seeded_case(seed: int, robot_name: str | None = None) -> Case:
+    """Case ``seed`` of the seeded sweep: structure and numbers from one generator (``robot_name``: on that robot)."""
     r = np.random.default_rng(seed)
     name = ROBOTS[r.integers(len(ROBOTS))]
+    name = robot_name or name
     policy = ("fixed", "fixed", "stacks", "plan")[r.integers(4)]
     solvers = SOLVERS if policy == "fixed" else ("tpm", "sns_tpm")
     solver = solvers[r.integers(len(solvers))]
     order = int(r.integers(1, 3))
     return draw_case(r, name, order, solver, policy, int(r.integers(1, 6)),
-                     int(r.integers(2, 7 if name == "romeo21" else 15)), int(r.integers(0, 7)))
+                     int(r.integers(2, 7 if name in ("romeo21", "talos") else 15)), int(r.integers(0, 7)))
 
 
 def checked(case: Case, stats: dict | None = None) -> None:
@@ -517,6 +518,12 @@ def test_seeded_sweep_equals_and_covers_the_mix():
     assert stats["exact"] >= 0.05 * stats["steps"] and stats["errors"] >= 0.02 * stats["steps"], stats
     want = {*SOLVERS, "fixed", "stacks", "plan", *ROBOTS, "order1", "order2", *EVENTS, *POLICY_KINDS}
     assert want <= seen, want - seen
+
+
+def test_seeded_cases_on_talos():
+    """A few cases on Talos (38 joints, a floating base, the grippers' mimic joints)."""
+    for seed in range(40):
+        checked(seeded_case(seed, "talos"))
 
 
 # -- what the fuzzing found, reduced ----------------------------------------------------------------------------------
