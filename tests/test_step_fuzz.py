@@ -52,6 +52,7 @@ from hqp_tpm import (
     Harmonic,
     HqpTpmError,
     JointLimits,
+    Line,
     NonFiniteError,
     Pointing,
     Stack,
@@ -168,7 +169,7 @@ def apply_event(event, ctrl, tasks, case):
             traj = Harmonic(center=(x_d if name not in ROTATION_KINDS else np.zeros(d)) + rng.normal(0, 0.02, d),
                             cos_amplitude=rng.normal(0, 0.03, d), sin_amplitude=rng.normal(0, 0.03, d),
                             omega=float(rng.uniform(1, 5)), phase=float(rng.uniform(-1, 1)))
-            which = rng.integers(4)
+            which = rng.integers(5)
             if which == 0 and name not in ROTATION_KINDS:  # a user's trajectories
                 traj = InPlace(x_d + rng.normal(0, 0.02, d), rng.normal(0, 0.03, d))
             elif which == 1:
@@ -176,6 +177,9 @@ def apply_event(event, ctrl, tasks, case):
                                        sin_amplitude=traj.sin_amplitude, omega=traj.omega)
             elif which == 2 and name not in ROTATION_KINDS:  # a relative constant (origin: none until started)
                 traj = Constant(value=rng.normal(0, 0.02, d), relative=True)
+            elif which == 3 and name not in ROTATION_KINDS:  # a straight line from the reference, starting now
+                traj = Line(start_point=x_d, end_point=x_d + rng.normal(0, 0.05, d), v_max=0.5, a_max=20.0,
+                            t_start=ctrl.t)
             if rng.random() < 0.5 and name in ("FramePosition", "CenterOfMass", "Posture", "OffsetPosition"):
                 task.target = traj
             else:
