@@ -1,24 +1,30 @@
 """Randomized lock-step check: ``ctrl.step()`` (the compiled step, where the set-up has one) gives the numbers of the
 readable step ``ctrl.step(record=True)`` on random stacks and policies, edited between steps.
 
-Each case (``tests/step_fuzz_cases.py``, drawn from a seed by hypothesis) builds two identical controllers on a real
-robot (iiwa, LWR, the planar 5-link arm, the free-floating Romeo) from a random mix of the task classes (frame
-position on axis subsets, pose, orientation, quaternion orientation, CoM, posture on joint subsets, joint limit,
-manipulability, pointing as equality or cone, avoidance assigned by a policy, a user's own task class) with random
-gains and targets (constant, relative, held, Harmonic, relative Harmonic), at velocity or acceleration level,
-with or without null-space damping, with ``tpm``, ``nullspace``, ``sns_tpm`` and ``sns`` (with and without a
-JointLimits box, command-rate boxes included) or the cascaded QP, damped or not, as a fixed stack, a stack policy
-(switching stacks, blending) or a planning policy (extra commands). One controller is stepped by ``step()``, the
-other by ``step(record=True)``; between steps both get the same events: targets assigned, trajectories swapped,
-a Harmonic's fields reassigned, gains replaced, levels added, removed or replaced, the policy replaced, damping
-settings changed, the state set, ``compute()``, and faults (a NaN, infinite or too large reference; a task whose
-Jacobian turns NaN) after which both must raise the same typed error and keep their state.
+Each case (``tests/step_fuzz_cases.py``: plain data drawn from a seed, by hypothesis or a seeded sweep) builds two
+identical controllers on a real robot (iiwa, LWR, the planar 5-link arm, the free-floating Romeo and Talos) from a
+random mix of the task classes (frame position on axis subsets, pose, orientation, quaternion orientation, CoM,
+posture on joint subsets, joint limit, manipulability, pointing as equality or cone, avoidance assigned by a
+policy's update, a user's own task class and a FramePosition subclass) with random gains and targets (constant,
+relative, held, Harmonic, relative Harmonic), at velocity or acceleration level, with or without null-space damping,
+with ``tpm``, ``nullspace``, ``sns_tpm`` and ``sns`` (with and without a JointLimits box, command-rate boxes
+included) or the cascaded QP, damped or not, as a fixed stack, a stack policy (switching stacks, blending) or a
+planning policy (extra commands). One controller is stepped by ``step()``, the other by ``step(record=True)``;
+between steps both get the same events: targets assigned (every target form), trajectories swapped (Harmonic, a
+Harmonic subclass, Line, relative constants, a user's in-place trajectory), a Harmonic's or Constant's fields
+reassigned, trajectories started again, gains replaced, levels added, removed or replaced, the policy, the solver or
+the box replaced, damping settings changed, the state set, ``compute()``, both controllers deep-copied, and faults
+(a NaN, infinite or too large reference; a task whose Jacobian turns NaN) after which both must raise the same typed
+error with the same words and keep their state.
 
 At every step: the commands, ``q``, ``v``, ``t`` and the step counts agree to the documented tolerance
 (docs/guarantees.md: bit for bit for a fixed stack at velocity level without a rotation error, else 1e-12 of
-``max(1, |x|)``; the cascaded QP 1e-9), and so do the StepResult fields computed on demand (label, stack, levels,
-info, x0, box), read at once or after the next step. After a step that is not bit-equal the compiled controller
-takes the readable one's state (``set_state``), so that each step is compared from the same state.
+``max(1, |x|)``; the cascaded QP 1e-9), and so do the StepResult fields computed on demand (label, levels, info, x0,
+box), read at once or after the next step (and after the events that follow it). After a step that is not bit-equal
+the compiled controller takes the readable one's state (``set_state``), so that each step is compared from the same
+state. Where the rows agree to 1e-12 but not to the bit, a discontinuous solver may amplify their last bits: an SNS
+tie orders or chooses saturations otherwise (the same command), or flips a decision (:func:`sensitive_solve`: then
+each step's command must be the solver's own answer to its own rows). A diverged state ends a case.
 """
 
 from __future__ import annotations
