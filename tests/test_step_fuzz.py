@@ -65,6 +65,7 @@ from hqp_tpm import (
     Trajectory,
 )
 from hqp_tpm.control.command_rate import solve_around
+from hqp_tpm.control.policy import DistancePolicy
 from hqp_tpm.policies._planned_step import StackPolicy
 from hqp_tpm.solvers.registry import solve
 
@@ -378,16 +379,21 @@ def attempt(fn):
 
 
 def run_case(case: Case, stats: dict | None = None) -> None:
-    fast, fast_tasks = build(case)
-    ref, ref_tasks = build(case)
-    tol = QP_TOL if case.solver.startswith("qp") else TOL
+    lockstep(build(case), build(case), case.events, case.steps, case, stats)
+
+
+def lockstep(fast_pair, ref_pair, events: dict, steps: int, case, stats: dict | None = None) -> None:
+    """Step ``fast`` by ``step()`` and ``ref`` by ``step(record=True)`` (each with its tasks by name) ``steps``
+    times, ``events[k]`` applied to both before step ``k``, and compare them (module doc)."""
+    (fast, fast_tasks), (ref, ref_tasks) = fast_pair, ref_pair
+    tol = QP_TOL if ref.solver.startswith("qp") else TOL
     late = None  # a compiled step's result whose fields are read after the next step
-    for k in range(case.steps):
+    for k in range(steps):
         undo = []
         compute = False
-        if late is not None and any(e[0] in STRUCTURE for e in case.events.get(k, [])):
+        if late is not None and any(e[0] in STRUCTURE for e in events.get(k, [])):
             late = (late[0], late[1], None)  # (a readable record's stack is the live one: its label changed)
-        for event in sorted(case.events.get(k, []), key=lambda e: e[0] in FAULTS):  # (faults last: the
+        for event in sorted(events.get(k, []), key=lambda e: e[0] in FAULTS):  # (faults last: the
             if event[0] == "compute":                                               # others read references)
                 compute = True
                 continue
@@ -675,3 +681,73 @@ def test_a_copied_pointing_task_follows_its_state():
         task = twin.policy.stack.levels[0][0]
         st = twin.state.update(np.full(7, 0.6), np.zeros(7))
         assert task.pointing_error(st) == pytest.approx(task._cos - task.value(st)[0], abs=1e-12)
+
+
+# -- the shipped policies, under events ---------------------------------------------------------------------------
+#: The bundled scenarios whose policy has a compiled step (the planned step), at most 2 s of CPU to build.
+POLICY_SCENARIOS = ("iiwa_admittance", "iiwa_comanipulation", "lwr_avoid3d", "lwr_point35_equality",
+                    "lwr_point35_inequality", "lwr_relaxed", "lwr_velocity", "planar5_approximate", "planar5_dmp",
+                    "planar5_exact", "planar5_primary", "planar5_transition", "planar5_two_obstacles",
+                    "romeo_obstacles_sns_tpm")
+SCENARIO_EVENTS = ("target", "trajectory", "harmonic_edit", "restart", "gains", "settings", "set_state", "compute",
+                   "glitch", "copy")
+
+
+def scenario_events(rng, ctrl, steps: int, count: int) -> dict:
+    """``count`` events among :data:`SCENARIO_EVENTS` on ``ctrl``'s tasks (the policy keeps its own stacks)."""
+    names = [t.name for t in ctrl.tasks() if type(t).__name__ in ("FramePosition", "CenterOfMass", "Posture",
+                                                                   "FramePose", "FrameOrientation", "JointLimit",
+                                                                   "Manipulability")]
+    out: dict = {}
+    for _ in range(count):
+        kind = str(rng.choice(SCENARIO_EVENTS))
+        if not names and kind in ("target", "trajectory", "harmonic_edit", "restart", "gains", "glitch"):
+            kind = "compute"
+        if kind == "copy" and isinstance(ctrl.policy, DistancePolicy):  # (coal's objects cannot be copied)
+            kind = "compute"
+        pick = str(rng.choice(names)) if names else ""
+        if kind in ("target", "trajectory", "harmonic_edit", "restart"):
+            event = (kind, pick, int(rng.integers(1 << 30)))
+        elif kind == "gains":
+            kp = float(rng.choice([1.0, 10.0, 50.0]))
+            event = (kind, pick, (kp, 2.0 * np.sqrt(kp) if ctrl.order == 2 else 0.0))
+        elif kind == "settings":
+            event = (kind, float(rng.choice([0.0, 0.02, 0.05])), float(rng.choice([0.0, 0.05, 0.1])),
+                     float(rng.choice([0.0, 3.0])))
+        elif kind == "set_state":
+            event = (kind, rng.normal(0.0, 0.02, ctrl.robot.nv).tolist(), rng.normal(0.0, 0.1, ctrl.robot.nv).tolist())
+        elif kind == "glitch":
+            event = (kind, pick, float(rng.choice([np.nan, np.inf, 1e160])))
+        else:
+            event = (kind,)
+        out.setdefault(int(rng.integers(1, steps)), []).append(event)
+    return out
+
+
+@pytest.mark.parametrize("name", POLICY_SCENARIOS)
+def test_shipped_policies_under_events(name):
+    """Every shipped policy with a compiled step (Algorithm 1 with coal distances, the whole-body avoidance, the
+    switching, admittance and papers/004 schemes), from its scenario's start moved by a random state, under random
+    events: the compiled step gives the readable step's numbers (as :func:`lockstep` checks)."""
+    from hqp_tpm.app.build import build as build_scenario
+    from hqp_tpm.app.scenario import load
+
+    def pair():
+        ctrl = build_scenario(load(name))[1]
+        return ctrl, {t.name: t for t in ctrl.tasks()}
+
+    fast, ref = pair(), pair()
+    assert fast[0].compiled()
+    for seed in range(2):
+        rng = np.random.default_rng(seed)
+        c = fast[0]
+        q = pin.integrate(c.robot.model, c.q, rng.normal(0.0, 0.05, c.robot.nv))
+        v = c.v + (rng.normal(0.0, 0.1, c.robot.nv) if c.order == 2 else 0.0)
+        for ctrl, _ in (fast, ref):
+            ctrl.set_state(q, v)
+        steps = 6 if name.startswith("romeo") else 15
+        events = scenario_events(rng, c, steps, int(rng.integers(2, 6)))
+        try:
+            lockstep(fast, ref, events, steps, None)
+        except AssertionError as exc:
+            raise AssertionError(f"{name}, seed {seed}, events {events}:\n{exc}") from exc
