@@ -442,6 +442,10 @@ def draw_case(rng, robot_name: str, order: int, solver: str, policy: str, n_leve
         case.box = {"velocity_scale": float(rng.choice([0.05, 0.3, 1.0]))}
         if order == 1 and rng.random() < 0.3:
             case.box["command_rate"] = True
+        if rng.random() < 0.2:  # (no position limits: the box of the readable formulas, not the kernel's)
+            case.box["position"] = False
+        if rng.random() < 0.3:
+            case.box["acceleration_limit"] = float(rng.choice([5.0, 200.0]))
     if policy != "fixed":
         names = [r[1] for lv in levels for r in lv]
         case.policy_params = {"split": int(rng.integers(0, max(1, len(levels)))), "period": float(rng.choice([3e-3,
