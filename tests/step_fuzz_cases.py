@@ -258,6 +258,7 @@ class Case:
     damping: float = 0.0
     box: dict | None = None            # JointLimits' keyword arguments
     steps: int = 10
+    dt: float = 1e-3
     events: dict = field(default_factory=dict)  # step -> list of events (applied before that step)
 
     def describe(self) -> str:
@@ -265,7 +266,7 @@ class Case:
         events = {k: [e[0] for e in v] for k, v in self.events.items()}
         return (f"Case(robot={self.robot}, order={self.order}, solver={self.solver}, policy={self.policy} "
                 f"{self.policy_params}, lambda_max={self.lambda_max}, eps={self.eps}, damping={self.damping}, "
-                f"box={self.box}, steps={self.steps}, stack={lv}, events={events})")
+                f"box={self.box}, dt={self.dt}, steps={self.steps}, stack={lv}, events={events})")
 
 
 def build(case: Case) -> tuple[Controller, dict[str, Task]]:
@@ -291,8 +292,8 @@ def build(case: Case) -> tuple[Controller, dict[str, Task]]:
         k = case.policy_params["split"]
         plans = [flat, flat[k:] + flat[:k] if k < len(flat) else flat[::-1]]
         policy = ScheduledPlan(rob, plans, case.policy_params["period"], case.policy_params["extras"])
-    box = None if case.box is None else JointLimits(rob, order=case.order, dt=1e-3, **case.box)
-    ctrl = Controller(rob, policy, order=case.order, dt=1e-3, solver=case.solver, lambda_max=case.lambda_max,
+    box = None if case.box is None else JointLimits(rob, order=case.order, dt=case.dt, **case.box)
+    ctrl = Controller(rob, policy, order=case.order, dt=case.dt, solver=case.solver, lambda_max=case.lambda_max,
                       eps=case.eps, nullspace_damping=case.damping, box=box, q0=case.q0, v0=case.v0)
     return ctrl, tasks
 
@@ -446,6 +447,8 @@ def draw_case(rng, robot_name: str, order: int, solver: str, policy: str, n_leve
             case.box["position"] = False
         if rng.random() < 0.3:
             case.box["acceleration_limit"] = float(rng.choice([5.0, 200.0]))
+    if rng.random() < 0.2:
+        case.dt = 4e-3
     if policy != "fixed":
         names = [r[1] for lv in levels for r in lv]
         case.policy_params = {"split": int(rng.integers(0, max(1, len(levels)))), "period": float(rng.choice([3e-3,
@@ -460,7 +463,7 @@ def draw_case(rng, robot_name: str, order: int, solver: str, policy: str, n_leve
 
 EVENTS = ("target", "target", "trajectory", "harmonic_edit", "gains", "add_level", "remove_level", "replace_level",
           "replace_policy", "settings", "set_state", "glitch", "glitch", "bad_rows", "compute", "solver", "box", "copy",
-          "restart")
+          "restart", "mix")
 
 
 def draw_event(rng, rob, st, case: Case):

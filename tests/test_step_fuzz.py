@@ -390,12 +390,15 @@ def lockstep(fast_pair, ref_pair, events: dict, steps: int, case, stats: dict | 
     late = None  # a compiled step's result whose fields are read after the next step
     for k in range(steps):
         undo = []
-        compute = False
+        compute = mix = False
         if late is not None and any(e[0] in STRUCTURE for e in events.get(k, [])):
             late = (late[0], late[1], None)  # (a readable record's stack is the live one: its label changed)
         for event in sorted(events.get(k, []), key=lambda e: e[0] in FAULTS):  # (faults last: the
             if event[0] == "compute":                                               # others read references)
                 compute = True
+                continue
+            if event[0] == "mix":  # the compiled controller takes this step by the readable path
+                mix = True
                 continue
             if event[0] == "copy":  # both controllers go on as deep copies (a copy plans its own compiled step)
                 (fast, fast_tasks), (ref, ref_tasks) = copy.deepcopy((fast, fast_tasks)), copy.deepcopy((ref,
@@ -417,7 +420,7 @@ def lockstep(fast_pair, ref_pair, events: dict, steps: int, case, stats: dict | 
                 same_fields(xf, xr, xr.label(), tol, ref.solver)
         before = [(c.q, c.v, c.t, c.steps) for c in (fast, ref)]
         exact = exact_step(ref, case)
-        res, err = attempt(fast.step)
+        res, err = attempt(fast.step if not mix else lambda fast=fast: fast.step(record=True))
         want, werr = attempt(lambda ref=ref: ref.step(record=True))
         for u in reversed(undo):
             u()
