@@ -81,7 +81,7 @@ class LeanStep(CompiledStep):
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
                  "_velocities", "_positions", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack",
-                 "_levels", "_spans", "_label")
+                 "_levels", "_spans", "_label", "planned_box")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -164,6 +164,7 @@ class LeanStep(CompiledStep):
         if mode == _compiled_step.SNS:
             lo_up[0][...], lo_up[1][...] = -np.inf, np.inf  # (no box: these stay)
         self.box = JointBox(box, lo_up if mode == _compiled_step.SNS else None) if joint_box else box
+        self.planned_box = box
         self._info = {}
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,

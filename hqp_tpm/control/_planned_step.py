@@ -80,7 +80,8 @@ class PlannedStep(CompiledStep):
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
                  "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
-                 "_bs", "_stack", "_box_now", "other")
+                 "_bs", "_stack", "_box_now", "other", "_unchecked",
+                 "planned_box")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -124,10 +125,12 @@ class PlannedStep(CompiledStep):
         self.other = ctrl.solver not in ("tpm", "sns_tpm")
         self.rate = ctrl.solver not in ANALYTIC and ctrl.order == 1 and rate_limited(ctrl.box)
         joint = type(ctrl.box) is JointLimits
-        self.box = JointBox(ctrl.box) if joint else (lambda st, box=ctrl.box: box(st, ctrl.t)) if ctrl.box else None
+        self.planned_box = box = ctrl.box
+        self.box = JointBox(box) if joint else None if box is None else (lambda st: box(st, ctrl.t))
         self.info: dict = {}
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
         self._stack = self._box_now = None
+        self._unchecked = False  # (an inactive cone's row not finite: the readable step decides, _solve)
         return self
 
     def _place(self, task: Task, a: int) -> tuple | bool:
@@ -151,6 +154,7 @@ class PlannedStep(CompiledStep):
         and level sizes."""
         order, a, sizes, placed = self.order, 0, [], self._placed
         made = self._made = []
+        self._unchecked = False
         for g, level in enumerate(levels):
             a0 = a
             for task in level:
@@ -162,6 +166,7 @@ class PlannedStep(CompiledStep):
                     if w[1]:                  # the cone (21): its row while e > 0 (else an inactive level)
                         if not w[0](t) > 0.0:
                             made.append((task, a, 0, (self.J[a:a + 1].copy(), self.b[a:a + 1].copy()), g))
+                            self._unchecked |= not sumsq(self.J[a]) + sumsq(self.b[a:a + 1]) <= MAX_SUMSQ
                             continue
                     elif extra is None:
                         w[0](t)
@@ -186,6 +191,7 @@ class PlannedStep(CompiledStep):
                     bt = task.command(st, t, order, extra, Jt)
                     if not task.pointing_error(st) > 0.0:  # (an inactive level, as in the readable levels)
                         made.append((task, a, 0, (Jt, bt), g))
+                        self._unchecked |= not sumsq(Jt) + sumsq(bt) <= MAX_SUMSQ
                         continue
                     lv = True
                 else:
@@ -265,6 +271,8 @@ class PlannedStep(CompiledStep):
         """The solution of the planned levels' rows (the readable step's solve)."""
         ctrl = self.ctrl
         m, sizes = self._rows(st, t, levels, extras)
+        if self._unchecked:  # an inactive cone's row NaN, inf or too large: the readable step (its typed error)
+            return ctrl._compute().command
         J, b = self.J[:m], self.b[:m]
         if self.sns:
             return self._sns(st, t, J, b, sizes)

@@ -59,7 +59,7 @@ class StepResult:
     @property
     def x0(self) -> np.ndarray | None:
         if self._x0 is LAZY:
-            self._x0 = self._kept[0].ctrl.null_space_term(self._kept[2])
+            self._x0 = self._kept[0].x0_of(self._kept)
         return self._x0
 
     @property
@@ -90,13 +90,23 @@ class CompiledStep:
 
     __slots__ = ()
     ctrl: Controller
+    #: the null-space damping ``D`` (0 at velocity level) and the controller's box (None or a callable
+    #: ``box(state, t)``) the step was planned with
+    damping: float
+    planned_box: object
 
     def info_of(self, kept: tuple) -> dict:  # pragma: no cover - a step that passes a LAZY info overrides it
         raise NotImplementedError
 
+    def x0_of(self, kept: tuple) -> np.ndarray | None:
+        """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with (a later
+        setting of the controller's does not change a result it gave)."""
+        d = self.damping
+        return -d * kept[2] if d else None
+
     def box_of(self, t: float, kept: tuple) -> tuple[np.ndarray, np.ndarray] | None:
-        """The controller's box at the kept state (in :meth:`Controller.scratch_state`)."""
-        ctrl = self.ctrl
-        if ctrl.box is None:
+        """The box the step was planned with at the kept state (in :meth:`Controller.scratch_state`)."""
+        box = self.planned_box
+        if box is None:
             return None
-        return ctrl.box(ctrl.scratch_state().update(kept[1], kept[2], t, validate=False), t)
+        return box(self.ctrl.scratch_state().update(kept[1], kept[2], t, validate=False), t)

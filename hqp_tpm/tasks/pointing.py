@@ -65,6 +65,10 @@ class Pointing(Task):
         self.drift_limit = None if drift_limit is None else float(drift_limit)
         super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
 
+    def __getstate__(self) -> dict:
+        """Copied and pickled without its kept view of a state's rotation (a copy's view would be a frozen array)."""
+        return {**self.__dict__, "_column": None}
+
     def axis(self, state: State) -> np.ndarray:
         return state.rotation(self.fid)[:, 2]
 
@@ -127,8 +131,8 @@ class Pointing(Task):
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
         """``write(t) -> e``: the row of :meth:`jacobian` and :meth:`command` (no extra command) written into ``J``
-        (1 x n) and ``b`` (1), the same numbers (one compiled call); returns the error :meth:`pointing_error`
-        (the inequality's row is in the stack only while it is positive). For the planned step."""
+        (1 x n) and ``b`` (1), the same numbers (one compiled call); returns :meth:`pointing_error` (the inequality's
+        row is in the stack only while it is positive, whatever the task's reference). For the planned step."""
         model, data, fid = state.model, state.data, self.fid
         views = state.frame_views(fid)
         none = np.zeros(6)
@@ -154,8 +158,9 @@ class Pointing(Task):
             else:
                 vel = pin.getFrameVelocity(model, data, fid, LWA).vector
                 acc = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
-            return _compiled_rows.pointing_row(J, b, R, self.z_d, Jf, state.v, vel, acc, ref[0], ref[1], ref[2],
-                                               g.kp, g.kd, order, limit)
+            _compiled_rows.pointing_row(J, b, R, self.z_d, Jf, state.v, vel, acc, ref[0], ref[1], ref[2], g.kp, g.kd,
+                                        order, limit)
+            return self.pointing_error(state)  # (the cone's activity, as level decides it: from alpha_d)
         return write
 
 
