@@ -391,9 +391,9 @@ def test_fixed_stack_with_a_pointing_task_runs_the_planned_step(name, cone):
     same_record(res, want)
 
 
-def test_every_shipped_scenario_with_an_analytic_solver_runs_compiled():
-    """``ctrl.step()`` is the compiled step for every shipped scenario solved by ``tpm`` or ``sns_tpm`` (a fixed
-    stack of equality tasks: LeanStep; any other fixed stack or a shipped policy: PlannedStep)."""
+def test_every_shipped_scenario_runs_compiled():
+    """``ctrl.step()`` is the compiled step for every shipped scenario, whatever its solver (a fixed stack of
+    equality tasks: LeanStep; any other fixed stack or a shipped policy: PlannedStep)."""
     from importlib import resources
 
     from hqp_tpm.app.build import build_run
@@ -403,11 +403,10 @@ def test_every_shipped_scenario_with_an_analytic_solver_runs_compiled():
     checked = []
     for name in names:
         ctrl = build_run(load(name)).controller
-        if ctrl.solver in ("tpm", "sns_tpm"):
-            assert ctrl.compiled(), (name, PlannedStep.why_not(ctrl))
-            checked.append(name)
-    assert {"iiwa_first_controller", "lwr_tracking", "iiwa_mujoco", "lwr_relaxed", "romeo_obstacles_sns_tpm"} \
-        <= set(checked)
+        assert ctrl.compiled(), (name, PlannedStep.why_not(ctrl))
+        checked.append(name)
+    assert {"iiwa_first_controller", "lwr_tracking", "iiwa_mujoco", "lwr_relaxed", "romeo_obstacles_sns_tpm",
+            "romeo_obstacles_qp", "romeo_qp", "romeo_sns"} <= set(checked)
 
 
 def test_a_stack_function_runs_the_planned_step():
