@@ -604,3 +604,25 @@ def test_pairwise_and_batched_coal_paths_give_the_same_bits(panda_convex, monkey
     assert fields["pairwise"].computed.all()
     for name in ("distance", "p_robot", "p_obstacle", "normal"):
         np.testing.assert_array_equal(getattr(fields["pairwise"], name), getattr(fields["batched"], name), err_msg=name)
+
+
+@pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_obstacles_sns_tpm"])
+def test_a_controller_with_a_distance_field_copies_and_pickles(name):
+    """A controller whose policy owns distance fields (Algorithm 1, the whole-body avoidance) deep-copies and pickles
+    (coal's functors and pinocchio's GeometryData do not: the field is built again from its arguments, its history
+    restored), and the copy goes on as the original does, to the bit (on 82bfea4: RuntimeError from boost.python)."""
+    import copy
+    import pickle
+
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.scenario import load
+
+    ctrl = build_run(load(name)).controller
+    for _ in range(30):
+        ctrl.step()
+    copies = [copy.deepcopy(ctrl), pickle.loads(pickle.dumps(ctrl))]
+    for _ in range(60):
+        want = ctrl.step().command
+        for twin in copies:
+            np.testing.assert_array_equal(twin.step().command, want)
+    assert copies[0].policy.field is not ctrl.policy.field

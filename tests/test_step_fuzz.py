@@ -66,7 +66,6 @@ from hqp_tpm import (
     Trajectory,
 )
 from hqp_tpm.control.command_rate import solve_around
-from hqp_tpm.control.policy import DistancePolicy
 from hqp_tpm.solvers.registry import solve
 
 #: docs/guarantees.md: a compiled step within 1e-12 of the readable one (relative to max(1, |x|)); the QP 1e-9.
@@ -696,8 +695,6 @@ def scenario_events(rng, ctrl, steps: int, count: int) -> dict:
     for _ in range(count):
         kind = str(rng.choice(SCENARIO_EVENTS))
         if not names and kind in ("target", "trajectory", "harmonic_edit", "restart", "gains", "glitch"):
-            kind = "compute"
-        if kind == "copy" and isinstance(ctrl.policy, DistancePolicy):  # (coal's objects cannot be copied)
             kind = "compute"
         pick = str(rng.choice(names)) if names else ""
         if kind in ("target", "trajectory", "harmonic_edit", "restart"):

@@ -97,6 +97,13 @@ class DistanceField:
                  surveillance: float = 0.15, geometries: Iterable[str] | None = None,
                  self_pairs: Iterable[tuple[str, str]] = (), *, convexify: bool = True,
                  broad_phase: bool = True, analytic_spheres: bool = True, self_surveillance: float | None = None):
+        geometries = None if geometries is None else tuple(geometries)
+        self_pairs = tuple(self_pairs)
+        # what a copy is built from (coal's functors and pinocchio's GeometryData do not pickle: __reduce__)
+        self._built_from = ((model, geometry_model, tuple(control_points), tuple(obstacles), surveillance, geometries,
+                             self_pairs),
+                            {"convexify": convexify, "broad_phase": broad_phase, "analytic_spheres": analytic_spheres,
+                             "self_surveillance": self_surveillance})
         surveillance = float(surveillance)
         self_surveillance = surveillance if self_surveillance is None else float(self_surveillance)
         for value in (surveillance, self_surveillance):
@@ -734,7 +741,21 @@ class DistanceField:
         self._last_normal[...] = last
         self._self_last_normal[...] = self_last
 
+    def __reduce__(self):
+        """Copied and pickled as built again from its constructor's arguments, with its :meth:`snapshot` (coal's
+        functors and pinocchio's ``GeometryData`` do not pickle, and the records' views must stay views): the
+        copy's next :meth:`update` gives the numbers the original's would."""
+        args, kwargs = self._built_from
+        return _built_again, (args, kwargs, self.snapshot())
+
     def __repr__(self) -> str:
         return (f"DistanceField({self.n_geometries} geometries, {self.n_points} control points, "
                 f"{self.n_obstacles} obstacles, {len(self.self_pairs)} self pairs, "
                 f"surveillance={self.surveillance})")
+
+
+def _built_again(args: tuple, kwargs: dict, snapshot: tuple) -> DistanceField:
+    """A :class:`DistanceField` built from ``args``, ``kwargs`` with ``snapshot`` restored (its unpickling)."""
+    field = DistanceField(*args, **kwargs)
+    field.restore(snapshot)
+    return field
