@@ -8,8 +8,7 @@ call) and of the recursion (``nullspace``, and TPM where a pivot is singular); t
 * :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular or, when the
   certificate cannot tell, decided and damped by the SVD of its block; Steps 2-4 on the pivot blocks,
   ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion;
-* :func:`_recursion_cols` / :func:`_recursion`: eqs. (5)-(6), (14) of papers/000 on orthonormal bases
-  (:func:`_recursion_from`: from a given level on, SNS-TPM's passes whose upper levels the shortcut certified).
+* :func:`_recursion_cols` / :func:`_recursion`: eqs. (5)-(6), (14) of papers/000 on orthonormal bases.
 
 ``tests/test_compiled.py`` proves them equal to the oracles (1e-12; on ill-conditioned draws against a 50-digit
 reference).
@@ -53,9 +52,6 @@ from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
 #: (``sigma_min`` itself would); a singular pivot (``_general_factors`` with ``singular_ok``). The last three: the
 #: recursion answers.
 SOLVED, DECLINED, UNDECIDED, SINGULAR = 0, 1, 2, 3
-#: (SNS-TPM's downdated passes only, ``damped_map``:) the upper levels' pivots are certified, the crossing level is
-#: not (``A = J_k Z`` without a clear full column rank): the recursion answers from the crossing level on.
-CROSSING = 4
 #: :func:`_tpm`'s report: the factorization's kernel answered, or the recursion did.
 FACTORED, RECURSION = 0, 1
 
@@ -541,12 +537,12 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
     for j in range(r):
         dmin = min(dmin, abs(RA[j, j]))
     if dmin <= thr_k:                                  # sigma_min <= min |r_jj|: rank n not reached clearly
-        return (CROSSING if damped_map else DECLINED), AT, tauA, RA, Dp, blk, 0.0
+        return DECLINED, AT, tauA, RA, Dp, blk, 0.0
     RAinv = _triangular_inverse(RA)
     p = _fro_upper(RAinv, 0, r)                        # = ||A#||_F = sqrt(sum 1/sigma^2)
     lower = 1.0 / p                                    # <= sigma_min(A)
-    if lower <= thr_k:                                 # sigma_min itself: the reference's SVD decides
-        return (CROSSING if damped_map else UNDECIDED), AT, tauA, RA, Dp, blk, 0.0
+    if lower <= thr_k:
+        return UNDECIDED, AT, tauA, RA, Dp, blk, 0.0   # sigma_min itself: the reference's SVD decides
     lam = 0.0
     if lambda_max > 0.0 and r < mk and 0.0 < eps:      # m_k - r zero singular values: lambda = lambda_max
         lam = math.sqrt(lambda_max * lambda_max)       # (as the earlier kernel took it: the same bits)
@@ -1038,19 +1034,13 @@ def _recursion_cols(J, B, sizes, n, lambda_max, eps, unit, ranks):
     which sees ``m_i`` values: zeros for the rows beyond ``Z``'s columns), the others stay in ``Z`` for the levels
     below (``Z``: the last basis, ``P = Z Z^T``). ``ranks[i]``: the number of directions level ``i`` uses (its rank
     in what the levels above leave). One SVD per level for every column of ``B``."""
-    return _recursion_from(J, B, sizes, n, lambda_max, eps, unit, ranks, 0, 0, np.zeros((n, B.shape[1])), np.eye(n))
-
-
-@_kernel
-def _recursion_from(J, B, sizes, n, lambda_max, eps, unit, ranks, lev0, a0, X, Z):
-    """:func:`_recursion_cols` from level ``lev0`` (its first row ``a0``) on, given what the levels above it give:
-    ``X`` (``n x cols``, updated in place) and ``Z`` (an orthonormal basis of their null space; ``ranks`` of the
-    levels above: the caller's)."""
     m = J.shape[0]
     k = B.shape[1]
     size = max(m, n)
-    a = a0
-    for lev in range(lev0, sizes.shape[0]):
+    X = np.zeros((n, k))
+    Z = np.eye(n)
+    a = 0
+    for lev in range(sizes.shape[0]):
         e = a + sizes[lev]
         nz = Z.shape[1]
         ranks[lev] = 0

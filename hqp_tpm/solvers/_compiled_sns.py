@@ -13,8 +13,7 @@ clip into the exact box at the end:
   above crosses rank, its factors are already in the downdated ``R~``: :func:`_downdated_views`). Where the
   shortcut's certificates do not take a stack (a singular or nearly singular pivot above the crossing level, a
   crossing level without a clear full column rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols`
-  solves it (from the crossing level on when only that level is undecided: :func:`_crossing_recursion`), both
-  right-hand sides of a pass with one SVD per level, and reports the first level's rank for the
+  solves it, both right-hand sides of a pass with one SVD per level, and reports the first level's rank for the
   rank test;
 * ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
   :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
@@ -275,54 +274,10 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, R1, BT, lambda_max
         sq[lev] = total
     status, AT, tauA, RA, Dp, blk, lam = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf),
                                                                       lambda_max, eps, unit, margin, cond, True)
-    if status == _compiled.CROSSING:                   # (the upper levels' pivots, for _crossing_recursion)
-        return status, AT, tauA, RA, np.empty((0, 0)), np.empty(0), np.empty((0, 0)), Dp, blk
     if status != _compiled.SOLVED:
         return (status, AT, tauA, RA, *_compiled._no_damping())
     DV, Dtau, DR = _compiled._crossing_damping(RA, lam)
     return status, AT, tauA, RA, DV, Dtau, DR, Dp, blk
-
-
-@_kernel
-def _crossing_recursion(Jf, Bc, sizes, nf, lambda_max, eps, unit, ranks, free, nsat, k, m1, QT, R1, Dp, blk):
-    """The recursion's TPM of ``J W`` (``Jf``, both columns of ``Bc``) where :func:`_downdated_factor` certified the
-    pivots of the levels above the crossing level ``k`` but not the crossing level itself (:data:`_compiled.CROSSING`):
-    their part from the downdated factorization, ``X = Q~[free, s:s+m1] z`` (``z`` of each column by the forward
-    substitution with the pivots' (damped) inverses, as the shortcut) and the basis ``Z = Q~[free, s+m1:]`` of their
-    null space, then :func:`_compiled._recursion_from` from level ``k`` on. The recursion's own first levels would
-    take every direction of these certified pivots with the same damping law: the same ``x`` up to rounding, one
-    SVD per level fewer for each level above ``k``. ``ranks`` of the levels above ``k``: their row counts."""
-    n = free.shape[0]
-    r = nf - m1
-    ncol = Bc.shape[1]
-    X = np.zeros((nf, ncol))
-    Z = np.empty((nf, r))
-    f = 0
-    for t in range(n):
-        if free[t]:
-            for j in range(r):
-                Z[f, j] = QT[nsat + m1 + j, t]
-            f += 1
-    if m1:
-        b = np.empty(m1)
-        for col in range(ncol):
-            for i in range(m1):
-                b[i] = Bc[i, col]
-            if Dp.shape[0]:
-                z = _compiled._pivot_forward(R1, Dp, blk, b, m1)
-            else:
-                z = _compiled._solve_upper_t(R1, b)
-            f = 0
-            for t in range(n):
-                if free[t]:
-                    acc = 0.0
-                    for i in range(m1):
-                        acc += QT[nsat + i, t] * z[i]
-                    X[f, col] = acc
-                    f += 1
-    for lev in range(k):
-        ranks[lev] = sizes[lev]
-    return _compiled._recursion_from(Jf, Bc, sizes, nf, lambda_max, eps, unit, ranks, k, m1, X, Z)[0]
 
 
 @_kernel
@@ -535,7 +490,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     use_svd = False                                                 # cannot decide its rank
     CT = np.empty((0, 0))
     Rt = np.empty((0, 0))
-    dk, dm1, dmk = 0, 0, 0                             # the downdated factorization's crossing level: rows above, its
+    dm1, dmk = 0, 0                                    # the downdated factorization's crossing level: rows above, its
     DR1, DBT = _downdated_views(CT, Rt, 0, 0, 0, 0, 0)  # rows, R1 and (J_k Q~)^T (views of Rt, CT)
     QT = np.empty((0, 0))                              # Q~^T (the downdated basis, explicit)
     colsq = np.empty((0, 0))
@@ -684,11 +639,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
                     for i in range(m):
                         Bc[i, 0] = xd[i] - c[i]
                         Bc[i, 1] = xd[i]
-                    if status == _compiled.CROSSING:   # (the levels above the crossing level: certified)
-                        Xr = _crossing_recursion(Jf, Bc, sizes, nf, lambda_max, eps, unit, ranks, free, nsat, dk, dm1,
-                                                 QT, DR1, Dp, blk)
-                    else:
-                        Xr = _compiled._recursion_cols(Jf, Bc, sizes, nf, lambda_max, eps, unit, ranks)[0]
+                    Xr = _compiled._recursion_cols(Jf, Bc, sizes, nf, lambda_max, eps, unit, ranks)[0]
                     stop = k_fit and ranks[0] < sizes[0]  # J_1 W loses rank
                 else:
                     stop = k_fit and sizes[0] > nf     # the first level crosses rank nf: J_1 W loses rank
