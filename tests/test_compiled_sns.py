@@ -459,7 +459,7 @@ def test_downdated_factorization_equals_the_free_columns():
     J = np.vstack([rng.standard_normal((17, n)), np.hstack([np.zeros((21, 6)), np.eye(21)])])
     _compiled._sizes(sizes)                                     # compiles the kernels
     status, m1, mk, r, V, tau, R1, BT, *_ = _compiled._past_rank_factor(
-        J, np.array(sizes), n, 0.0, 0.0, _compiled._UNIT, _compiled.MARGIN, _compiled.COND)
+        J, np.array(sizes), n, 0.0, 0.0, _compiled._UNIT, _compiled.MARGIN, _compiled.COND, False)
     assert status == _compiled.SOLVED and (m1, mk) == (17, 21)
     CT, Rt = BT.copy(), np.zeros((n, m1))
     Rt[:m1] = R1

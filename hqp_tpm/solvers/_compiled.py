@@ -476,7 +476,7 @@ def _level_sumsq(J, sizes, w):
 
 
 @_inlined
-def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, unit, margin, cond):
+def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, unit, margin, cond, damped_map):
     """The certificates of :func:`_past_rank` and the QR of ``A = J_k Z``, given ``R1`` (``J_<k^T = Q1 R1``, its
     diagonal nonzero) and ``BT = (J_k Q)^T``: ``(status, AT, tauA, RA, Dp, blk, lam)``.
 
@@ -486,7 +486,15 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
     block diagonal) holds every pivot's inverse, ``R_ii^{-1}`` or damped, and ``blk[i]`` the first row of row
     ``i``'s level (else both empty: ``R1^{-T}`` by substitution). ``lam``: the crossing level's damping (0: none),
     ``lambda_max`` when ``A`` has fewer columns than rows, else from ``sigma_min(A)`` (the SVD of ``R_A`` where
-    ``1/||R_A^{-1}||_F < eps``). The damping law is continuous in ``sigma_min``: no margin is needed at ``eps``."""
+    ``1/||R_A^{-1}||_F < eps``). The damping law is continuous in ``sigma_min``: no margin is needed at ``eps``.
+
+    ``damped_map`` (SNS-TPM's downdated passes, :func:`hqp_tpm.solvers._compiled_sns._downdated_factor`): where a
+    pivot is damped and the undamped ``||R1^{-1}||_F`` fails the solution-map certificate, the map ``b -> z`` of the
+    forward substitution with the damped inverses is measured instead (:func:`_damped_map_norm`). Such stacks (upper
+    levels ~1e-4 of their norm from dependence, damped) then take the shortcut rather than the recursion; the two
+    differ by the stack's own rounding sensitivity (the upper levels' null space moves by ``~eps / sigma_min``: up
+    to ~1e-11 relative, inside SNS-TPM's 1e-9 to its reference; ``tests/test_damped_certificate.py``). ``tpm`` (and
+    the SNS loop's first pass, its TPM) keep the undamped certificate: 1e-12 to ``tpm_reference``."""
     AT = np.empty((r, mk))                             # A^T: the columns of A as rows
     tauA = np.empty(r)
     RA = np.zeros((r, r))
@@ -552,8 +560,40 @@ def _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, size, lambda_max, eps, u
                 p += (sv[t] / (sv[t] * sv[t] + lam2)) ** 2
             p = math.sqrt(p)                           # ||A#_lambda||_F
     if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:   # the stack's solution map: at most 1/(cond ||J||)
-        return DECLINED, AT, tauA, RA, Dp, blk, 0.0
+        if not damped_map or Dp.shape[0] == 0:         # (SNS downdated passes: z's map, damped pivots)
+            return DECLINED, AT, tauA, RA, Dp, blk, 0.0
+        a_inv = _damped_map_norm(R1, Dp, sizes, k, m1)
+        if 1.0 / (a_inv + p * (1.0 + norm_k * a_inv)) <= thr:
+            return DECLINED, AT, tauA, RA, Dp, blk, 0.0
     return SOLVED, AT, tauA, RA, Dp, blk, lam
+
+
+@_kernel
+def _damped_map_norm(R1, Dp, sizes, k, m1):
+    """``||X||_F`` of the map ``b -> z = X^T b`` of :func:`_pivot_forward` (``R1^{-1}`` with each pivot's inverse
+    replaced by ``Dp``'s block, damped or not): block column by block column, ``X[:, i] = (E_i - X[:, :a_i]
+    R1[:a_i, i]) D_i`` (``E_i``: the identity's columns of level ``i``; ``X`` is block upper triangular)."""
+    X = np.zeros((m1, m1))
+    T = np.empty(m1)
+    a = 0
+    for lev in range(k):
+        e = a + sizes[lev]
+        for row in range(a):                           # the rows above level lev: -X[row, :a] R1[:a, a:e] D_i
+            for c in range(a, e):
+                s = 0.0
+                for t in range(a):
+                    s += X[row, t] * R1[t, c]
+                T[c] = -s
+            for c in range(a, e):
+                s = 0.0
+                for t in range(a, e):
+                    s += T[t] * Dp[t, c]
+                X[row, c] = s
+        for row in range(a, e):                        # its own rows: D_i
+            for c in range(a, e):
+                X[row, c] = Dp[row, c]
+        a = e
+    return _fro_block(X, 0, m1, 0, m1)
 
 
 @_kernel
@@ -676,7 +716,7 @@ def _pivot_forward(R1, Dp, blk, b, m1):
 
 
 @_inlined
-def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
+def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond, damped_map):
     """The part of :func:`_past_rank` that depends on ``J`` only: its status and, if :data:`SOLVED`, the
     factors :func:`_past_rank_rhs` needs, ``(status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp,
     blk)``."""
@@ -695,7 +735,7 @@ def _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond):
             BT[t, i] = J[m1 + i, t]
     _apply_right_t(BT, V, tau, m1, w)
     status, AT, tauA, RA, Dp, blk, lam = _past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, n), lambda_max,
-                                                            eps, unit, margin, cond)
+                                                            eps, unit, margin, cond, damped_map)
     if status != SOLVED:
         return (status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, *_no_damping())
     DV, Dtau, DR = _crossing_damping(RA, lam)
@@ -761,7 +801,7 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
     reference's ``MARGIN`` and ``COND``.
     """
     (status, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp,
-     blk) = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond)
+     blk) = _past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond, False)
     if status == SOLVED:
         _past_rank_rhs(b, m1, mk, r, V, tau, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, lambda_max, eps, out)
     return status

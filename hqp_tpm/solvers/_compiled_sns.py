@@ -8,7 +8,8 @@ clip into the exact box at the end:
 * ``m > n`` (the extension of :mod:`hqp_tpm.solvers.sns`): the TPM of the stack by the full-rank shortcut
   :func:`hqp_tpm.solvers._compiled._past_rank` and of each free-column stack ``J W`` by the same shortcut on the
   upper levels' QR *downdated* when a joint saturates (Givens rotations on an explicit basis, below; the
-  certificates of ``_past_rank`` on the downdated factors, damped pivots by the SVD of their blocks; when a level
+  certificates of ``_past_rank`` on the downdated factors, damped pivots by the SVD of their blocks, the solution
+  map measured with those damped inverses: ``_past_rank_certify``'s ``damped_map``; when a level
   above crosses rank, its factors are already in the downdated ``R~``: :func:`_downdated_views`). Where the
   shortcut's certificates do not take a stack (a singular or nearly singular pivot above the crossing level, a
   crossing level without a clear full column rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols`
@@ -272,7 +273,7 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, R1, BT, lambda_max
                 total += colsq[lev, t]
         sq[lev] = total
     status, AT, tauA, RA, Dp, blk, lam = _compiled._past_rank_certify(R1, BT, sq, sizes, k, m1, mk, r, max(m, nf),
-                                                                      lambda_max, eps, unit, margin, cond)
+                                                                      lambda_max, eps, unit, margin, cond, True)
     if status != _compiled.SOLVED:
         return (status, AT, tauA, RA, *_compiled._no_damping())
     DV, Dtau, DR = _compiled._crossing_damping(RA, lam)
@@ -309,7 +310,7 @@ def _downdated_rhs(r1, r2, free, nsat, m1, mk, QT, R1, BT, AT, tauA, RA, DV, Dta
 @_kernel
 def _refactor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond):
     """:func:`_compiled._past_rank_factor` of ``J W`` (its free columns ``Jf``), called (not inlined) from the loop."""
-    return _compiled._past_rank_factor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond)
+    return _compiled._past_rank_factor(Jf, sizes, nf, lambda_max, eps, unit, margin, cond, False)
 
 
 @_kernel
@@ -398,7 +399,7 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     k_fit = True                                       # m > n: the rank test watches the first level
     if extended:                                       # _past_rank, its factors kept for the downdates
         (status, m1, mk, r, PV, Ptau, PR1, PBT, PAT, PtauA, PRA, PDV, PDtau, PDR, PDp,
-         Pblk) = _compiled._past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond)
+         Pblk) = _compiled._past_rank_factor(J, sizes, n, lambda_max, eps, unit, margin, cond, False)
         k0 = _compiled._crossing_level(sizes, n)[0]
         rec = status != _compiled.SOLVED
         nrec += rec
