@@ -82,12 +82,13 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
         kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
         kp, kd = floats[pf], floats[pf + 1]
         if kind == SELECTION:  # the posture rows (Task.command: tracking_command, Jdot qd = 0)
+            x_s = _vec(ints, ints[pi + 3])
             for i in range(dim):
-                e = floats[pf + 2 + i] - q[ints[pi + 3 + i]]
-                b[r0 + i] = _command(order, e, floats[pf + 2 + dim + i], floats[pf + 2 + 2 * dim + i],
-                                     v[ints[pi + 3 + dim + i]], 0.0, kp, kd)
-            pi += 3 + 2 * dim
-            pf += 2 + 3 * dim
+                e = x_s[i] - q[ints[pi + 4 + i]]
+                b[r0 + i] = _command(order, e, floats[pf + 2 + i], floats[pf + 2 + dim + i],
+                                     v[ints[pi + 4 + dim + i]], 0.0, kp, kd)
+            pi += 4 + 2 * dim
+            pf += 2 + 2 * dim
         else:  # FRAME: the frame's rows, b by tracking_command
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
@@ -130,7 +131,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                 ex = _vec(ints, iex)
             if k:
                 x = _vec(ints, iv)
-                if ixd >= 0:
+                if not harmonic:
                     x_dv = _vec(ints, ixd)
             if k < dim:
                 w = _vec(ints, ws)
@@ -147,7 +148,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     if harmonic:
                         x_d, xd, xdd = _harmonic(floats[fx + i], xd, xdd, hw, hc, hs)
                     else:
-                        x_d = x_dv[i] if ixd >= 0 else floats[fx + i]
+                        x_d = x_dv[i]
                     e = x_d - x[ints[at + dim + i]]
                 else:
                     e = w[i - k]
@@ -423,21 +424,22 @@ class Program:
         self._floats += [0.0] * values
         return at
 
-    def add_selection(self, row: int, qidx, vidx, kp: float, kd: float) -> int:
+    def add_selection(self, row: int, qidx, vidx, kp: float, kd: float) -> tuple[int, int]:
         """Rows ``row...`` with ``b = xd_d + kp (x_d - q[qidx])`` (order 1) or ``xdd_d + kd (xd_d - v[vidx]) + kp (x_d -
-        q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns the offset of ``x_d, xd_d, xdd_d`` in
-        :attr:`floats` (its owner writes them there whenever they change)."""
+        q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns ``(at, vec)``: the offset of ``xd_d, xdd_d`` in
+        :attr:`floats` and the slot of ``x_d`` in :attr:`vecs` (its owner keeps them current)."""
         dim = len(qidx)
-        self._ints += [SELECTION, row, dim, *qidx, *vidx]
-        return self._gains(kp, kd, 3 * dim)
+        self._ints += [SELECTION, row, dim, len(self.vecs), *qidx, *vidx]
+        self.vecs.append(np.zeros(dim))
+        return self._gains(kp, kd, 2 * dim), len(self.vecs) - 1
 
-    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, x: np.ndarray | None = None,
+    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x: np.ndarray | None = None,
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
-                  placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int]:
+                  placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
         len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at order 2 ``rate = J
-        qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`. ``x``: the array of
+        qd`` and ``Jdot qd``, ``x_d`` (if ``xrows``: its slot ``xslot``). ``x``: the array of
         ``x``'s slot (a view pinocchio updates; with ``xrows``).
 
         ``jacobian = (JT, cols, p)`` (:meth:`hqp_tpm.robot.state.State.frame_jacobian_source` and the frame's
@@ -454,15 +456,15 @@ class Program:
         it. ``jdot`` (order 2, with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_jdot_source`, one entry per
         column): the kernel computes ``Jdot qd`` of the frame from the joint Jacobians and ``qd``
         (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`; the caller need not put it in its slot, nor pinocchio run its
-        velocity pass for it). Returns ``(at, mat, vec, rot)``:
-        ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1
-        without ``rotation``).
+        velocity pass for it). Returns ``(at, mat, vec, rot, xslot)``:
+        ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats` (``x_d`` there: a Harmonic's base),
+        ``rot`` the slot of ``RT`` (-1 without ``rotation``), ``xslot`` -1 without ``xrows``.
         """
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
         self.mats.append(np.zeros((6, self._ints[1])))
-        self.vecs += [np.zeros(6) for _ in range(used + (1 if x_d_vec else 0))]
+        self.vecs += [np.zeros(6) for _ in range(used)] + ([np.zeros(k)] if k else [])
         if x is not None:
             self.vecs[vec] = x
         jsrc = ip = rot = -1
@@ -496,14 +498,15 @@ class Program:
             tail = [self._slot(self.vecs, pi)]
             self.placed.add(int(fid))
         ixd = len(self._ints) + 6
-        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), place,
+        xslot = vec + used if k else -1
+        self._ints += [FRAME, row, dim, k, mat, vec, xslot, jsrc, ip, rot, len(cols), place,
                        int(jdot is not None), *rows, *xrows, *cols, *ends, *tail, -1]
         self.vecs.append(np.zeros(dim))  # (the extra command's, bound to the entry while it has one)
         #: where the last frame entry's ``ixd`` and extra slot are in :attr:`ints` (:data:`HARMONIC`: its reference
         #: from ``[base, a, b]`` per row and ``omega, phase`` at the end of its floats; a slot: its extra command
         #: there, added as :meth:`~hqp_tpm.tasks.base.Task.command` adds it), and the extra command's slot
         self.switches = (ixd, len(self._ints) - 1, len(self.vecs) - 1)
-        return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot
+        return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot, xslot
 
     @staticmethod
     def _slot(arrays: list, a: np.ndarray) -> int:

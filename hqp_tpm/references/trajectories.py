@@ -13,6 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError, shown
+from hqp_tpm.robot import _compiled
 
 
 def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -43,6 +44,9 @@ class Trajectory:
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin",)
     #: ``reference(t)`` depends on ``t`` (False: constant between assignments and starts)
     time_varying: ClassVar[bool] = True
+    #: ``x_d`` as one array written in place while the reference stays constant (:class:`Constant`, :class:`Hold` once
+    #: started; its derivatives are zero), which the compiled steps read where it is (None: no such array)
+    live: ClassVar[np.ndarray | None] = None
 
     relative: bool = False
     origin: np.ndarray | None = field(default=None, repr=False)
@@ -68,7 +72,7 @@ class Trajectory:
 
 @dataclass
 class Constant(Trajectory):
-    """``x_d = value`` (plus the start value when relative), zero derivatives."""
+    """``x_d = value`` (plus the start value when relative), zero derivatives; ``x_d`` also in :attr:`live`."""
 
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin", "value")
     time_varying: ClassVar[bool] = False
@@ -77,33 +81,39 @@ class Constant(Trajectory):
 
     def __post_init__(self):
         self.value = _finite(self.value, "target")
-        self._ref = None
 
-    def start(self, x0: np.ndarray) -> None:
-        super().start(x0)
-        self._ref = None
+    def __setattr__(self, name: str, value) -> None:
+        super().__setattr__(name, value)
+        d = self.__dict__
+        if name == "value" or (name == "origin" and "live" in d):  # x_d anew, into live in place (shape kept)
+            x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0).copy()
+            if "live" in d and d["live"].shape == x.shape:
+                d["live"][...] = x
+            else:
+                d["live"] = x
 
-    def assign(self, x: np.ndarray) -> None:
-        """``value = x`` without another copy: ``x`` a new float64 vector the caller checked (finite), kept and made
-        read-only. Without an origin the reference is ``(x, 0, 0)`` at once (``x + 0`` but for the sign of a zero),
-        the zeros the previous reference's (the same objects: :class:`~hqp_tpm.control._task_rows.ReferenceSlots` copies
-        ``x`` only); with one, the next :meth:`reference` adds it."""
-        x.setflags(write=False)
-        d = self.__dict__  # (what object.__setattr__ writes, in fewer steps)
-        d["value"] = x
-        old = d["_ref"]
-        if d["origin"] is not None:
-            ref = None
-        elif old is not None and old[1].shape == x.shape:
-            ref = (x, old[1], old[2])
-        else:
-            z = np.zeros_like(x)
-            ref = _frozen(x, z) + (z,)
-        d["_ref"] = ref
+    def __getattr__(self, name: str):  # (``value`` after assign: a read-only copy of live, made when read)
+        d = self.__dict__
+        if name != "value" or "live" not in d:
+            raise AttributeError(name)
+        value = d["value"] = d["live"].copy()
+        value.flags.writeable = False
+        return value
+
+    def assign(self, x: np.ndarray) -> bool:
+        """``value = x`` for a float64 vector ``x`` of the value's size, finite and without an origin: checked and
+        written into :attr:`live` in one compiled call (``value`` and the reference, read-only copies, are made
+        when next read: arrays returned before are not changed); False (nothing changed) else."""
+        d = self.__dict__
+        if d["origin"] is not None or not _compiled.copy_finite(x, d["live"]):
+            return False
+        d["_ref"] = None
+        d.pop("value", None)
+        return True
 
     def reference(self, t: float):
-        if self._ref is None:  # constant between starts: computed once, read-only
-            x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0)
+        if self._ref is None:  # constant between assignments and starts: computed once, read-only
+            x = self.live.copy()
             z = np.zeros_like(x)
             self._ref = _frozen(x, z) + (z,)
         return self._ref
@@ -119,9 +129,10 @@ class Hold(Trajectory):
     def __post_init__(self):
         self._ref = None
 
-    def start(self, x0: np.ndarray) -> None:
-        super().start(x0)
-        self._ref = None
+    def __setattr__(self, name: str, value) -> None:
+        super().__setattr__(name, value)
+        if name == "origin":  # (live: x_d, the origin, once started)
+            self.__dict__["live"] = None if value is None else self.origin.copy()
 
     def reference(self, t: float):
         if self.origin is None:

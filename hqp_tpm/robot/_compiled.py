@@ -221,18 +221,32 @@ def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
 
 
 @_njit
-def pose_into(H, p, RT):  # pragma: no cover - compiled
-    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``p`` (translation) and ``RT``
-    (rotation transposed: views of a task's own placement) if its translation is finite and its rotation passes
-    :func:`rotation_rows`; False (nothing written) else."""
+def pose_into(H, pose):  # pragma: no cover - compiled
+    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``pose`` (a task's own
+    placement: the translation, then the rotation transposed, row by row) if its translation is finite and its rotation
+    passes :func:`rotation_rows`; False (nothing written) else."""
     if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])):
         return False
     if not rotation_rows(H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 0], H[2, 1], H[2, 2]):
         return False
     for r in range(3):
-        p[r] = H[r, 3]
+        pose[r] = H[r, 3]
         for c in range(3):
-            RT[c, r] = H[r, c]
+            pose[3 + 3 * c + r] = H[r, c]
+    return True
+
+
+@_njit
+def copy_finite(x, out):  # pragma: no cover - compiled
+    """``out <- x`` (vectors) if ``x`` has ``out``'s length and is finite; False (nothing written) else."""
+    n = out.shape[0]
+    if x.shape[0] != n:
+        return False
+    for i in range(n):
+        if not math.isfinite(x[i]):
+            return False
+    for i in range(n):
+        out[i] = x[i]
     return True
 
 

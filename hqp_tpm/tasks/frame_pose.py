@@ -73,8 +73,8 @@ class FramePose(Task):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         M = placement_target(target, name or f"{frame}_pose")
-        # the target placement, written in place (the compiled step reads these arrays); held: the start pose's
-        self._p_d, self._R_d = np.zeros(3), np.asfortranarray(np.eye(3))
+        # the target placement, written in place (the compiled step reads it): p_d, then R_d^T row by row; held: the
+        self._pose = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])  # start pose's
         self._held = M is None
         if M is not None:
             self._p_d[:], self._R_d[:] = M.translation, M.rotation
@@ -90,7 +90,7 @@ class FramePose(Task):
 
     @target.setter
     def target(self, value) -> None:
-        if type(value) is pin.SE3 and _compiled.pose_into(value.homogeneous, self._p_d, self._R_d.T):
+        if type(value) is pin.SE3 and _compiled.pose_into(value.homogeneous, self._pose):
             self._held = False  # (the common case: checked and copied in one call)
             return
         if (M := placement_target(value, self.name)) is None:
@@ -98,6 +98,9 @@ class FramePose(Task):
                                  f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
         self._p_d[:], self._R_d[:] = M.translation, M.rotation
         self._held = False
+
+    _p_d = property(lambda self: self._pose[:3])  # (views of the placement: R_d Fortran-ordered)
+    _R_d = property(lambda self: self._pose[3:].reshape(3, 3).T)
 
     def start(self, state: State) -> None:
         if self._held:
