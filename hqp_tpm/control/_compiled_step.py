@@ -226,8 +226,9 @@ def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
 
 
 def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
-    """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; ``ints[pi:]``
-    gets nsat, iterations, feasible and the saturated joints, ``floats[pf]`` the scale."""
+    """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; the end of
+    ``buf`` gets the solve's info (:meth:`Program.sns_info`): the scale, nsat, iterations, feasible, the saturated
+    joints."""
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
@@ -240,30 +241,29 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     lo = buf[mn + m + 2 * n: mn + m + 3 * n]
     up = buf[mn + m + 3 * n: mn + m + 4 * n]
     state = buf[mn + m + 4 * n: mn + m + 7 * n].reshape((3, n))
-    bi = pi + 3 + 2 * n  # the box: where from, the slot of its limits in mats, its joint count, its indices
+    bi = pi + n  # (the loop's scratch,) the box: where from, the slot of its limits in mats, its joint count, indices
     box = ints[bi]
     if box != BOX_GIVEN:
         nc = ints[bi + 2]
         idx = ints[bi + 3: bi + 3 + 2 * nc].reshape((2, nc))
         if box == BOX_VELOCITY:
-            ok = _velocity_box(q, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
+            ok = _velocity_box(q, _mat(ints, ints[bi + 1]), idx, floats[pf], lo, up)
         else:
-            ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
+            ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf], lo, up)
         if not ok:
             return BOX_HANDED_BACK
     status, scale, nsat, iterations, feasible, _ = _sns_loop(
-        J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi + 3 + n: bi], state)
+        J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi: bi], state)
     if status != _compiled_sns.DONE:
         return SNS_HANDED_BACK
     for i in range(n):
         if not math.isfinite(out[i]):
             return NONFINITE_X
-    # the solved step's info
-    ints[pi], ints[pi + 1] = nsat, iterations
-    ints[pi + 2] = 1 if feasible else 0
+    o = mn + m + 7 * n  # the solved step's info
+    buf[o], buf[o + 1], buf[o + 2] = scale, nsat, iterations
+    buf[o + 3] = 1.0 if feasible else 0.0
     for i in range(nsat):  # the saturated joints, from the loop's scratch
-        ints[pi + 3 + i] = ints[pi + 3 + n + i]
-    floats[pf] = scale
+        buf[o + 4 + i] = ints[pi + i]
     return SOLVED
 
 
@@ -384,7 +384,7 @@ class Program:
 
     ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (``solve``:
     :data:`ROWS`, the kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`;
-    :data:`SNS`, then ``ints`` has ``2 n + 3`` more entries and ``floats`` one for :meth:`sns_info`), ``floats =
+    :data:`SNS`, then ``ints`` has ``n`` more entries, the loop's scratch, and the box's), ``floats =
     [lambda_max, eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices,
     and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's Jacobian
     and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an address table
@@ -530,23 +530,20 @@ class Program:
 
     @staticmethod
     def buffer_size(m: int, n: int, solve: int) -> int:
-        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up`` and
-        the loop's scratch (``3 x n``)."""
-        return m * n + m + (7 if solve == SNS else 2) * n
+        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up``,
+        the loop's scratch (``3 x n``) and the solve's info (:meth:`sns_info`, ``n + 4``)."""
+        return m * n + m + (8 * n + 4 if solve == SNS else 2 * n)
 
     def build(self) -> Program:
         """Pack the entries and the address table (then slots change only by :meth:`bind_mat`, :meth:`bind_vec`)."""
-        n = self._ints[1]
-        self._sns_at = (len(self._ints), len(self._floats))
-        if self.solve == SNS:  # the SNS loop's outputs: nsat, iterations, feasible, the saturated joints; the scale
-            self._ints += [0] * (2 * n + 3) + self._box  # (the joints' scratch), the box: source, slot, joints, indices
-            self._floats += [0.0, self._dt]
+        if self.solve == SNS:  # the loop's scratch (n joints), the box: source, slot, joints, indices; its dt
+            self._ints += [0] * self._ints[1] + self._box
+            self._floats += [self._dt]
         self._ints[7] = len(self._ints)
         self._ints += [0] * (3 * len(self.mats))
         self._ints[8] = len(self._ints)
         self._ints += [0] * (2 * len(self.vecs))
         self.ints = np.array(self._ints, dtype=np.int64)
-        self._sns_view = self.ints[self._sns_at[0]: self._sns_at[0] + 3 + n]  # (sns_outputs copies it)
         for i, a in enumerate(self.mats):
             self.bind_mat(i, a)
         for i, a in enumerate(self.vecs):
@@ -576,17 +573,12 @@ class Program:
         at = self.ints[8] + 2 * slot
         self.ints[at: at + 2] = a.__array_interface__["data"][0], a.shape[0]
 
-    def sns_outputs(self) -> tuple[np.ndarray, float]:
-        """A copy of the SNS loop's outputs of the last solve (nsat, iterations, feasible, the saturated joints; the
-        scale), for :meth:`sns_info`."""
-        return self._sns_view.copy(), self.floats.item(self._sns_at[1])
-
-    def sns_info(self, outputs: tuple) -> dict:
-        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of :meth:`sns_outputs`, as the readable step
-        records it."""
-        tail, scale = outputs
-        nsat, iterations = tail[:2].tolist()
-        return {"scale": scale, "saturated": tail[3: 3 + nsat].tolist(), "iterations": iterations}
+    def sns_info(self, buf: np.ndarray) -> dict:
+        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) from (a copy of) the kernel's ``buf`` after
+        a solve, as the readable step records it."""
+        m, n = self._ints[0], self._ints[1]
+        scale, nsat, iterations, _, *joints = buf[m * n + m + 7 * n:].tolist()
+        return {"scale": scale, "saturated": [int(j) for j in joints[: int(nsat)]], "iterations": int(iterations)}
 
 
 def kernel(solve: int = TPM, tall: bool = False):

@@ -31,7 +31,7 @@ from hqp_tpm.control._task_rows import program_rows, write_own_rows
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import Policy
 from hqp_tpm.control.stack import FixedStack
-from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
+from hqp_tpm.control.step_result import CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
@@ -41,6 +41,8 @@ from hqp_tpm.solvers.registry import ANALYTIC, solve
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.base import Task
+
+_new = object.__new__
 
 
 def _writer(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
@@ -204,17 +206,20 @@ class LeanStep(CompiledStep):
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
         """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the stacked rows
         (the readable step's levels, bit for bit, built when asked) and of the fused SNS solve's info."""
+        r = _new(StepResult)  # (the fields not set here are computed on first read: StepResult's defaults)
+        r.t, r.command, r._stack = t, x, self._stack
         if self._info is None:  # (the fused SNS kernel's: its outputs copied, the info built when asked)
-            return StepResult(t, self._stack, LAZY, x, LAZY, LAZY, LAZY,
-                              (self, q, v, self._flat.copy(), self._program.sns_outputs()))
-        return StepResult(t, self._stack, LAZY, x, self._info, LAZY, LAZY, (self, q, v, self._flat.copy()))
+            r._kept = (self, q, v, self._buf.copy())  # (the rows and the solve's info)
+        else:
+            r._kept, r._info = (self, q, v, self._flat.copy()), self._info
+        return r
 
     def info_of(self, kept: tuple) -> dict:
-        return self._program.sns_info(kept[4])
+        return self._program.sns_info(kept[3])
 
     def levels_of(self, kept: tuple) -> list[Level]:
         rows, m, n = kept[3], self.b.size, self.n
-        J, b = rows[: m * n].reshape(m, n), rows[m * n:]
+        J, b = rows[: m * n].reshape(m, n), rows[m * n: m * n + m]
         return [Level(J[r], b[r], name=name, defer_finite=True) for r, name in self._spans]
 
     def label_of(self, kept: tuple) -> str:

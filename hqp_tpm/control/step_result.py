@@ -29,7 +29,10 @@ class StepResult:
     A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
     it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
 
-    __slots__ = ("t", "command", "_info", "_stack", "_levels", "_x0", "_box", "_kept")
+    # (a compiled step's result is made with object.__new__ and sets t, command, _kept and what it knows; the
+    # others are computed on first read)
+    _info = _stack = _levels = _x0 = _box = LAZY
+    _kept = None
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
                  kept: tuple | None = None):
