@@ -84,7 +84,7 @@ class LeanStep(CompiledStep):
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
                  "_velocities", "_positions", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack",
-                 "_levels", "_spans", "_label")
+                 "_levels", "_spans", "_label", "_ints", "_floats", "_sns", "_box_writer")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -171,7 +171,7 @@ class LeanStep(CompiledStep):
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
-        self._kernel = self._program = self._fused = None
+        self._kernel = self._program = self._fused = self._box_writer = None
         self._fused_frames = self.frames
         self._com = self._positions = False
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
@@ -191,11 +191,17 @@ class LeanStep(CompiledStep):
                 program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
+            self._ints, self._floats = program.ints, program.floats  # (written in place, never replaced)
             self._com = program.com_in_update  # (set by a row program at velocity level only)
-            # order 2, every task in the program and every Jdot qd computed in the kernel: the position pass only
-            self._positions = self._velocities and not program.velocity_pass and all(
+            # order 1, or order 2 with every task in the program and every Jdot qd computed in the kernel: the
+            # position pass only
+            self._positions = not self._velocities or not program.velocity_pass and all(
                 gather is not write for gather, write in zip(self._fused, self.writers, strict=True))
-            self._kernel = _compiled_step.kernel(mode, tall=a > n)
+            self._sns = mode == _compiled_step.SNS
+            if self._sns and program.box_given and self.box is not None:
+                self._box_writer = self.box
+            self._kernel = _compiled_step.entry(_compiled_step.kernel(mode, tall=a > n), self._buf, self._ints,
+                                                self._floats, ctrl._q, ctrl._v)
         return self
 
     def current(self) -> bool:
@@ -239,26 +245,21 @@ class LeanStep(CompiledStep):
         if not ctrl._started:
             ctrl.start()
         t, q, v = ctrl.t, ctrl._q, ctrl._v
-        kernel, status = self._kernel, None
-        fused = kernel is not None and _compiled.ENABLED  # (one switch: hqp_tpm._jit, shared by the kernel modules)
-        frames = self._fused_frames if fused else self.frames  # (the kernel places the frames its tasks read)
-        if self._velocities and not (fused and self._positions):
-            st = ctrl.state.update(q, v, t, validate=False, frames=frames)
-        else:  # (the CoM with them when the kernel reads it)
-            st = ctrl.state.update_positions(q, v, t, frames, fused and self._com)
-        if fused:  # the program's tasks gather their arrays, the others write their rows
-            for write in self._fused:
+        status, x0 = None, self.x0
+        if self._kernel is not None and _compiled.ENABLED:  # (one switch: hqp_tpm._jit, shared by the kernel modules)
+            if self._positions:  # (the kernel places the frames its tasks read; the CoM here when it reads it)
+                st = ctrl.state.update_positions(q, v, t, self._fused_frames, self._com)
+            else:
+                st = ctrl.state.update(q, v, t, validate=False, frames=self._fused_frames)
+            for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
                 write(t)
-            x0 = self.x0
             if x0 is not None:
                 np.multiply(v, -self.damping, out=x0)
-            program = self._program
-            sns = program.solve == _compiled_step.SNS
-            if sns and program.box_given and self.box is not None:
-                self.box(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
-            status = kernel(self._buf, program.ints, program.floats, q, v)
+            if self._box_writer is not None:
+                self._box_writer(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
+            status = self._kernel(self._buf, self._ints, self._floats, q, v)
             if status == 0:  # SOLVED
-                self._info = None if sns else {}  # (None: the program's, read by the info property)
+                self._info = None if self._sns else {}  # (None: the kernel's, in the kept buffer)
                 return self._out.copy()
             if status == _compiled_step.NONFINITE_ROWS:
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
@@ -267,12 +268,14 @@ class LeanStep(CompiledStep):
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
             # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): below
         else:
+            if self._velocities:
+                st = ctrl.state.update(q, v, t, validate=False, frames=self.frames)
+            else:
+                st = ctrl.state.update_positions(q, v, t, self.frames)
             for write in self.writers:
                 write(t)
-            flat = self._flat
-            if not sumsq(flat) <= MAX_SUMSQ:       # NaN, inf or too large (one sum fails for all three):
+            if not sumsq(self._flat) <= MAX_SUMSQ:  # NaN, inf or too large (one sum fails for all three):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
-            x0 = self.x0
             if x0 is not None:
                 np.multiply(v, -self.damping, out=x0)
         J, b = self.J, self.b
