@@ -89,6 +89,10 @@ def test_the_compiled_step_follows_constants_and_trajectories_assigned_later(iiw
 
 
 def test_copies_have_their_own_live_array(iiwa):
+    tr = Constant(value=np.zeros(3))
+    shallow = copy.copy(tr)
+    assert shallow.assign(np.ones(3)) and not tr.live.any() and not tr.value.any()
+    np.testing.assert_array_equal(shallow.value, np.ones(3))
     fast, _ = _pair(iiwa, 1)
     fast.step()
     twin = copy.deepcopy(fast)

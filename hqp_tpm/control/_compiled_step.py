@@ -1,25 +1,18 @@
 """The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._lean`).
 
 :func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`: each compiles only what it
-calls). Each writes the program's rows (posture tasks: ``b`` of a selection of revolute or prismatic joints; frame
-tasks: the frame Jacobian from the joint Jacobians ``data.J`` with pinocchio's operations,
-:func:`hqp_tpm.robot._compiled.frame_jacobian`, ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
-within a few ulps of pinocchio's, and at order 2 ``J-dot q-dot`` from ``data.J`` and ``qd``,
-:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`, within ~1e-15 of pinocchio's) and tests ``J`` and ``b`` for finiteness;
-:data:`TPM` then runs the TPM kernel :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last
-bit), :data:`SNS` the SNS-TPM loop :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf``
-(the joint limits' box computed here, :meth:`Program.set_box`, else written by the caller; its info in the tails of
-``ints`` and ``floats``, :meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel
-takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of
-the arrays the tasks read) and the floats of a :class:`Program`, ``q``, ``v``.
+calls). Each writes the program's rows (posture: ``b`` of a joint selection; frames: the frame Jacobian from ``data.J``
+with pinocchio's operations, ``log3(R_d R^T)`` within a few ulps of pinocchio's, at order 2 ``J-dot q-dot`` within
+~1e-15: :mod:`hqp_tpm.robot._compiled`) and tests ``J`` and ``b`` for finiteness; :data:`TPM` then runs the kernel
+:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same bits), :data:`SNS` the loop of
+:func:`hqp_tpm.solvers.sns.sns_tpm_stacked` in the box ``lo, up`` of ``buf`` (computed here, :meth:`Program.set_box`,
+or by the caller; its info at the end of ``buf``, :meth:`Program.sns_info`). numba's dispatch cost grows with each
+argument, so a kernel takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks,
+the address table of the arrays the tasks read) and floats of a :class:`Program`, ``q``, ``v``.
 
 A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises the typed
 error naming the task), :data:`NONFINITE_X`, ``DECLINED``/``UNDECIDED`` (``tpm_stacked``'s numpy reference decides),
-:data:`BOX_HANDED_BACK` (a joint outside its position limits: the box's recovery rules), :data:`SNS_HANDED_BACK` (the
-numpy path of ``sns_tpm_stacked`` solves).
-
-:mod:`hqp_tpm._jit` makes the dispatchers and keys its disk cache by the source of every kernel module (a changed callee
-is compiled again here too); ``benchmarks/first_call.py`` measures the first and later loads."""
+:data:`BOX_HANDED_BACK` (the box's recovery rules), :data:`SNS_HANDED_BACK` (``sns_tpm_stacked``'s numpy path)."""
 
 from __future__ import annotations
 
@@ -438,28 +431,20 @@ class Program:
                   placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
-        len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at order 2 ``rate = J
-        qd`` and ``Jdot qd``, ``x_d`` (if ``xrows``: its slot ``xslot``). ``x``: the array of
-        ``x``'s slot (a view pinocchio updates; with ``xrows``).
+        len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``; ``x``, a view pinocchio updates), ``w`` (if
+        any), at order 2 ``rate = J qd`` and ``Jdot qd``, then ``x_d`` (if ``xrows``: slot ``xslot``).
 
-        ``jacobian = (JT, cols, p)`` (:meth:`hqp_tpm.robot.state.State.frame_jacobian_source` and the frame's
-        position, views pinocchio updates): the kernel writes ``S`` itself
-        (:func:`hqp_tpm.robot._compiled.frame_jacobian`) and, at order 2, ``rate``; else the caller puts ``S`` and
-        ``rate`` in their slots every step. ``rotation = (RT, RdT)`` (the frame's and the target's rotations
-        transposed: row-major views): the kernel writes ``w = log3(R_d R^T)``
-        (:func:`hqp_tpm.robot._compiled.rotation_error`); the caller replaces ``mats[rot + 1]`` when the target
-        changes. ``transposed`` (``n x q``, a view pinocchio updates, e.g. the CoM Jacobian transposed): ``S^T``, put
-        in slot ``mat`` (order 1 only: the kernel does not compute ``rate`` from it). ``placement = (fid, RiT, pi, P,
-        RfT)`` (with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
-        places frame ``fid`` first (its rotation and its position ``p``,
-        :func:`hqp_tpm.robot._compiled.frame_placement`), and :attr:`placed` gets ``fid``: the caller need not place
-        it. ``jdot`` (order 2, with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_jdot_source`, one entry per
-        column): the kernel computes ``Jdot qd`` of the frame from the joint Jacobians and ``qd``
-        (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`; the caller need not put it in its slot, nor pinocchio run its
-        velocity pass for it). Returns ``(at, mat, vec, rot, xslot)``:
-        ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats` (``x_d`` there: a Harmonic's base),
-        ``rot`` the slot of ``RT`` (-1 without ``rotation``), ``xslot`` -1 without ``xrows``.
-        """
+        ``jacobian = (JT, cols, p)`` (:meth:`~hqp_tpm.robot.state.State.frame_jacobian_source`, the frame's position):
+        the kernel writes ``S`` and, at order 2, ``rate`` (else the caller, every step). ``rotation = (RT, RdT)`` (the
+        frame's and the target's rotations transposed, row-major views): the kernel writes ``w = log3(R_d R^T)``.
+        ``transposed`` (``n x q``, e.g. the CoM Jacobian transposed, order 1 only): ``S^T`` in slot ``mat``.
+        ``placement = (fid, RiT, pi, P, RfT)`` (with ``jacobian``;
+        :meth:`~hqp_tpm.robot.state.State.frame_placement_source`): the kernel places frame ``fid`` first and
+        :attr:`placed` gets it. ``jdot`` (order 2, with ``jacobian``, one entry per column;
+        :meth:`~hqp_tpm.robot.state.State.frame_jdot_source`): the kernel computes ``Jdot qd`` (no velocity pass).
+        Returns ``(at, mat, vec, rot, xslot)``: ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats` (``x_d``
+        there: a Harmonic's base), ``rot`` the slot of ``RT`` (-1 without ``rotation``), ``xslot`` -1 without
+        ``xrows``."""
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)

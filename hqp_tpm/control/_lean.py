@@ -2,18 +2,14 @@
 
 The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds a :class:`~hqp_tpm.control.stack.Stack`,
 one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks them and looks the solver up every step. For a
-*fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (pinocchio's
-kinematics, only the frames and passes the rows read: :meth:`hqp_tpm.robot.state.State.update_positions` at velocity
-level, and at acceleration level when the kernel computes every ``J-dot q-dot``), the tasks' rows written in place
-into one stacked ``J``, ``b``, one finiteness test, one solve, and the controller's integration.
+*fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (only the frames and
+passes the rows read), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve.
 
 With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that describe their rows
-(:meth:`hqp_tpm.tasks.base.Task.row_source`: frame pose, position, orientation, the CoM at velocity level, posture of
-revolute/prismatic joints; :mod:`hqp_tpm.control._task_rows`) copy only changed references into the program,
-and one compiled call writes their rows from pinocchio's data read in place (frame placements and Jacobians, rotation
-errors ``log3(R_d R^T)``), tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in the joint limits' box), solves;
-the other tasks' ``jacobian`` and ``command`` run before it and other solvers after it,
-through the registry on levels that are views of ``J`` and ``b``.
+(:meth:`hqp_tpm.tasks.base.Task.row_source`; :mod:`hqp_tpm.control._task_rows`) are written by one compiled call from
+pinocchio's data and the targets read in place, which also tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in
+the joint limits' box), solves; the other tasks' ``jacobian`` and ``command`` run before it, other solvers after it
+(the registry, on levels that are views of ``J`` and ``b``).
 
 Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
 error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` and ``J-dot q-dot`` (to 1e-12).
@@ -233,11 +229,7 @@ class LeanStep(CompiledStep):
 
     def _box(self, st, t):
         box = self.box
-        if box is None:
-            return None
-        if type(box) is JointBox:
-            return box(st)
-        return box(st, t)
+        return None if box is None else box(st) if type(box) is JointBox else box(st, t)
 
     def compute(self) -> np.ndarray:
         """The command at the controller's current state (state update, rows, one solve)."""

@@ -1,13 +1,9 @@
 """The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source`
 registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack
 (:mod:`hqp_tpm.control._lean`) or, as a :class:`TaskProgram`, one task's in the planned step of a policy
-(:mod:`hqp_tpm.policies._planned_step`).
-
-One registration for every task that describes its rows (frame position, orientation and pose, the centre of mass at
-velocity level, the posture of revolute and prismatic joints): the kernel reads pinocchio's frame placements and
-Jacobians in place (or the step gathers them here), the task's target arrays, and its reference and gains as copied
-here when they change; it then writes ``J`` and ``b`` with :func:`~hqp_tpm.tasks.base.tracking_command`, the numbers
-of the task's :meth:`~hqp_tpm.tasks.base.Task.jacobian` and :meth:`~hqp_tpm.tasks.base.Task.command`."""
+(:mod:`hqp_tpm.policies._planned_step`). The kernel reads pinocchio's frame placements and Jacobians and the targets in
+place and writes ``J`` and ``b`` with :func:`~hqp_tpm.tasks.base.tracking_command`: the numbers of the task's
+:meth:`~hqp_tpm.tasks.base.Task.jacobian` and :meth:`~hqp_tpm.tasks.base.Task.command`."""
 
 from __future__ import annotations
 
@@ -54,13 +50,11 @@ def write_own_rows(task: Task, state: State, t: float, order: int, J: np.ndarray
 
 class ReferenceSlots:
     """Keeps a program's copy of a task's reference ``(x_d, xd_d, xdd_d)`` and gains current. The kernel reads ``x_d``
-    from slot ``slot`` of the program's vecs (None: the task's own array, bound by its entry): the trajectory's
-    :attr:`~hqp_tpm.references.trajectories.Trajectory.live` array where it has one (a constant, a started hold: an
-    assignment writes it in place), bound when it is another array than the one bound last (its zero derivatives
-    copied then); else this object's array, into which a reference not the one copied last (compared by identity,
-    part by part) is copied every step. A :class:`~hqp_tpm.references.trajectories.Harmonic` reference of a frame
-    entry (``harmonic``: the entry's ``ixd`` in ``program.ints``): its terms are copied when they change, the kernel
-    computes the reference (:data:`~hqp_tpm.control._compiled_step.HARMONIC`)."""
+    from slot ``slot`` of the program's vecs (None: the task's own array): the trajectory's
+    :attr:`~hqp_tpm.references.trajectories.Trajectory.live` array where it has one, bound when it is not the one bound
+    last; else this object's array, into which a reference not the one copied last (by identity, part by part) is
+    copied. A :class:`~hqp_tpm.references.trajectories.Harmonic` reference of a frame entry (``harmonic``: the entry's
+    ``ixd`` in ``program.ints``): its terms copied when they change, the kernel computes it."""
 
     __slots__ = ("task", "program", "gains", "gains_at", "at", "d", "slot", "own", "bound", "last", "harmonic",
                  "terms")

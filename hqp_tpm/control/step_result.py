@@ -29,8 +29,7 @@ class StepResult:
     A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
     it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
 
-    # (a compiled step's result is made with object.__new__ and sets t, command, _kept and what it knows; the
-    # others are computed on first read)
+    # (a compiled step's result sets t, command, _kept and what it knows; the others are computed when read)
     _info = _stack = _levels = _x0 = _box = LAZY
     _kept = None
 

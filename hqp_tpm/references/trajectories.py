@@ -100,6 +100,11 @@ class Constant(Trajectory):
         value.flags.writeable = False
         return value
 
+    def __copy__(self) -> Constant:  # (a shallow copy owns its live array: an assignment to one leaves the other)
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__, live=self.live.copy())
+        return new
+
     def assign(self, x: np.ndarray) -> bool:
         """``value = x`` for a float64 vector ``x`` of the value's size, finite and without an origin: checked and
         written into :attr:`live` in one compiled call (``value`` and the reference, read-only copies, are made
