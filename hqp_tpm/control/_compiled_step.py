@@ -566,13 +566,6 @@ class Program:
         return {"scale": scale, "saturated": [int(j) for j in joints[: int(nsat)]], "iterations": int(iterations)}
 
 
-def entry(kernel, *args):
-    """The compiled code of ``kernel`` (a numba dispatcher, or None) for the types of ``args``, called without
-    numba's per-call type dispatch (~0.1 us less a call): only for arguments always of these types (the step's own
-    arrays; the controller's ``q``, ``v``, float64 vectors it made); None for None."""
-    return None if kernel is None else kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
-
-
 def kernel(solve: int = TPM, tall: bool = False):
     """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; ``tall``: a TPM
     program of ``m > n`` rows, whose kernel is another; compiled or loaded on first use), or None if numba cannot be

@@ -47,9 +47,8 @@ def _writer(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
 
 
 class JointBox:
-    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays: by the compiled
-    kernel (:meth:`JointLimits.kernel_box`, the same operations as ``BoxLimits``, the same bits) where it can, else by
-    :meth:`JointLimits.reference_box` (the readable formulas, recovery rules included)."""
+    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays by
+    :meth:`JointLimits.kernel_box` (``BoxLimits``' bits) or :meth:`JointLimits.reference_box` (recovery rules)."""
 
     __slots__ = ("limits", "order", "lo", "up", "fast", "_P", "_idx", "_dt")
 
@@ -196,8 +195,8 @@ class LeanStep(CompiledStep):
             self._sns = mode == _compiled_step.SNS
             if self._sns and program.box_given and self.box is not None:
                 self._box_writer = self.box
-            self._kernel = _compiled_step.entry(_compiled_step.kernel(mode, tall=a > n), self._buf, self._ints,
-                                                self._floats, ctrl._q, ctrl._v)
+            kernel = _compiled_step.kernel(mode, tall=a > n)  # (its code for these arrays and the controller's q, v)
+            self._kernel = kernel and _compiled.typed(kernel, self._buf, self._ints, self._floats, ctrl._q, ctrl._v)
         return self
 
     def current(self) -> bool:

@@ -137,9 +137,8 @@ def program_rows(task: Task, state: State, order: int, program, row: int, J: np.
 
 
 def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: int, program, row: int):
-    """At velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the kernel's slots, filled by
-    ``jacobianCenterOfMass`` every step (in the lean step's state update, :meth:`State.update_positions` with
-    ``com``, else :meth:`State.com_kinematics`). At acceleration level: None."""
+    """At velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the kernel's slots, filled every
+    step (:meth:`State.update_positions` with ``com``, else :meth:`State.com_kinematics`). Else None."""
     views = state.com_views()
     if views is None or order != 1:
         return None
@@ -157,10 +156,9 @@ def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: i
 
 
 def _frame(task: Task, source: FrameRows, state: State, order: int, program, row: int, place: bool, inside: bool):
-    """A frame task's rows: where the state gives views of pinocchio's joint Jacobians and placements
-    (:meth:`State.frame_jacobian_source`, :meth:`State.frame_placement_source`) the kernel places the frame, computes
-    its Jacobian, ``log3(R_d R^T)`` and (order 2) ``J qd`` and, where the state offers it
-    (:meth:`State.frame_jdot_source`), ``Jdot qd`` itself; else they are gathered here."""
+    """A frame task's rows: where the state gives views of pinocchio's joint Jacobians and placements (its
+    ``frame_*_source``) the kernel places the frame, computes its Jacobian, ``log3(R_d R^T)``, at order 2 ``J qd``
+    and, where it can, ``Jdot qd``; else they are gathered here."""
     fid, rows, position = source.fid, source.rows, source.position
     views = state.frame_views(fid)
     if views is None:

@@ -83,12 +83,10 @@ class StepResult:
 
 class CompiledStep:
     """Base of a controller's compiled steps (:class:`hqp_tpm.control._lean.LeanStep`, Algorithm 1's
-    :class:`hqp_tpm.policies._planned_step.PlannedStep`): the readable step's numbers in fewer calls.
-
-    ``compute() -> command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it,
-    keeping ``(step, q, v, rows, ...)`` (``q``, ``v``: the state it started from; the controller replaces, never writes,
-    its arrays), from which ``stack_of``, ``levels_of``, ``label_of``, ``info_of`` and :meth:`box_of` compute the
-    result's fields on demand; ``current()``: whether the controller's policy is still the one planned for."""
+    :class:`hqp_tpm.policies._planned_step.PlannedStep`): the readable step's numbers in fewer calls. ``compute() ->
+    command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it, keeping ``(step,
+    q, v, rows, ...)`` (the controller replaces, never writes, its ``q``, ``v``) for ``stack_of``, ``levels_of``,
+    ``label_of``, ``info_of``, :meth:`box_of`; ``current()``: the controller's policy is still the one planned for."""
 
     __slots__ = ()
     ctrl: Controller

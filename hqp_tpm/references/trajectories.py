@@ -30,6 +30,18 @@ def _finite(x, what: str) -> np.ndarray:
     return arr
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _copy_finite(x: np.ndarray, out: np.ndarray) -> bool:
+    """:func:`~hqp_tpm.robot._compiled.copy_finite` typed at its first call (:func:`~hqp_tpm.robot._compiled.typed`)."""
+    global _copy_finite
+    if not _compiled.ENABLED:  # (the caller's numpy path checks and copies)
+        return False
+    _copy_finite = kernel = _compiled.typed(_compiled.copy_finite, x, out)
+    return kernel(x, out)
+
+
 @dataclass
 class Trajectory:
     """Base: a constant zero-dimensional placeholder; subclasses give ``reference``.
@@ -105,12 +117,13 @@ class Constant(Trajectory):
         new.__dict__.update(self.__dict__, live=self.live.copy())
         return new
 
-    def assign(self, x: np.ndarray) -> bool:
-        """``value = x`` for a float64 vector ``x`` of the value's size, finite and without an origin: checked and
-        written into :attr:`live` in one compiled call (``value`` and the reference, read-only copies, are made
-        when next read: arrays returned before are not changed); False (nothing changed) else."""
+    def assign(self, x) -> bool:
+        """``value = x`` if ``x`` is a contiguous float64 vector of the value's size, finite, and this constant has no
+        origin: checked and written into :attr:`live` in one compiled call (``value`` and the reference, read-only
+        copies, are made when next read: arrays returned before are not changed); False (nothing changed) else."""
         d = self.__dict__
-        if d["origin"] is not None or not _compiled.copy_finite(x, d["live"]):
+        if type(x) is not np.ndarray or x.dtype is not _FLOAT64 or x.strides != (8,) or d["origin"] is not None \
+                or not _copy_finite(x, d["live"]):
             return False
         d["_ref"] = None
         d.pop("value", None)

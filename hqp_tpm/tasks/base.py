@@ -159,13 +159,9 @@ class Task(ABC):
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
 
 
-_FLOAT64 = np.dtype(np.float64)
-
-
 def _set_target(self, value) -> None:
     tr = self.trajectory
-    if type(value) is np.ndarray and type(tr) is Constant and value.dtype is _FLOAT64 and value.ndim == 1 \
-            and tr.assign(value):  # the common case: checked and copied in one call
+    if type(tr) is Constant and tr.assign(value):  # the common case: checked and copied in one call
         return
     if value is None or (isinstance(value, str) and value == "hold"):
         raise ParameterError(f"task {self.name!r}: target {shown(value)} (the start value) is a constructor's "

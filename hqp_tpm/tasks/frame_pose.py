@@ -53,8 +53,7 @@ def placement_target(target, task: str) -> pin.SE3 | None:
 
 
 def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
-    """A copy of the 3x3 matrix ``R`` if it is a finite rotation matrix, else :class:`ParameterError` (``what``: the
-    task, for the message)."""
+    """A copy of ``R`` if it is a finite 3x3 rotation matrix, else :class:`ParameterError` naming ``what``."""
     if not (np.isfinite(R).all() and np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
         raise ParameterError(f"{what}: the target rotation {R.tolist()} is not a rotation matrix (finite, "
                              "orthonormal, determinant +1)")
@@ -62,12 +61,11 @@ def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
 
 
 def _pose_into(H: np.ndarray, pose: np.ndarray) -> bool:
-    """:func:`hqp_tpm.robot._compiled.pose_into`; compiled, it replaces this function by its code for pinocchio's
-    ``homogeneous`` matrices (numba's per-call type dispatch skipped: ~0.1 us a call)."""
+    """:func:`~hqp_tpm.robot._compiled.pose_into`, typed at its first call (:func:`~hqp_tpm.robot._compiled.typed`)"""
     global _pose_into
-    kernel = _compiled.pose_into
-    if _compiled.ENABLED:
-        _pose_into = kernel = kernel.compile((kernel.typeof_pyval(H), kernel.typeof_pyval(pose)))
+    if not _compiled.ENABLED:
+        return _compiled.pose_into(H, pose)
+    _pose_into = kernel = _compiled.typed(_compiled.pose_into, H, pose)
     return kernel(H, pose)
 
 
