@@ -36,8 +36,11 @@ _FLOAT64 = np.dtype(np.float64)
 def _copy_finite(x: np.ndarray, out: np.ndarray) -> bool:
     """:func:`~hqp_tpm.robot._compiled.copy_finite` typed at its first call (:func:`~hqp_tpm.robot._compiled.typed`)."""
     global _copy_finite
-    if not _compiled.ENABLED:  # (the caller's numpy path checks and copies)
-        return False
+    if not _compiled.ENABLED:  # (numpy's check and copy)
+        ok = x.shape == out.shape and bool(np.isfinite(x).all())
+        if ok:
+            out[...] = x
+        return ok
     _copy_finite = kernel = _compiled.typed(_compiled.copy_finite, x, out)
     return kernel(x, out)
 
