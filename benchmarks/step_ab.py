@@ -8,6 +8,10 @@
 import's modules dropped from ``sys.modules`` before the second: both stay loaded). The iiwa problems (EE pose >
 posture: ``tpm`` and ``sns_tpm`` at velocity level, ``tpm`` at acceleration level), 20 configurations, 2 x REPEATS
 (env, default 300) steps each; per-step thread CPU time (``CLOCK=wall``: ``perf_counter``), median and p99.
+
+When the checkouts' kernels differ, give the run an empty numba cache (``NUMBA_CACHE_DIR=$(mktemp -d)``; both
+compile, ~2 min): with both loaded from their disk caches in one process, the newer checkout's step crashed (a heap
+corruption, "corrupted size vs. prev_size"; one checkout's cached callee linked into the other's kernel, it seems).
 """
 import importlib
 import os

@@ -251,8 +251,7 @@ def test_non_finite_rows_raise_like_the_readable_step_and_change_nothing(solver,
     lean.step()
     q, v, t = ctrl.q.copy(), ctrl.v.copy(), ctrl.t
     posture = ctrl.policy.stack.levels[1][0]
-    posture.trajectory.start(np.full(7, bad))  # a non-finite target
-    posture.trajectory.reference = lambda t: (np.full(7, bad), np.zeros(7), np.zeros(7))
+    posture.trajectory.value = np.full(7, bad)  # a non-finite target (a field assigned past the validation)
     with pytest.raises(NonFiniteError if np.isnan(bad) else MagnitudeError, match="posture"):
         lean.step()
     np.testing.assert_array_equal(ctrl.q, q)
@@ -810,7 +809,7 @@ def test_row_programs_without_pinocchio_views(order, which, monkeypatch):
 def test_program_slots_take_c_contiguous_float_arrays():
     """The kernel reads a slot's array by its address: a slot refuses what it could not read as such."""
     program = _compiled_step.Program(6, 7, (6,), 1, 0.0, 0.0, False)
-    program.add_frame(0, range(6), range(3), 1.0, 0.0, x_d_vec=True)
+    program.add_frame(0, range(6), range(3), 1.0, 0.0)
     program.build()
     program.bind_mat(0, np.zeros((6, 7)))
     for bad in (np.zeros((7, 6)).T, np.zeros((6, 7), dtype=np.float32), np.zeros(42)):

@@ -1,25 +1,18 @@
 """The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._lean`).
 
 :func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`: each compiles only what it
-calls). Each writes the program's rows (posture tasks: ``b`` of a selection of revolute or prismatic joints; frame
-tasks: the frame Jacobian from the joint Jacobians ``data.J`` with pinocchio's operations,
-:func:`hqp_tpm.robot._compiled.frame_jacobian`, ``log3(R_d R^T)``, :func:`hqp_tpm.robot._compiled.rotation_error`,
-within a few ulps of pinocchio's, and at order 2 ``J-dot q-dot`` from ``data.J`` and ``qd``,
-:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`, within ~1e-15 of pinocchio's) and tests ``J`` and ``b`` for finiteness;
-:data:`TPM` then runs the TPM kernel :func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same numbers to the last
-bit), :data:`SNS` the SNS-TPM loop :func:`hqp_tpm.solvers.sns.sns_tpm_stacked` calls, in the box ``lo, up`` of ``buf``
-(the joint limits' box computed here, :meth:`Program.set_box`, else written by the caller; its info in the tails of
-``ints`` and ``floats``, :meth:`Program.sns_info`). numba's dispatch cost grows with each argument it types, so a kernel
-takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks, the address table of
-the arrays the tasks read) and the floats of a :class:`Program`, ``q``, ``v``.
+calls). Each writes the program's rows (posture: ``b`` of a joint selection; frames: the frame Jacobian from ``data.J``
+with pinocchio's operations, ``log3(R_d R^T)`` within a few ulps of pinocchio's, at order 2 ``J-dot q-dot`` within
+~1e-15: :mod:`hqp_tpm.robot._compiled`) and tests ``J`` and ``b`` for finiteness; :data:`TPM` then runs the kernel
+:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same bits), :data:`SNS` the loop of
+:func:`hqp_tpm.solvers.sns.sns_tpm_stacked` in the box ``lo, up`` of ``buf`` (computed here, :meth:`Program.set_box`,
+or by the caller; its info at the end of ``buf``, :meth:`Program.sns_info`). numba's dispatch cost grows with each
+argument, so a kernel takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks,
+the address table of the arrays the tasks read) and floats of a :class:`Program`, ``q``, ``v``.
 
 A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises the typed
 error naming the task), :data:`NONFINITE_X`, ``DECLINED``/``UNDECIDED`` (``tpm_stacked``'s numpy reference decides),
-:data:`BOX_HANDED_BACK` (a joint outside its position limits: the box's recovery rules), :data:`SNS_HANDED_BACK` (the
-numpy path of ``sns_tpm_stacked`` solves).
-
-:mod:`hqp_tpm._jit` makes the dispatchers and keys its disk cache by the source of every kernel module (a changed callee
-is compiled again here too); ``benchmarks/first_call.py`` measures the first and later loads."""
+:data:`BOX_HANDED_BACK` (the box's recovery rules), :data:`SNS_HANDED_BACK` (``sns_tpm_stacked``'s numpy path)."""
 
 from __future__ import annotations
 
@@ -82,12 +75,13 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
         kind, r0, dim = ints[pi], ints[pi + 1], ints[pi + 2]
         kp, kd = floats[pf], floats[pf + 1]
         if kind == SELECTION:  # the posture rows (Task.command: tracking_command, Jdot qd = 0)
+            x_s = _vec(ints, ints[pi + 3])
             for i in range(dim):
-                e = floats[pf + 2 + i] - q[ints[pi + 3 + i]]
-                b[r0 + i] = _command(order, e, floats[pf + 2 + dim + i], floats[pf + 2 + 2 * dim + i],
-                                     v[ints[pi + 3 + dim + i]], 0.0, kp, kd)
-            pi += 3 + 2 * dim
-            pf += 2 + 3 * dim
+                e = x_s[i] - q[ints[pi + 4 + i]]
+                b[r0 + i] = _command(order, e, floats[pf + 2 + i], floats[pf + 2 + dim + i],
+                                     v[ints[pi + 4 + dim + i]], 0.0, kp, kd)
+            pi += 4 + 2 * dim
+            pf += 2 + 2 * dim
         else:  # FRAME: the frame's rows, b by tracking_command
             k, jm, iv, ixd = ints[pi + 3], ints[pi + 4], ints[pi + 5], ints[pi + 6]
             jsrc, ip, rot, nc = ints[pi + 7], ints[pi + 8], ints[pi + 9], ints[pi + 10]
@@ -130,7 +124,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                 ex = _vec(ints, iex)
             if k:
                 x = _vec(ints, iv)
-                if ixd >= 0:
+                if not harmonic:
                     x_dv = _vec(ints, ixd)
             if k < dim:
                 w = _vec(ints, ws)
@@ -147,7 +141,7 @@ def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
                     if harmonic:
                         x_d, xd, xdd = _harmonic(floats[fx + i], xd, xdd, hw, hc, hs)
                     else:
-                        x_d = x_dv[i] if ixd >= 0 else floats[fx + i]
+                        x_d = x_dv[i]
                     e = x_d - x[ints[at + dim + i]]
                 else:
                     e = w[i - k]
@@ -225,8 +219,9 @@ def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
 
 
 def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
-    """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; ``ints[pi:]``
-    gets nsat, iterations, feasible and the saturated joints, ``floats[pf]`` the scale."""
+    """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; the end of
+    ``buf`` gets the solve's info (:meth:`Program.sns_info`): the scale, nsat, iterations, feasible, the saturated
+    joints."""
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
@@ -239,30 +234,29 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     lo = buf[mn + m + 2 * n: mn + m + 3 * n]
     up = buf[mn + m + 3 * n: mn + m + 4 * n]
     state = buf[mn + m + 4 * n: mn + m + 7 * n].reshape((3, n))
-    bi = pi + 3 + 2 * n  # the box: where from, the slot of its limits in mats, its joint count, its indices
+    bi = pi + n  # (the loop's scratch,) the box: where from, the slot of its limits in mats, its joint count, indices
     box = ints[bi]
     if box != BOX_GIVEN:
         nc = ints[bi + 2]
         idx = ints[bi + 3: bi + 3 + 2 * nc].reshape((2, nc))
         if box == BOX_VELOCITY:
-            ok = _velocity_box(q, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
+            ok = _velocity_box(q, _mat(ints, ints[bi + 1]), idx, floats[pf], lo, up)
         else:
-            ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf + 1], lo, up)
+            ok = _acceleration_box(q, v, _mat(ints, ints[bi + 1]), idx, floats[pf], lo, up)
         if not ok:
             return BOX_HANDED_BACK
     status, scale, nsat, iterations, feasible, _ = _sns_loop(
-        J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi + 3 + n: bi], state)
+        J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi: bi], state)
     if status != _compiled_sns.DONE:
         return SNS_HANDED_BACK
     for i in range(n):
         if not math.isfinite(out[i]):
             return NONFINITE_X
-    # the solved step's info
-    ints[pi], ints[pi + 1] = nsat, iterations
-    ints[pi + 2] = 1 if feasible else 0
+    o = mn + m + 7 * n  # the solved step's info
+    buf[o], buf[o + 1], buf[o + 2] = scale, nsat, iterations
+    buf[o + 3] = 1.0 if feasible else 0.0
     for i in range(nsat):  # the saturated joints, from the loop's scratch
-        ints[pi + 3 + i] = ints[pi + 3 + n + i]
-    floats[pf] = scale
+        buf[o + 4 + i] = ints[pi + i]
     return SOLVED
 
 
@@ -383,7 +377,7 @@ class Program:
 
     ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (``solve``:
     :data:`ROWS`, the kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`;
-    :data:`SNS`, then ``ints`` has ``2 n + 3`` more entries and ``floats`` one for :meth:`sns_info`), ``floats =
+    :data:`SNS`, then ``ints`` has ``n`` more entries, the loop's scratch, and the box's), ``floats =
     [lambda_max, eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices,
     and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's Jacobian
     and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an address table
@@ -423,46 +417,39 @@ class Program:
         self._floats += [0.0] * values
         return at
 
-    def add_selection(self, row: int, qidx, vidx, kp: float, kd: float) -> int:
+    def add_selection(self, row: int, qidx, vidx, kp: float, kd: float) -> tuple[int, int]:
         """Rows ``row...`` with ``b = xd_d + kp (x_d - q[qidx])`` (order 1) or ``xdd_d + kd (xd_d - v[vidx]) + kp (x_d -
-        q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns the offset of ``x_d, xd_d, xdd_d`` in
-        :attr:`floats` (its owner writes them there whenever they change)."""
+        q[qidx]) - 0`` (order 2), ``J`` constant (not written); returns ``(at, vec)``: the offset of ``xd_d, xdd_d`` in
+        :attr:`floats` and the slot of ``x_d`` in :attr:`vecs` (its owner keeps them current)."""
         dim = len(qidx)
-        self._ints += [SELECTION, row, dim, *qidx, *vidx]
-        return self._gains(kp, kd, 3 * dim)
+        self._ints += [SELECTION, row, dim, len(self.vecs), *qidx, *vidx]
+        self.vecs.append(np.zeros(dim))
+        return self._gains(kp, kd, 2 * dim), len(self.vecs) - 1
 
-    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x_d_vec: bool, x: np.ndarray | None = None,
+    def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x: np.ndarray | None = None,
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
-                  placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int]:
+                  placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
         and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
-        len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w`` (if any), then at order 2 ``rate = J
-        qd`` and ``Jdot qd``; ``x_d`` in ``vecs`` after those (``x_d_vec``) or in :attr:`floats`. ``x``: the array of
-        ``x``'s slot (a view pinocchio updates; with ``xrows``).
+        len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``; ``x``, a view pinocchio updates), ``w`` (if
+        any), at order 2 ``rate = J qd`` and ``Jdot qd``, then ``x_d`` (if ``xrows``: slot ``xslot``).
 
-        ``jacobian = (JT, cols, p)`` (:meth:`hqp_tpm.robot.state.State.frame_jacobian_source` and the frame's
-        position, views pinocchio updates): the kernel writes ``S`` itself
-        (:func:`hqp_tpm.robot._compiled.frame_jacobian`) and, at order 2, ``rate``; else the caller puts ``S`` and
-        ``rate`` in their slots every step. ``rotation = (RT, RdT)`` (the frame's and the target's rotations
-        transposed: row-major views): the kernel writes ``w = log3(R_d R^T)``
-        (:func:`hqp_tpm.robot._compiled.rotation_error`); the caller replaces ``mats[rot + 1]`` when the target
-        changes. ``transposed`` (``n x q``, a view pinocchio updates, e.g. the CoM Jacobian transposed): ``S^T``, put
-        in slot ``mat`` (order 1 only: the kernel does not compute ``rate`` from it). ``placement = (fid, RiT, pi, P,
-        RfT)`` (with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_placement_source`): the kernel
-        places frame ``fid`` first (its rotation and its position ``p``,
-        :func:`hqp_tpm.robot._compiled.frame_placement`), and :attr:`placed` gets ``fid``: the caller need not place
-        it. ``jdot`` (order 2, with ``jacobian``; :meth:`hqp_tpm.robot.state.State.frame_jdot_source`, one entry per
-        column): the kernel computes ``Jdot qd`` of the frame from the joint Jacobians and ``qd``
-        (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`; the caller need not put it in its slot, nor pinocchio run its
-        velocity pass for it). Returns ``(at, mat, vec, rot)``:
-        ``at`` the offset of ``[x_d (if not x_d_vec)], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1
-        without ``rotation``).
-        """
+        ``jacobian = (JT, cols, p)`` (:meth:`~hqp_tpm.robot.state.State.frame_jacobian_source`, the frame's position):
+        the kernel writes ``S`` and, at order 2, ``rate`` (else the caller, every step). ``rotation = (RT, RdT)`` (the
+        frame's and the target's rotations transposed, row-major views): the kernel writes ``w = log3(R_d R^T)``.
+        ``transposed`` (``n x q``, e.g. the CoM Jacobian transposed, order 1 only): ``S^T`` in slot ``mat``.
+        ``placement = (fid, RiT, pi, P, RfT)`` (with ``jacobian``;
+        :meth:`~hqp_tpm.robot.state.State.frame_placement_source`): the kernel places frame ``fid`` first and
+        :attr:`placed` gets it. ``jdot`` (order 2, with ``jacobian``, one entry per column;
+        :meth:`~hqp_tpm.robot.state.State.frame_jdot_source`): the kernel computes ``Jdot qd`` (no velocity pass).
+        Returns ``(at, mat, vec, rot, xslot)``: ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats` (``x_d``
+        there: a Harmonic's base), ``rot`` the slot of ``RT`` (-1 without ``rotation``), ``xslot`` -1 without
+        ``xrows``."""
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
         self.mats.append(np.zeros((6, self._ints[1])))
-        self.vecs += [np.zeros(6) for _ in range(used + (1 if x_d_vec else 0))]
+        self.vecs += [np.zeros(6) for _ in range(used)] + ([np.zeros(k)] if k else [])
         if x is not None:
             self.vecs[vec] = x
         jsrc = ip = rot = -1
@@ -496,14 +483,15 @@ class Program:
             tail = [self._slot(self.vecs, pi)]
             self.placed.add(int(fid))
         ixd = len(self._ints) + 6
-        self._ints += [FRAME, row, dim, k, mat, vec, vec + used if x_d_vec else -1, jsrc, ip, rot, len(cols), place,
+        xslot = vec + used if k else -1
+        self._ints += [FRAME, row, dim, k, mat, vec, xslot, jsrc, ip, rot, len(cols), place,
                        int(jdot is not None), *rows, *xrows, *cols, *ends, *tail, -1]
         self.vecs.append(np.zeros(dim))  # (the extra command's, bound to the entry while it has one)
         #: where the last frame entry's ``ixd`` and extra slot are in :attr:`ints` (:data:`HARMONIC`: its reference
         #: from ``[base, a, b]`` per row and ``omega, phase`` at the end of its floats; a slot: its extra command
         #: there, added as :meth:`~hqp_tpm.tasks.base.Task.command` adds it), and the extra command's slot
         self.switches = (ixd, len(self._ints) - 1, len(self.vecs) - 1)
-        return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot
+        return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot, xslot
 
     @staticmethod
     def _slot(arrays: list, a: np.ndarray) -> int:
@@ -527,23 +515,20 @@ class Program:
 
     @staticmethod
     def buffer_size(m: int, n: int, solve: int) -> int:
-        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up`` and
-        the loop's scratch (``3 x n``)."""
-        return m * n + m + (7 if solve == SNS else 2) * n
+        """Length of the kernel's ``buf``: ``J``, ``b``, ``x0``, ``x``, and with :data:`SNS` the box ``lo``, ``up``,
+        the loop's scratch (``3 x n``) and the solve's info (:meth:`sns_info`, ``n + 4``)."""
+        return m * n + m + (8 * n + 4 if solve == SNS else 2 * n)
 
     def build(self) -> Program:
         """Pack the entries and the address table (then slots change only by :meth:`bind_mat`, :meth:`bind_vec`)."""
-        n = self._ints[1]
-        self._sns_at = (len(self._ints), len(self._floats))
-        if self.solve == SNS:  # the SNS loop's outputs: nsat, iterations, feasible, the saturated joints; the scale
-            self._ints += [0] * (2 * n + 3) + self._box  # (the joints' scratch), the box: source, slot, joints, indices
-            self._floats += [0.0, self._dt]
+        if self.solve == SNS:  # the loop's scratch (n joints), the box: source, slot, joints, indices; its dt
+            self._ints += [0] * self._ints[1] + self._box
+            self._floats += [self._dt]
         self._ints[7] = len(self._ints)
         self._ints += [0] * (3 * len(self.mats))
         self._ints[8] = len(self._ints)
         self._ints += [0] * (2 * len(self.vecs))
         self.ints = np.array(self._ints, dtype=np.int64)
-        self._sns_view = self.ints[self._sns_at[0]: self._sns_at[0] + 3 + n]  # (sns_outputs copies it)
         for i, a in enumerate(self.mats):
             self.bind_mat(i, a)
         for i, a in enumerate(self.vecs):
@@ -573,17 +558,12 @@ class Program:
         at = self.ints[8] + 2 * slot
         self.ints[at: at + 2] = a.__array_interface__["data"][0], a.shape[0]
 
-    def sns_outputs(self) -> tuple[np.ndarray, float]:
-        """A copy of the SNS loop's outputs of the last solve (nsat, iterations, feasible, the saturated joints; the
-        scale), for :meth:`sns_info`."""
-        return self._sns_view.copy(), self.floats.item(self._sns_at[1])
-
-    def sns_info(self, outputs: tuple) -> dict:
-        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) of :meth:`sns_outputs`, as the readable step
-        records it."""
-        tail, scale = outputs
-        nsat, iterations = tail[:2].tolist()
-        return {"scale": scale, "saturated": tail[3: 3 + nsat].tolist(), "iterations": iterations}
+    def sns_info(self, buf: np.ndarray) -> dict:
+        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) from (a copy of) the kernel's ``buf`` after
+        a solve, as the readable step records it."""
+        m, n = self._ints[0], self._ints[1]
+        scale, nsat, iterations, _, *joints = buf[m * n + m + 7 * n:].tolist()
+        return {"scale": scale, "saturated": [int(j) for j in joints[: int(nsat)]], "iterations": int(iterations)}
 
 
 def kernel(solve: int = TPM, tall: bool = False):

@@ -2,18 +2,14 @@
 
 The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds a :class:`~hqp_tpm.control.stack.Stack`,
 one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks them and looks the solver up every step. For a
-*fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (pinocchio's
-kinematics, only the frames and passes the rows read: :meth:`hqp_tpm.robot.state.State.update_positions` at velocity
-level, and at acceleration level when the kernel computes every ``J-dot q-dot``), the tasks' rows written in place
-into one stacked ``J``, ``b``, one finiteness test, one solve, and the controller's integration.
+*fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (only the frames and
+passes the rows read), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve.
 
 With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that describe their rows
-(:meth:`hqp_tpm.tasks.base.Task.row_source`: frame pose, position, orientation, the CoM at velocity level, posture of
-revolute/prismatic joints; :mod:`hqp_tpm.control._task_rows`) copy only changed references into the program,
-and one compiled call writes their rows from pinocchio's data read in place (frame placements and Jacobians, rotation
-errors ``log3(R_d R^T)``), tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in the joint limits' box), solves;
-the other tasks' ``jacobian`` and ``command`` run before it and other solvers after it,
-through the registry on levels that are views of ``J`` and ``b``.
+(:meth:`hqp_tpm.tasks.base.Task.row_source`; :mod:`hqp_tpm.control._task_rows`) are written by one compiled call from
+pinocchio's data and the targets read in place, which also tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in
+the joint limits' box), solves; the other tasks' ``jacobian`` and ``command`` run before it, other solvers after it
+(the registry, on levels that are views of ``J`` and ``b``).
 
 Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
 error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` and ``J-dot q-dot`` (to 1e-12).
@@ -30,7 +26,7 @@ from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._task_rows import program_rows, write_own_rows
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.policy import FixedStack, Policy
-from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
+from hqp_tpm.control.step_result import CompiledStep, StepResult
 from hqp_tpm.errors import SolverFailedError
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.limits import JointLimits
@@ -41,6 +37,8 @@ from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.base import Task
 
+_new = object.__new__
+
 
 def _writer(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
     """``write(t)``: ``task``'s own rows at ``state`` into ``J``, ``b`` (:func:`write_own_rows`)."""
@@ -48,9 +46,8 @@ def _writer(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
 
 
 class JointBox:
-    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays: by the compiled
-    kernel (:meth:`JointLimits.kernel_box`, the same operations as ``BoxLimits``, the same bits) where it can, else by
-    :meth:`JointLimits.reference_box` (the readable formulas, recovery rules included)."""
+    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays by
+    :meth:`JointLimits.kernel_box` (``BoxLimits``' bits) or :meth:`JointLimits.reference_box` (recovery rules)."""
 
     __slots__ = ("limits", "order", "lo", "up", "fast", "_P", "_idx", "_dt")
 
@@ -81,7 +78,8 @@ class LeanStep(CompiledStep):
     __slots__ = ("ctrl", "tasks", "rows", "sizes", "J", "b", "n", "order", "lambda_max", "eps", "damping",
                  "writers", "levels", "box", "x0", "solver", "frames", "_flat", "_info", "_program", "_buf", "_out",
                  "_velocities", "_positions", "_kernel", "_fused", "_fused_frames", "_com", "_rate", "_stack",
-                 "_levels", "_spans", "_label", "planned_box")
+                 "_levels", "_spans", "_label", "_ints", "_floats", "_sns", "_box_writer",
+                 "planned_box")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -169,7 +167,7 @@ class LeanStep(CompiledStep):
         self._velocities = self.order == 2
         # the fused step (hqp_tpm.control._compiled_step): the rows of the tasks that have a row program,
         # finiteness and (tpm) the solve in one compiled call; the other tasks' row writers run before it
-        self._kernel = self._program = self._fused = None
+        self._kernel = self._program = self._fused = self._box_writer = None
         self._fused_frames = self.frames
         self._com = self._positions = False
         if self.sizes and _compiled.AVAILABLE and _solvers_compiled.ENABLED:  # (other solvers: the rows only)
@@ -189,11 +187,17 @@ class LeanStep(CompiledStep):
                 program.set_box(_compiled_step.BOX_VELOCITY if self.order == 1 else _compiled_step.BOX_ACCELERATION,
                                 self.box._P, self.box._idx, self.box._dt)
             self._program = program.build()
+            self._ints, self._floats = program.ints, program.floats  # (written in place, never replaced)
             self._com = program.com_in_update  # (set by a row program at velocity level only)
-            # order 2, every task in the program and every Jdot qd computed in the kernel: the position pass only
-            self._positions = self._velocities and not program.velocity_pass and all(
+            # order 1, or order 2 with every task in the program and every Jdot qd computed in the kernel: the
+            # position pass only
+            self._positions = not self._velocities or not program.velocity_pass and all(
                 gather is not write for gather, write in zip(self._fused, self.writers, strict=True))
-            self._kernel = _compiled_step.kernel(mode, tall=a > n)
+            self._sns = mode == _compiled_step.SNS
+            if self._sns and program.box_given and self.box is not None:
+                self._box_writer = self.box
+            kernel = _compiled_step.kernel(mode, tall=a > n)  # (its code for these arrays and the controller's q, v)
+            self._kernel = kernel and _compiled.typed(kernel, self._buf, self._ints, self._floats, ctrl._q, ctrl._v)
         return self
 
     def current(self) -> bool:
@@ -204,17 +208,20 @@ class LeanStep(CompiledStep):
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
         """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the stacked rows
         (the readable step's levels, bit for bit, built when asked) and of the fused SNS solve's info."""
+        r = _new(StepResult)  # (the fields not set here are computed on first read: StepResult's defaults)
+        r.t, r.command, r._stack = t, x, self._stack
         if self._info is None:  # (the fused SNS kernel's: its outputs copied, the info built when asked)
-            return StepResult(t, self._stack, LAZY, x, LAZY, LAZY, LAZY,
-                              (self, q, v, self._flat.copy(), self._program.sns_outputs()))
-        return StepResult(t, self._stack, LAZY, x, self._info, LAZY, LAZY, (self, q, v, self._flat.copy()))
+            r._kept = (self, q, v, self._buf.copy())  # (the rows and the solve's info)
+        else:
+            r._kept, r._info = (self, q, v, self._flat.copy()), self._info
+        return r
 
     def info_of(self, kept: tuple) -> dict:
-        return self._program.sns_info(kept[4])
+        return self._program.sns_info(kept[3])
 
     def levels_of(self, kept: tuple) -> list[Level]:
         rows, m, n = kept[3], self.b.size, self.n
-        J, b = rows[: m * n].reshape(m, n), rows[m * n:]
+        J, b = rows[: m * n].reshape(m, n), rows[m * n: m * n + m]
         return [Level(J[r], b[r], name=name, defer_finite=True) for r, name in self._spans]
 
     def label_of(self, kept: tuple) -> str:
@@ -222,11 +229,7 @@ class LeanStep(CompiledStep):
 
     def _box(self, st, t):
         box = self.box
-        if box is None:
-            return None
-        if type(box) is JointBox:
-            return box(st)
-        return box(st, t)
+        return None if box is None else box(st) if type(box) is JointBox else box(st, t)
 
     def compute(self) -> np.ndarray:
         """The command at the controller's current state (state update, rows, one solve)."""
@@ -234,26 +237,21 @@ class LeanStep(CompiledStep):
         if not ctrl._started:
             ctrl.start()
         t, q, v = ctrl.t, ctrl._q, ctrl._v
-        kernel, status = self._kernel, None
-        fused = kernel is not None and _compiled.ENABLED  # (one switch: hqp_tpm._jit, shared by the kernel modules)
-        frames = self._fused_frames if fused else self.frames  # (the kernel places the frames its tasks read)
-        if self._velocities and not (fused and self._positions):
-            st = ctrl.state.update(q, v, t, validate=False, frames=frames)
-        else:  # (the CoM with them when the kernel reads it)
-            st = ctrl.state.update_positions(q, v, t, frames, fused and self._com)
-        if fused:  # the program's tasks gather their arrays, the others write their rows
-            for write in self._fused:
+        status, x0 = None, self.x0
+        if self._kernel is not None and _compiled.ENABLED:  # (one switch: hqp_tpm._jit, shared by the kernel modules)
+            if self._positions:  # (the kernel places the frames its tasks read; the CoM here when it reads it)
+                st = ctrl.state.update_positions(q, v, t, self._fused_frames, self._com)
+            else:
+                st = ctrl.state.update(q, v, t, validate=False, frames=self._fused_frames)
+            for write in self._fused:  # the program's tasks gather their arrays, the others write their rows
                 write(t)
-            x0 = self.x0
             if x0 is not None:
                 np.multiply(v, -self.damping, out=x0)
-            program = self._program
-            sns = program.solve == _compiled_step.SNS
-            if sns and program.box_given and self.box is not None:
-                self.box(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
-            status = kernel(self._buf, program.ints, program.floats, q, v)
+            if self._box_writer is not None:
+                self._box_writer(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
+            status = self._kernel(self._buf, self._ints, self._floats, q, v)
             if status == 0:  # SOLVED
-                self._info = None if sns else {}  # (None: the program's, read by the info property)
+                self._info = None if self._sns else {}  # (None: the kernel's, in the kept buffer)
                 return self._out.copy()
             if status == _compiled_step.NONFINITE_ROWS:
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
@@ -262,12 +260,14 @@ class LeanStep(CompiledStep):
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
             # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): below
         else:
+            if self._velocities:
+                st = ctrl.state.update(q, v, t, validate=False, frames=self.frames)
+            else:
+                st = ctrl.state.update_positions(q, v, t, self.frames)
             for write in self.writers:
                 write(t)
-            flat = self._flat
-            if not sumsq(flat) <= MAX_SUMSQ:       # NaN, inf or too large (one sum fails for all three):
+            if not sumsq(self._flat) <= MAX_SUMSQ:  # NaN, inf or too large (one sum fails for all three):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
-            x0 = self.x0
             if x0 is not None:
                 np.multiply(v, -self.damping, out=x0)
         J, b = self.J, self.b

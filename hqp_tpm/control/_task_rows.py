@@ -1,13 +1,9 @@
 """The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source`
 registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack
 (:mod:`hqp_tpm.control._lean`) or, as a :class:`TaskProgram`, one task's in the planned step of a policy
-(:mod:`hqp_tpm.control._planned_step`).
-
-One registration for every task that describes its rows (frame position, orientation and pose, the centre of mass at
-velocity level, the posture of revolute and prismatic joints): the kernel reads pinocchio's frame placements and
-Jacobians in place (or the step gathers them here), the task's target arrays, and its reference and gains as copied
-here when they change; it then writes ``J`` and ``b`` with :func:`~hqp_tpm.tasks.base.tracking_command`, the numbers
-of the task's :meth:`~hqp_tpm.tasks.base.Task.jacobian` and :meth:`~hqp_tpm.tasks.base.Task.command`."""
+(:mod:`hqp_tpm.control._planned_step`). The kernel reads pinocchio's frame placements and Jacobians and the targets in
+place and writes ``J`` and ``b`` with :func:`~hqp_tpm.tasks.base.tracking_command`: the numbers of the task's
+:meth:`~hqp_tpm.tasks.base.Task.jacobian` and :meth:`~hqp_tpm.tasks.base.Task.command`."""
 
 from __future__ import annotations
 
@@ -18,7 +14,7 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.control import _compiled_step
-from hqp_tpm.references.trajectories import Harmonic
+from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
 from hqp_tpm.robot.state import LWA, State
 from hqp_tpm.tasks.base import CenterOfMassRows, FrameRows, SelectionRows, Task, row_selector
 
@@ -53,65 +49,70 @@ def write_own_rows(task: Task, state: State, t: float, order: int, J: np.ndarray
 
 
 class ReferenceSlots:
-    """Copies a task's reference ``(x_d, xd_d, xdd_d)`` (the parts named by ``parts``) and gains into a program's
-    floats when they are not the ones copied last (compared by identity, part by part): a constant reference is one
-    read-only tuple between starts and assignments (copied once; an assigned constant changes ``x_d`` only,
-    :meth:`~hqp_tpm.references.trajectories.Constant.assign`); any other is copied every step, but a
-    :class:`~hqp_tpm.references.trajectories.Harmonic` one of a frame entry (``harmonic``): its terms are copied
-    when they change, the kernel computes the reference (:data:`~hqp_tpm.control._compiled_step.HARMONIC`)."""
+    """Keeps a program's copy of a task's reference ``(x_d, xd_d, xdd_d)`` and gains current. The kernel reads ``x_d``
+    from slot ``slot`` of the program's vecs (None: the task's own array): the trajectory's
+    :attr:`~hqp_tpm.references.trajectories.Trajectory.live` array where it has one, bound when it is not the one bound
+    last; else this object's array, into which a reference not the one copied last (by identity, part by part) is
+    copied. A :class:`~hqp_tpm.references.trajectories.Harmonic` reference of a frame entry (``harmonic``: the entry's
+    ``ixd`` in ``program.ints``): its terms copied when they change, the kernel computes it."""
 
-    __slots__ = ("program", "parts", "last", "gains", "gains_at", "task", "views", "harmonic", "terms")
+    __slots__ = ("task", "program", "gains", "gains_at", "at", "d", "slot", "own", "bound", "last", "harmonic",
+                 "terms")
 
-    def __init__(self, task: Task, program, gains_at: int, at: int, parts: tuple[tuple[int, int], ...],
+    def __init__(self, task: Task, program, gains_at: int, at: int, d: int, slot: int | None,
                  harmonic: int | None = None):
-        """``kp, kd`` at ``program.floats[gains_at:]``, the reference parts ``(index, entries)`` from ``at`` on;
-        ``harmonic``: the frame entry's ``ixd`` in ``program.ints`` (its floats: ``x_d, xd, xdd, omega, phase``)."""
-        self.task, self.program, self.gains_at, self.parts = task, program, gains_at, []
-        self.harmonic, self.terms = harmonic, None
-        for i, size in parts:  # (index into the reference, its slice of the floats), laid out one after the other
-            self.parts.append((i, slice(at, at + size)))
-            at += size
-        self.last, self.gains, self.views = (None, None, None), task.gains, None
-
-    def _harmonic(self, t: float) -> None:
-        """The Harmonic reference's terms into the floats of ``x_d, xd, xdd`` (base, a, b per row) and after them
-        ``omega, phase``; the step's time into ``floats[TIME]``."""
-        floats = self.program.floats
-        floats[_compiled_step.TIME] = t
-        terms = self.task.trajectory.terms()
-        if terms is not self.terms:
-            w, phase, fields = terms
-            k, at = len(fields), self.parts[0][1].start
-            for i, (base, a, b) in enumerate(fields):
-                floats[at + i], floats[at + k + i], floats[at + 2 * k + i] = base, a, b
-            floats[at + 3 * k], floats[at + 3 * k + 1] = w, phase
-            self.program.ints[self.harmonic] = _compiled_step.HARMONIC
-            self.terms, self.last = terms, (None, None, None)
+        """``kp, kd`` at ``program.floats[gains_at:]``, ``xd_d, xdd_d`` (``d`` entries each) from ``at`` on (a
+        Harmonic's terms from ``at - d``: base, a, b per row, omega, phase)."""
+        self.task, self.program, self.gains_at, self.at, self.d, self.slot = task, program, gains_at, at, d, slot
+        self.own = None if slot is None else program.vecs[slot]
+        self.bound = self.last = self.terms = None
+        self.harmonic, self.gains = harmonic, task.gains
 
     def refresh(self, t: float) -> None:
         task = self.task
-        if self.harmonic is not None:
-            if type(task.trajectory) is Harmonic:
-                self._harmonic(t)
-                if task.gains is not self.gains:
-                    self.gains = g = task.gains
-                    self.program.floats[self.gains_at: self.gains_at + 2] = g.kp, g.kd
-                return
-            if self.terms is not None:  # (no longer a Harmonic: the reference copied again)
-                self.program.ints[self.harmonic], self.terms = -1, None
-        ref = task.trajectory.reference(t)
-        last = self.last
-        if ref is not last:
-            if self.views is None:  # (the program's floats exist once it is built)
-                self.views = [self.program.floats[s] for _, s in self.parts]
-            for (i, _), view in zip(self.parts, self.views, strict=True):
-                if ref[i] is not last[i]:
-                    view[...] = ref[i]
-            frozen = not (ref[0].flags.writeable or ref[1].flags.writeable or ref[2].flags.writeable)
-            self.last = ref if frozen else (None, None, None)
+        live = task.trajectory.live
+        if live is None or live is not self.bound:
+            self._copy(task.trajectory, live, t)
         if task.gains is not self.gains:
             self.gains = g = task.gains
             self.program.floats[self.gains_at: self.gains_at + 2] = g.kp, g.kd
+
+    def _copy(self, tr, live, t: float) -> None:
+        program, at, d = self.program, self.at, self.d
+        floats = program.floats
+        if self.harmonic is not None:
+            if type(tr) is Harmonic:  # its terms into the floats of x_d, xd, xdd (base, a, b), then omega, phase
+                floats[_compiled_step.TIME] = t
+                terms = tr.terms()
+                if terms is not self.terms:
+                    w, phase, fields = terms
+                    floats[at - d: at + 2 * d] = np.array(fields).T.ravel()
+                    floats[at + 2 * d], floats[at + 2 * d + 1] = w, phase
+                    program.ints[self.harmonic] = _compiled_step.HARMONIC
+                    self.terms, self.bound, self.last = terms, None, None
+                return
+            if self.terms is not None:  # (no longer a Harmonic: x_d from its slot again)
+                program.ints[self.harmonic], self.terms = self.slot, None
+        ref = tr.reference(t)
+        if live is not None and live.shape == (d,) and type(tr) in (Constant, Hold):  # bound: written in place
+            if self.slot is not None:
+                program.bind_vec(self.slot, live)
+            floats[at: at + d], floats[at + d: at + 2 * d] = ref[1], ref[2]
+            self.bound, self.last = live, None
+            return
+        if self.bound is not None:  # (x_d in this object's array again)
+            if self.slot is not None:
+                program.bind_vec(self.slot, self.own)
+            self.bound = None
+        last = self.last or (None, None, None)
+        if self.slot is not None and ref[0] is not last[0]:
+            self.own[...] = ref[0]
+        if ref[1] is not last[1]:
+            floats[at: at + d] = ref[1]
+        if ref[2] is not last[2]:
+            floats[at + d: at + 2 * d] = ref[2]
+        frozen = not (ref[0].flags.writeable or ref[1].flags.writeable or ref[2].flags.writeable)
+        self.last = ref if frozen else None
 
 
 def program_rows(task: Task, state: State, order: int, program, row: int, J: np.ndarray,
@@ -126,8 +127,8 @@ def program_rows(task: Task, state: State, order: int, program, row: int, J: np.
     if type(source) is SelectionRows:
         J[...] = task.jacobian(state)  # (constant: written once, the kernel writes b only)
         g, d = task.gains, len(source.qidx)
-        at = program.add_selection(row, source.qidx, source.vidx, g.kp, g.kd)
-        return ReferenceSlots(task, program, at - 2, at, ((0, d), (1, d), (2, d))).refresh
+        at, slot = program.add_selection(row, source.qidx, source.vidx, g.kp, g.kd)
+        return ReferenceSlots(task, program, at - 2, at, d, slot).refresh
     if type(source) is CenterOfMassRows:
         return _center_of_mass(task, source, state, order, program, row)
     if type(source) is FrameRows:
@@ -136,17 +137,16 @@ def program_rows(task: Task, state: State, order: int, program, row: int, J: np.
 
 
 def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: int, program, row: int):
-    """At velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the kernel's slots, filled by
-    ``jacobianCenterOfMass`` every step (in the lean step's state update, :meth:`State.update_positions` with
-    ``com``, else :meth:`State.com_kinematics`). At acceleration level: None."""
+    """At velocity level: pinocchio's CoM and CoM Jacobian (transposed) as views in the kernel's slots, filled every
+    step (:meth:`State.update_positions` with ``com``, else :meth:`State.com_kinematics`). Else None."""
     views = state.com_views()
     if views is None or order != 1:
         return None
     com, Jcom, _ = views
     d, g = len(source.rows), task.gains
-    at, _, _, _ = program.add_frame(row, source.rows, source.rows, g.kp, g.kd, x_d_vec=False, x=com,
-                                    transposed=Jcom.T)  # (pinocchio updates both in place)
-    refresh = ReferenceSlots(task, program, at - 2, at, ((0, d), (1, d), (2, d)), program.switches[0]).refresh
+    at, _, _, _, slot = program.add_frame(row, source.rows, source.rows, g.kp, g.kd, x=com,
+                                          transposed=Jcom.T)  # (pinocchio updates both in place)
+    refresh = ReferenceSlots(task, program, at - 2, at + d, d, slot, program.switches[0]).refresh
     program.com_in_update = True  # (the lean step's state update computes them: com_kinematics then returns)
 
     def gather(t: float) -> None:
@@ -156,10 +156,9 @@ def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: i
 
 
 def _frame(task: Task, source: FrameRows, state: State, order: int, program, row: int, place: bool, inside: bool):
-    """A frame task's rows: where the state gives views of pinocchio's joint Jacobians and placements
-    (:meth:`State.frame_jacobian_source`, :meth:`State.frame_placement_source`) the kernel places the frame, computes
-    its Jacobian, ``log3(R_d R^T)`` and (order 2) ``J qd`` and, where the state offers it
-    (:meth:`State.frame_jdot_source`), ``Jdot qd`` itself; else they are gathered here."""
+    """A frame task's rows: where the state gives views of pinocchio's joint Jacobians and placements (its
+    ``frame_*_source``) the kernel places the frame, computes its Jacobian, ``log3(R_d R^T)``, at order 2 ``J qd``
+    and, where it can, ``Jdot qd``; else they are gathered here."""
     fid, rows, position = source.fid, source.rows, source.position
     views = state.frame_views(fid)
     if views is None:
@@ -175,17 +174,13 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
     if place and inside and (placed := state.frame_placement_source(fid)) is not None:
         placement = (fid, *placed)
     ends = state.frame_jdot_source(fid) if inside and order == 2 else None  # (then Jdot qd in the kernel too)
-    at, mat, vec, _ = program.add_frame(
-        row, rows, position, g.kp, g.kd, x_d_vec=source.p_d is not None, x=p if k else None,
-        jacobian=(*jsource, p) if inside else None,
+    at, mat, vec, _, slot = program.add_frame(
+        row, rows, position, g.kp, g.kd, x=p if k else None, jacobian=(*jsource, p) if inside else None,
         rotation=(RT, source.R_d.T) if inside and angular else None,  # (R_d: Fortran-ordered, R_d.T row-major)
         placement=placement, jdot=ends)
     if source.p_d is not None:  # x_d: the task's array (bound once: the task writes it in place)
-        program.vecs[vec + (1 if k else 0) + (1 if angular else 0) + (2 if order == 2 else 0)] = source.p_d
-        parts = ((1, d), (2, d))
-    else:
-        parts = ((0, k), (1, d), (2, d)) if k else ((1, d), (2, d))
-    refresh = ReferenceSlots(task, program, at - 2, at + (k if source.p_d is not None else 0), parts,
+        program.vecs[slot], slot = source.p_d, None
+    refresh = ReferenceSlots(task, program, at - 2, at + k, d, None if slot == -1 else slot,
                              program.switches[0] if k == d and source.p_d is None else None).refresh
     if inside and order == 1:
         return refresh  # (the kernel computes the rest)

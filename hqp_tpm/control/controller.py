@@ -209,13 +209,12 @@ class Controller:
         ``record``: the step through the readable path (Task -> Level -> solver), every field computed at once; else the
         compiled step where the set-up has one (the same numbers, fields computed on demand). The policy's state
         advances as in a step; on an error it is restored."""
-        t, q, v = self.t, self._q, self._v
         fast = None if record else self._compiled_step()
         started, saved = self._started, self._policy.snapshot()
         try:
             if fast is None:
                 return self._compute()
-            return fast.result(t, q, v, fast.compute())
+            return fast.result(self.t, self._q, self._v, fast.compute())
         except BaseException:
             self._policy.restore(saved)
             self._started = started
@@ -230,12 +229,7 @@ class Controller:
         if fast is not None:
             return fast.result(t, q, v, self.advance(fast.compute))
         out = []
-
-        def command() -> np.ndarray:
-            out.append(self._compute())
-            return out[0].command
-
-        self.advance(command)
+        self.advance(lambda: out.append(self._compute()) or out[0].command)
         res = out[0]
         if "crosscheck" in res.info:
             self.crosscheck_log.append(t, res.info["crosscheck"])
@@ -243,9 +237,8 @@ class Controller:
 
     def advance(self, command: Callable[[], np.ndarray]) -> np.ndarray:
         """Compute a command with ``command()``, integrate it over ``dt`` and advance the controller; returns the
-        command. Transactional: on any error (in ``command`` or a non-finite state) the controller and its policy keep
-        their state. The one place a step is committed (:meth:`step` and the lean steps of :mod:`hqp_tpm.control.lean`
-        and :mod:`hqp_tpm.policies.planned_step`)."""
+        command. Transactional: on any error the controller and its policy keep their state (the one place a step is
+        committed)."""
         started, saved = self._started, self._policy.snapshot()
         try:
             x = command()

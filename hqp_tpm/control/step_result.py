@@ -29,7 +29,9 @@ class StepResult:
     A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
     it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
 
-    __slots__ = ("t", "command", "_info", "_stack", "_levels", "_x0", "_box", "_kept")
+    # (a compiled step's result sets t, command, _kept and what it knows; the others are computed when read)
+    _info = _stack = _levels = _x0 = _box = LAZY
+    _kept = None
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
                  kept: tuple | None = None):
@@ -81,12 +83,10 @@ class StepResult:
 
 class CompiledStep:
     """Base of a controller's compiled steps (:class:`hqp_tpm.control._lean.LeanStep`, Algorithm 1's
-    :class:`hqp_tpm.control._planned_step.PlannedStep`): the readable step's numbers in fewer calls.
-
-    ``compute() -> command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it,
-    keeping ``(step, q, v, rows, ...)`` (``q``, ``v``: the state it started from; the controller replaces, never writes,
-    its arrays), from which ``stack_of``, ``levels_of``, ``label_of``, ``info_of`` and :meth:`box_of` compute the
-    result's fields on demand; ``current()``: whether the controller's policy is still the one planned for."""
+    :class:`hqp_tpm.control._planned_step.PlannedStep`): the readable step's numbers in fewer calls. ``compute() ->
+    command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it, keeping ``(step,
+    q, v, rows, ...)`` (the controller replaces, never writes, its ``q``, ``v``) for ``stack_of``, ``levels_of``,
+    ``label_of``, ``info_of``, :meth:`box_of`; ``current()``: the controller's policy is still the one planned for."""
 
     __slots__ = ()
     ctrl: Controller

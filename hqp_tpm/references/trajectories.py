@@ -13,6 +13,7 @@ from typing import ClassVar
 import numpy as np
 
 from hqp_tpm.errors import NonFiniteError, ShapeError, shown
+from hqp_tpm.robot import _compiled
 
 
 def _frozen(*arrays: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -29,6 +30,21 @@ def _finite(x, what: str) -> np.ndarray:
     return arr
 
 
+_FLOAT64 = np.dtype(np.float64)
+
+
+def _copy_finite(x: np.ndarray, out: np.ndarray) -> bool:
+    """:func:`~hqp_tpm.robot._compiled.copy_finite` typed at its first call (:func:`~hqp_tpm.robot._compiled.typed`)."""
+    global _copy_finite
+    if not _compiled.ENABLED:  # (numpy's check and copy)
+        ok = x.shape == out.shape and bool(np.isfinite(x).all())
+        if ok:
+            out[...] = x
+        return ok
+    _copy_finite = kernel = _compiled.typed(_compiled.copy_finite, x, out)
+    return kernel(x, out)
+
+
 @dataclass
 class Trajectory:
     """Base: a constant zero-dimensional placeholder; subclasses give ``reference``.
@@ -43,6 +59,9 @@ class Trajectory:
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin",)
     #: ``reference(t)`` depends on ``t`` (False: constant between assignments and starts)
     time_varying: ClassVar[bool] = True
+    #: ``x_d`` as one array written in place while the reference stays constant (:class:`Constant`, :class:`Hold` once
+    #: started; its derivatives are zero), which the compiled steps read where it is (None: no such array)
+    live: ClassVar[np.ndarray | None] = None
 
     relative: bool = False
     origin: np.ndarray | None = field(default=None, repr=False)
@@ -68,7 +87,7 @@ class Trajectory:
 
 @dataclass
 class Constant(Trajectory):
-    """``x_d = value`` (plus the start value when relative), zero derivatives."""
+    """``x_d = value`` (plus the start value when relative), zero derivatives; ``x_d`` also in :attr:`live`."""
 
     FROZEN_FIELDS: ClassVar[tuple[str, ...]] = ("origin", "value")
     time_varying: ClassVar[bool] = False
@@ -77,33 +96,45 @@ class Constant(Trajectory):
 
     def __post_init__(self):
         self.value = _finite(self.value, "target")
-        self._ref = None
 
-    def start(self, x0: np.ndarray) -> None:
-        super().start(x0)
-        self._ref = None
+    def __setattr__(self, name: str, value) -> None:
+        super().__setattr__(name, value)
+        d = self.__dict__
+        if name == "value" or (name == "origin" and "live" in d):  # x_d anew, into live in place (shape kept)
+            x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0).copy()
+            if "live" in d and d["live"].shape == x.shape:
+                d["live"][...] = x
+            else:
+                d["live"] = x
 
-    def assign(self, x: np.ndarray) -> None:
-        """``value = x`` without another copy: ``x`` a new float64 vector the caller checked (finite), kept and made
-        read-only. Without an origin the reference is ``(x, 0, 0)`` at once (``x + 0`` but for the sign of a zero),
-        the zeros the previous reference's (the same objects: :class:`~hqp_tpm.control._task_rows.ReferenceSlots` copies
-        ``x`` only); with one, the next :meth:`reference` adds it."""
-        x.setflags(write=False)
-        d = self.__dict__  # (what object.__setattr__ writes, in fewer steps)
-        d["value"] = x
-        old = d["_ref"]
-        if d["origin"] is not None:
-            ref = None
-        elif old is not None and old[1].shape == x.shape:
-            ref = (x, old[1], old[2])
-        else:
-            z = np.zeros_like(x)
-            ref = _frozen(x, z) + (z,)
-        d["_ref"] = ref
+    def __getattr__(self, name: str):  # (``value`` after assign: a read-only copy of live, made when read)
+        d = self.__dict__
+        if name != "value" or "live" not in d:
+            raise AttributeError(name)
+        value = d["value"] = d["live"].copy()
+        value.flags.writeable = False
+        return value
+
+    def __copy__(self) -> Constant:  # (a shallow copy owns its live array: an assignment to one leaves the other)
+        new = object.__new__(type(self))
+        new.__dict__.update(self.__dict__, live=self.live.copy())
+        return new
+
+    def assign(self, x) -> bool:
+        """``value = x`` if ``x`` is a contiguous float64 vector of the value's size, finite, and this constant has no
+        origin: checked and written into :attr:`live` in one compiled call (``value`` and the reference, read-only
+        copies, are made when next read: arrays returned before are not changed); False (nothing changed) else."""
+        d = self.__dict__
+        if type(x) is not np.ndarray or x.dtype is not _FLOAT64 or x.strides != (8,) or d["origin"] is not None \
+                or not _copy_finite(x, d["live"]):
+            return False
+        d["_ref"] = None
+        d.pop("value", None)
+        return True
 
     def reference(self, t: float):
-        if self._ref is None:  # constant between starts: computed once, read-only
-            x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0)
+        if self._ref is None:  # constant between assignments and starts: computed once, read-only
+            x = self.live.copy()
             z = np.zeros_like(x)
             self._ref = _frozen(x, z) + (z,)
         return self._ref
@@ -119,9 +150,10 @@ class Hold(Trajectory):
     def __post_init__(self):
         self._ref = None
 
-    def start(self, x0: np.ndarray) -> None:
-        super().start(x0)
-        self._ref = None
+    def __setattr__(self, name: str, value) -> None:
+        super().__setattr__(name, value)
+        if name == "origin":  # (live: x_d, the origin, once started)
+            self.__dict__["live"] = None if value is None else self.origin.copy()
 
     def reference(self, t: float):
         if self.origin is None:

@@ -1,18 +1,15 @@
 """Compiled (numba) kernels of the lean step's arithmetic around pinocchio (private; :mod:`hqp_tpm.control._lean`).
 
-One call each instead of 10-30 small numpy calls: the joint box of :class:`~hqp_tpm.robot.joint_boxes.BoxLimits`
-(velocity and acceleration level, the common case of a state inside its limits; the recovery cases return False and the
-caller computes them with ``BoxLimits``), and the tracking command of :meth:`hqp_tpm.tasks.base.Task.command` from the
-error (order 2); for the fused lean step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement and its Jacobian
-from the joint Jacobians, its rotation error ``log3(R_d R^T)`` (the arrays that step reads by address:
-:func:`hqp_tpm._jit.table_matrix`). Every kernel does the readable code's (or pinocchio's) floating-point operations in
-the same order (no fast-math, no contraction), so the results are the same to the last bit (``tests/test_lean.py``,
-``tests/test_frame_kernels.py``), except :func:`log3`: it follows pinocchio's steps, but its sums round within a few
-ulps of pinocchio's.
+One call each instead of 10-30 small numpy calls: the joint box of :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (the
+common case of a state inside its limits; else False, and the caller uses ``BoxLimits``), the integration, target
+checks and copies; for the fused step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement, its Jacobian from
+the joint Jacobians, ``J-dot q-dot`` and its rotation error ``log3(R_d R^T)``. Every kernel does the readable code's
+(or pinocchio's) floating-point operations in the same order (no fast-math, no contraction): the same bits
+(``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3` (within a few ulps of pinocchio's) and
+:func:`frame_jdot_qdot` (~1e-15).
 
 Used when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED` and :data:`AVAILABLE`
-are that one switch, shared with the solvers' kernels). :mod:`hqp_tpm._jit` compiles them on the first call of a process
-(~1-3 s) or loads them from its disk cache."""
+are that one switch); :mod:`hqp_tpm._jit` compiles them on a process's first call or loads them from its disk cache."""
 
 from __future__ import annotations
 
@@ -221,18 +218,32 @@ def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
 
 
 @_njit
-def pose_into(H, p, RT):  # pragma: no cover - compiled
-    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``p`` (translation) and ``RT``
-    (rotation transposed: views of a task's own placement) if its translation is finite and its rotation passes
-    :func:`rotation_rows`; False (nothing written) else."""
+def pose_into(H, pose):  # pragma: no cover - compiled
+    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``pose`` (a task's own
+    placement: the translation, then the rotation transposed, row by row) if its translation is finite and its rotation
+    passes :func:`rotation_rows`; False (nothing written) else."""
     if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])):
         return False
     if not rotation_rows(H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 0], H[2, 1], H[2, 2]):
         return False
     for r in range(3):
-        p[r] = H[r, 3]
+        pose[r] = H[r, 3]
         for c in range(3):
-            RT[c, r] = H[r, c]
+            pose[3 + 3 * c + r] = H[r, c]
+    return True
+
+
+@_njit
+def copy_finite(x, out):  # pragma: no cover - compiled
+    """``out <- x`` (vectors) if ``x`` has ``out``'s length and is finite; False (nothing written) else."""
+    n = out.shape[0]
+    if x.shape[0] != n:
+        return False
+    for i in range(n):
+        if not math.isfinite(x[i]):
+            return False
+    for i in range(n):
+        out[i] = x[i]
     return True
 
 
@@ -303,6 +314,12 @@ def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
         for j in range(3):
             E[i, j] = RdT[0, i] * RT[0, j] + RdT[1, i] * RT[1, j] + RdT[2, i] * RT[2, j]
     log3(E, w)
+
+
+def typed(kernel, *args):
+    """``kernel``'s compiled code for the types of ``args`` (the switch on), called without numba's per-call type
+    dispatch (~0.1 us less a call): only for arguments always of these types."""
+    return kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
 
 
 _jit.compile_when_enabled(globals())  # numba's dispatchers (each compiled on its first call) while the switch is on

@@ -25,6 +25,15 @@ _EUCLIDEAN = frozenset(f"JointModel{k}" for k in ("RX", "RY", "RZ", "PX", "PY", 
                                                   "PrismaticUnaligned"))
 
 
+def _copy_finite(x: np.ndarray, out: np.ndarray) -> bool:
+    """:func:`~hqp_tpm.robot._compiled.copy_finite` typed at its first call (:func:`~hqp_tpm.robot._compiled.typed`)."""
+    global _copy_finite
+    if not _compiled.ENABLED:  # (the caller's numpy path checks and copies)
+        return False
+    _copy_finite = kernel = _compiled.typed(_compiled.copy_finite, x, out)
+    return kernel(x, out)
+
+
 class State:
     """Robot state ``(q, v)`` at time ``t`` with its cached kinematic quantities."""
 
@@ -34,7 +43,7 @@ class State:
         self.data = robot.model.createData()
         self.q = robot.neutral()
         self.v = np.zeros(robot.nv)
-        self._sizes = (self.model.nq, self.model.nv)
+        self._shapes = ((self.model.nq,), (self.model.nv,))
         self.t = 0.0
         self._zero = np.zeros(robot.nv)
         self._cache: dict = {}
@@ -53,15 +62,21 @@ class State:
 
     def check(self, q, v=None) -> tuple[np.ndarray, np.ndarray]:
         """Validated copies of ``q`` and ``v`` (shape and finiteness; ``v`` None: zeros), without touching the state."""
-        nq, nv = self._sizes  # (a float64 array: its copy() is np.array(x, dtype=float), in half the time)
+        qs, vs = self._shapes
+        if type(q) is _ARRAY and type(v) is _ARRAY and q.dtype is _FLOAT64 and v.dtype is _FLOAT64 \
+                and q.strides == v.strides == (8,):  # contiguous float64 vectors: checked and copied by the kernel
+            q_new, v_new = np.empty(qs), np.empty(vs)
+            if _copy_finite(q, q_new) and _copy_finite(v, v_new):
+                return q_new, v_new
+        # (a float64 array: its copy() is np.array(x, dtype=float), in half the time)
         q = q.copy() if type(q) is _ARRAY and q.dtype is _FLOAT64 else np.array(q, dtype=float)
         if v is None:
-            v = np.zeros(nv)
+            v = np.zeros(vs)
         else:
             v = v.copy() if type(v) is _ARRAY and v.dtype is _FLOAT64 else np.array(v, dtype=float)
-        if q.shape == (nq,) and v.shape == (nv,) and math.isfinite(_ddot(q, q) + _ddot(v, v)):
+        if q.shape == qs and v.shape == vs and math.isfinite(_ddot(q, q) + _ddot(v, v)):
             return q, v  # (the common case: one sum of squares says both are finite)
-        for arr, what, size in ((q, "q", nq), (v, "v", nv)):
+        for arr, what, (size,) in ((q, "q", qs), (v, "v", vs)):
             if arr.size != size:
                 raise ShapeError(f"{what} has {arr.size} entries, the robot {self.robot.name!r} has n{what} = {size}")
         for arr, what in ((q, "q"), (v, "v")):
@@ -99,23 +114,19 @@ class State:
 
     def update_positions(self, q, v, t: float, frames, com: bool = False) -> State:
         """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations (the lean
-        step's update at velocity level, every step). ``com``: also the CoM and its Jacobian (:meth:`com_views`;
-        :meth:`com_kinematics` at order 1 then has nothing left to do in this update), in the same pinocchio pass:
-        ``jacobianCenterOfMass`` from ``q`` computes the joint Jacobians with the same operations as
-        ``computeJointJacobians`` (the same bits: ``tests/test_lean.py``)."""
-        self.q, self.v, self.t = q, v, float(t)
-        model, data = self.model, self.data
+        step's, every step; ``t`` a float). ``com``: also the CoM and its Jacobian (:meth:`com_views`) in the same
+        pass (``jacobianCenterOfMass`` from ``q``: ``computeJointJacobians``' bits, ``tests/test_lean.py``)."""
+        self.q, self.v, self.t = q, v, t
         if com:
-            pin.jacobianCenterOfMass(model, data, q, False)
+            pin.jacobianCenterOfMass(self.model, self.data, q, False)
+            self._com_update = self.updates + 1
         else:
-            pin.computeJointJacobians(model, data, q)
+            pin.computeJointJacobians(self.model, self.data, q)
         for fid in frames:
-            pin.updateFramePlacement(model, data, fid)
+            pin.updateFramePlacement(self.model, self.data, fid)
         self._partial = True
         self._cache.clear()
         self.updates += 1
-        if com:
-            self._com_update = self.updates
         return self
 
     def _complete(self) -> None:

@@ -7,13 +7,11 @@ velocity/acceleration before the feedback terms."""
 
 from __future__ import annotations
 
-import math
 from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
-from scipy.linalg.blas import ddot as _ddot
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Constant, Trajectory, as_trajectory
@@ -161,14 +159,9 @@ class Task(ABC):
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
 
 
-_FLOAT64 = np.dtype(np.float64)
-
-
 def _set_target(self, value) -> None:
     tr = self.trajectory
-    if type(value) is np.ndarray and type(tr) is Constant and tr.origin is None and value.shape == (self.dim,) \
-            and value.dtype is _FLOAT64 and math.isfinite(_ddot(value, value)):  # the common case, cheap
-        tr.assign(value.copy())
+    if type(tr) is Constant and tr.assign(value):  # the common case: checked and copied in one call
         return
     if value is None or (isinstance(value, str) and value == "hold"):
         raise ParameterError(f"task {self.name!r}: target {shown(value)} (the start value) is a constructor's "
@@ -185,7 +178,7 @@ def _set_target(self, value) -> None:
 trajectory_target = property(lambda self: self.trajectory, _set_target, doc="""The reference the task tracks (its
     :attr:`trajectory`). Assigning a constant (``dim`` values) or a :class:`Trajectory` replaces it, validated as the
     constructor's target (:class:`ShapeError`, :class:`NonFiniteError` naming the task; a relative constant stays
-    relative); a constant array given to a constant trajectory is stored in it with one copy (:meth:`Constant.assign`).
+    relative); a constant array given to a constant trajectory is written into it in one call (:meth:`Constant.assign`).
     """)
 
 

@@ -53,12 +53,20 @@ def placement_target(target, task: str) -> pin.SE3 | None:
 
 
 def rotation_matrix(R: np.ndarray, what: str) -> np.ndarray:
-    """A copy of the 3x3 matrix ``R`` if it is a finite rotation matrix, else :class:`ParameterError` (``what``: the
-    task, for the message)."""
+    """A copy of ``R`` if it is a finite 3x3 rotation matrix, else :class:`ParameterError` naming ``what``."""
     if not (np.isfinite(R).all() and np.allclose(R.T @ R, np.eye(3), atol=1e-6) and np.linalg.det(R) > 0):
         raise ParameterError(f"{what}: the target rotation {R.tolist()} is not a rotation matrix (finite, "
                              "orthonormal, determinant +1)")
     return R.copy()
+
+
+def _pose_into(H: np.ndarray, pose: np.ndarray) -> bool:
+    """:func:`~hqp_tpm.robot._compiled.pose_into`, typed at its first call (:func:`~hqp_tpm.robot._compiled.typed`)"""
+    global _pose_into
+    if not _compiled.ENABLED:
+        return _compiled.pose_into(H, pose)
+    _pose_into = kernel = _compiled.typed(_compiled.pose_into, H, pose)
+    return kernel(H, pose)
 
 
 class FramePose(Task):
@@ -73,8 +81,8 @@ class FramePose(Task):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         M = placement_target(target, name or f"{frame}_pose")
-        # the target placement, written in place (the compiled step reads these arrays); held: the start pose's
-        self._p_d, self._R_d = np.zeros(3), np.asfortranarray(np.eye(3))
+        # the target placement, written in place (the compiled step reads it): p_d, then R_d^T row by row; held: the
+        self._pose = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])  # start pose's
         self._held = M is None
         if M is not None:
             self._p_d[:], self._R_d[:] = M.translation, M.rotation
@@ -90,7 +98,7 @@ class FramePose(Task):
 
     @target.setter
     def target(self, value) -> None:
-        if type(value) is pin.SE3 and _compiled.pose_into(value.homogeneous, self._p_d, self._R_d.T):
+        if type(value) is pin.SE3 and _pose_into(value.homogeneous, self._pose):
             self._held = False  # (the common case: checked and copied in one call)
             return
         if (M := placement_target(value, self.name)) is None:
@@ -98,6 +106,9 @@ class FramePose(Task):
                                  f"constructor's target only; assign {TARGET_FORMS.split(', or None')[0]}")
         self._p_d[:], self._R_d[:] = M.translation, M.rotation
         self._held = False
+
+    _p_d = property(lambda self: self._pose[:3])  # (views of the placement: R_d Fortran-ordered)
+    _R_d = property(lambda self: self._pose[3:].reshape(3, 3).T)
 
     def start(self, state: State) -> None:
         if self._held:
