@@ -546,17 +546,7 @@ def test_an_inactive_cone_keeps_its_level_in_a_planned_steps_record():
     """A stack policy's level with a pointing cone whose axis is inside the cone (inactive, e <= 0): the planned
     step's ``levels`` hold the cone's inactive row as the readable step's do (on the old code its level was left
     out: ``['post']`` against ``['post+cone']``, and a cone alone in a level lost its level)."""
-    from hqp_tpm import Controller, Pointing, Posture, Robot, StackPolicy, State
-
-    class Fixed(StackPolicy):
-        def __init__(self, stack):
-            self.stack = stack
-
-        def tasks(self):
-            return self.stack.tasks()
-
-        def __call__(self, state, t):
-            return self.stack
+    from hqp_tpm import Controller, Pointing, Posture, Robot, State
 
     rob = Robot.load("iiwa7")
     q0 = np.linspace(-0.5, 0.5, 7)
@@ -565,8 +555,8 @@ def test_an_inactive_cone_keeps_its_level_in_a_planned_steps_record():
         for alone in (False, True):
             def make(alone=alone, order=order):
                 post, cone = Posture(rob, None, name="post"), Pointing(rob, "iiwa_ee", z, 0.5, name="cone")
-                return Controller(rob, Fixed(Stack.of(post, cone) if alone else Stack.of((post, cone))), order=order,
-                                  q0=q0, v0=np.full(7, 0.1) if order == 2 else None)
+                stack = Stack.of(post, cone) if alone else Stack.of((post, cone))
+                return Controller(rob, _OneStack(stack), order=order, q0=q0, v0=np.full(7, 0.1) if order == 2 else None)
             fast, ref = make(), make()
             assert fast.compiled()
             for _ in range(3):

@@ -271,9 +271,11 @@ class PlannedStep(CompiledStep):
         """The solution of the planned levels' rows (the readable step's solve)."""
         ctrl = self.ctrl
         m, sizes = self._rows(st, t, levels, extras)
-        if self._unchecked:  # an inactive cone's row NaN, inf or too large: the readable step (its typed error)
-            return ctrl._compute().command
         J, b = self.J[:m], self.b[:m]
+        # an inactive cone's row, or (sns_tpm, other solvers) the rows, NaN, inf or too large (one sum fails for all
+        # three): the readable path raises the typed error naming the task
+        if self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ:
+            return ctrl._compute().command
         if self.sns:
             return self._sns(st, t, J, b, sizes)
         if self.other:
@@ -309,11 +311,9 @@ class PlannedStep(CompiledStep):
         return x
 
     def _sns(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
-        """The SNS-TPM command from the stacked rows, as the readable step solves them (registry.solve, and
+        """The SNS-TPM command from the stacked (finite) rows, as the readable step solves them (registry.solve, and
         command_rate.solve_around when the box bounds the command's rate)."""
         ctrl, n = self.ctrl, self.n
-        if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
-            return ctrl._compute().command      # the readable path raises the typed error naming the task
         self._box_now = self.box(st) if self.box is not None else None
         lo, up = self._box_now or (np.full(n, -np.inf), np.full(n, np.inf))
         if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
@@ -342,8 +342,6 @@ class PlannedStep(CompiledStep):
         solved through the registry, or around ``v`` when the box bounds the command's rate (as
         :meth:`Controller._solve_step`)."""
         ctrl = self.ctrl
-        if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
-            return ctrl._compute().command      # the readable path raises the typed error naming the task
         self._box_now = box = self.box(st) if self.box is not None else None
         levels = self._levels(J, b, self._made)
         if self.rate:
