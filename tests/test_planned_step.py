@@ -89,7 +89,9 @@ def same_record(res, want):
     assert (res.box is None) == (want.box is None) and res.info == want.info and res.t == want.t
 
 
-def same_steps(ref, fast, steps) -> set[str]:
+def same_steps(ref, fast, steps, until: frozenset[str] = frozenset()) -> set[str]:
+    """Step both controllers ``steps`` times (or, given ``until``, until every label in it has been seen, at most
+    ``steps`` times), comparing commands, states and records; the stack labels met."""
     planned = Planned.of(fast)
     assert planned is not None, PlannedStep.why_not(fast)
     labels = set()
@@ -105,6 +107,8 @@ def same_steps(ref, fast, steps) -> set[str]:
         assert planned.label() == res.stack.label()
         assert fast.t == ref.t and fast.steps == ref.steps
         labels.add(res.stack.label())
+        if until and until <= labels:
+            break
     return labels
 
 
@@ -144,15 +148,16 @@ def romeo_obstacles(at: int):
 
 
 def test_whole_body_avoidance_steps_equal():
-    """Steps 790-1090 of ``romeo_obstacles_sns_tpm``: the obstacle row, obstacle and self rows, and none, each planned
-    again as the stack changes (inequality rows shifted by ``J v`` then kept while active). (Since the SNS kernel
-    factorizes damped pivots, the run no longer passes through the self row alone: at step 802 a saturation that
-    was a near tie goes the other way, 7e-12 from the old trajectory.)"""
+    """From step 790 of ``romeo_obstacles_sns_tpm`` until the run has met the obstacle row, obstacle and self rows,
+    and none (each planned again as the stack changes: inequality rows shifted by ``J v`` then kept while active).
+    The run is sensitive to rounding (near-tie saturations), so where the obstacle row leaves again differs between
+    pinocchio versions and machines (step 1077 with pinocchio 4.1, 1092 with 3.4 here; later on CI): the test steps
+    until it has seen all three, at most 700 steps."""
     ref, fast = romeo_obstacles(790)
-    labels = same_steps(ref, fast, 300)
     tail = "com > left_foot > left_hand > right_hand"
-    assert {f"right_sole > avoid_obstacle > {tail}", f"right_sole > avoid_obstacle > avoid_self > {tail}",
-            f"right_sole > {tail}"} <= labels
+    want = frozenset({f"right_sole > avoid_obstacle > {tail}", f"right_sole > avoid_obstacle > avoid_self > {tail}",
+                      f"right_sole > {tail}"})
+    assert want <= same_steps(ref, fast, 700, until=want)
 
 
 @pytest.mark.parametrize("name, steps, want", [
