@@ -15,14 +15,14 @@ import pytest
 mujoco = pytest.importorskip("mujoco")
 
 from hqp_tpm.app import build, scenario  # noqa: E402
-from hqp_tpm.control.contact_dynamics import (  # noqa: E402
+from hqp_tpm.errors import ParameterError, ScenarioError, SolverFailedError  # noqa: E402
+from hqp_tpm.plants import MujocoPlant, PlantOptions, replay_torques  # noqa: E402
+from hqp_tpm.plants.contact_dynamics import (  # noqa: E402
     ContactInverseDynamics,
     SoleContact,
     cone_margins,
     sole_corners,
 )
-from hqp_tpm.errors import ParameterError, ScenarioError, SolverFailedError  # noqa: E402
-from hqp_tpm.plants import MujocoPlant, PlantOptions, replay_torques  # noqa: E402
 from hqp_tpm.plants.humanoid import ROMEO_SOLES, standing_base, standing_xml  # noqa: E402
 from hqp_tpm.robot.model import Robot  # noqa: E402
 from hqp_tpm.robot.state import State  # noqa: E402

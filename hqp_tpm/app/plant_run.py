@@ -69,8 +69,8 @@ def contact_soles(sc, tasks: dict) -> dict:
 def _standing_plant(ctx: RunContext, config):
     """A :class:`MujocoPlant` on :func:`~hqp_tpm.plants.humanoid.standing_xml` driven by a
     :class:`~hqp_tpm.plants.contact_torque.ContactTorque` law over the scenario's sole tasks."""
-    from hqp_tpm.control.contact_dynamics import ContactInverseDynamics, SoleContact, sole_corners
     from hqp_tpm.plants import MujocoPlant
+    from hqp_tpm.plants.contact_dynamics import ContactInverseDynamics, SoleContact, sole_corners
     from hqp_tpm.plants.contact_torque import ContactTorque
     from hqp_tpm.plants.humanoid import Ground, standing_xml
 

@@ -21,7 +21,7 @@ _DEFAULT = PlantOptions()
 @dataclass(frozen=True)
 class ContactConfig:
     """``[plant] contacts``: a floating base standing on its soles, torques from the contact QP
-    (:class:`~hqp_tpm.control.contact_dynamics.ContactInverseDynamics`)."""
+    (:class:`~hqp_tpm.plants.contact_dynamics.ContactInverseDynamics`)."""
 
     tasks: tuple[str, ...]  # the scenario's frame_pose tasks that hold the soles
     mu: float = 0.7  # the controller's friction coefficient (the linearised cones)

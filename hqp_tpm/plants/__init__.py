@@ -5,7 +5,9 @@ or a joint impedance, and the effects the controller does not model, :class:`Pla
 One concept per module: :mod:`~hqp_tpm.plants.options` (what is simulated), :mod:`~hqp_tpm.plants.mjcf` (the
 MuJoCo model from the robot's URDF), :mod:`~hqp_tpm.plants.conventions` (free-joint conventions),
 :mod:`~hqp_tpm.plants.joint_map` (joints by name), :mod:`~hqp_tpm.plants.frames` (a frame's MuJoCo body),
-:mod:`~hqp_tpm.plants.torque` (command -> torque), :mod:`~hqp_tpm.plants.mujoco_plant` (the loop),
+:mod:`~hqp_tpm.plants.torque` (command -> torque),
+:mod:`~hqp_tpm.plants.contact_dynamics` (torques and contact forces of a floating base on rigid contacts),
+:mod:`~hqp_tpm.plants.mujoco_plant` (the loop),
 :mod:`~hqp_tpm.plants.replay` (torques replayed with MuJoCo alone), :mod:`~hqp_tpm.plants.distances` (MuJoCo's
 distances against a run's distance field); docs/plant.md. MuJoCo is an optional dependency (``pip install
 hqp-tpm[sim]``), imported when a plant is built.

@@ -1,7 +1,7 @@
 """Torques for a floating base standing on its soles: the contact QP as the plant's torque law.
 
 :class:`ContactTorque` is a torque law of :class:`~hqp_tpm.plants.mujoco_plant.MujocoPlant` (``law(q, v, a*) ->
-tau``): at the measured state it solves :class:`~hqp_tpm.control.contact_dynamics.ContactInverseDynamics` for the
+tau``): at the measured state it solves :class:`~hqp_tpm.plants.contact_dynamics.ContactInverseDynamics` for the
 acceleration closest to the stack's ``a*`` that contact forces inside the friction cones and torques inside the
 limits can produce, and returns those torques (zero on the base's six columns, which no motor drives).
 :meth:`ContactTorque.record` gives a run's per-step channels: the torques' ratio to their limits, the QP's forces
@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hqp_tpm.control.contact_dynamics import ContactInverseDynamics, ContactSolution, cone_margins
+from hqp_tpm.plants.contact_dynamics import ContactInverseDynamics, ContactSolution, cone_margins
 from hqp_tpm.plants.humanoid import contact_forces
 from hqp_tpm.robot.state import State
 
