@@ -1,18 +1,8 @@
 """The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._lean`).
 
-:func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`: each compiles only what it
-calls). Each writes the program's rows (posture: ``b`` of a joint selection; frames: the frame Jacobian from ``data.J``
-with pinocchio's operations, ``log3(R_d R^T)`` within a few ulps of pinocchio's, at order 2 ``J-dot q-dot`` within
-~1e-15: :mod:`hqp_tpm.robot._compiled`) and tests ``J`` and ``b`` for finiteness; :data:`TPM` then runs the kernel
-:func:`hqp_tpm.solvers.tpm.tpm_stacked` would call (the same bits), :data:`SNS` the loop of
-:func:`hqp_tpm.solvers.sns.sns_tpm_stacked` in the box ``lo, up`` of ``buf`` (computed here, :meth:`Program.set_box`,
-or by the caller; its info at the end of ``buf``, :meth:`Program.sns_info`). numba's dispatch cost grows with each
-argument, so a kernel takes five: ``buf`` (``J`` row-major, ``b``, ``x0``, ``x``, the box), the integers (sizes, tasks,
-the address table of the arrays the tasks read) and floats of a :class:`Program`, ``q``, ``v``.
-
-A status other than :data:`SOLVED` hands over to the caller: :data:`NONFINITE_ROWS` (the readable path raises the typed
-error naming the task), :data:`NONFINITE_X`, ``DECLINED``/``UNDECIDED`` (``tpm_stacked``'s numpy reference decides),
-:data:`BOX_HANDED_BACK` (the box's recovery rules), :data:`SNS_HANDED_BACK` (``sns_tpm_stacked``'s numpy path)."""
+:func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`), each compiling only what
+it calls; :class:`Program` packs its arguments. A status other than :data:`SOLVED` hands the step back to the caller
+(the statuses below). Details: docs/architecture.md, "How ctrl.step() runs compiled"."""
 
 from __future__ import annotations
 

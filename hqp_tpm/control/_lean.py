@@ -1,22 +1,6 @@
-"""The lean control step: :meth:`Controller.step`'s numbers for a fixed stack of equality tasks in a few calls.
-
-The readable path (:meth:`hqp_tpm.control.controller.Controller.step`) builds a :class:`~hqp_tpm.control.stack.Stack`,
-one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks them and looks the solver up every step. For a
-*fixed* stack all of that is checked once, in :meth:`LeanStep.of`; a step is then: the state update (only the frames and
-passes the rows read), the tasks' rows written in place into one stacked ``J``, ``b``, one finiteness test, one solve.
-
-With numba (:mod:`hqp_tpm.control._compiled_step`) the tasks that describe their rows
-(:meth:`hqp_tpm.tasks.base.Task.row_source`; :mod:`hqp_tpm.control._task_rows`) are written by one compiled call from
-pinocchio's data and the targets read in place, which also tests ``J`` and ``b`` and, with ``tpm`` or ``sns_tpm`` (in
-the joint limits' box), solves; the other tasks' ``jacobian`` and ``command`` run before it, other solvers after it
-(the registry, on levels that are views of ``J`` and ``b``).
-
-Same numbers as the readable path (``tests/test_lean.py``): to the last bit, except where the kernel computes a rotation
-error (its ``log3`` rounds within a few ulps of pinocchio's) or, at order 2, ``J qd`` and ``J-dot q-dot`` (to 1e-12).
-Supported (else :meth:`LeanStep.of` returns None, :meth:`LeanStep.why_not` says why): a
-:class:`~hqp_tpm.control.policy.FixedStack` without extra commands of equality tasks, no crosscheck, a policy that
-neither updates nor blends. A step whose rows are not finite is handed to the readable path, which raises the typed
-error naming the task."""
+"""The lean step: ``ctrl.step()`` of a fixed stack of equality tasks (:meth:`LeanStep.why_not` says when not), its
+rows, finiteness test and solve in one compiled call where it can. Same numbers as the readable step
+(``tests/test_lean.py``). Details: docs/architecture.md, "How ctrl.step() runs compiled"."""
 
 from __future__ import annotations
 

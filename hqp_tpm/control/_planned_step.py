@@ -1,44 +1,7 @@
-"""The planned step of every shipped policy, of a fixed stack the lean step does not take (e.g. with a pointing
-cone) and of a stack function (``ctrl.step()`` runs it): same numbers as the readable step, fewer objects.
-
-The readable step (:meth:`hqp_tpm.control.controller.Controller.step` with ``record=True``) builds every step a
-:class:`~hqp_tpm.control.stack.Stack`, one validated :class:`~hqp_tpm.solvers.levels.Level` per task, stacks
-them, looks the solver up by name and wraps the result in a ``StepResult``. Two kinds of policy step without that:
-a :class:`PlanningPolicy` (its stack is ``plan(state, t) -> (tasks, extras)``: one task per level, highest first,
-and extra commands by task name; Algorithm 1, the whole-body avoidance) and a :class:`StackPolicy`, a
-:class:`FixedStack` or a :class:`FunctionPolicy` (its stack as ``__call__`` gives it, levels of one or more tasks;
-the switching, admittance and papers/004 policies), solved by
-``tpm`` without a box, ``sns_tpm`` or any other solver (the last through the registry, on the readable step's
-levels made of the rows written here). :class:`PlannedStep`
-does per step:
-
-1. the state update and the policy's :meth:`~hqp_tpm.control.policy.Policy.update` (its distance field, operator);
-2. the plan (or stack), and each task's rows written into one preallocated stacked ``J`` and ``b``: a task whose
-   level is :meth:`Task.level <hqp_tpm.tasks.base.Task.level>` by the compiled rows of its row source
-   (:class:`~hqp_tpm.control._task_rows.TaskProgram`: frame positions, the CoM at velocity level, a posture; the
-   extra command, e.g. Algorithm 1's EE repulsion (30), added in the kernel) or by its ``jacobian`` and
-   ``command``, an :class:`~hqp_tpm.tasks.avoidance.Avoidance` and a :class:`~hqp_tpm.tasks.pointing.Pointing` (an
-   inequality's cone row while ``e > 0``, target = its command) by their row writers (one compiled call each: the
-   numbers of their ``level``); any other task through its level's analytic rows (:meth:`Level.as_equality`, the
-   rows :func:`~hqp_tpm.solvers.levels.stacked` takes; when the box bounds the command's rate, an inequality level
-   is first seen from ``v``: :func:`~hqp_tpm.control.command_rate.shifted`, or a
-   :class:`~hqp_tpm.tasks.avoidance.PairAvoidance`'s ``rows_from(v)``, the same rows in fewer calls);
-3. ``tpm``: one compiled call (:func:`hqp_tpm.control._compiled_step.stacked_kernel`): the finiteness of the rows,
-   ``x0 = -D qd`` at acceleration level (eq. (15) of papers/000), the TPM kernel :func:`tpm` calls and the
-   finiteness of ``x`` (without numba, or where that kernel declines: the same checks in numpy and
-   :func:`~hqp_tpm.solvers.tpm.tpm_stacked`); ``sns_tpm``: the joint limits' box
-   (:class:`~hqp_tpm.control._lean.JointBox`) and :func:`~hqp_tpm.solvers.sns.sns_tpm_stacked` on the rows and the
-   null-space term's level, as the registry adds it, or, when the box bounds the command's rate, on the rows seen
-   from ``v`` as :func:`~hqp_tpm.control.command_rate.solve_around` solves them;
-4. the policy's blend (:meth:`Policy.blend`) with the other stacks solved by the readable step's own calls;
-5. one integration.
-
-The rows, their order and the solver calls are those of the readable step, so the commands and states are equal
-(``tests/test_planned_step.py``: every step of its windows of ``lwr_relaxed``, ``romeo_obstacles_sns_tpm`` and the
-switching, admittance and papers/004 scenarios, within 1e-12; bit for bit where numpy's BLAS sums the compiled row
-writers' 3-vector products in their order, which depends on the CPU). A step whose rows are not finite is handed
-to the readable path, which raises the same typed error naming the task. Transactional like
-:meth:`Controller.step`: on any error the controller and the policy keep their state.
+"""The planned step: ``ctrl.step()`` of every policy that plans (:class:`PlanningPolicy`, :class:`StackPolicy`),
+of a fixed stack the lean step does not take (a pointing cone) and of a stack function. Per step: state update,
+``policy.update``, the plan, the rows written into one stacked ``J``, ``b``, one solve, the blend. Same numbers as
+the readable step (``tests/test_planned_step.py``). Details: docs/architecture.md, "How ctrl.step() runs compiled".
 """
 
 from __future__ import annotations
