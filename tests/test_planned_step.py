@@ -16,7 +16,7 @@ import pytest
 from hqp_tpm.app.build import build
 from hqp_tpm.app.scenario import load
 from hqp_tpm.control._planned_step import PlannedStep
-from hqp_tpm.control.policy import Policy
+from hqp_tpm.control.policy import Policy, StackPolicy
 from hqp_tpm.control.stack import Stack
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
 
@@ -501,3 +501,49 @@ def test_whole_body_avoidance_with_the_cascaded_qp_runs_the_planned_step():
     assert type(fast._compiled_step()) is PlannedStep
     for _ in range(40):
         close(fast.step().command, ref.step(record=True).command)
+
+
+class BlendsAnother(StackPolicy):
+    """A third-party StackPolicy that blends its command with the solution of another stack (as eq. (8) of papers/003
+    blends with the previous stack)."""
+
+    blends = True
+
+    def __init__(self, main: Stack, other: Stack):
+        self.main, self.other = main, other
+
+    def __call__(self, state, t):
+        return self.main
+
+    def tasks(self):
+        return self.main.tasks() + self.other.tasks()
+
+    def blend(self, state, t, stack, x, resolve):
+        return 0.5 * x + 0.5 * resolve(self.other)
+
+
+def test_an_error_in_the_blends_other_solve_names_the_step():
+    """A target so large that its rows are refused, in the stack a policy blends with: the compiled step raises the readable step's error,
+    word for word, the step's ``(step at t = ... from max|q| ...)`` included (the compiled step once left it out),
+    and changes nothing."""
+    from hqp_tpm import FramePosition, Gains, Posture, Robot
+    from hqp_tpm.control.controller import Controller
+
+    robot = Robot.load("iiwa7")
+    q0 = np.deg2rad([0, 30, 0, -60, 0, 90, 0])
+    errors = []
+    for record in (False, True):
+        ee = FramePosition(robot, "iiwa_ee", [-0.3, 0.2, 0.3], Gains(kp=20.0), name="ee")
+        aside = FramePosition(robot, "iiwa_ee", [0.3, 0.2, 0.3], Gains(kp=20.0), name="aside")
+        posture = Posture(robot, q0, Gains(kp=1.0))
+        ctrl = Controller(robot, BlendsAnother(Stack.of(ee, posture), Stack.of(aside, posture)), q0=q0)
+        assert type(ctrl._compiled_step()) is PlannedStep
+        for _ in range(5):
+            ctrl.step(record=record)
+        q, t = ctrl.q.copy(), ctrl.t
+        aside.target = [1e160, 0.2, 0.3]  # (finite, accepted; its rows too large: MagnitudeError)
+        with pytest.raises(NonFiniteError, match="aside") as info:
+            ctrl.step(record=record)
+        assert ctrl.t == t and np.array_equal(ctrl.q, q)
+        errors.append(str(info.value))
+    assert errors[0] == errors[1] and " (step at t = " in errors[0]

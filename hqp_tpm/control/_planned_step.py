@@ -15,7 +15,7 @@ from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
 from hqp_tpm.control.policy import FixedStack, FunctionPolicy, PlanningPolicy, Policy, StackPolicy
 from hqp_tpm.control.stack import Stack, merge_levels
 from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
-from hqp_tpm.errors import SolverFailedError
+from hqp_tpm.errors import NonFiniteError, SolverFailedError
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
@@ -216,11 +216,14 @@ class PlannedStep(CompiledStep):
         x0 = ctrl.null_space_term(ctrl._v)
 
         def resolve(other: Stack) -> np.ndarray:
-            levels = other.to_levels(st, t, self.order)
-            if self.rate:
-                return solve_around(ctrl.solver, levels, n, ctrl._v, box, lambda_max=self.lambda_max, eps=self.eps,
-                                    solve=solve)[0]
-            return solve(ctrl.solver, levels, n, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)[0]
+            try:
+                levels = other.to_levels(st, t, self.order)
+                if self.rate:
+                    return solve_around(ctrl.solver, levels, n, ctrl._v, box, lambda_max=self.lambda_max,
+                                        eps=self.eps, solve=solve)[0]
+                return solve(ctrl.solver, levels, n, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)[0]
+            except NonFiniteError as exc:  # named as the readable step names it (Controller._compute)
+                raise type(exc)(f"{exc}{ctrl._where()}") from exc
 
         stack = self._stack if self._stack is not None else Stack([(task,) for task in self.tasks], self._extras)
         x = self.policy.blend(st, t, stack, x, resolve)
