@@ -1,15 +1,7 @@
-"""Compiled (numba) kernels of the lean step's arithmetic around pinocchio (private; :mod:`hqp_tpm.control._lean`).
-
-One call each instead of 10-30 small numpy calls: the joint box of :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (the
-common case of a state inside its limits; else False, and the caller uses ``BoxLimits``), the integration, target
-checks and copies; for the fused step (:mod:`hqp_tpm.control._compiled_step`) a frame's placement, its Jacobian from
-the joint Jacobians, ``J-dot q-dot`` and its rotation error ``log3(R_d R^T)``. Every kernel does the readable code's
-(or pinocchio's) floating-point operations in the same order (no fast-math, no contraction): the same bits
-(``tests/test_lean.py``, ``tests/test_frame_kernels.py``), except :func:`log3` (within a few ulps of pinocchio's) and
-:func:`frame_jdot_qdot` (~1e-15).
-
-Used when :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off; this module's :data:`ENABLED` and :data:`AVAILABLE`
-are that one switch); :mod:`hqp_tpm._jit` compiles them on a process's first call or loads them from its disk cache."""
+"""Compiled (numba) kernels of the robot layer (private): joint boxes, integration, target checks and copies, a
+frame's placement, Jacobian, ``J-dot q-dot`` and rotation error. Each does the readable code's (or pinocchio's)
+operations in the same order: the same bits, except :func:`log3` and :func:`frame_jdot_qdot` (~1e-15).
+Switched by :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off). Details: docs/internals.md#robot-kernels."""
 
 from __future__ import annotations
 
@@ -23,10 +15,8 @@ from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (
 
 @_njit
 def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a joint's position box
-    is empty (the recovery rules: the caller computes the box with ``BoxLimits``).
-
-    ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt`` (finite limits, ``a_max > 0``)."""
+    """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a position box is
+    empty (recovery: the caller uses ``BoxLimits``). ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``."""
     for j in range(P.shape[1]):
         qj = q[idx[0, j]]
         q_min, q_max, v_max, two_a = P[0, j], P[1, j], P[2, j], P[4, j]
@@ -46,9 +36,7 @@ def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
 
 @_njit
 def velocity_rate_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.velocity_box(q, dq=v)`` (the discrete braking term, then the command-rate bound ``v +- a_max dt``;
-    ``P[5] = a_max dt > 0``) into ``lo[idx[1]]``, ``up[idx[1]]``, the same operations; False if a joint's position box
-    is empty."""
+    """``BoxLimits.velocity_box(q, dq=v)`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a position box is empty."""
     for j in range(P.shape[1]):
         c = idx[1, j]
         qj = q[idx[0, j]]
@@ -74,7 +62,7 @@ def velocity_rate_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
 @_njit
 def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
     """``BoxLimits.acceleration_box`` at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False for a
-    state outside its viable set or an empty position box (the caller then uses ``BoxLimits``)."""
+    state outside its viable set or an empty position box."""
     for j in range(P.shape[1]):
         c = idx[1, j]
         qj, dq = q[idx[0, j]], v[c]
@@ -107,8 +95,8 @@ def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
 
 @_njit
 def euclidean_step(q, v, a, dt, order, q_next, v_next):  # pragma: no cover - compiled
-    """:meth:`State.integrate` on a Euclidean configuration space (``pin.integrate`` is ``q + dq`` there), entry by
-    entry: order 1 ``q + a dt`` and ``a``; order 2 ``q + (v dt + a dt^2 / 2)`` and ``v + a dt``."""
+    """:meth:`State.integrate` where ``pin.integrate`` is ``q + dq``: order 1 ``q + a dt``, ``a``; order 2
+    ``q + (v dt + a dt^2 / 2)``, ``v + a dt``."""
     for i in range(q.shape[0]):
         if order == 1:
             q_next[i] = q[i] + a[i] * dt
@@ -120,11 +108,8 @@ def euclidean_step(q, v, a, dt, order, q_next, v_next):  # pragma: no cover - co
 
 @_njit
 def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
-    """``pin.updateFramePlacement``: ``oMf = oMi * placement`` of a frame into pinocchio's own arrays, ``R_f = R_i R_p``
-    (``RfT`` its transposed view) and ``p = R_i p_p + p_i``, from its parent joint's placement (``RiT = R_i^T``, ``pi``:
-    views) and its placement in that joint (``P``: the rows of ``R_p``, then ``p_p``); Eigen's sums as the pinocchio
-    wheels compute them (rows 0 and 1 in one SIMD packet, ``(t0 + t1) + t2``; row 2 alone, ``t0 + (t1 + t2)``): the same
-    bits with pinocchio 3.4, 3.8 and 4.1 (``tests/test_frame_kernels.py``)."""
+    """``pin.updateFramePlacement``: ``R_f = R_i R_p`` into ``RfT`` (transposed) and ``p = R_i p_p + p_i``, from the
+    parent joint's ``RiT = R_i^T``, ``pi`` and ``P`` (rows of ``R_p``, then ``p_p``), with Eigen's order of sums."""
     for a in range(3):
         r0, r1, r2 = RiT[0, a], RiT[1, a], RiT[2, a]
         if a < 2:
@@ -139,10 +124,8 @@ def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
 
 @_njit
 def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
-    """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into ``S`` (6 x nv), from the joint
-    Jacobians ``JT = data.J.T`` (nv x 6, world frame) on the columns ``cols`` that support the frame, as pinocchio's
-    ``translateJointJacobian``: ``linear = v - p x omega``, ``angular = omega`` (Eigen's cross product, term by term);
-    the other columns of ``S`` are not written (zero)."""
+    """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into ``S`` (6 x nv, other columns not
+    written) from ``JT = data.J.T`` on the supporting columns ``cols``: linear ``v - p x omega``, angular ``omega``."""
     p0, p1, p2 = p[0], p[1], p[2]
     for c in cols:
         a0, a1, a2 = JT[c, 3], JT[c, 4], JT[c, 5]
@@ -156,14 +139,10 @@ def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
 
 @_njit
 def frame_jdot_qdot(JT, cols, ends, v, p, jdq):  # pragma: no cover - compiled
-    """``jdq <- J-dot q-dot`` of a frame at ``p`` (world-aligned, as ``pin.getFrameClassicalAcceleration(...,
-    LOCAL_WORLD_ALIGNED)`` after a forward pass with zero ``q-ddot``) from the joint Jacobians ``JT = data.J.T`` (nv x
-    6, world frame at the world origin) and ``v``, without pinocchio's velocity pass: along the supporting columns
-    ``cols`` (root first; ``ends[i]`` 1 where column ``cols[i]`` is its joint's last), with ``V`` the parent body's
-    spatial velocity and ``V_J`` the joint's (world), the spatial acceleration is ``A = sum V x V_J`` (a joint's motion
-    subspace constant in its child frame), and the frame's classical acceleration ``[a + alpha x p + w x (u + w x p),
-    alpha]`` (``V = [u, w]``, ``A = [a, alpha]``). Rounds otherwise than pinocchio's recursion (within ~1e-15 relative:
-    :func:`hqp_tpm.robot.state.verify_source`)."""
+    """``jdq <- J-dot q-dot`` of a frame at ``p`` (``pin.getFrameClassicalAcceleration(..., LOCAL_WORLD_ALIGNED)`` at
+    zero ``q-ddot``) from ``JT = data.J.T`` and ``v`` on the supporting columns ``cols`` (root first; ``ends[i]`` 1 at
+    a joint's last column), without a velocity pass: ``A = sum V x V_J``, then ``[a + alpha x p + w x (u + w x p),
+    alpha]`` (``V = [u, w]``, ``A = [a, alpha]``)."""
     u0 = u1 = u2 = w0 = w1 = w2 = 0.0           # the parent body's velocity V = [u, w]
     j0 = j1 = j2 = k0 = k1 = k2 = 0.0           # the joint's velocity V_J = [j, k] (its columns summed)
     a0 = a1 = a2 = b0 = b1 = b2 = 0.0           # A = [a, b]
@@ -268,10 +247,8 @@ def _theta_axis(i0, val, R, axis):  # pragma: no cover - compiled
 
 @_njit
 def log3(M, w):  # pragma: no cover - compiled
-    """``w <- pin.log3(M)`` for a rotation matrix ``M`` (3 x 3): pinocchio's ``log3_impl`` (3.x) step by step
-    (renormalized columns, ``acos`` of the trace, its expansions near 0 and pi, at pi the axis of the largest ``2 R_ii -
-    tr + 1``). Not bit-identical to pinocchio (its sums may round otherwise): equal to ~1e-15 away from pi
-    (``tests/test_frame_kernels.py``)."""
+    """``w <- pin.log3(M)`` for a rotation matrix ``M`` (3 x 3): pinocchio's ``log3_impl`` (3.x) step by step (within
+    a few ulps of it)."""
     R = np.empty((3, 3))
     n0 = math.sqrt(M[0, 0] * M[0, 0] + M[1, 0] * M[1, 0] + M[2, 0] * M[2, 0])
     n1 = math.sqrt(M[0, 1] * M[0, 1] + M[1, 1] * M[1, 1] + M[2, 1] * M[2, 1])
@@ -307,8 +284,8 @@ def log3(M, w):  # pragma: no cover - compiled
 
 @_njit
 def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
-    """``w <- log3(R_d R^T)`` (a frame's rotation error, as the frame tasks' ``pin.log3(R_d.dot(R.T))``) from the
-    transposed rotations ``RdT = R_d^T``, ``RT = R^T`` (row-major views of pinocchio's column-major matrices)."""
+    """``w <- log3(R_d R^T)`` (the frame tasks' rotation error) from ``RdT = R_d^T``, ``RT = R^T`` (row-major views of
+    pinocchio's column-major matrices)."""
     E = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
@@ -317,8 +294,8 @@ def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
 
 
 def typed(kernel, *args):
-    """``kernel``'s compiled code for the types of ``args`` (the switch on), called without numba's per-call type
-    dispatch (~0.1 us less a call): only for arguments always of these types."""
+    """``kernel``'s compiled code for the types of ``args``, called without numba's per-call type dispatch (only for
+    arguments always of these types)."""
     return kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
 
 

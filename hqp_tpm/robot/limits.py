@@ -1,8 +1,5 @@
-"""Joint limits of a robot as a per-step box on the command (joint velocity or acceleration).
-
-The box covers every velocity column; free-flyer columns are unbounded. Position limits look
-one period ahead and keep a braking margin (:mod:`hqp_tpm.robot.joint_boxes`).
-"""
+"""Joint limits of a robot as a per-step box on the command (joint velocity or acceleration); details:
+docs/internals.md#joint-limits."""
 
 from __future__ import annotations
 
@@ -16,20 +13,12 @@ from hqp_tpm.robot.state import State
 
 
 class JointLimits:
-    """``box(state, t) -> (lower, upper)`` for the controller (velocity level: on qd; acceleration: on qdd).
+    """``box(state, t) -> (lower, upper)`` for the controller: on ``qd`` (``order`` 1) or ``qdd`` (2), one entry per
+    velocity column (free-flyer columns unbounded); another order raises :class:`ParameterError`.
 
-    :meth:`reference_box` computes it with :class:`~hqp_tpm.robot.joint_boxes.BoxLimits`; a call takes one compiled
-    kernel instead where numba is available (:func:`hqp_tpm.robot._compiled.velocity_box`, ``acceleration_box``: the
-    same operations, the same bits, ``tests/test_lean.py``), for joints with finite position limits and ``a_max > 0``
-    inside their viable set; any other case (the recovery rules) is :meth:`reference_box`'s.
-
-    ``command_rate`` (velocity level only): the box also bounds the command's change from the previous step,
-    ``v +- a_max dt`` with ``v`` the state's velocity (the previous command), and its braking term is the discrete
-    one (:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.velocity_box` with ``dq``), so the two intersect for every
-    command the previous box allowed; where they do not (a state that starts too fast) the position and velocity
-    limits take precedence (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`). Off (the default), the box is
-    papers/002's: position and velocity limits only.
-    At acceleration level the box already bounds the command (``|qdd| <= a_max``).
+    ``command_rate`` (order 1 only, else :class:`ParameterError`): the box also bounds the change from the previous
+    command, ``v +- a_max dt`` (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`); off (the default) it is
+    papers/002's box, position and velocity limits only. At order 2 the box bounds the command (``|qdd| <= a_max``).
     """
 
     def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
@@ -41,7 +30,7 @@ class JointLimits:
             raise ParameterError(f"command_rate = {command_rate!r} needs order 1 (velocity level), got order "
                                  f"{order!r}: at acceleration level the box bounds the command itself (|qdd| <= a_max)")
         self.robot, self.order, self.dt = robot, order, float(dt)
-        #: the box also bounds the command's change from the previous step (velocity level, ``a_max dt``)
+        #: the box also bounds the command's change from the previous step (``a_max dt``)
         self.command_rate = bool(command_rate)
         m = robot.model
         self.cols = np.array([m.joints[j].idx_v for j in range(1, m.njoints) if m.joints[j].nv == 1], dtype=int)
@@ -72,10 +61,8 @@ class JointLimits:
         return self.reference_box(state)
 
     def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> bool:
-        """The box at ``(q, v)`` by the compiled kernel into ``lo``, ``up`` (their limited columns; with
-        ``command_rate`` intersected with ``v +- a_max dt``); False when it
-        cannot (numba off, an infinite limit or ``a_max <= 0``, or a case for the recovery rules: then
-        :meth:`reference_box`)."""
+        """The box at ``(q, v)`` by the compiled kernel into ``lo``, ``up`` (their limited columns); False when it
+        cannot (numba off, an infinite limit or ``a_max <= 0``, a recovery case: then :meth:`reference_box`)."""
         P = self.kernel_limits
         if P is None or not _compiled.ENABLED:
             return False
@@ -86,7 +73,7 @@ class JointLimits:
         return _compiled.acceleration_box(q, v, P, self.kernel_indices, self.limits.dt, lo, up)
 
     def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
-        """The box by :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (the readable formulas, recovery rules included)."""
+        """The box by :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (recovery rules included)."""
         q = state.q[self.qidx]  # the state's q, v are finite and of the right sizes
         if self.order == 1:
             lo, up = self.limits.velocity_box(q, state.v[self.cols] if self.command_rate else None)

@@ -119,10 +119,8 @@ class Robot:
                                  f"{', '.join(erd_names)}") from exc
 
     def reduced(self, keep, q_ref=None, name: str = "") -> Robot:
-        """The robot with every 1-DOF joint not in ``keep`` locked at ``q_ref`` (default: neutral).
-
-        The free-flyer (if any) is kept. Geometry models are reduced along.
-        """
+        """The robot with every 1-DOF joint not in ``keep`` locked at ``q_ref`` (default: neutral); the free-flyer and
+        the geometry models are kept (reduced along)."""
         model = self.model
         names = [model.names[j] for j in range(1, model.njoints)]
         unknown = [k for k in keep if k not in names]

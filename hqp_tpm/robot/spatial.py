@@ -1,10 +1,5 @@
-"""Small 3-D vector helpers (numpy's general versions cost ~10x more at this size).
-
-They work on Python floats (``ndarray.tolist()``): the same IEEE products and sums as numpy's
-elementwise operations, without numpy's per-call overhead on 3-vectors. For the same reason the
-per-step matrix-vector products are written ``A.dot(x)``: the same BLAS call as ``A @ x`` (equal
-to the last bit, tested) at about a third of its call overhead.
-"""
+"""Small 3-D vector helpers on Python floats: numpy's IEEE products and sums without its per-call overhead (numpy's
+general versions cost ~10x more at this size). Details: docs/internals.md#spatial."""
 
 from __future__ import annotations
 
@@ -28,11 +23,8 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def rotation_z_to(axis) -> np.ndarray:
-    """A rotation whose z column is ``axis/|axis|`` (``pin.Quaternion.FromTwoVectors``).
-
-    ``FromTwoVectors`` loses accuracy for nearly opposite vectors (1e-6 at 1e-5 rad from -z), so an axis
-    pointing down is handled as the rotation to ``-axis`` followed by a half turn about x.
-    """
+    """A rotation whose z column is ``axis/|axis|`` (``pin.Quaternion.FromTwoVectors``; an axis pointing down as the
+    rotation to ``-axis`` and a half turn about x: ``FromTwoVectors`` loses accuracy near opposite vectors)."""
     a = np.asarray(axis, dtype=float)
     if a[2] >= 0.0:
         return pin.Quaternion.FromTwoVectors(_EZ, a).matrix()

@@ -1,8 +1,8 @@
 """One state update per control step: kinematics, Jacobians and J-dot q-dot computed once.
 
-:meth:`State.update` runs pinocchio's second-order forward kinematics with zero joint acceleration, so the classical
-acceleration of any frame *is* its ``J-dot q-dot``; joint Jacobians are computed in the same pass. Frame quantities and
-the centre of mass are then read lazily and cached until the next update, so tasks never recompute kinematics."""
+:meth:`State.update` runs the forward kinematics with zero joint acceleration (a frame's classical acceleration is then
+its ``J-dot q-dot``) and the joint Jacobians; frame and CoM quantities are read lazily, cached until the next update.
+Details: docs/internals.md#state."""
 
 from __future__ import annotations
 
@@ -49,7 +49,7 @@ class State:
         self._cache: dict = {}
         self._partial = False
         self._joint_jacobians_T = None  # data.J.T (frame_jacobian_source)
-        self._verified: dict = {}  # (what, frame): the kernels' reads of pinocchio's memory checked (verify_source)
+        self._verified: dict = {}  # (what, frame) -> verify_source's answer
         self.updates = 0
         self._com_update = -1  # the update whose positions gave pinocchio's CoM and CoM Jacobian (update_positions)
         #: every joint adds its velocity to its configuration (``pin.integrate`` is ``q + dq``): see :meth:`integrate`
@@ -87,12 +87,9 @@ class State:
     def update(self, q, v, t: float = 0.0, *, validate: bool = True, frames=None, velocities: bool = True) -> State:
         """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
 
-        ``validate=False`` skips :meth:`check` for arrays the library made and checked itself (the controller's ``q``,
-        ``v``): float vectors of the right sizes, finite, not modified afterwards.
-
-        The lean step (:mod:`hqp_tpm.control._lean`) may ask for less: ``frames`` (frame ids) places only those frames,
-        ``velocities=False`` runs the position pass only. The rest is then computed by the first method of this class
-        that needs it (reading ``state.data`` directly sees only what was asked)."""
+        ``validate=False`` skips :meth:`check` (arrays the library checked itself). ``frames`` (frame ids) places only
+        those frames, ``velocities=False`` runs the position pass only; the first method that needs the rest computes
+        it (``state.data`` read directly holds only what was asked)."""
         if validate:
             q, v = self.check(q, v)
         self.q, self.v, self.t = q, v, float(t)
@@ -113,9 +110,8 @@ class State:
         return self
 
     def update_positions(self, q, v, t: float, frames, com: bool = False) -> State:
-        """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations (the lean
-        step's, every step; ``t`` a float). ``com``: also the CoM and its Jacobian (:meth:`com_views`) in the same
-        pass (``jacobianCenterOfMass`` from ``q``: ``computeJointJacobians``' bits, ``tests/test_lean.py``)."""
+        """``update(q, v, t, validate=False, frames=frames, velocities=False)`` in fewer Python operations; ``com``:
+        also the CoM and its Jacobian (:meth:`com_views`) in the same pass."""
         self.q, self.v, self.t = q, v, t
         if com:
             pin.jacobianCenterOfMass(self.model, self.data, q, False)
@@ -174,20 +170,17 @@ class State:
         return pin.getFrameVelocity(self.model, self.data, fid, LWA).vector
 
     def frame_views(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """Position and rotation of frame ``fid`` as views of pinocchio's data, updated in place by every :meth:`update`
-        (for the lean step's row writers); None if this pinocchio returns copies."""
+        """Position and rotation of frame ``fid`` as views of pinocchio's data (updated in place by every
+        :meth:`update`); None if this pinocchio returns copies."""
         M = self.data.oMf[fid]
         views = M.translation, M.rotation
         again = self.data.oMf[fid]
         return views if _same_memory(views, (again.translation, again.rotation)) else None
 
     def frame_placement_source(self, fid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(RiT, pi, P, RfT)``: the parent joint's placement as views of pinocchio's data (rotation transposed,
-        translation), the frame's placement in that joint (``P``, 4 x 3: the rows of its rotation, then its translation)
-        and a view of the frame's rotation transposed, from which the lean step's kernel places the frame as
-        ``pin.updateFramePlacement`` (:func:`hqp_tpm.robot._compiled.frame_placement`; its translation is
-        :meth:`frame_views`'); None if this pinocchio returns copies or that kernel on such views is not
-        ``pin.updateFramePlacement`` to the bit (:func:`verify_source`)."""
+        """``(RiT, pi, P, RfT)`` for ``_compiled.frame_placement``: views of the parent joint's rotation (transposed)
+        and translation, the frame's placement in that joint (``P``, 4 x 3: rotation rows, then translation) and a view
+        of the frame's rotation transposed; None if this pinocchio returns copies or :func:`verify_source` fails."""
         model, data = self.model, self.data
         frame = model.frames[fid]
         Mi, Mf = data.oMi[frame.parentJoint], data.oMf[fid]
@@ -202,11 +195,9 @@ class State:
         return RiT, pi, P, RfT
 
     def frame_jacobian_source(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(JT, cols)``: the joint Jacobians ``data.J`` transposed (a view, ``nv x 6``, world frame, refreshed by
-        every :meth:`update`) and the columns that support frame ``fid``, from which the lean step's kernel writes the
-        frame Jacobian (:func:`hqp_tpm.robot._compiled.frame_jacobian`); None if this pinocchio returns a copy of
-        ``data.J``, the model has mimic joints, or that kernel on such a view is not ``getFrameJacobian`` to the bit
-        (:func:`verify_source`; then ``getFrameJacobian`` is called)."""
+        """``(JT, cols)`` for ``_compiled.frame_jacobian``: a view of ``data.J.T`` (``nv x 6``, world frame) and the
+        columns that support frame ``fid``; None if this pinocchio returns a copy, the model has mimic joints or
+        :func:`verify_source` fails."""
         model, data = self.model, self.data
         if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
             return None
@@ -221,19 +212,15 @@ class State:
         return JT, _cols(model, fid)
 
     def frame_jdot_source(self, fid: int) -> np.ndarray | None:
-        """``ends`` (``ends[i]`` 1 where column ``i`` of :meth:`frame_jacobian_source`'s ``cols`` is its joint's last),
-        from which the lean step's kernel computes frame ``fid``'s ``J-dot q-dot`` from the joint Jacobians and ``qd``
-        (:func:`hqp_tpm.robot._compiled.frame_jdot_qdot`: no velocity pass); None where that source is None or the
-        kernel is not ``pin.getFrameClassicalAcceleration`` to :data:`JDOT_TOLERANCE` on a probe state
-        (:func:`verify_source`: e.g. a joint whose motion subspace changes with ``q``)."""
+        """``ends`` for ``_compiled.frame_jdot_qdot`` (``ends[i]`` 1 where column ``cols[i]`` of
+        :meth:`frame_jacobian_source` is its joint's last); None where that source is None or :func:`verify_source`
+        fails (e.g. a joint whose motion subspace changes with ``q``)."""
         if self.frame_jacobian_source(fid) is None or not self._verified_source("jdot", fid):
             return None
         return _ends(self.model, fid)
 
     def _verified_source(self, what: str, fid: int) -> bool:
-        """Does the fused step's reading of pinocchio's memory by address reproduce pinocchio's own API for frame
-        ``fid`` (checked once per state and frame: :func:`verify_source`)? If not, the source methods return None and
-        the tasks call pinocchio's API each step."""
+        """:func:`verify_source`, once per state and frame."""
         key = (what, fid)
         ok = self._verified.get(key)
         if ok is None:
@@ -242,17 +229,15 @@ class State:
 
     # -- centre of mass --------------------------------------------------------------------------
     def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
-        """CoM, CoM Jacobian and CoM J-dot q-dot as views of pinocchio's data, filled by :meth:`com_kinematics` (for the
-        lean step's row writers); None if this pinocchio returns copies."""
+        """CoM, CoM Jacobian and CoM J-dot q-dot as views of pinocchio's data, filled by :meth:`com_kinematics`; None
+        if this pinocchio returns copies."""
         d = self.data
         views = d.com[0], d.Jcom, d.acom[0]
         return views if _same_memory(views, (d.com[0], d.Jcom, d.acom[0])) else None
 
     def com_kinematics(self, order: int) -> None:
-        """Fill :meth:`com_views` from the kinematics of :meth:`update`: the CoM and its Jacobian, and at ``order`` 2
-        first its J-dot q-dot (the same calls, in the same order, as :meth:`com`). At order 1 nothing when this update
-        computed them (:meth:`update_positions` with ``com``): every other path here ends with the same
-        ``jacobianCenterOfMass`` on the same joint placements, so pinocchio holds these numbers whichever ran."""
+        """Fill :meth:`com_views` from this update's kinematics (at ``order`` 2 also the CoM J-dot q-dot), with the
+        calls of :meth:`com`; at order 1 nothing if :meth:`update_positions` computed them."""
         if order == 1 and self._com_update == self.updates:
             return
         if order == 2:
@@ -318,17 +303,10 @@ JDOT_TOLERANCE = 1e-12
 
 
 def verify_source(model, what: str, fid: int) -> bool:
-    """Check, on a fresh ``data`` of ``model`` and a probe configuration, what the fused step
-    (:mod:`hqp_tpm.control._compiled_step`) assumes when it reads and writes pinocchio's memory by address for frame
-    ``fid``: views of ``data`` taken *before* pinocchio updates it hold pinocchio's new values after (they are its
-    storage, not copies), and the kernels computed from them are pinocchio's API to the bit.
-
-    ``what``: ``"jacobian"``, :func:`~hqp_tpm.robot._compiled.frame_jacobian` from ``data.J.T`` equals
-    ``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)``; ``"placement"``,
-    :func:`~hqp_tpm.robot._compiled.frame_placement` from the parent joint's placement equals
-    ``pin.updateFramePlacement``, and writes through the views of ``data.oMf[fid]`` are what pinocchio's
-    ``data.oMf[fid]`` then reads; ``"jdot"``, :func:`~hqp_tpm.robot._compiled.frame_jdot_qdot` equals
-    ``pin.getFrameClassicalAcceleration(..., LOCAL_WORLD_ALIGNED)`` to :data:`JDOT_TOLERANCE` (every joint moving)."""
+    """Whether the compiled step may read and write pinocchio's memory by address for frame ``fid``: on a fresh
+    ``data`` and a probe configuration, views taken before an update hold its values after, and the kernel ``what``
+    (``"jacobian"``, ``"placement"`` or ``"jdot"``) gives pinocchio's numbers (to the bit; ``"jdot"`` to
+    :data:`JDOT_TOLERANCE`). Details: docs/internals.md#state."""
     data = model.createData()
     frame = model.frames[fid]
     try:

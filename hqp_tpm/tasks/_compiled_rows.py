@@ -1,14 +1,5 @@
-"""Compiled (numba) row writers of the pointing (19), (21) and 1-D avoidance (29) tasks (private;
-the planned step).
-
-Each kernel writes a task's row ``J`` and right-hand side ``b`` with the floating-point operations of the readable
-:meth:`Pointing.jacobian <hqp_tpm.tasks.pointing.Pointing.jacobian>` / :meth:`~hqp_tpm.tasks.base.Task.command`
-and :class:`~hqp_tpm.tasks.avoidance.Avoidance` in the same order: numpy's small dot products (3-vectors,
-``1 x 3`` by ``3 x n``, ``1 x n`` by ``n``) sum left to right here. Where the CPU's BLAS kernel sums in that order
-too the results are the same to the last bit; elsewhere they are a few ulps apart (``tests/test_planned_step.py``
-compares them with the readable tasks within 1e-12 on random states and every step of a run).
-
-Switched with the other kernels: :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off).
+"""Compiled (numba) row writers of the pointing (19), (21) and 1-D avoidance (29) tasks (private; the planned step),
+with the readable tasks' operations in the same order. Details: docs/internals.md#task-rows.
 """
 
 from __future__ import annotations
@@ -30,12 +21,9 @@ def _cross(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
 
 @_njit
 def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order, limit):  # pragma: no cover - compiled
-    """The pointing row (19) and its command into ``J`` (1 x n) and ``b`` (1); returns the error ``e`` (21).
-    ``limit``: the row's ``drift_limit`` (inf: none): the drift is added back while ``jdq^2 > limit^2 ||J||^2``.
-
-    ``R`` the frame's rotation (its z column is ``z_e``), ``Jf`` its 6 x n world-aligned Jacobian, ``vel`` and
-    ``acc`` its 6-vector velocity and ``J̇ q̇`` (linear, angular; order 2), ``(x_d, xd, xdd)`` the reference,
-    ``v`` the joint velocity: ``J = (z_e x z_d)^T J_O``, ``e = x_d - z_d^T z_e`` and :meth:`Task.command`.
+    """The pointing row (19) ``J = (z_e x z_d)^T J_O`` and its command into ``J`` (1 x n) and ``b`` (1); returns the
+    error ``e = x_d - z_d^T z_e`` (21). ``R`` the frame's rotation, ``Jf`` its 6 x n Jacobian, ``vel``, ``acc`` its
+    velocity and ``J̇ q̇`` (order 2), ``(x_d, xd, xdd)`` the reference, ``limit`` the ``drift_limit`` (inf: none).
     """
     z0, z1, z2 = R[0, 2], R[1, 2], R[2, 2]
     c0, c1, c2 = _cross(z0, z1, z2, z_d[0], z_d[1], z_d[2])

@@ -1,15 +1,8 @@
 """Collision avoidance tasks: papers/000's 1-D relaxed (29) and 3-D (28), and the whole-body pairs' one-sided rows.
 
-The avoided pair (robot point, obstacle) changes from step to step, so the policy that owns
-the distance field calls :meth:`Avoidance.assign` each step with the witness point's
-Jacobian ``J_c``, its ``Jdot_c qd``, the repulsion direction ``n`` and magnitude ``r``:
-
-* 1-D (29): ``J_n = n^T J_c``, command ``r - n^T Jdot_c qd`` (acceleration level) or ``r``
-  (velocity level): push the point towards any point of a plane orthogonal to ``n``.
-* 3-D (28): ``J_c``, command ``r n - Jdot_c qd`` (or ``r n``).
-
-:class:`PairAvoidance` is the whole-body policy's (:mod:`hqp_tpm.policies.whole_body`): one row
-``n_k^T J_k qd >= lower_k`` per avoided pair, a one-sided inequality level, assigned every step.
+The policy calls :meth:`Avoidance.assign` every step with the witness point's ``J_c``, ``Jdot_c qd``, the repulsion
+direction ``n`` and magnitude ``r``. 1-D (29): ``J = n^T J_c``, command ``r`` (velocity level) or
+``r - n^T Jdot_c qd`` (acceleration level); 3-D (28): ``J = J_c``, command ``r n`` or ``r n - Jdot_c qd``.
 """
 
 from __future__ import annotations
@@ -52,8 +45,7 @@ class Avoidance(Task):
 
     def assign_pair(self, field, data, element: int, obstacle: int, normal: np.ndarray, magnitude: float) -> None:
         """:meth:`assign` of pair (element, obstacle) of a :class:`~hqp_tpm.geometry.distances.DistanceField`
-        updated on ``data``: ``J_c`` and ``J̇_c q̇`` are its :meth:`~DistanceField.jacobian` and
-        :meth:`~DistanceField.jdot_qdot`, computed on first use (the 1-D row writer reads the pair in one call)."""
+        updated on ``data`` (its ``J_c`` and ``J̇_c q̇`` computed on first use)."""
         self._pair = (field, data, element, obstacle)
         self._J_c = self._jdqd_c = None
         self.normal = np.asarray(normal, dtype=float)
@@ -92,9 +84,8 @@ class Avoidance(Task):
         return Level(self.jacobian(state), self.command(state, t, order), name=self.name, defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """``write(t)``: the rows of :meth:`jacobian` and :meth:`command` for the pair assigned at call time,
-        written into ``J`` (dim x n) and ``b`` (dim), the same numbers (1-D: one compiled call). For the planned
-        step."""
+        """``write(t)``: the rows of :meth:`jacobian` and :meth:`command` for the pair assigned at call time into
+        ``J`` (dim x n) and ``b`` (dim), the same numbers (1-D: one compiled call). For the planned step."""
         def write(t: float) -> None:
             pair = self._pair
             if self.dim == 1 and _compiled.ENABLED and pair is not None and self._J_c is None:
@@ -110,7 +101,8 @@ class Avoidance(Task):
 
 
 class PairAvoidance(Task):
-    """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair), rebuilt by the policy every step."""
+    """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair, a one-sided inequality level), assigned by the
+    whole-body policy every step."""
 
     dim = 0
 
@@ -148,10 +140,9 @@ class PairAvoidance(Task):
         return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name, defer_finite=True)
 
     def rows_from(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(J_a, lower_a - J_a v)``: the rows of :meth:`level` seen from ``v`` that the analytic solvers keep (those
-        with ``lower - J v > 0``), what ``command_rate.shifted(level, v).as_equality()`` gives, the same numbers in
-        fewer calls; None when ``J`` or ``lower`` would fail the level's checks (then that path raises the typed
-        error naming the level)."""
+        """``(J_a, lower_a - J_a v)``: the rows of :meth:`level` seen from ``v`` with ``lower - J v > 0``, as
+        ``command_rate.shifted(level, v).as_equality()`` in fewer calls; None if ``J`` or ``lower`` would fail the
+        level's checks (that path raises the error)."""
         J = self.J
         if not MIN_SUMSQ <= sumsq(J) <= MAX_SUMSQ or math.isnan(sumsq(self.lower)):
             return None

@@ -22,10 +22,7 @@ from hqp_tpm.solvers.levels import Level
 def tracking_command(order: int, e, xd, xdd, rate, jdq, kp: float, kd: float):
     """The task's right-hand side ``b`` from its error ``e = x_d - x``: ``xd + kp e`` (eq. (7) of papers/000, order
     1) or ``xdd + kd (xd - J qd) + kp e - Jdot qd`` (eq. (12), order 2; ``rate = J qd``, ``jdq = Jdot qd``).
-
-    The one home of the tracking law: :meth:`Task.command` calls it on arrays, the compiled row kernels
-    (:mod:`hqp_tpm.tasks._compiled_rows`, :mod:`hqp_tpm.control._compiled_step`) on each row's scalars, with the
-    same operations in the same order."""
+    The one home of this law: :meth:`Task.command` calls it on arrays, the compiled row kernels on scalars."""
     if order == 1:
         return xd + kp * e
     return xdd + kd * (xd - rate) + kp * e - jdq
@@ -33,9 +30,8 @@ def tracking_command(order: int, e, xd, xdd, rate, jdq, kp: float, kd: float):
 
 class FrameRows(NamedTuple):
     """A frame task's rows (:meth:`Task.row_source`): rows ``rows`` (0-2 linear, 3-5 angular) of frame ``fid``'s
-    world-aligned Jacobian; the error ``x_d - p[position[i]]`` on the first ``len(position)`` rows (``x_d`` the
-    reference's, or ``p_d``, an array the task updates in place) and ``log3(R_d R^T)`` on the others (``R_d`` the
-    target rotation, a Fortran-ordered array the task updates in place)."""
+    world-aligned Jacobian; error ``x_d - p[position[i]]`` on the first ``len(position)`` rows (``x_d`` the reference
+    or ``p_d``) and ``log3(R_d R^T)`` on the others (``p_d``, ``R_d``: arrays the task updates in place)."""
 
     fid: int
     rows: tuple[int, ...]
@@ -145,9 +141,8 @@ class Task(ABC):
         return tracking_command(2, e, xd_d, xdd, rate, self.jdot_qdot(state), g.kp, g.kd)
 
     def row_source(self) -> FrameRows | SelectionRows | CenterOfMassRows | None:
-        """What this task's rows are made of, for the compiled step (:mod:`hqp_tpm.control._task_rows` writes them
-        from it with :func:`tracking_command`, the numbers of :meth:`jacobian` and :meth:`command`); None (this
-        default): the step calls :meth:`jacobian` and :meth:`command`."""
+        """What this task's rows are made of, for the compiled step (the numbers of :meth:`jacobian` and
+        :meth:`command`); None (this default): the step calls :meth:`jacobian` and :meth:`command`."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -178,8 +173,7 @@ def _set_target(self, value) -> None:
 trajectory_target = property(lambda self: self.trajectory, _set_target, doc="""The reference the task tracks (its
     :attr:`trajectory`). Assigning a constant (``dim`` values) or a :class:`Trajectory` replaces it, validated as the
     constructor's target (:class:`ShapeError`, :class:`NonFiniteError` naming the task; a relative constant stays
-    relative); a constant array given to a constant trajectory is written into it in one call (:meth:`Constant.assign`).
-    """)
+    relative).""")
 
 
 def select_axes(axes: str) -> np.ndarray:

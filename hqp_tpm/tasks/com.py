@@ -12,13 +12,11 @@ from hqp_tpm.tasks.base import CenterOfMassRows, Gains, Task, row_selector, sele
 class CenterOfMass(Task):
     """``x = com[axes]``, ``J = J_com[axes]``, ``Jdot qd`` = CoM acceleration at zero q-ddot.
 
-    ``CenterOfMass(robot, target, gains, axes="xy")`` like every other task (the robot is not needed: the CoM comes from
-    the state). The older form without the robot, ``CenterOfMass(target, gains)``, is still accepted."""
+    ``CenterOfMass(robot, target, gains, axes="xy")``; ``CenterOfMass(target, gains)`` (no robot) is accepted too."""
 
-    target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
-    """The reference the task tracks (its trajectory). Assign a position (one value per axis) or a Trajectory between
-    steps to move it: validated as the constructor's target (ShapeError, NonFiniteError naming the task and
-    the value; a refused target changes nothing), then followed by the next step, compiled or not."""
+    target = trajectory_target
+    """The reference the task tracks. Assign a position (one value per axis) or a Trajectory between steps: validated as
+    the constructor's target (ShapeError, NonFiniteError naming the task; a refused target changes nothing)."""
 
     def __init__(self, robot: Robot | None = None, target=None, gains: Gains | None = None, *, axes: str = "xyz",
                  name: str = "com"):

@@ -22,14 +22,9 @@ def no_force(state: State, t: float) -> np.ndarray:
 class Force(Task):
     """Zero-force task: the EE moves along the force the operator applies on the sensor.
 
-    ``source(state, t)`` returns ``f^s``, the force the operator applies on the sensor, in the sensor
-    frame (the frame ``frame``: the flange; the sensor tip offset is neglected, as in the paper).
-    :meth:`value` is ``sigma_f = R_s f^s`` (world frame). As in the paper's position task
-    (``sigma_p = p^* - p``), ``sigma_f`` is used as the error (desired 0): the velocity-level command is
-    ``J_p qd = Lambda_f (sigma_f - f_d)`` (f_d = 0), an admittance with damping ``1/Lambda_f``.
-    The Jacobian is the paper's approximation ``J_p`` of the flange: the exact one,
-    ``J_p - S(p_s - p) J_o``, has the sensor-tip offset ``p_s - p`` that is neglected.
-    ``J`` is not the derivative of :meth:`value` (the force depends on the operator, not on ``q``).
+    ``source(state, t)`` returns ``f^s``, that force in the sensor frame ``frame`` (the flange; the sensor-tip offset is
+    neglected, as in the paper). ``sigma_f = R_s f^s`` (world) is the error, desired 0: the velocity-level command
+    ``J_p qd = Lambda_f sigma_f`` is an admittance with damping ``1/Lambda_f``. ``J = J_p``, the flange's linear rows.
     """
 
     dim = 3

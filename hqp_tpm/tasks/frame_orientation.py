@@ -16,8 +16,8 @@ from hqp_tpm.tasks.frame_pose import rotation_matrix
 class FrameOrientation(Task):
     """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot.
 
-    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation. The 'value' is the
-    rotation flattened; the error is the world rotation vector to the target."""
+    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation; the error is the world
+    rotation vector to the target."""
 
     dim = 3
 

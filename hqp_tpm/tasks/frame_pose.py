@@ -81,8 +81,8 @@ class FramePose(Task):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         M = placement_target(target, name or f"{frame}_pose")
-        # the target placement, written in place (the compiled step reads it): p_d, then R_d^T row by row; held: the
-        self._pose = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])  # start pose's
+        # the target placement, written in place (the compiled step reads it): p_d, then R_d^T row by row
+        self._pose = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0])
         self._held = M is None
         if M is not None:
             self._p_d[:], self._R_d[:] = M.translation, M.rotation

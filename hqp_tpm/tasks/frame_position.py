@@ -12,10 +12,9 @@ from hqp_tpm.tasks.base import FrameRows, Gains, Task, row_selector, select_axes
 class FramePosition(Task):
     """``x = p_frame[axes]``, ``J = J_v[axes]``, ``Jdot qd`` = classical linear acceleration at zero q-ddot."""
 
-    target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
-    """The reference the task tracks (its trajectory). Assign a position (one value per axis) or a Trajectory between
-    steps to move it: validated as the constructor's target (ShapeError, NonFiniteError naming the task and
-    the value; a refused target changes nothing), then followed by the next step, compiled or not."""
+    target = trajectory_target
+    """The reference the task tracks. Assign a position (one value per axis) or a Trajectory between steps: validated as
+    the constructor's target (ShapeError, NonFiniteError naming the task; a refused target changes nothing)."""
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
                  axes: str = "xyz", name: str | None = None):

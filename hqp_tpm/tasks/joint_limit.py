@@ -14,10 +14,8 @@ from hqp_tpm.tasks.manipulability import joint_columns
 class JointLimit(Task):
     """``sigma_l = 1/(2n) sum ((q_i - q_i^*)/(q_Hi - q_Li))^2`` (11), ``q^* = (q_L + q_H)/2``, target 0.
 
-    ``J_l = 1/n [(q_i - q_i^*)/(q_Hi - q_Li)^2]`` (12) is the exact gradient of (11);
-    ``Jdot qd = 1/n sum qd_i^2/(q_Hi - q_Li)^2``. ``joints``: default every 1-DOF joint (all must
-    have finite limits). :meth:`deviation` gives ``|q_i - q_i^*|``, the quantity the switching
-    policy compares with its threshold ``sigma_bar_l``.
+    ``J_l = 1/n [(q_i - q_i^*)/(q_Hi - q_Li)^2]`` (12), the gradient of (11); ``Jdot qd = 1/n sum qd_i^2/(q_Hi -
+    q_Li)^2``. ``joints``: default every 1-DOF joint (each needs finite limits, else :class:`BoxError`).
     """
 
     dim = 1
@@ -38,7 +36,7 @@ class JointLimit(Task):
         super().__init__(name, target, gains)
 
     def deviation(self, state: State) -> np.ndarray:
-        """``|q_i - q_i^*|`` per joint (rad)."""
+        """``|q_i - q_i^*|`` per joint (rad; the switching policy compares it with ``sigma_bar_l``)."""
         return np.abs(self.angles.of(state.q) - self.q_mid)
 
     def margin(self, state: State) -> np.ndarray:

@@ -1,10 +1,7 @@
 """A joint-space velocity as a task: ``J = I``, command ``qd_0`` (velocity level only).
 
-Below other levels it adds the projected term of the classic solution (5) of papers/004: the stack
-``[T, JointVelocity(qd_0)]`` solves to ``J_T^# xd_T + N_T qd_0`` (``N_T`` the null-space projector of ``J_T``,
-which is symmetric and idempotent, so ``(I N_T)^# = N_T``), with TPM, the recursion and the cascaded QP alike.
-That is how the approximate avoidance (22)-(23) and the literal primary-task form (25) of papers/004 are
-expressed as stacks (``hqp_tpm/policies/petric.py``). The policy sets ``qd_0`` every step with :meth:`assign`.
+Below other levels it adds the projected term of papers/004's solution (5): ``[T, JointVelocity(qd_0)]`` solves to
+``J_T^# xd_T + N_T qd_0`` with every solver (how ``hqp_tpm/policies/petric.py`` writes its (22)-(23) and (25)).
 """
 
 from __future__ import annotations

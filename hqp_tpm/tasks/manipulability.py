@@ -19,14 +19,8 @@ def joint_columns(robot: Robot, joints=None) -> tuple[list[str], np.ndarray, Joi
 
 
 class JointAngles:
-    """The angles of 1-DOF joints read from a configuration ``q``, continuous joints included.
-
-    A revolute or prismatic joint stores its coordinate in one entry of ``q``; a continuous (unbounded)
-    joint stores ``(cos theta, sin theta)`` in two (``nq = 2``, ``nv = 1``), so ``q[idx_q]`` would be
-    ``cos theta``. Here ``theta = atan2(sin, cos)``, and :meth:`difference` wraps the difference of two
-    angles of such a joint into ``(-pi, pi]``: exactly ``pinocchio.difference`` for that joint (the
-    velocity that integrates one configuration into the other in unit time).
-    """
+    """The angles of 1-DOF joints read from a configuration ``q``: a continuous joint (``q`` holds ``cos theta, sin
+    theta``) as ``atan2(sin, cos)``, and :meth:`difference` wrapped as ``pinocchio.difference`` for it."""
 
     __slots__ = ("idx", "continuous", "_cos", "_sin", "_plain")
 
@@ -59,12 +53,9 @@ class JointAngles:
 class Manipulability(Task):
     """1-D task ``sigma_m = 1/2 sum sin^2 q_i`` over the 2nd to the (n-1)-th joint (eq. (14) of papers/003).
 
-    Its gradient is ``J_m = [0, sin q_2 cos q_2, ..., sin q_{n-1} cos q_{n-1}, 0]``. The paper's printed
-    eq. (15), ``[cos q_1 sin q_1 ... cos q_n sin q_n]``, is *not* the gradient of (14): it keeps the
-    first and last joints, which (14) leaves out. ``Jdot qd = sum cos(2 q_i) qd_i^2``. The target is
-    the paper's ``sigma_m^*`` (tuned; default 2.0). ``joints``: the joints of the sum (default: the
-    1-DOF joints without the first and the last one). Continuous joints enter through their angle
-    (:class:`JointAngles`).
+    ``J_m = [0, sin q_2 cos q_2, ..., sin q_{n-1} cos q_{n-1}, 0]``, the gradient of (14) (the printed eq. (15) keeps
+    the first and last joints: it is not). ``target``: the paper's ``sigma_m^*`` (default 2.0); ``joints``: the joints
+    of the sum (default: the 1-DOF joints but the first and the last; fewer than one: :class:`ParameterError`).
     """
 
     dim = 1

@@ -1,16 +1,11 @@
 """Relaxed pointing task of papers/000: equality (16)-(19) or cone inequality (21).
 
 ``p_rp = z_d^T z_e`` with ``z_e`` the frame's z axis; ``J_rp = z_d^T S(z_e)^T J_O`` (19);
-``Jdot_rp qd = z_d^T (alpha x z_e + omega x (omega x z_e))`` with ``alpha = Jdot_O qd``.
-Error ``e = cos(alpha_d) - p_rp``. The equality keeps ``p_rp = cos(alpha_d)``; the
-inequality ``cos(alpha_d) <= p_rp`` (21) is in the stack only while ``e > 0``, with the
-same command as lower bound (Algorithm 1 of papers/000).
+``Jdot_rp qd = z_d^T (alpha x z_e + omega x (omega x z_e))`` with ``alpha = Jdot_O qd``. Error
+``e = cos(alpha_d) - p_rp``; the inequality ``cos(alpha_d) <= p_rp`` (21) is in the stack only while ``e > 0``.
 
-``drift_limit`` (rad/s^2, default None: papers/000 as written) bounds the drift compensation of the
-acceleration-level command (12): the row cancels its drift ``Jdot_rp qd`` only while the least joint
-acceleration that can do so, ``|Jdot_rp qd| / ||J_rp||``, is at most ``drift_limit``; beyond, the command is
-its feedback alone (docs/pointing_drift.md: why an uncapped compensation diverges near the cone's
-singular configurations).
+``drift_limit`` (rad/s^2, default None: the paper as written): at acceleration level (12) the row cancels its drift
+``Jdot_rp qd`` only while ``|Jdot_rp qd| / ||J_rp||`` is at most ``drift_limit`` (why: docs/pointing_drift.md).
 """
 
 from __future__ import annotations
@@ -36,7 +31,8 @@ for _a in (_NO_UPPER, _ACTIVE, _INACTIVE):
 
 
 class Pointing(Task):
-    """Point the frame's z axis at ``axis`` within the cone half-angle ``alpha_d`` (radians)."""
+    """Point the frame's z axis at ``axis`` within the cone half-angle ``alpha_d`` (radians, in ``[0, pi)``): the cone
+    (21) by default, the equality (16) with ``inequality=False``."""
 
     dim = 1
 
@@ -80,7 +76,7 @@ class Pointing(Task):
         z_e = self.axis(state)
         # z_d^T S(z_e)^T J_O = (z_e x z_d)^T J_O, since S(z_e)^T w = w x z_e                  eq. (19)
         c, J_O = cross(z_e, self.z_d), state.jacobian(self.fid)[3:]
-        # (the three products summed left to right, as the compiled row does: a BLAS kernel may fuse them, FMA)
+        # summed left to right, as the compiled row does (a BLAS kernel may fuse them, FMA)
         return (c[0] * J_O[0] + c[1] * J_O[1] + c[2] * J_O[2]).reshape(1, -1)
 
     def jdot_qdot(self, state: State) -> np.ndarray:
@@ -91,8 +87,8 @@ class Pointing(Task):
         return np.array([self.z_d.dot(np.array([a[0] + w[0], a[1] + w[1], a[2] + w[2]]))])
 
     def command(self, state: State, t: float, order: int, extra=None, J: np.ndarray | None = None) -> np.ndarray:
-        """:meth:`Task.command`; at acceleration level with a ``drift_limit``, the drift ``Jdot_rp qd`` is left out of
-        the command (added back) while ``|Jdot_rp qd| > drift_limit ||J_rp||`` (module doc)."""
+        """:meth:`Task.command`; with a ``drift_limit`` at acceleration level, the drift is not cancelled (added back)
+        while ``|Jdot_rp qd| > drift_limit ||J_rp||``."""
         J = self.jacobian(state) if J is None else J
         b = super().command(state, t, order, extra, J)
         if order == 2 and self.drift_limit is not None:
@@ -103,8 +99,8 @@ class Pointing(Task):
 
     def pointing_error(self, state: State) -> float:
         """``e = cos(alpha_d) - p_rp``: positive while the axis is outside the cone."""
-        # the numbers of cos(alpha_d) - value(state)[0], without the array (the policy asks every step);
-        # z_e read through a view of the rotation pinocchio updates in place, once the state is complete
+        # cos(alpha_d) - value(state)[0] without the array (asked every step), z_e read through a view of the
+        # rotation pinocchio updates in place once the state is complete
         c = self._column
         if c is not None and c[0] is state and not state._partial:
             return self._cos - dot3(self.z_d, c[1])
@@ -130,9 +126,8 @@ class Pointing(Task):
                      defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """``write(t) -> e``: the row of :meth:`jacobian` and :meth:`command` (no extra command) written into ``J``
-        (1 x n) and ``b`` (1), the same numbers (one compiled call); returns :meth:`pointing_error` (the inequality's
-        row is in the stack only while it is positive, whatever the task's reference). For the planned step."""
+        """``write(t) -> e``: the row of :meth:`jacobian` and :meth:`command` (no extra) into ``J`` (1 x n) and ``b``
+        (1), the same numbers in one compiled call; returns :meth:`pointing_error`. For the planned step."""
         model, data, fid = state.model, state.data, self.fid
         views = state.frame_views(fid)
         none = np.zeros(6)
@@ -165,16 +160,15 @@ class Pointing(Task):
 
 
 def dot3(a: np.ndarray, b: np.ndarray) -> float:
-    """``a . b`` of two 3-vectors summed left to right, as the compiled row does (a BLAS dot may fuse the products,
-    FMA, and round otherwise: the readable and compiled rows stay equal to the bit on any CPU)."""
+    """``a . b`` of two 3-vectors summed left to right, as the compiled row does (a BLAS dot may use FMA and round
+    otherwise)."""
     x, y = a.tolist(), b.tolist()
     return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
 
 
 def drift_left_out(jdq: float, row: np.ndarray, limit: float) -> bool:
-    """Whether the drift ``jdq`` of a pointing row ``row`` is left out of its command: ``jdq^2 > limit^2 ||row||^2``,
-    the least joint acceleration ``|jdq| / ||row||`` that cancels it beyond ``limit`` (the sum in the order of
-    :func:`hqp_tpm.tasks._compiled_rows.pointing_row`, so both give the same answer)."""
+    """Whether the drift ``jdq`` of a pointing row ``row`` is left out of its command: ``jdq^2 > limit^2 ||row||^2``
+    (summed in the compiled row's order)."""
     s = 0.0
     for x in row.tolist():
         s += x * x

@@ -21,10 +21,10 @@ class Posture(Task):
     The target is either the joints' angles (``dim`` values) or a whole configuration (``robot.nq`` values, e.g.
     ``robot.reference("half_sitting")`` of a floating-base robot): the joints' angles are read from it."""
 
-    target = trajectory_target  # (assigned: validated, stored in a constant trajectory with one copy)
-    """The reference the task tracks (its trajectory). Assign the joints' angles, a whole configuration or a
-    Trajectory between steps to move it: validated as the constructor's target (ShapeError, NonFiniteError naming
-    the task and the value; a refused target changes nothing), then followed by the next step, compiled or not."""
+    target = trajectory_target
+    """The reference the task tracks. Assign the joints' angles, a whole configuration or a Trajectory between steps:
+    validated as the constructor's target (ShapeError, NonFiniteError naming the task; a refused one changes nothing).
+    """
 
     def __init__(self, robot: Robot, target=None, gains: Gains | None = None, *, joints=None, name: str = "posture"):
         names = [n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
@@ -41,10 +41,8 @@ class Posture(Task):
         return super()._trajectory_of(self.joint_target(target))
 
     def joint_target(self, target):
-        """``target`` as this task's joint angles: a full configuration (``robot.nq``) gives its ``q[joints]``.
-
-        Any other array must hold one angle per joint; a wrong size raises :class:`ShapeError` naming the task and both
-        accepted shapes. Trajectories, ``None`` and ``"hold"`` pass through."""
+        """``target`` as this task's joint angles: a full configuration (``robot.nq``) gives its ``q[joints]``, another
+        array must hold one angle per joint (else :class:`ShapeError`); trajectories, None and "hold" pass through."""
         if target is None or isinstance(target, (str, Trajectory)):
             return target
         try:

@@ -1,9 +1,7 @@
 """Orientation by the quaternion error of papers/003, eq. (10), on selected components (the 2-D task).
 
-``e_o = eta epsilon^* - eta^* epsilon - S(epsilon^*) epsilon`` is the vector part of ``Q^* Q^{-1}``
-(rotation ``R^* R^T``, world frame; the sign is chosen so that its scalar part is >= 0). The task
-keeps ``sigma_o = Sigma e_o`` with ``Sigma`` the selected rows (default the first two: the flange z
-axis keeps its direction, the rotation about the world z axis is free when that axis is vertical).
+``e_o = eta epsilon^* - eta^* epsilon - S(epsilon^*) epsilon``: the vector part of ``Q^* Q^{-1}`` (rotation
+``R^* R^T``, world frame, sign chosen so that its scalar part is >= 0).
 """
 
 from __future__ import annotations
@@ -28,12 +26,10 @@ def quaternion_error(R_d: np.ndarray, R: np.ndarray) -> np.ndarray:
 class QuaternionOrientation(Task):
     """``sigma_o = Sigma e_o`` (10), ``J = Sigma J_o`` (world angular rows), ``Jdot qd = Sigma (Jdot_o qd)``.
 
-    As in the paper (and the position task ``sigma_p = p^* - p``), ``sigma_o`` is itself the error:
-    the velocity-level command is ``Sigma J_o qd = Lambda_o sigma_o`` (CLIK with the quaternion
-    error). ``J`` is therefore not the derivative of :meth:`value`: the exact relation is
-    ``d e_o/dt = -1/2 (eta_e I + S(epsilon_e)) J_o qd`` (tested), so near the target ``J`` is
-    ``-2`` times the derivative of ``sigma_o``. The target is a rotation matrix or ``None`` (the start
-    orientation); ``axes`` selects the rows (``"xy"``: the 2-D task of the paper).
+    As in the paper, ``sigma_o`` is itself the error (command ``Sigma J_o qd = Lambda_o sigma_o``), so ``J`` is not the
+    derivative of :meth:`value` (``d e_o/dt = -1/2 (eta_e I + S(epsilon_e)) J_o qd``: ``-2`` times it near the target).
+    ``target``: a rotation matrix or None (the start orientation); ``axes``: the rows (``"xy"``, the paper's 2-D task:
+    the flange z axis keeps its direction).
     """
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
