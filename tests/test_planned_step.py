@@ -523,9 +523,9 @@ class BlendsAnother(StackPolicy):
 
 
 def test_an_error_in_the_blends_other_solve_names_the_step():
-    """A target so large that its rows are refused, in the stack a policy blends with: the compiled step raises the readable step's error,
-    word for word, the step's ``(step at t = ... from max|q| ...)`` included (the compiled step once left it out),
-    and changes nothing."""
+    """A target so large that its rows are refused, in the stack a policy blends with: the compiled step raises the
+    readable step's error, word for word, the step's ``(step at t = ... from max|q| ...)`` included (the compiled
+    step once left it out), and changes nothing."""
     from hqp_tpm import FramePosition, Gains, Posture, Robot
     from hqp_tpm.control.controller import Controller
 
