@@ -58,14 +58,15 @@ def test_placements_block_refuses_placements_not_side_by_side():
 def test_compiled_update_equals_the_readable_update_of_the_whole_body_field(whole_body, monkeypatch):
     """The whole-body field (convex hulls, a sphere and a box, self pairs; no control points): the records of the
     compiled update equal the readable update's bit for bit over 300 configurations whose pair counts go up and
-    down (records with pairs, then with none: cleared), and the compiled update took the three-call path."""
+    down (records with pairs, then with none: cleared), the compiled update took the three-call path, and its
+    nearest self pair (found in its last call) is the readable ``nearest_self``'s."""
     robot, q0, policy = whole_body
     fast, slow = _fields(policy)
     calls = []
     monkeypatch.setattr(fast, "_update_compiled", lambda f=fast._update_compiled: calls.append(1) or f())
     data = robot.model.createData()
     rng = np.random.default_rng(2)
-    counts = []
+    counts, nearest = [], set()
     for i in range(300):
         q = q0.copy()
         q[7:] += rng.normal(scale=[0.05, 0.6][i % 7 < 3], size=robot.model.nq - 7)
@@ -81,8 +82,12 @@ def test_compiled_update_equals_the_readable_update_of_the_whole_body_field(whol
                          slow.self_distance, slow.self_p1, slow.self_p2, slow.self_normal, slow.self_computed,
                          slow.self_in_range, *slow.snapshot()[1:]), strict=True):
             np.testing.assert_array_equal(x, y)
+        assert fast._nearest_self is not None  # (found by the update's last call)
+        k, d = fast.nearest_self()
+        assert (k, d) == slow.nearest_self() and type(k) is int and type(d) is float
+        nearest.add(k >= 0)
         counts.append((int(fast.computed.sum()), int(fast.self_computed.sum())))
-    assert len(calls) == 300
+    assert len(calls) == 300 and nearest == {True, False}
     obstacle, self_ = np.array(counts).T
     for n in (obstacle, self_):  # pairs queried, and steps with none right after steps with some
         assert n.max() > 0 and ((n[1:] == 0) & (n[:-1] > 0)).any()

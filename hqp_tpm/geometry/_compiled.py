@@ -243,7 +243,8 @@ def rewrite_pairs(D, P1, P2, flat, todo, m, dist, p1, p2, normal, last, computed
     """A whole record in one call: cleared (:meth:`~hqp_tpm.geometry.records.PairRecord.clear`: ``+inf``, NaN,
     zero normal, not computed), the first ``m`` queries written as :func:`scatter_pairs` writes them (query ``i``
     into flat row ``flat[todo[i]]``), then ``in_range = dist <= surveillance``; returns how many queries go to
-    ``bad`` (witness points coincide: no normal written)."""
+    ``bad`` (witness points coincide: no normal written; ``bad[nb]`` then holds the first nearest in-range row, as
+    ``np.argmin`` of the in-range distances chooses it, ``-1`` if none)."""
     for r in range(dist.shape[0]):
         dist[r] = math.inf
         computed[r] = False
@@ -252,8 +253,12 @@ def rewrite_pairs(D, P1, P2, flat, todo, m, dist, p1, p2, normal, last, computed
             p2[r, k] = math.nan
             normal[r, k] = 0.0
     nb = _scatter(D, P1, P2, flat, todo, m, dist, p1, p2, normal, last, computed, tiny, bad)
+    k, best = -1, math.inf
     for r in range(dist.shape[0]):
         in_range[r] = dist[r] <= surveillance
+        if in_range[r] and dist[r] < best:
+            k, best = r, dist[r]
+    bad[nb] = k
     return nb
 
 

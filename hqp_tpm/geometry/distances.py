@@ -176,7 +176,7 @@ class DistanceField:
         self._coal_points = bool(npts) and bool((part.coal_e >= ng).any())
         self._flat = (self.distance.reshape(-1), self.p_robot.reshape(-1, 3), self.p_obstacle.reshape(-1, 3),
                       self.normal.reshape(-1, 3), self._last_normal.reshape(-1, 3), self.computed.reshape(-1))
-        self._bad = np.zeros(max(len(part.coal_e), 1), dtype=np.int64)
+        self._bad = np.zeros(len(part.coal_e) + 1, dtype=np.int64)
 
         # ---- self pairs
         pairs = self_pair_indices(elements.geometry_names, self_pairs)
@@ -186,7 +186,8 @@ class DistanceField:
         self._self_a_list, self._self_b_list = [a for a, _ in pairs], [b for _, b in pairs]
         self._self_a = np.array(self._self_a_list, dtype=np.int64)
         self._self_b = np.array(self._self_b_list, dtype=np.int64)
-        self._self_bad = np.zeros(max(S, 1), dtype=np.int64)
+        self._self_bad = np.zeros(S + 1, dtype=np.int64)
+        self._nearest_self = None  # (k, d) of nearest_self, when the last update's compiled call found it
         self._self_buffers = (np.zeros(S), np.zeros((S, 3)), np.zeros((S, 3)))
         self.self_record = SelfPairRecord(S)
         r = self.self_record
@@ -286,6 +287,7 @@ class DistanceField:
         ``geom_data``: the caller's ``GeometryData`` of the geometry model given at construction, with
         placements already updated; None: placements are computed here from ``data.oMi``.
         """
+        self._nearest_self = None
         if self._points_only and geom_data is None and _compiled.ENABLED and self._refs_key == (id(data), id(None)) \
                 and self._frame_views is not None:  # the steps below in fewer calls (the same operations)
             self.t = float(t)
@@ -375,6 +377,8 @@ class DistanceField:
         nb = _kernels.rewrite_pairs(bd, b1, b2, self._self_index, self_todo, ns, self.self_distance, self.self_p1,
                                     self.self_p2, self.self_normal, self._self_last_normal, self.self_computed,
                                     self.self_in_range, self.self_surveillance, _TINY, self._self_bad)
+        k = int(self._self_bad[nb])
+        self._nearest_self = (-1, math.inf) if k < 0 else (k, float(self.self_distance[k]))
         for i in self._self_bad[:nb].tolist():
             k = int(self_todo[i])
             self.self_normal[k] = self._self_last_normal[k] = self._self_fallback_normal(k, touching.get(i))
@@ -640,7 +644,10 @@ class DistanceField:
         return Nearest(idx, dmin, omin, int(idx[k]), int(omin[k]), float(dmin[k]))
 
     def nearest_self(self) -> tuple[int, float]:
-        """Index and distance of the closest self pair in range, (-1, inf) if none."""
+        """Index and distance of the closest self pair in range, (-1, inf) if none (the first such pair, as
+        ``np.argmin`` takes it; after a compiled update, as that update's last call found it)."""
+        if self._nearest_self is not None:
+            return self._nearest_self
         if not self.self_in_range.any():
             return -1, math.inf
         D = np.where(self.self_in_range, self.self_distance, np.inf)
