@@ -91,3 +91,17 @@ def test_compiled_update_equals_the_readable_update_of_the_whole_body_field(whol
     obstacle, self_ = np.array(counts).T
     for n in (obstacle, self_):  # pairs queried, and steps with none right after steps with some
         assert n.max() > 0 and ((n[1:] == 0) & (n[:-1] > 0)).any()
+
+
+def test_repulsive_bound_of_a_list_equals_the_arrays():
+    """WholeBody's bound r(d) of a list of distances (Python floats, the plan's path) equals the array's bit for bit,
+    ties at the activation and safety distances and penetrations included."""
+    from hqp_tpm.policies.whole_body import repulsive_bound
+
+    rng = np.random.default_rng(3)
+    for _ in range(3000):
+        d = rng.choice([0.1, 0.03, 0.0, -0.01, rng.uniform(-0.05, 0.12)], size=int(rng.integers(1, 4))).tolist()
+        for args in ((0.1, 0.03, 0.3), (0.05, 0.01, 0.3)):
+            fast, slow = repulsive_bound(d, *args), repulsive_bound(np.array(d), *args)
+            assert fast.dtype == slow.dtype == np.float64
+            np.testing.assert_array_equal(fast, slow)

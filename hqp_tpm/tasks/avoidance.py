@@ -122,7 +122,8 @@ class PairAvoidance(Task):
         self._upper = np.zeros(0)  # +inf per row, read-only: every level's upper bound (one array per row count)
 
     def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
-        self.J, self.lower, self.distance = np.atleast_2d(J), np.asarray(lower, float), np.asarray(distance, float)
+        J = J if type(J) is np.ndarray and J.ndim == 2 else np.atleast_2d(J)
+        self.J, self.lower, self.distance = J, np.asarray(lower, float), np.asarray(distance, float)
         self.dim = self.lower.size
 
     def value(self, state: State) -> np.ndarray:
