@@ -2,9 +2,8 @@
 
 Elements are the robot's collision geometries (copied into an internal geometry model, BVH meshes
 replaced by their convex hulls) followed by its control points (frame origins, zero-radius spheres).
-Each element and obstacle has a bounding sphere and a bounding box (coal's, :func:`local_boxes`); a pair is kept
-only if both lower bounds of its distance, ``||c_a - c_b|| - r_a - r_b`` (:func:`near_pairs`) and the boxes' gap
-(:func:`box_gaps`), are ``<= surveillance``.
+Each element and obstacle has a bounding sphere; :func:`near_pairs` keeps a pair only if the lower
+bound ``||c_a - c_b|| - r_a - r_b`` of its distance is ``<= surveillance``.
 
 :class:`Partition` splits the (element, obstacle) grid into the closed-form sphere-sphere block
 (control points, spherical links, spherical/point obstacles) and the pairs coal computes (one
@@ -22,8 +21,7 @@ import pinocchio as pin
 from hqp_tpm.errors import ShapeError, UnknownFrameError, unknown_name
 from hqp_tpm.geometry.obstacles import GeometryError, Obstacle, bounding_sphere, convexified
 
-__all__ = ["BOX_MARGIN", "Elements", "Partition", "as_slice", "box_centres", "box_gaps", "checked_obstacles",
-           "local_boxes", "near_pairs", "self_pair_indices"]
+__all__ = ["Elements", "Partition", "as_slice", "checked_obstacles", "near_pairs", "self_pair_indices"]
 
 
 def as_slice(index: np.ndarray):
@@ -31,54 +29,6 @@ def as_slice(index: np.ndarray):
     if index.size and np.array_equal(index, np.arange(index[0], index[0] + index.size)):
         return slice(int(index[0]), int(index[0]) + index.size)
     return index
-
-
-#: Added to every half extent of :func:`local_boxes`: covers the rounding of the boxes, of their world placements and
-#: of coal's distances, so that a pair :func:`box_gaps` culls is farther than the surveillance distance.
-BOX_MARGIN = 1e-9
-
-
-def local_boxes(shapes) -> tuple[np.ndarray, np.ndarray]:
-    """Centres and half extents (shape frame, ``(k, 3)`` each) of the shapes' axis-aligned bounding boxes, coal's
-    (``computeLocalAABB``), the half extents grown by :data:`BOX_MARGIN`; ``None`` in ``shapes``: a point."""
-    c, h = np.zeros((len(shapes), 3)), np.full((len(shapes), 3), BOX_MARGIN)
-    for i, shape in enumerate(shapes):
-        if shape is not None:
-            shape.computeLocalAABB()
-            lo, hi = np.array(shape.aabb_local.min_, dtype=float), np.array(shape.aabb_local.max_, dtype=float)
-            c[i], h[i] = 0.5 * (lo + hi), 0.5 * (hi - lo) + BOX_MARGIN
-    return c, h
-
-
-def box_centres(R: np.ndarray, t: np.ndarray, c: np.ndarray) -> np.ndarray:
-    """``R[i] c[i] + t[i]`` row by row, summed left to right (the compiled broad phase's order)."""
-    return np.stack([R[:, k, 0] * c[:, 0] + R[:, k, 1] * c[:, 1] + R[:, k, 2] * c[:, 2] + t[:, k] for k in range(3)],
-                    axis=1)
-
-
-def box_gaps(Ra: np.ndarray, ca: np.ndarray, ha: np.ndarray, Rb: np.ndarray, cb: np.ndarray,
-             hb: np.ndarray) -> np.ndarray:
-    """Lower bounds of the distances between the oriented boxes ``a`` and ``b`` (rows: pairs; rotations ``R``
-    (world from box), centres ``c``, half extents ``h``): the largest gap between their projections on the six face
-    normals (the separating-axis test's face axes; a gap along any unit axis is at most the distance), in the
-    order of operations of the compiled broad phase (:func:`hqp_tpm.geometry._compiled.broad_phase`)."""
-    d = cb - ca
-    gaps = []
-    for k in range(3):  # the face normals of a: a_k = Ra[:, :, k]
-        u = Ra[:, :, k]
-        proj = np.abs(u[:, 0] * d[:, 0] + u[:, 1] * d[:, 1] + u[:, 2] * d[:, 2])
-        rb = (hb[:, 0] * np.abs(u[:, 0] * Rb[:, 0, 0] + u[:, 1] * Rb[:, 1, 0] + u[:, 2] * Rb[:, 2, 0])
-              + hb[:, 1] * np.abs(u[:, 0] * Rb[:, 0, 1] + u[:, 1] * Rb[:, 1, 1] + u[:, 2] * Rb[:, 2, 1])
-              + hb[:, 2] * np.abs(u[:, 0] * Rb[:, 0, 2] + u[:, 1] * Rb[:, 1, 2] + u[:, 2] * Rb[:, 2, 2]))
-        gaps.append(proj - ha[:, k] - rb)
-    for k in range(3):  # the face normals of b
-        u = Rb[:, :, k]
-        proj = np.abs(u[:, 0] * d[:, 0] + u[:, 1] * d[:, 1] + u[:, 2] * d[:, 2])
-        ra = (ha[:, 0] * np.abs(Ra[:, 0, 0] * u[:, 0] + Ra[:, 1, 0] * u[:, 1] + Ra[:, 2, 0] * u[:, 2])
-              + ha[:, 1] * np.abs(Ra[:, 0, 1] * u[:, 0] + Ra[:, 1, 1] * u[:, 1] + Ra[:, 2, 1] * u[:, 2])
-              + ha[:, 2] * np.abs(Ra[:, 0, 2] * u[:, 0] + Ra[:, 1, 2] * u[:, 1] + Ra[:, 2, 2] * u[:, 2]))
-        gaps.append(proj - ra - hb[:, k])
-    return np.max(gaps, axis=0) if len(d) else np.zeros(0)
 
 
 def near_pairs(centers_a: np.ndarray, centers_b: np.ndarray, radius_a: np.ndarray, radius_b: np.ndarray,
