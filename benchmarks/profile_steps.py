@@ -8,6 +8,13 @@ self time, and cProfile's top functions by internal and by cumulative time (all 
 busy machine read the shares).
 
     python benchmarks/profile_steps.py [--steps 3000] [--quick]
+
+``--sections SCENARIO`` instead times the parts of ``ctrl.step()`` (thread CPU, each part's functions wrapped by a
+timer: :data:`SECTIONS`) over ``--steps`` steps of a fresh controller and prints, per part, its median per step and
+its median over the slowest 2 % of the steps (those above the 98th percentile: what the p99 step is made of). The
+timers add two ``time.thread_time_ns`` calls per wrapped call (~1 µs): compare parts, and runs of one checkout.
+
+    python benchmarks/profile_steps.py --sections romeo_obstacles_sns_tpm --steps 5000
 """
 
 from __future__ import annotations
@@ -26,6 +33,82 @@ if __package__ in (None, ""):  # run as a script: make ``benchmarks`` importable
 from benchmarks import common  # noqa: E402
 
 SCENARIOS = ("lwr_relaxed", "romeo_sns_tpm")
+
+
+#: The parts of a step ``--sections`` times: (module, attribute path, label); an indented label is part of the one
+#: above it; ``policy.*`` is the scenario's policy class. Missing attributes are left out (and said).
+SECTIONS = (
+    ("hqp_tpm.robot.state", "State.update", "state update"),
+    ("hqp_tpm.geometry.distances", "DistanceField.update", "distance field update"),
+    ("hqp_tpm.geometry.distances", "DistanceField._query", "  coal queries"),
+    ("policy", "plan", "policy plan"),
+    ("hqp_tpm.geometry.distances", "DistanceField.normal_jacobian", "  obstacle rows n^T J_c"),
+    ("hqp_tpm.control._planned_step", "PlannedStep._rows", "task rows"),
+    ("hqp_tpm.control._planned_step", "PlannedStep._sns", "SNS-TPM solve (box, shift, kernel)"),
+    ("hqp_tpm.solvers._compiled_sns", "sns_tpm_loop", "  SNS-TPM kernel"),
+    ("hqp_tpm.robot.state", "State.integrate", "integration"),
+    ("policy", "snapshot", "policy snapshot"),
+)
+
+
+def step_sections(name: str, steps: int) -> str:
+    """``--sections``: the table of the parts of ``ctrl.step()`` of scenario ``name`` (module doc)."""
+    import functools
+    import importlib
+
+    import numpy as np
+
+    from hqp_tpm.app.build import build_run
+    from hqp_tpm.app.scenario import load
+
+    clock, spent = time.thread_time_ns, {}
+    ctx = build_run(load(name))
+    ctrl, policy = ctx.controller, ctx.policy
+    labels, missing = [], []
+    for module, path, label in SECTIONS:
+        owner = type(policy) if module == "policy" else importlib.import_module(module)
+        *outer, attr = path.split(".")
+        for part in outer:
+            owner = getattr(owner, part, None)
+        fn = getattr(owner, attr, None) if owner is not None else None
+        if fn is None:
+            missing.append(f"{module}.{path}")
+            continue
+
+        def timed(*args, _fn=fn, _label=label, **kwargs):
+            t0 = clock()
+            try:
+                return _fn(*args, **kwargs)
+            finally:
+                spent[_label] = spent.get(_label, 0) + clock() - t0
+
+        setattr(owner, attr, functools.wraps(fn)(timed))
+        labels.append(label)
+    ctrl.step()  # (plans the compiled step)
+    total, rows = np.empty(steps), []
+    for i in range(steps):
+        spent.clear()
+        t0 = clock()
+        ctrl.step()
+        total[i] = clock() - t0
+        rows.append(dict(spent))
+    total /= 1e3
+    slow = total >= np.percentile(total, 98)
+    out = [f"{name}: {steps} steps, thread CPU per step (µs): median {np.median(total):.1f}, p99 "
+           f"{np.percentile(total, 99):.1f}, whole run {total.sum() / 1e6:.3f} s; slowest 2 %: {int(slow.sum())} steps",
+           f"{'part':40s} {'median':>8s} {'slowest 2 %':>12s}"]
+    outer_sum = np.zeros(steps)
+    for label in labels:
+        v = np.array([r.get(label, 0) for r in rows]) / 1e3
+        if not label.startswith(" "):
+            outer_sum += v
+        out.append(f"{label:40s} {np.median(v):8.1f} {np.median(v[slow]):12.1f}")
+    rest = total - outer_sum
+    out.append(f"{'rest of the step':40s} {np.median(rest):8.1f} {np.median(rest[slow]):12.1f}")
+    out.append(f"{'whole step':40s} {np.median(total):8.1f} {np.median(total[slow]):12.1f}")
+    if missing:
+        out.append("not found (left out): " + ", ".join(missing))
+    return "\n".join(out)
 
 
 def _build(name: str):
@@ -158,6 +241,8 @@ def parse(argv=None):
     p.add_argument("--interval", type=float, default=1e-4, help="pyinstrument sampling interval [s]")
     p.add_argument("--out", type=Path, default=common.RESULTS)
     p.add_argument("--quick", action="store_true")
+    p.add_argument("--sections", metavar="SCENARIO", default=None,
+                   help="time the parts of ctrl.step() of SCENARIO over --steps steps instead (module doc)")
     args = p.parse_args(argv)
     if args.quick:
         args.steps, args.romeo_steps, args.warmup = 100, 100, 10
@@ -166,6 +251,10 @@ def parse(argv=None):
 
 def main(argv=None) -> dict:
     args = parse(argv)
+    if args.sections:
+        with common.one_blas_thread():
+            print(step_sections(args.sections, args.steps))
+        return {}
     args.out.mkdir(parents=True, exist_ok=True)
     results = []
     with common.one_blas_thread():

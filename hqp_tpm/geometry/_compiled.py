@@ -153,6 +153,12 @@ def near_pairs(Ca, ia, Cb, ib, ra, rb, surveillance):  # pragma: no cover - comp
     """:func:`hqp_tpm.geometry.pairs.near_pairs` of the gathered rows ``Ca[ia]``, ``Cb[ib]``, ``ra[ia]``, ``rb[ib]``:
     the pairs ``k`` with ``||Ca[ia[k]] - Cb[ib[k]]|| - ra[ia[k]] - rb[ib[k]] <= surveillance``, in order."""
     out = np.empty(ia.shape[0], dtype=np.int64)
+    return out[:_near_into(Ca, ia, Cb, ib, ra, rb, surveillance, out)]
+
+
+@_njit(inline=True)
+def _near_into(Ca, ia, Cb, ib, ra, rb, surveillance, out):  # pragma: no cover - compiled
+    """:func:`near_pairs` into ``out``; returns how many."""
     n = 0
     for k in range(ia.shape[0]):
         a, b = ia[k], ib[k]
@@ -163,7 +169,23 @@ def near_pairs(Ca, ia, Cb, ib, ra, rb, surveillance):  # pragma: no cover - comp
         if lower <= surveillance:
             out[n] = k
             n += 1
-    return out[:n]
+    return n
+
+
+@_njit
+def broad_phase(block, c, C, er, Oc, orad, ie, io, surveillance, ia, ib, self_surveillance, todo,
+                self_todo):  # pragma: no cover - compiled
+    """The bounding-sphere centres and both broad phases of :meth:`DistanceField.update` in one call: ``C[:n]`` the
+    centres of the ``n`` geometries whose placements ``block`` holds (``block[i, :3]`` the rotation's columns,
+    ``block[i, 3]`` the origin: :func:`centres`' operations), then the obstacle pairs (``ie``, ``io``) and the self
+    pairs (``ia``, ``ib``) :func:`near_pairs` keeps, into ``todo`` and ``self_todo``; returns how many of each."""
+    for i in range(block.shape[0]):
+        for k in range(2):
+            C[i, k] = ((block[i, 0, k] * c[i, 0] + block[i, 1, k] * c[i, 1]) + block[i, 2, k] * c[i, 2]) \
+                + block[i, 3, k]
+        C[i, 2] = (block[i, 0, 2] * c[i, 0] + (block[i, 1, 2] * c[i, 1] + block[i, 2, 2] * c[i, 2])) + block[i, 3, 2]
+    n = _near_into(C, ie, Oc, io, er, orad, surveillance, todo)
+    return n, _near_into(C, ia, C, ib, er, er, self_surveillance, self_todo)
 
 
 @_njit
@@ -184,9 +206,16 @@ def scatter_pairs(D, P1, P2, index, dist, p1, p2, normal, last, computed, tiny, 
     ``index[i]``: distance, witness points, ``normal = sign(d) (p1 - p2)/||p1 - p2||`` (the readable path's
     operations, :meth:`DistanceField._normals`), its copy in ``last``, ``computed``. Rows whose witness points
     coincide (not ``||p1 - p2|| > tiny``) get no normal: their ``i`` go to ``bad``; returns how many."""
+    return _scatter(D, P1, P2, index, np.arange(D.shape[0]), D.shape[0], dist, p1, p2, normal, last, computed, tiny,
+                    bad)
+
+
+@_njit(inline=True)
+def _scatter(D, P1, P2, flat, todo, m, dist, p1, p2, normal, last, computed, tiny, bad):  # pragma: no cover
+    """:func:`scatter_pairs` of the first ``m`` queries, query ``i`` into flat row ``flat[todo[i]]``."""
     nb = 0
-    for i in range(D.shape[0]):
-        r = index[i]
+    for i in range(m):
+        r = flat[todo[i]]
         d = D[i]
         u0 = P1[i, 0] - P2[i, 0]
         u1 = P1[i, 1] - P2[i, 1]
@@ -205,6 +234,31 @@ def scatter_pairs(D, P1, P2, index, dist, p1, p2, normal, last, computed, tiny, 
         normal[r, 0] = last[r, 0] = u0 * s
         normal[r, 1] = last[r, 1] = u1 * s
         normal[r, 2] = last[r, 2] = u2 * s
+    return nb
+
+
+@_njit
+def rewrite_pairs(D, P1, P2, flat, todo, m, dist, p1, p2, normal, last, computed, in_range, surveillance, tiny,
+                  bad):  # pragma: no cover - compiled
+    """A whole record in one call: cleared (:meth:`~hqp_tpm.geometry.records.PairRecord.clear`: ``+inf``, NaN,
+    zero normal, not computed), the first ``m`` queries written as :func:`scatter_pairs` writes them (query ``i``
+    into flat row ``flat[todo[i]]``), then ``in_range = dist <= surveillance``; returns how many queries go to
+    ``bad`` (witness points coincide: no normal written; ``bad[nb]`` then holds the first nearest in-range row, as
+    ``np.argmin`` of the in-range distances chooses it, ``-1`` if none)."""
+    for r in range(dist.shape[0]):
+        dist[r] = math.inf
+        computed[r] = False
+        for k in range(3):
+            p1[r, k] = math.nan
+            p2[r, k] = math.nan
+            normal[r, k] = 0.0
+    nb = _scatter(D, P1, P2, flat, todo, m, dist, p1, p2, normal, last, computed, tiny, bad)
+    k, best = -1, math.inf
+    for r in range(dist.shape[0]):
+        in_range[r] = dist[r] <= surveillance
+        if in_range[r] and dist[r] < best:
+            k, best = r, dist[r]
+    bad[nb] = k
     return nb
 
 

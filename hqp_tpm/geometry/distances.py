@@ -176,7 +176,7 @@ class DistanceField:
         self._coal_points = bool(npts) and bool((part.coal_e >= ng).any())
         self._flat = (self.distance.reshape(-1), self.p_robot.reshape(-1, 3), self.p_obstacle.reshape(-1, 3),
                       self.normal.reshape(-1, 3), self._last_normal.reshape(-1, 3), self.computed.reshape(-1))
-        self._bad = np.zeros(max(len(part.coal_e), 1), dtype=np.int64)
+        self._bad = np.zeros(len(part.coal_e) + 1, dtype=np.int64)
 
         # ---- self pairs
         pairs = self_pair_indices(elements.geometry_names, self_pairs)
@@ -186,7 +186,8 @@ class DistanceField:
         self._self_a_list, self._self_b_list = [a for a, _ in pairs], [b for _, b in pairs]
         self._self_a = np.array(self._self_a_list, dtype=np.int64)
         self._self_b = np.array(self._self_b_list, dtype=np.int64)
-        self._self_bad = np.zeros(max(S, 1), dtype=np.int64)
+        self._self_bad = np.zeros(S + 1, dtype=np.int64)
+        self._nearest_self = None  # (k, d) of nearest_self, when the last update's compiled call found it
         self._self_buffers = (np.zeros(S), np.zeros((S, 3)), np.zeros((S, 3)))
         self.self_record = SelfPairRecord(S)
         r = self.self_record
@@ -200,6 +201,11 @@ class DistanceField:
         self._point_M = [pin.SE3.Identity() for _ in range(npts)]
         self._elem_M: list[pin.SE3 | None] = [None] * ng + list(self._point_M)
         self._refs_key = None
+        self._block = None  # the geometry placements as one (ng, 4, 3) view (_placements_block), when pinocchio's
+        # memory allows: the compiled update's broad phase reads them in one call
+        self._todo = (np.zeros(max(len(part.coal_e), 1), dtype=np.int64), np.zeros(max(S, 1), dtype=np.int64))
+        self._self_index = np.arange(S, dtype=np.int64)
+        self._flat_in_range = self.in_range.reshape(-1)
         self._geom_views = None  # views of the geometry placements pinocchio updates in place: rotations, origins
         self._local_centres = np.array([np.zeros(3) if c is None else c for c in self._elem_local_center],
                                        dtype=float).reshape(ng, 3)
@@ -251,6 +257,7 @@ class DistanceField:
     def _placement_refs(self, data: pin.Data, geom_data: pin.GeometryData | None):
         """References (updated in place by pinocchio) to the element placements in ``data``/``geom_data``."""
         key = (id(data), id(geom_data))
+        ng = self.n_geometries
         if key != self._refs_key:
             if geom_data is None:
                 self._geom_refs = [self._gdata.oMg[i] for i in range(self.n_geometries)]
@@ -269,6 +276,7 @@ class DistanceField:
             again = [M.rotation for M in self._geom_refs] + [M.translation for M in self._geom_refs]
             shared = all(np.shares_memory(x, y) for x, y in zip(rot + org, again, strict=True))
             self._geom_views = (rot, org) if shared else None
+            self._block = _placements_block(self._geom_refs) if shared and geom_data is None and ng else None
             self._refs_key = key
             self._refs_objects = (data, geom_data)  # keep the owners alive while we hold references
 
@@ -279,6 +287,7 @@ class DistanceField:
         ``geom_data``: the caller's ``GeometryData`` of the geometry model given at construction, with
         placements already updated; None: placements are computed here from ``data.oMi``.
         """
+        self._nearest_self = None
         if self._points_only and geom_data is None and _compiled.ENABLED and self._refs_key == (id(data), id(None)) \
                 and self._frame_views is not None:  # the steps below in fewer calls (the same operations)
             self.t = float(t)
@@ -293,7 +302,10 @@ class DistanceField:
         self.t = t = float(t)
         ng = self.n_geometries
         C = self._elem_center
-        if self._geom_views is not None and _compiled.ENABLED and ng:  # one compiled call, SE3.act's operations
+        fused = self._block is not None and geom_data is None and _compiled.ENABLED and self.broad_phase
+        if fused:  # the centres in _update_compiled's first call
+            pass
+        elif self._geom_views is not None and _compiled.ENABLED and ng:  # one compiled call, SE3.act's operations
             _kernels.centres(np.array(self._geom_views[0]), np.array(self._geom_views[1]), self._local_centres, C)
         else:
             for i, Mg in enumerate(self._geom_refs):
@@ -307,6 +319,9 @@ class DistanceField:
             Mo = o.placement_at(t)
             self.obstacle_placements[j] = Mo
             self._obs_center[j] = Mo.act(o.local_center)
+        if fused:
+            self._update_compiled()
+            return self
 
         if not self._sph_all:
             self.record.clear()
@@ -318,6 +333,55 @@ class DistanceField:
         if len(self._self_fun):
             self._update_self()
         return self
+
+    def _update_compiled(self):
+        """:meth:`update`'s records from the centres on, in three compiled calls around the coal queries (the
+        operations of the readable path): :func:`~hqp_tpm.geometry._compiled.broad_phase` (the geometries' centres,
+        the obstacle and the self pairs' broad phases), then per record the queries it keeps and
+        :func:`~hqp_tpm.geometry._compiled.rewrite_pairs` (cleared, written, ``in_range``)."""
+        todo, self_todo = self._todo
+        n, ns = _kernels.broad_phase(self._block, self._local_centres, self._elem_center, self._elem_radius,
+                                     self._obs_center, self._obs_radius, self._coal_e, self._coal_o, self.surveillance,
+                                     self._self_a, self._self_b, self.self_surveillance, todo, self_todo)
+        if self._coal_fun:
+            touching, ng = {}, self.n_geometries
+            if n:
+                if self._coal_points:
+                    for k in todo[:n].tolist():
+                        e = self._coal_e_list[k]
+                        if e >= ng:
+                            self._point_M[e - ng].translation = self._elem_center[e]
+                D, P1, P2, touching = self._query(self._coal_fun, self._coal_e_list, self._coal_o_list, self._elem_M,
+                                                  self.obstacle_placements, todo[:n], self._coal_buffers)
+                if self._coal_points:
+                    E = self._coal_e[todo[:n]]
+                    points = E >= ng
+                    P1[points] = self._elem_center[E[points]]  # a control point's witness is the point itself
+            bd, b1, b2 = self._coal_buffers
+            f = self._flat
+            nb = _kernels.rewrite_pairs(bd, b1, b2, self._coal_flat, todo, n, f[0], f[1], f[2], f[3], f[4], f[5],
+                                        self._flat_in_range, self.surveillance, _TINY, self._bad)
+            for i in self._bad[:nb].tolist():
+                e, j = self._coal_e_list[todo[i]], self._coal_o_list[todo[i]]
+                self.normal[e, j] = self._last_normal[e, j] = self._fallback_normal(e, j, b1[i], touching.get(i))
+        if self._sph_e.size and self._sph_o.size:
+            self._update_spheres()
+            np.less_equal(self.distance, self.surveillance, out=self.in_range)
+        if not len(self._self_fun):
+            return
+        touching = {}
+        if ns:
+            touching = self._query(self._self_fun, self._self_a_list, self._self_b_list, self._elem_M, self._elem_M,
+                                   self_todo[:ns], self._self_buffers)[3]
+        bd, b1, b2 = self._self_buffers
+        nb = _kernels.rewrite_pairs(bd, b1, b2, self._self_index, self_todo, ns, self.self_distance, self.self_p1,
+                                    self.self_p2, self.self_normal, self._self_last_normal, self.self_computed,
+                                    self.self_in_range, self.self_surveillance, _TINY, self._self_bad)
+        k = int(self._self_bad[nb])
+        self._nearest_self = (-1, math.inf) if k < 0 else (k, float(self.self_distance[k]))
+        for i in self._self_bad[:nb].tolist():
+            k = int(self_todo[i])
+            self.self_normal[k] = self._self_last_normal[k] = self._self_fallback_normal(k, touching.get(i))
 
     def _update_spheres(self):
         """Closed-form sphere-sphere block (control points are zero-radius spheres).
@@ -580,7 +644,10 @@ class DistanceField:
         return Nearest(idx, dmin, omin, int(idx[k]), int(omin[k]), float(dmin[k]))
 
     def nearest_self(self) -> tuple[int, float]:
-        """Index and distance of the closest self pair in range, (-1, inf) if none."""
+        """Index and distance of the closest self pair in range, (-1, inf) if none (the first such pair, as
+        ``np.argmin`` takes it; after a compiled update, as that update's last call found it)."""
+        if self._nearest_self is not None:
+            return self._nearest_self
         if not self.self_in_range.any():
             return -1, math.inf
         D = np.where(self.self_in_range, self.self_distance, np.inf)
@@ -752,6 +819,26 @@ class DistanceField:
         return (f"DistanceField({self.n_geometries} geometries, {self.n_points} control points, "
                 f"{self.n_obstacles} obstacles, {len(self.self_pairs)} self pairs, "
                 f"surveillance={self.surveillance})")
+
+
+def _placements_block(refs: list) -> np.ndarray | None:
+    """The placements ``refs`` (``pin.SE3`` s pinocchio keeps side by side, as in a ``GeometryData``'s ``oMg``) as one
+    read-only ``(n, 4, 3)`` view of their memory: ``[i, :3]`` the rotation's columns, ``[i, 3]`` the origin; None
+    unless every rotation and origin view lies where that view reads it (Eigen's column-major 3 x 3 then 3-vector,
+    12 doubles apart), so another layout or a pinocchio that returns copies keeps the per-placement reads."""
+    rot, org = [M.rotation for M in refs], [M.translation for M in refs]
+    if not rot or any(R.dtype != np.float64 or R.strides != (8, 24) or t.strides != (8,) for R, t in zip(rot, org,
+                                                                                                           strict=True)):
+        return None
+    base = rot[0].__array_interface__["data"][0]
+    for i, (R, t) in enumerate(zip(rot, org, strict=True)):
+        if R.__array_interface__["data"][0] != base + 96 * i or t.__array_interface__["data"][0] != base + 96 * i + 72:
+            return None
+    block = np.lib.stride_tricks.as_strided(rot[0], shape=(len(rot), 4, 3), strides=(96, 24, 8), writeable=False)
+    for i, (R, t) in enumerate(zip(rot, org, strict=True)):  # (the same numbers, read through the view)
+        if not (np.array_equal(block[i, :3].T, R) and np.array_equal(block[i, 3], t)):
+            return None
+    return block
 
 
 def _built_again(args: tuple, kwargs: dict, snapshot: tuple) -> DistanceField:

@@ -405,12 +405,27 @@ def sns_tpm_stacked(J: np.ndarray, xd: np.ndarray, sizes, lower, upper, *, lambd
     (the compiled steps check it once per step). Same result as :func:`sns_tpm`. ``x0``: the joint-space term as
     one more, lowest level ``I x = x0``, as the registry adds it (the term must respect the box too)."""
     n = J.shape[1]
-    if x0 is not None:
-        J, xd, sizes = np.vstack((J, np.eye(n))), np.concatenate((xd, x0)), (*sizes, n)
+    if x0 is not None:  # (np.vstack((J, np.eye(n))), np.concatenate((xd, x0)): the same arrays, in fewer calls)
+        m = J.shape[0]
+        Jx, xx = np.empty((m + n, n)), np.empty(m + n)
+        Jx[:m], Jx[m:], xx[:m], xx[m:] = J, _identity(n), xd, x0
+        J, xd, sizes = Jx, xx, (*sizes, n)
     if not (type(lower) is np.ndarray and type(upper) is np.ndarray and lower.dtype == np.float64
             and upper.dtype == np.float64 and lower.shape == upper.shape == (n,)):
         lower, upper = _box(lower, upper, n)     # (else the kernel tests the box: BAD_BOX, then _box raises)
     return _sns_tpm(J, xd, tuple(sizes), lower, upper, None, lambda_max, eps, return_info)
+
+
+_IDENTITY: dict[int, np.ndarray] = {}
+
+
+def _identity(n: int) -> np.ndarray:
+    """The ``n x n`` identity, read-only, made once per size."""
+    eye = _IDENTITY.get(n)
+    if eye is None:
+        eye = _IDENTITY[n] = np.eye(n)
+        eye.flags.writeable = False
+    return eye
 
 
 def _sns_tpm(J, xd, sizes, lo, up, lv, lambda_max, eps, return_info):

@@ -111,9 +111,11 @@ class PairAvoidance(Task):
         self.J = np.zeros((0, 0))
         self.lower = np.zeros(0)
         self.distance = np.zeros(0)
+        self._upper = np.zeros(0)  # +inf per row, read-only: every level's upper bound (one array per row count)
 
     def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
-        self.J, self.lower, self.distance = np.atleast_2d(J), np.asarray(lower, float), np.asarray(distance, float)
+        J = J if type(J) is np.ndarray and J.ndim == 2 else np.atleast_2d(J)
+        self.J, self.lower, self.distance = J, np.asarray(lower, float), np.asarray(distance, float)
         self.dim = self.lower.size
 
     def value(self, state: State) -> np.ndarray:
@@ -137,7 +139,10 @@ class PairAvoidance(Task):
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
         if order != 1:
             raise ScenarioError("the whole_body policy works at velocity level only")
-        return Level(self.J, lower=self.lower, upper=np.full(self.dim, np.inf), name=self.name, defer_finite=True)
+        if self._upper.size != self.dim:
+            self._upper = np.full(self.dim, np.inf)
+            self._upper.flags.writeable = False
+        return Level(self.J, lower=self.lower, upper=self._upper, name=self.name, defer_finite=True)
 
     def rows_from(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(J_a, lower_a - J_a v)``: the rows of :meth:`level` seen from ``v`` with ``lower - J v > 0``, as
@@ -147,5 +152,7 @@ class PairAvoidance(Task):
         if not MIN_SUMSQ <= sumsq(J) <= MAX_SUMSQ or math.isnan(sumsq(self.lower)):
             return None
         lower = self.lower - J @ v
+        if lower.size and lower.min() > 0.0:  # every row kept (the usual case): J itself (NaN: below, not kept)
+            return J, lower
         keep = lower > 0.0
         return J[keep], lower[keep]
