@@ -576,7 +576,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     R = np.zeros((mg, mg))
     c = np.zeros(m)                                    # J xN
     Fc = np.empty(mg)
-    downdating = extended and not rec                  # (the first pass's factors exist)
+    downdating = extended                              # the first pass's factors exist (its QR of J_<k^T and
+    for i in range(m1):                                # (J_k Q)^T), also where the recursion answered its TPM:
+        downdating = downdating and PR1[i, i] != 0.0   # not where a zero pivot stopped them (no (J_k Q)^T)
     Xr = np.empty((0, 2))                              # rec: (J W)# F_W [xd - J xN, xd] by the recursion
     SU, Ssv, SVt = np.empty((0, 0)), np.empty(0), np.empty((0, 0))   # m <= n: the SVD of D J W when the QR
     use_svd = False                                                 # cannot decide its rank
