@@ -14,7 +14,8 @@ clip into the exact box at the end:
   shortcut's certificates do not take a stack (a singular or nearly singular pivot above the crossing level, a
   crossing level without a clear full column rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols`
   solves it, both right-hand sides of a pass with one SVD per level, and reports the first level's rank for the
-  rank test;
+  rank test; the later passes downdate the first pass's QR also where the recursion answered the first pass (the
+  QR exists unless a pivot of ``R1`` is zero), so they keep the downdated passes' certificate;
 * ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
   :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
   when a pivot is singular), ``(J W)#`` by the QR of ``(D J W)^T`` and the rank test ``rank(J W) < m`` of
