@@ -14,7 +14,8 @@ clip into the exact box at the end:
   shortcut's certificates do not take a stack (a singular or nearly singular pivot above the crossing level, a
   crossing level without a clear full column rank), the recursion :func:`hqp_tpm.solvers._compiled._recursion_cols`
   solves it, both right-hand sides of a pass with one SVD per level, and reports the first level's rank for the
-  rank test;
+  rank test; the later passes downdate the first pass's QR also where the recursion answered the first pass (the
+  QR exists unless a pivot of ``R1`` is zero), so they keep the downdated passes' certificate;
 * ``m <= n``: ``F`` (``I``, or Steps 1-4 of papers/000 when a pivot is damped or singular) by
   :func:`hqp_tpm.solvers._compiled._general_factors`, the first pass's ``x`` by ``Q R^{-T} F b`` (or the recursion
   when a pivot is singular), ``(J W)#`` by the QR of ``(D J W)^T`` and the rank test ``rank(J W) < m`` of
@@ -280,16 +281,108 @@ def _downdated_factor(J, sizes, colsq, free, nsat, k, m1, mk, R1, BT, lambda_max
     return status, AT, tauA, RA, DV, Dtau, DR, Dp, blk
 
 
+@_inlined
+def _crossing_rhs2(b1, b2, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, sc, o1, o2):
+    """:func:`hqp_tpm.solvers._compiled._crossing_rhs` of two right-hand sides at once: ``o1[:m1 + r] <- [z; y]`` of
+    ``b1``, ``o2`` of ``b2``. Each right-hand side takes the sums of ``_crossing_rhs`` term by term, in the same order
+    (the same bits); the two run in one loop (two independent chains of the substitutions, whose divisions and
+    additions wait on each other within one), into ``sc``'s rows 4.. (scratch of length ``>= max(m1, mk)``: no
+    allocation)."""
+    c1, c2, res1, res2, d1, d2 = sc[4], sc[5], sc[6], sc[7], sc[8], sc[9]
+    if Dp.shape[0]:                                    # a damped pivot above the crossing level: _pivot_forward
+        a = 0
+        while a < m1:
+            e = a + 1
+            while e < m1 and blk[e] == a:
+                e += 1
+            for i in range(a, e):
+                s1 = b1[i]
+                s2 = b2[i]
+                for t in range(a):
+                    s1 -= R1[t, i] * o1[t]
+                    s2 -= R1[t, i] * o2[t]
+                c1[i] = s1
+                c2[i] = s2
+            for i in range(a, e):
+                s1 = 0.0
+                s2 = 0.0
+                for t in range(a, e):
+                    s1 += Dp[t, i] * c1[t]
+                    s2 += Dp[t, i] * c2[t]
+                o1[i] = s1
+                o2[i] = s2
+            a = e
+    else:                                              # _solve_upper_t
+        for i in range(m1):
+            s1 = b1[i]
+            s2 = b2[i]
+            for t in range(i):
+                s1 -= R1[t, i] * o1[t]
+                s2 -= R1[t, i] * o2[t]
+            o1[i] = s1 / R1[i, i]
+            o2[i] = s2 / R1[i, i]
+    for i in range(mk):
+        res1[i] = b1[m1 + i]
+        res2[i] = b2[m1 + i]
+    for t in range(m1):                                # res_i = b_i - sum_t (J_k Q1)[i, t] z_t (t ascending)
+        z1 = o1[t]
+        z2 = o2[t]
+        for i in range(mk):
+            res1[i] -= BT[t, i] * z1
+            res2[i] -= BT[t, i] * z2
+    for i in range(r):                                 # _apply_qt: Q_A^T res (_reflect's sums)
+        ti = tauA[i]
+        if ti == 0.0:
+            continue
+        t0 = i + 1
+        cc = mk - t0
+        w1 = res1[i] + _compiled._dot(AT[i], res1, t0, cc)
+        w2 = res2[i] + _compiled._dot(AT[i], res2, t0, cc)
+        w1 *= ti
+        w2 *= ti
+        res1[i] -= w1
+        res2[i] -= w2
+        for tt in range(cc):
+            res1[t0 + tt] -= w1 * AT[i, t0 + tt]
+            res2[t0 + tt] -= w2 * AT[i, t0 + tt]
+    U = RA
+    if DR.shape[0]:                                    # the crossing level damped: _damped_solve's Q^T [c; 0]
+        U = DR
+        for t in range(r):
+            d1[t] = 0.0
+            d2[t] = 0.0
+        for i in range(r):
+            ti = Dtau[i]
+            if ti == 0.0:
+                continue
+            w1 = res1[i] + _compiled._lower_dot(DV[i], d1, i, r)
+            w2 = res2[i] + _compiled._lower_dot(DV[i], d2, i, r)
+            w1 *= ti
+            w2 *= ti
+            res1[i] -= w1
+            res2[i] -= w2
+            for t in range(i + 1):
+                d1[t] -= w1 * DV[i, t]
+                d2[t] -= w2 * DV[i, t]
+    for i in range(r - 1, -1, -1):                     # _solve_upper
+        s1 = res1[i]
+        s2 = res2[i]
+        for t in range(i + 1, r):
+            s1 -= U[i, t] * o1[m1 + t]
+            s2 -= U[i, t] * o2[m1 + t]
+        o1[m1 + i] = s1 / U[i, i]
+        o2[m1 + i] = s2 / U[i, i]
+
+
 @_kernel
 def _downdated_rhs(r1, r2, free, nsat, m1, mk, QT, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, sc, x1, x2):
     """``x1 <- (J W)# r1``, ``x2 <- (J W)# r2`` (the free joints' entries, in order) from :func:`_downdated_factor`'s
     factors (``m1``, ``mk``: the crossing level's): ``x = Q~ [0; z; y]``, ``Q~ = QT^T``, both in one sweep of ``QT``
-    (``sc``: scratch, ``4 x n``)."""
+    (``sc``: scratch, ``10 x max(m, n)``)."""
     n = free.shape[0]
     r = n - nsat - m1
     v1, v2, acc1, acc2 = sc[0], sc[1], sc[2], sc[3]
-    _compiled._crossing_rhs(r1, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v1[nsat:])
-    _compiled._crossing_rhs(r2, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, v2[nsat:])
+    _crossing_rhs2(r1, r2, m1, mk, r, R1, BT, AT, tauA, RA, DV, Dtau, DR, Dp, blk, sc, v1[nsat:], v2[nsat:])
     for t in range(n):
         acc1[t] = 0.0
         acc2[t] = 0.0
@@ -442,11 +535,11 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
             scale = max(scale, abs(up[j]))
     if not scale > 0.0:
         scale = 1.0
-    ws = np.empty((17, n))                             # the loop's vectors: one allocation, a row each
+    ws = np.empty((13, n))                             # the loop's vectors: one allocation, a row each
     tlo, tup, wlo, wup, xN, a, b, smax, best_a, best_b, xf, yf, w = (ws[0], ws[1], ws[2], ws[3], ws[4], ws[5],
                                                                      ws[6], ws[7], ws[8], ws[9], ws[10], ws[11],
                                                                      ws[12])
-    sc = ws[13:17]                                     # (_downdated_rhs's scratch)
+    sc = np.empty((10, max(m, n)))                     # (_downdated_rhs's scratch)
     for j in range(n):
         tlo[j] = 1e-10 * (scale + abs(lo[j]))          # sns.VIOLATION_TOL
         tup[j] = 1e-10 * (scale + abs(up[j]))
@@ -484,7 +577,9 @@ def _sns_loop(J, xd, sizes, lo, up, lambda_max, eps, unit, margin, cond, x, orde
     R = np.zeros((mg, mg))
     c = np.zeros(m)                                    # J xN
     Fc = np.empty(mg)
-    downdating = extended and not rec                  # (the first pass's factors exist)
+    downdating = extended                              # the first pass's factors exist (its QR of J_<k^T and
+    for i in range(m1):                                # (J_k Q)^T), also where the recursion answered its TPM:
+        downdating = downdating and PR1[i, i] != 0.0   # not where a zero pivot stopped them (no (J_k Q)^T)
     Xr = np.empty((0, 2))                              # rec: (J W)# F_W [xd - J xN, xd] by the recursion
     SU, Ssv, SVt = np.empty((0, 0)), np.empty(0), np.empty((0, 0))   # m <= n: the SVD of D J W when the QR
     use_svd = False                                                 # cannot decide its rank
