@@ -157,14 +157,16 @@ class PlannedStep(CompiledStep):
                         self._unchecked |= not sumsq(Jt) + sumsq(bt) <= MAX_SUMSQ
                         continue
                     lv = True
+                elif kind is PairAvoidance and self.rate and not self.other and task.J.ndim == 2 \
+                        and task.J.shape[0] == task.lower.size and (rows := task.rows_from(st.v)) is not None:
+                    Jt, bt = rows  # its active rows seen from v; its level built when a result asks
+                    lv = _PairLevel(task, task.J, task.lower)
                 else:
                     lv = task.level(st, t, order, extra)
                     if lv.b is not None:
                         Jt, bt = lv.J, lv.b
-                    elif self.rate and not self.other:  # its active rows seen from v (command_rate.shifted),
-                        # written shifted
-                        rows = task.rows_from(st.v) if kind is PairAvoidance else None  # (the same, fewer calls)
-                        Jt, bt = rows or shifted(lv.check_finite(), st.v).as_equality()
+                    elif self.rate and not self.other:  # its active rows seen from v, written shifted
+                        Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
                     else:
                         Jt, bt = lv.check_finite().as_equality()
                 m = Jt.shape[0]
@@ -358,6 +360,8 @@ class PlannedStep(CompiledStep):
                 lv = task.cone_level(J[a:a + k], b[a:a + k], True)
             elif type(lv) is tuple:  # its row while e <= 0: an inactive level
                 lv = task.cone_level(*lv, False)
+            elif type(lv) is _PairLevel:
+                lv = lv.level()
             groups.setdefault(g, []).append(lv)
         return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
@@ -369,3 +373,19 @@ class PlannedStep(CompiledStep):
         if text is None:
             text = self._labels[key] = " > ".join(key)
         return text
+
+
+class _PairLevel:
+    """A :class:`PairAvoidance`'s level at a step (its ``J`` and ``lower`` then), built when a result asks for it:
+    :meth:`PairAvoidance.level`'s numbers."""
+
+    __slots__ = ("task", "J", "lower")
+    b = None  # (an inequality level)
+
+    def __init__(self, task: PairAvoidance, J: np.ndarray, lower: np.ndarray):
+        self.task, self.J, self.lower = task, J, lower
+
+    def level(self) -> Level:
+        upper = np.full(self.lower.size, np.inf)
+        upper.flags.writeable = False
+        return Level(self.J, lower=self.lower, upper=upper, name=self.task.name, defer_finite=True)
