@@ -136,6 +136,8 @@ def _listen() -> None:
                 if _COMPILE["gc"]:  # the span's objects collected once, here: not in the caller's next steps
                     gc.enable()
                     gc.collect(2 if _COMPILE["compiled"] else 0)
+                    if _COMPILE["compiled"]:  # what numba keeps of a compile (its IR, types, code) lives as long
+                        gc.freeze()           # as the process: later collections do not walk it again (_numba)
                 _COMPILE["compiled"] = False
                 _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
 
@@ -288,6 +290,20 @@ def dispatcher(fn, inline: bool = False):
         finally:
             numba.config.CACHE_DIR = before
         return d
+
+
+def lapack_gesdd():
+    """numba's driver of LAPACK's ``dgesdd`` (``numba_ez_gesdd``: what numba's ``np.linalg.svd`` calls, the
+    workspace query and then ``dgesdd``), a function compiled code can call; None if this numba (or scipy) has none.
+    """
+    try:
+        numba = _numba()
+        from numba.np import linalg
+
+        linalg.ensure_lapack()
+        return linalg._LAPACK().numba_ez_gesdd(numba.types.float64)
+    except Exception:  # noqa: BLE001 - another numba or no scipy: numba's np.linalg.svd
+        return None
 
 
 def share_switch(module_name: str) -> None:

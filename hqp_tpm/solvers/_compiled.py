@@ -67,9 +67,13 @@ def _inlined(fn):
 
 def _compile() -> None:
     """Replace every kernel of this module by its numba dispatcher (:func:`hqp_tpm._jit.compile_module`)."""
-    global _READY
+    global _READY, _gesdd, _block_svd
     if not _jit.compile_module(globals()):
         raise ImportError("numba cannot be imported")
+    lapack = _jit.lapack_gesdd()
+    if lapack is not None:  # (else numba's np.linalg.svd: _block_svd's own source)
+        _gesdd = lapack
+        _block_svd = _jit.dispatcher(_block_svd_lapack)
     _READY = True
 
 
@@ -810,6 +814,43 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
 # ----------------------------------------------------------------------------------------
 # The general TPM path when m <= n.
 # ----------------------------------------------------------------------------------------
+@_kernel
+def _block_svd(R, a, e):
+    """``(U, s, Vt)``: ``np.linalg.svd`` of the upper triangle of the block ``R[a:e, a:e]`` (LAPACK's ``dgesdd``,
+    ``U`` and ``Vt`` square). Compiled, :func:`_block_svd_lapack` takes its place (:func:`_compile`): the same
+    LAPACK call."""
+    k = e - a
+    B = np.zeros((k, k))
+    for i in range(k):
+        for j in range(i, k):
+            B[i, j] = R[a + i, a + j]
+    return np.linalg.svd(B)
+
+
+_gesdd = None  # numba's LAPACK driver of np.linalg.svd (hqp_tpm._jit.lapack_gesdd; read by _block_svd_lapack)
+
+
+def _block_svd_lapack(R, a, e):  # pragma: no cover - compiled (as _block_svd)
+    """:func:`_block_svd` as numba compiles its ``np.linalg.svd``, without the generic parts: the block copied in
+    column-major order, numba's own ``dgesdd`` driver (``numba_ez_gesdd``: the workspace query, then ``dgesdd``,
+    ``jobz = 'A'``) on it, ``U`` and ``Vt`` the transposes of its column-major results. The same call on the same
+    bytes: the same bits. Left out: numba's checks of an empty or non-finite matrix (a pivot block of a finite
+    stack's ``R`` is neither) and its copy of any layout; with them ~0.4 s of CPU compiling each kernel that calls
+    it (``benchmarks/first_run.py``)."""
+    k = e - a
+    A = np.zeros((k, k))                               # A[j, i] = B[i, j]: B in column-major order
+    for i in range(k):
+        for j in range(i, k):
+            A[j, i] = R[a + i, a + j]
+    u = np.empty((k, k))
+    s = np.empty(k)
+    vt = np.empty((k, k))
+    r = _gesdd(100, 65, k, k, A.ctypes, k, s.ctypes, u.ctypes, k, vt.ctypes, k)   # kind 'd', jobz 'A'
+    if r != 0 or A.shape[0] != k:                      # (A read after the call: alive until it returns)
+        raise ValueError("Internal algorithm failed to converge.")
+    return u.T, s, vt.T
+
+
 @_inlined
 def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
     """The pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its certificate did not decide, by the SVD of the block
@@ -817,11 +858,7 @@ def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
     (``D[a:e, a:e]`` gets the damped inverse ``V diag(s / (s^2 + lambda^2)) U^T``), -1 singular; with
     ``singular_ok`` a singular block gets its truncated (damped) inverse too (``s <= tol``: 0) and 2."""
     k = e - a
-    B = np.zeros((k, k))
-    for i in range(k):
-        for j in range(i, k):
-            B[i, j] = R[a + i, a + j]
-    U, sv, Vt = np.linalg.svd(B)
+    U, sv, Vt = _block_svd(R, a, e)
     smin = sv[k - 1]
     singular = smin <= tol
     if singular and not singular_ok:
