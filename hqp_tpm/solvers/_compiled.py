@@ -52,6 +52,10 @@ from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
 #: (``sigma_min`` itself would); a singular pivot (``_general_factors`` with ``singular_ok``). The last three: the
 #: recursion answers.
 SOLVED, DECLINED, UNDECIDED, SINGULAR = 0, 1, 2, 3
+#: :func:`_general`'s hand-back: a pivot block its certificate cannot decide, whose SVD :func:`_general_svd` takes
+#: (nothing solved; the value is beyond the statuses the compiled steps add, 3-7 in
+#: :mod:`hqp_tpm.control._compiled_step`, so that they hand it back as it is).
+PIVOT_SVD = 8
 #: :func:`_tpm`'s report: the factorization's kernel answered, or the recursion did.
 FACTORED, RECURSION = 0, 1
 
@@ -878,13 +882,27 @@ def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
 
 @_inlined
 def _general_factors(J, sizes, lambda_max, eps, unit, singular_ok):
+    """:func:`_factors` with every pivot decided, by the SVD of its block where its certificate cannot tell
+    (:func:`_damped_block`; SNS-TPM's kernel)."""
+    return _factors(J, sizes, lambda_max, eps, unit, singular_ok, _damped_block)
+
+
+@_inlined
+def _defer_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
+    """:func:`_factors`' ``block`` of :func:`_general`: a pivot block that needs its SVD is left to
+    :func:`_general_svd` (-2; none of the SVD's code compiled into :func:`_general`)."""
+    return -2
+
+
+@_inlined
+def _factors(J, sizes, lambda_max, eps, unit, singular_ok, block):
     """The factorization of TPM for ``m <= n`` (eq. (8) of papers/000): ``(status, damped, V, tau, R, Fb)``, the
     Householder QR of ``J^T`` and, when some pivot is damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4
     (``F = Fbar^T``); otherwise ``F = I`` and ``Fb`` is empty (nothing allocated for it). Each pivot is certified
-    regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block
-    (:func:`_damped_block`). A singular pivot: :data:`UNDECIDED` (the caller runs the recursion), or with
-    ``singular_ok`` :data:`SINGULAR` and ``Fb`` with that pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the
-    recursion)."""
+    regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or decided by ``block`` (:func:`_damped_block`,
+    the SVD of the block; or :func:`_defer_block`: :data:`PIVOT_SVD`, nothing solved). A singular pivot:
+    :data:`UNDECIDED` (the caller runs the recursion), or with ``singular_ok`` :data:`SINGULAR` and ``Fb`` with that
+    pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the recursion)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
@@ -921,9 +939,9 @@ def _general_factors(J, sizes, lambda_max, eps, unit, singular_ok):
                     D[a, a] = inv if R[a, a] >= 0.0 else -inv
                     kind[lev] = 1
             else:
-                k = _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D)
+                k = block(R, a, e, tol, lambda_max, eps, singular_ok, D)
                 if k < 0:
-                    return UNDECIDED, False, V, tau, R, Fb
+                    return (UNDECIDED if k == -1 else PIVOT_SVD), False, V, tau, R, Fb
                 singular = singular or k == 2
                 kind[lev] = 0 if k == 0 else 1
             damped = damped or kind[lev] == 1
@@ -978,17 +996,10 @@ def _f_times(Fb, b, out):
         out[col] = s
 
 
-@_kernel
-def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
-    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
-    when no pivot is singular (:func:`_general_factors`: each pivot certified regular or decided, and damped, by the
-    SVD of its block). Returns :data:`SOLVED`, or :data:`UNDECIDED` for a singular pivot: the caller runs the
-    recursion.
-    """
+@_inlined
+def _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out):
+    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) from :func:`_factors`' factors."""
     m, n = J.shape
-    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit, False)
-    if status != SOLVED:
-        return status
     c = np.empty(m)
     if damped:
         _f_times(Fb, b, c)
@@ -1010,7 +1021,33 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     if use_x0:
         for i in range(n):
             out[i] += x0[i]
-    return SOLVED
+
+
+@_kernel
+def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
+    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``
+    whose pivots are each certified regular, or singular or damped as a 1 x 1 block (:func:`_factors`). Returns
+    :data:`SOLVED`; :data:`UNDECIDED` for a singular pivot (the caller runs the recursion); :data:`PIVOT_SVD` for a
+    block only its SVD decides, nothing solved: :func:`_general_svd` answers (the same factorization, the same bits
+    as one kernel deciding all). Without the SVD (LAPACK, the damping of a block) numba compiles ~0.8 s of CPU less
+    on a process's first solve, and only a run whose stacks need it compiles :func:`_general_svd`
+    (``benchmarks/first_run.py``).
+    """
+    status, damped, V, tau, R, Fb = _factors(J, sizes, lambda_max, eps, unit, False, _defer_block)
+    if status == SOLVED:
+        _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out)
+    return status
+
+
+@_kernel
+def _general_svd(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
+    """:func:`_general` with every pivot decided, by the SVD of its block where its certificate cannot tell
+    (:func:`_damped_block`): :data:`SOLVED` or :data:`UNDECIDED` (a singular pivot: the caller runs the recursion).
+    """
+    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit, False)
+    if status == SOLVED:
+        _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out)
+    return status
 
 
 _SIZES: dict[tuple, np.ndarray] = {}
@@ -1056,7 +1093,10 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
         s = np.asarray(sizes, dtype=np.int64)
     x = np.empty(n)
     use = x0 is not None
-    status = _general(J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
+    args = (J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
+    status = _general(*args)
+    if status == PIVOT_SVD:
+        status = _general_svd(*args)
     return x if status == SOLVED else None
 
 
@@ -1146,17 +1186,20 @@ def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
                       ranks)
 
 
-def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
-    """``out <- x`` of TPM: the factorization's kernel (:func:`_past_rank` when ``m > n``, else :func:`_general`)
-    and, on a stack it does not take (a singular pivot, a certificate that cannot decide), the recursion
-    (:func:`_recursion`: the same answer where both apply, the exact one where a pivot is singular). Returns
-    :data:`FACTORED` or :data:`RECURSION`, the path that answered. Python calling the kernels, not a kernel: one
-    kernel holding all three would compile all three on a process's first solve (~15 s of CPU on a first run); this
-    way numba compiles the branch a stack takes, and the recursion when it answers."""
+def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out, pivot_svd=False):
+    """``out <- x`` of TPM: the factorization's kernel (:func:`_past_rank` when ``m > n``, else :func:`_general`,
+    and :func:`_general_svd` when a pivot block needs its SVD, or at once with ``pivot_svd``) and, on a stack it does
+    not take (a singular pivot, a certificate that cannot decide), the recursion (:func:`_recursion`: the same answer
+    where both apply, the exact one where a pivot is singular). Returns :data:`FACTORED` or :data:`RECURSION`, the
+    path that answered. Python calling the kernels, not a kernel: one kernel holding them all would compile them all
+    on a process's first solve (~15 s of CPU on a first run); this way numba compiles the branch a stack takes, and
+    the recursion when it answers."""
     if J.shape[0] > n:                                 # rank n reached before the last level: x0 has no effect
         status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
     else:
-        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+        status = PIVOT_SVD if pivot_svd else _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+        if status == PIVOT_SVD:
+            status = _general_svd(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
     if status == SOLVED:
         return FACTORED
     ranks = np.empty(sizes.shape[0], dtype=np.int64)
@@ -1164,20 +1207,22 @@ def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
     return RECURSION
 
 
-def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
+def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None,
+        pivot_svd: bool = False) -> np.ndarray:
     """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm`, its kernels
     compiled when :data:`ENABLED`, else the same source as Python (its loops are made for the compiler: ~2-8 ms a
-    solve)."""
+    solve; it decides every pivot in one pass, :func:`_general_svd`). ``pivot_svd``: :func:`_general` already handed
+    these arrays back (:data:`PIVOT_SVD`)."""
     use = x0 is not None
     x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
     out = np.empty(n)
     if _jit.ENABLED:
         s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
         if s is not None or (s := _sizes(sizes)) is not None:
-            _tpm(J, b, s, n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use, out)
+            _tpm(J, b, s, n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use, out, pivot_svd)
             return out
     _tpm_py(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use,
-            out)
+            out, True)
     return out
 
 
