@@ -90,7 +90,7 @@ def test_handed_back_stacks_solve_as_one_kernel():
         for lam, eps in ((0.05, 0.1), (0.1, 0.5)):
             out = np.full(n, np.nan)
             args = (J, b, s, x0 if use else _compiled._NO_X0, use, lam, eps, _compiled._UNIT)
-            status = _compiled._general(*args, out)
+            status = _compiled._general_first(*args, out)
             if status != _compiled.PIVOT_SVD:
                 continue
             handed += 1
@@ -104,9 +104,10 @@ def test_handed_back_stacks_solve_as_one_kernel():
     assert handed >= 100, handed
 
 
-def test_planned_step_kernel_hands_back_and_tpm_stacked_finishes():
+def test_planned_step_kernel_hands_back_and_tpm_stacked_finishes(monkeypatch):
     """The planned step's compiled solve (``_general`` fused with the rows' checks) hands these stacks back; the
-    caller's ``tpm_stacked(kernel_status=...)`` gives the bits of ``tpm_stacked`` alone."""
+    caller's ``tpm_stacked(kernel_status=...)`` gives the bits of ``tpm_stacked`` alone, and from then on
+    ``_general`` is the kernel deciding every pivot (no more hand-backs)."""
     kernel = _compiled_step.stacked_kernel(False)
     if kernel is None:
         pytest.skip("numba is not installed")
@@ -115,6 +116,7 @@ def test_planned_step_kernel_hands_back_and_tpm_stacked_finishes():
     for J, b, sizes, n, _ in near_dependent_stacks(8, 120):
         v = rng.standard_normal(n)
         for damping in (0.0, 3.0):
+            monkeypatch.setattr(_compiled, "_general", _compiled._general_first)  # (as in a fresh process)
             x, x0 = np.empty(n), np.empty(n)
             status = kernel(J, b, _compiled._sizes(sizes), v, damping, 0.05, 0.1, _compiled._UNIT, MARGIN, COND,
                             x0, x)
@@ -125,6 +127,14 @@ def test_planned_step_kernel_hands_back_and_tpm_stacked_finishes():
                 handed += 1
                 got = tpm_stacked(J, b, sizes, n, 0.05, 0.1, x0 if damping else None, kernel_status=status)
                 np.testing.assert_array_equal(got, ref)
+                assert _compiled._general is _compiled._general_svd
+                x2 = np.empty(n)  # the same stack again: solved at once, the same bits
+                assert kernel(J, b, _compiled._sizes(sizes), v, damping, 0.05, 0.1, _compiled._UNIT, MARGIN, COND,
+                              np.empty(n), x2) in (_compiled.SOLVED, _compiled.UNDECIDED)
+                if np.isfinite(x2).all() and _compiled._general_svd(J, b, _compiled._sizes(sizes), x0,
+                                                                    damping > 0, 0.05, 0.1, _compiled._UNIT,
+                                                                    np.empty(n)) == _compiled.SOLVED:
+                    np.testing.assert_array_equal(x2, ref)
     assert handed >= 20, handed
 
 

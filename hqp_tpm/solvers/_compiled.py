@@ -71,9 +71,10 @@ def _inlined(fn):
 
 def _compile() -> None:
     """Replace every kernel of this module by its numba dispatcher (:func:`hqp_tpm._jit.compile_module`)."""
-    global _READY, _gesdd, _block_svd
+    global _READY, _gesdd, _block_svd, _general_first
     if not _jit.compile_module(globals()):
         raise ImportError("numba cannot be imported")
+    _general_first = _general
     lapack = _jit.lapack_gesdd()
     if lapack is not None:  # (else numba's np.linalg.svd: _block_svd's own source)
         _gesdd = lapack
@@ -1029,9 +1030,9 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     whose pivots are each certified regular, or singular or damped as a 1 x 1 block (:func:`_factors`). Returns
     :data:`SOLVED`; :data:`UNDECIDED` for a singular pivot (the caller runs the recursion); :data:`PIVOT_SVD` for a
     block only its SVD decides, nothing solved: :func:`_general_svd` answers (the same factorization, the same bits
-    as one kernel deciding all). Without the SVD (LAPACK, the damping of a block) numba compiles ~0.8 s of CPU less
-    on a process's first solve, and only a run whose stacks need it compiles :func:`_general_svd`
-    (``benchmarks/first_run.py``).
+    as one kernel deciding all), and from then on takes this kernel's place (:func:`_pivot_svd`). Without the SVD
+    (LAPACK, the damping of a block) numba compiles ~0.8 s of CPU less on a process's first solve, and only a run
+    whose stacks need it compiles :func:`_general_svd` (``benchmarks/first_run.py``).
     """
     status, damped, V, tau, R, Fb = _factors(J, sizes, lambda_max, eps, unit, False, _defer_block)
     if status == SOLVED:
@@ -1048,6 +1049,9 @@ def _general_svd(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     if status == SOLVED:
         _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out)
     return status
+
+
+_general_first = _general  # (the kernel that hands back, whichever _general is now: tests)
 
 
 _SIZES: dict[tuple, np.ndarray] = {}
@@ -1096,8 +1100,17 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
     args = (J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
     status = _general(*args)
     if status == PIVOT_SVD:
-        status = _general_svd(*args)
+        status = _pivot_svd()(*args)
     return x if status == SOLVED else None
+
+
+def _pivot_svd():
+    """:func:`_general_svd`, from now on also as :func:`_general` (this module's global, which :func:`_tpm` and the
+    planned step's solve call): the process has met a stack whose pivot block needs its SVD, and its next solves
+    take the kernel that decides every pivot at once (no hand-back; the same bits either way)."""
+    global _general
+    _general = _general_svd
+    return _general_svd
 
 
 # ----------------------------------------------------------------------------------------
@@ -1199,7 +1212,7 @@ def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out, p
     else:
         status = PIVOT_SVD if pivot_svd else _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
         if status == PIVOT_SVD:
-            status = _general_svd(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+            status = _pivot_svd()(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
     if status == SOLVED:
         return FACTORED
     ranks = np.empty(sizes.shape[0], dtype=np.int64)
