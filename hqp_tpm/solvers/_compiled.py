@@ -1060,9 +1060,12 @@ _NO_X0 = np.zeros(0)
 
 
 def _sizes(sizes) -> np.ndarray | None:
-    """``sizes`` as an int64 array (cached per tuple), after compiling the kernels on first use; None if numba
-    cannot be imported after all (then :data:`ENABLED` becomes False: the numpy path from now on)."""
+    """``sizes`` as an int64 array (cached per tuple), after compiling the kernels on first use; None if the switch
+    is off (:data:`ENABLED`, kernels not made: nothing compiled, numba not imported) or numba cannot be imported
+    after all (then :data:`ENABLED` becomes False: the numpy path from now on)."""
     if not _READY:
+        if not _jit.ENABLED:
+            return None
         try:
             _compile()
         except ImportError:  # pragma: no cover - numba found but not importable (_jit turned the switch off)
