@@ -64,10 +64,10 @@ print({"setup_cpu_s": t1 - t0, "first_step_cpu_s": t2 - t1, "steps_cpu_s": t3 - 
 """
 
 
-def child(cmd: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess]:
-    """Run ``cmd``; the child's CPU seconds (user + system) and its result."""
+def child(cmd: list[str], env: dict[str, str], cwd=None) -> tuple[float, subprocess.CompletedProcess]:
+    """Run ``cmd`` (in ``cwd``); the child's CPU seconds (user + system) and its result."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, check=False)
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, check=False, cwd=cwd)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if out.returncode != 0:
         raise RuntimeError(f"{cmd} failed: {out.stderr[-2000:]}")
@@ -105,7 +105,7 @@ def main(argv=None) -> int:
                        "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
                 pairs[which].append(child([sys.executable, "-m", "hqp_tpm.app.cli", "run", "lwr_relaxed", "--steps",
                                            str(args.steps), "--quiet", "--out", str(Path(tmp) / f"ab{which}{i}")],
-                                          env)[0])
+                                          env, cwd=root)[0])  # (python -m puts the working directory first)
         for i in range(args.repeat):
             env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / f"cache{i}")}
             for what in runs:

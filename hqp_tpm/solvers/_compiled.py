@@ -1110,9 +1110,12 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
 def _pivot_svd():
     """:func:`_general_svd`, from now on also as :func:`_general` (this module's global, which :func:`_tpm` and the
     planned step's solve call): the process has met a stack whose pivot block needs its SVD, and its next solves
-    take the kernel that decides every pivot at once (no hand-back; the same bits either way)."""
+    take the kernel that decides every pivot at once (no hand-back; the same bits either way). Compiled only: as
+    Python (the switch off) :func:`tpm` takes :func:`_general_svd` at once, and :func:`_compile` finds the module's
+    own functions under their names."""
     global _general
-    _general = _general_svd
+    if _READY:
+        _general = _general_svd
     return _general_svd
 
 
