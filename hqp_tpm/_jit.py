@@ -28,8 +28,9 @@
   :func:`set_notice_writer`'s writer (e.g. a progress bar's); :func:`compile_seconds` is the time the process
   spent compiling kernels or loading them from the cache, so callers can keep it out of step times.
 * numba is imported, and compiles or loads, with the cyclic garbage collector paused (:func:`gc_paused`); the
-  objects alive after numba's first import are frozen (``gc.freeze()``, :func:`_numba`): later collections and the
-  interpreter's at exit do not walk numba's registries again. With these a process that loads its kernels from the
+  objects alive after numba's first import are frozen (``gc.freeze()``, :func:`_numba`), and so are those alive
+  after each compile's collection (what numba keeps of a compile): later collections and the interpreter's at exit
+  do not walk numba's registries again. With these a process that loads its kernels from the
   cache spends ~0.1 s of CPU on them (a 1,000-step script is no slower than with ``HQP_TPM_COMPILED=0``;
   ``benchmarks/first_run.py``).
 """

@@ -5,9 +5,10 @@ call) and of the recursion (``nullspace``, and TPM where a pivot is singular); t
 
 * :func:`_past_rank` (``m > n``, rank ``n`` reached before the last level: the shortcut of
   :mod:`hqp_tpm.solvers._fullrank`), also inside SNS-TPM's kernel for the stack and its free-column stacks;
-* :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular or, when the
-  certificate cannot tell, decided and damped by the SVD of its block; Steps 2-4 on the pivot blocks,
-  ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion;
+* :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular (or a 1 x 1 block
+  damped); Steps 2-4 on the pivot blocks, ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion; a
+  block the certificate cannot decide: :func:`_general_svd`, the same with that block decided and damped by its SVD
+  (compiled only when a run needs it, then in :func:`_general`'s place);
 * :func:`_recursion_cols` / :func:`_recursion`: eqs. (5)-(6), (14) of papers/000 on orthonormal bases.
 
 ``tests/test_compiled.py`` proves them equal to the oracles (1e-12; on ill-conditioned draws against a 50-digit
