@@ -1,6 +1,6 @@
 """The first run on a machine and short scripts (issue 29 item 3), each in a fresh process.
 
-    python benchmarks/first_run.py [--steps 200] [--script-steps 1000] [--repeat 3]
+    python benchmarks/first_run.py [--steps 200] [--script-steps 1000] [--repeat 3] [--ab OLD_CHECKOUT]
 
 1. ``hqp-tpm run lwr_relaxed --steps N`` with an empty numba cache (``NUMBA_CACHE_DIR`` a new temporary folder each
    time: every kernel the run uses is compiled), then on that cache (loaded), ``--repeat`` times each, interleaved:
@@ -12,6 +12,10 @@
    in turn: the process's CPU time (import, set-up, steps and exit), the CPU time of the first step (kernels loaded
    there) and :func:`hqp_tpm._jit.compile_seconds`; medians, and the median of the pairs' CPU ratio compiled /
    numpy (pairs: the ratio holds when the machine's speed drifts).
+
+``--ab OLD_CHECKOUT`` (a directory with an earlier commit's files, ``git archive COMMIT | tar -x -C DIR``): also the
+cold run of that checkout and of this one in turn, ``--repeat`` pairs, each with an empty cache of its own: process
+CPU medians and the median of the pairs' ratio (the machine's load drifts; pairs run back to back).
 
 Writes ``benchmarks/results/first_run.md``. Absolute times depend on the machine's load (stated).
 """
@@ -60,10 +64,10 @@ print({"setup_cpu_s": t1 - t0, "first_step_cpu_s": t2 - t1, "steps_cpu_s": t3 - 
 """
 
 
-def child(cmd: list[str], env: dict[str, str]) -> tuple[float, subprocess.CompletedProcess]:
-    """Run ``cmd``; the child's CPU seconds (user + system) and its result."""
+def child(cmd: list[str], env: dict[str, str], cwd=None) -> tuple[float, subprocess.CompletedProcess]:
+    """Run ``cmd`` (in ``cwd``); the child's CPU seconds (user + system) and its result."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, check=False)
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=1800, check=False, cwd=cwd)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     if out.returncode != 0:
         raise RuntimeError(f"{cmd} failed: {out.stderr[-2000:]}")
@@ -85,13 +89,23 @@ def main(argv=None) -> int:
     ap.add_argument("--script-steps", type=int, default=1000)
     ap.add_argument("--repeat", type=int, default=3, help="cold and warm runs, and script pairs (medians)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "first_run.md")
+    ap.add_argument("--ab", type=Path, metavar="OLD_CHECKOUT", help="cold runs of that checkout and this one in turn")
     args = ap.parse_args(argv)
     env0 = common.environment()
     base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != "HQP_TPM_COMPILED"}
     base["PYTHONPATH"] = str(common.ROOT) + os.pathsep + base.get("PYTHONPATH", "")
     base["OMP_NUM_THREADS"] = base["OPENBLAS_NUM_THREADS"] = "1"
     runs = {"cold (empty cache)": [], "warm (same cache)": []}
+    pairs = {"old": [], "new": []}
     with tempfile.TemporaryDirectory(prefix="hqp-tpm-first-run-") as tmp:
+        for i in range(args.repeat if args.ab else 0):  # cold runs of the old checkout and this one, in turn
+            for which, root in (("old", args.ab.resolve()), ("new", common.ROOT)):
+                common.progress(f"cold run A/B, {which} ({root}), {i + 1}/{args.repeat}")
+                env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / f"ab-{which}{i}"),
+                       "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+                pairs[which].append(child([sys.executable, "-m", "hqp_tpm.app.cli", "run", "lwr_relaxed", "--steps",
+                                           str(args.steps), "--quiet", "--out", str(Path(tmp) / f"ab{which}{i}")],
+                                          env, cwd=root)[0])  # (python -m puts the working directory first)
         for i in range(args.repeat):
             env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / f"cache{i}")}
             for what in runs:
@@ -136,7 +150,17 @@ def main(argv=None) -> int:
     script_table += (f"\n\nCompiled (warm cache) / `HQP_TPM_COMPILED=0`, process CPU, pair by pair ({len(ratios)} "
                      f"pairs, run in turn): median {median(ratios):.2f} (min {min(ratios):.2f}, max "
                      f"{max(ratios):.2f}).")
-    common.write_markdown(args.out, "The first run and short scripts", env0, [
+    sections = []
+    if args.ab:
+        ratios_ab = [b / a for a, b in zip(pairs["old"], pairs["new"], strict=True)]
+        ab_table = common.md_table([f"`hqp-tpm run lwr_relaxed --steps {args.steps}`, cold",
+                                    f"process CPU s, median (min-max) of {args.repeat}"],
+                                   [[f"old: `{args.ab}`", spread(pairs["old"])], ["new: this checkout",
+                                                                                  spread(pairs["new"])]])
+        ab_table += (f"\n\nNew / old, pair by pair: median {median(ratios_ab):.3f} (min {min(ratios_ab):.3f}, max "
+                     f"{max(ratios_ab):.3f}).")
+        sections.append((f"Cold runs of two checkouts in turn ({args.repeat} pairs, each an empty cache)", ab_table))
+    common.write_markdown(args.out, "The first run and short scripts", env0, sections + [
         (f"The first run (fresh processes, `NUMBA_CACHE_DIR` a new empty folder, then the same again; {args.repeat} "
          "times each)", run_table),
         ("A short script, kernels on (warm cache) and off (medians; the empty-cache row: one run)", script_table),

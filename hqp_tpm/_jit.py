@@ -28,8 +28,9 @@
   :func:`set_notice_writer`'s writer (e.g. a progress bar's); :func:`compile_seconds` is the time the process
   spent compiling kernels or loading them from the cache, so callers can keep it out of step times.
 * numba is imported, and compiles or loads, with the cyclic garbage collector paused (:func:`gc_paused`); the
-  objects alive after numba's first import are frozen (``gc.freeze()``, :func:`_numba`): later collections and the
-  interpreter's at exit do not walk numba's registries again. With these a process that loads its kernels from the
+  objects alive after numba's first import are frozen (``gc.freeze()``, :func:`_numba`), and so are those alive
+  after each compile's collection (what numba keeps of a compile): later collections and the interpreter's at exit
+  do not walk numba's registries again. With these a process that loads its kernels from the
   cache spends ~0.1 s of CPU on them (a 1,000-step script is no slower than with ``HQP_TPM_COMPILED=0``;
   ``benchmarks/first_run.py``).
 """
@@ -136,6 +137,8 @@ def _listen() -> None:
                 if _COMPILE["gc"]:  # the span's objects collected once, here: not in the caller's next steps
                     gc.enable()
                     gc.collect(2 if _COMPILE["compiled"] else 0)
+                    if _COMPILE["compiled"]:  # what numba keeps of a compile (its IR, types, code) lives as long
+                        gc.freeze()           # as the process: later collections do not walk it again (_numba)
                 _COMPILE["compiled"] = False
                 _COMPILE["seconds"] += time.perf_counter() - _COMPILE["start"]
 
@@ -288,6 +291,20 @@ def dispatcher(fn, inline: bool = False):
         finally:
             numba.config.CACHE_DIR = before
         return d
+
+
+def lapack_gesdd():
+    """numba's driver of LAPACK's ``dgesdd`` (``numba_ez_gesdd``: what numba's ``np.linalg.svd`` calls, the
+    workspace query and then ``dgesdd``), a function compiled code can call; None if this numba (or scipy) has none.
+    """
+    try:
+        numba = _numba()
+        from numba.np import linalg
+
+        linalg.ensure_lapack()
+        return linalg._LAPACK().numba_ez_gesdd(numba.types.float64)
+    except Exception:  # noqa: BLE001 - another numba or no scipy: numba's np.linalg.svd
+        return None
 
 
 def share_switch(module_name: str) -> None:

@@ -273,13 +273,15 @@ def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x
     ``b``: their finiteness, ``x0 = -damping v`` when ``damping`` (:func:`_stacked_rows`), the TPM kernel
     ``tpm_stacked`` would call (``_general``), ``x``'s finiteness (:func:`_x_status`); the statuses of
     :func:`kernel`. Three compiled calls, not one kernel: a kernel calling ``_general`` would compile all of its
-    code once more (numba links and optimizes a callee's code again into each caller), ~2 s of a first run."""
+    code once more (numba links and optimizes a callee's code again into each caller), ~2 s of a first run.
+    (``_compiled._general`` read at each call: after a stack whose pivot block needs its SVD it is the kernel
+    deciding every pivot, ``_compiled._pivot_svd``.)"""
     use_x0 = _stacked_rows(J, b, v, damping, x0)
     if use_x0 < 0:
         return NONFINITE_ROWS
     if J.shape[0] > J.shape[1]:
         return DECLINED
-    return _x_status(_general(J, b, sizes, x0, use_x0 == 1, lambda_max, eps, unit, out), out)
+    return _x_status(_compiled._general(J, b, sizes, x0, use_x0 == 1, lambda_max, eps, unit, out), out)
 
 
 def _stacked_tpm_tall(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):

@@ -5,9 +5,10 @@ call) and of the recursion (``nullspace``, and TPM where a pivot is singular); t
 
 * :func:`_past_rank` (``m > n``, rank ``n`` reached before the last level: the shortcut of
   :mod:`hqp_tpm.solvers._fullrank`), also inside SNS-TPM's kernel for the stack and its free-column stacks;
-* :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular or, when the
-  certificate cannot tell, decided and damped by the SVD of its block; Steps 2-4 on the pivot blocks,
-  ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion;
+* :func:`_general` (``m <= n``): the Householder QR of ``J^T``; each pivot certified regular (or a 1 x 1 block
+  damped); Steps 2-4 on the pivot blocks, ``x = Q R^{-T} F b``, ``x0`` term; a singular pivot: the recursion; a
+  block the certificate cannot decide: :func:`_general_svd`, the same with that block decided and damped by its SVD
+  (compiled only when a run needs it, then in :func:`_general`'s place);
 * :func:`_recursion_cols` / :func:`_recursion`: eqs. (5)-(6), (14) of papers/000 on orthonormal bases.
 
 ``tests/test_compiled.py`` proves them equal to the oracles (1e-12; on ill-conditioned draws against a 50-digit
@@ -52,6 +53,10 @@ from hqp_tpm.solvers.damping import EPS, RANK_FACTOR
 #: (``sigma_min`` itself would); a singular pivot (``_general_factors`` with ``singular_ok``). The last three: the
 #: recursion answers.
 SOLVED, DECLINED, UNDECIDED, SINGULAR = 0, 1, 2, 3
+#: :func:`_general`'s hand-back: a pivot block its certificate cannot decide, whose SVD :func:`_general_svd` takes
+#: (nothing solved; the value is beyond the statuses the compiled steps add, 3-7 in
+#: :mod:`hqp_tpm.control._compiled_step`, so that they hand it back as it is).
+PIVOT_SVD = 8
 #: :func:`_tpm`'s report: the factorization's kernel answered, or the recursion did.
 FACTORED, RECURSION = 0, 1
 
@@ -67,9 +72,14 @@ def _inlined(fn):
 
 def _compile() -> None:
     """Replace every kernel of this module by its numba dispatcher (:func:`hqp_tpm._jit.compile_module`)."""
-    global _READY
+    global _READY, _gesdd, _block_svd, _general_first
     if not _jit.compile_module(globals()):
         raise ImportError("numba cannot be imported")
+    _general_first = _general
+    lapack = _jit.lapack_gesdd()
+    if lapack is not None:  # (else numba's np.linalg.svd: _block_svd's own source)
+        _gesdd = lapack
+        _block_svd = _jit.dispatcher(_block_svd_lapack)
     _READY = True
 
 
@@ -810,6 +820,43 @@ def _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out):
 # ----------------------------------------------------------------------------------------
 # The general TPM path when m <= n.
 # ----------------------------------------------------------------------------------------
+@_kernel
+def _block_svd(R, a, e):
+    """``(U, s, Vt)``: ``np.linalg.svd`` of the upper triangle of the block ``R[a:e, a:e]`` (LAPACK's ``dgesdd``,
+    ``U`` and ``Vt`` square). Compiled, :func:`_block_svd_lapack` takes its place (:func:`_compile`): the same
+    LAPACK call."""
+    k = e - a
+    B = np.zeros((k, k))
+    for i in range(k):
+        for j in range(i, k):
+            B[i, j] = R[a + i, a + j]
+    return np.linalg.svd(B)
+
+
+_gesdd = None  # numba's LAPACK driver of np.linalg.svd (hqp_tpm._jit.lapack_gesdd; read by _block_svd_lapack)
+
+
+def _block_svd_lapack(R, a, e):  # pragma: no cover - compiled (as _block_svd)
+    """:func:`_block_svd` as numba compiles its ``np.linalg.svd``, without the generic parts: the block copied in
+    column-major order, numba's own ``dgesdd`` driver (``numba_ez_gesdd``: the workspace query, then ``dgesdd``,
+    ``jobz = 'A'``) on it, ``U`` and ``Vt`` the transposes of its column-major results. The same call on the same
+    bytes: the same bits. Left out: numba's checks of an empty or non-finite matrix (a pivot block of a finite
+    stack's ``R`` is neither) and its copy of any layout; with them ~0.4 s of CPU compiling each kernel that calls
+    it (``benchmarks/first_run.py``)."""
+    k = e - a
+    A = np.zeros((k, k))                               # A[j, i] = B[i, j]: B in column-major order
+    for i in range(k):
+        for j in range(i, k):
+            A[j, i] = R[a + i, a + j]
+    u = np.empty((k, k))
+    s = np.empty(k)
+    vt = np.empty((k, k))
+    r = _gesdd(100, 65, k, k, A.ctypes, k, s.ctypes, u.ctypes, k, vt.ctypes, k)   # kind 'd', jobz 'A'
+    if r != 0 or A.shape[0] != k:                      # (A read after the call: alive until it returns)
+        raise ValueError("Internal algorithm failed to converge.")
+    return u.T, s, vt.T
+
+
 @_inlined
 def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
     """The pivot block ``R[a:e, a:e]`` (``e - a > 1``) that its certificate did not decide, by the SVD of the block
@@ -817,11 +864,7 @@ def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
     (``D[a:e, a:e]`` gets the damped inverse ``V diag(s / (s^2 + lambda^2)) U^T``), -1 singular; with
     ``singular_ok`` a singular block gets its truncated (damped) inverse too (``s <= tol``: 0) and 2."""
     k = e - a
-    B = np.zeros((k, k))
-    for i in range(k):
-        for j in range(i, k):
-            B[i, j] = R[a + i, a + j]
-    U, sv, Vt = np.linalg.svd(B)
+    U, sv, Vt = _block_svd(R, a, e)
     smin = sv[k - 1]
     singular = smin <= tol
     if singular and not singular_ok:
@@ -841,13 +884,27 @@ def _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
 
 @_inlined
 def _general_factors(J, sizes, lambda_max, eps, unit, singular_ok):
+    """:func:`_factors` with every pivot decided, by the SVD of its block where its certificate cannot tell
+    (:func:`_damped_block`; SNS-TPM's kernel)."""
+    return _factors(J, sizes, lambda_max, eps, unit, singular_ok, _damped_block)
+
+
+@_inlined
+def _defer_block(R, a, e, tol, lambda_max, eps, singular_ok, D):
+    """:func:`_factors`' ``block`` of :func:`_general`: a pivot block that needs its SVD is left to
+    :func:`_general_svd` (-2; none of the SVD's code compiled into :func:`_general`)."""
+    return -2
+
+
+@_inlined
+def _factors(J, sizes, lambda_max, eps, unit, singular_ok, block):
     """The factorization of TPM for ``m <= n`` (eq. (8) of papers/000): ``(status, damped, V, tau, R, Fb)``, the
     Householder QR of ``J^T`` and, when some pivot is damped (``damped``), ``Fb`` (``m x m``) = ``Fbar`` of Steps 1-4
     (``F = Fbar^T``); otherwise ``F = I`` and ``Fb`` is empty (nothing allocated for it). Each pivot is certified
-    regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or decided by the SVD of its block
-    (:func:`_damped_block`). A singular pivot: :data:`UNDECIDED` (the caller runs the recursion), or with
-    ``singular_ok`` :data:`SINGULAR` and ``Fb`` with that pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the
-    recursion)."""
+    regular (``1/||R_ii^{-1}||_F``, ``|r_ii|`` for a 1 x 1 block) or decided by ``block`` (:func:`_damped_block`,
+    the SVD of the block; or :func:`_defer_block`: :data:`PIVOT_SVD`, nothing solved). A singular pivot:
+    :data:`UNDECIDED` (the caller runs the recursion), or with ``singular_ok`` :data:`SINGULAR` and ``Fb`` with that
+    pivot's truncated inverse (SNS-TPM's ``F``; ``x`` by the recursion)."""
     m, n = J.shape
     size = max(m, n)
     nlev = sizes.shape[0]
@@ -884,9 +941,9 @@ def _general_factors(J, sizes, lambda_max, eps, unit, singular_ok):
                     D[a, a] = inv if R[a, a] >= 0.0 else -inv
                     kind[lev] = 1
             else:
-                k = _damped_block(R, a, e, tol, lambda_max, eps, singular_ok, D)
+                k = block(R, a, e, tol, lambda_max, eps, singular_ok, D)
                 if k < 0:
-                    return UNDECIDED, False, V, tau, R, Fb
+                    return (UNDECIDED if k == -1 else PIVOT_SVD), False, V, tau, R, Fb
                 singular = singular or k == 2
                 kind[lev] = 0 if k == 0 else 1
             damped = damped or kind[lev] == 1
@@ -941,17 +998,10 @@ def _f_times(Fb, b, out):
         out[col] = s
 
 
-@_kernel
-def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
-    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``:
-    when no pivot is singular (:func:`_general_factors`: each pivot certified regular or decided, and damped, by the
-    SVD of its block). Returns :data:`SOLVED`, or :data:`UNDECIDED` for a singular pivot: the caller runs the
-    recursion.
-    """
+@_inlined
+def _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out):
+    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) from :func:`_factors`' factors."""
     m, n = J.shape
-    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit, False)
-    if status != SOLVED:
-        return status
     c = np.empty(m)
     if damped:
         _f_times(Fb, b, c)
@@ -973,7 +1023,36 @@ def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
     if use_x0:
         for i in range(n):
             out[i] += x0[i]
-    return SOLVED
+
+
+@_kernel
+def _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
+    """``out <- x = Q R^{-T} F b`` (``x0 + Q R^{-T} (F b - J x0)`` with ``use_x0``) of a stack with ``m <= n``
+    whose pivots are each certified regular, or singular or damped as a 1 x 1 block (:func:`_factors`). Returns
+    :data:`SOLVED`; :data:`UNDECIDED` for a singular pivot (the caller runs the recursion); :data:`PIVOT_SVD` for a
+    block only its SVD decides, nothing solved: :func:`_general_svd` answers (the same factorization, the same bits
+    as one kernel deciding all), and from then on takes this kernel's place (:func:`_pivot_svd`). Without the SVD
+    (LAPACK, the damping of a block) numba compiles ~0.8 s of CPU less on a process's first solve, and only a run
+    whose stacks need it compiles :func:`_general_svd` (``benchmarks/first_run.py``).
+    """
+    status, damped, V, tau, R, Fb = _factors(J, sizes, lambda_max, eps, unit, False, _defer_block)
+    if status == SOLVED:
+        _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out)
+    return status
+
+
+@_kernel
+def _general_svd(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out):
+    """:func:`_general` with every pivot decided, by the SVD of its block where its certificate cannot tell
+    (:func:`_damped_block`): :data:`SOLVED` or :data:`UNDECIDED` (a singular pivot: the caller runs the recursion).
+    """
+    status, damped, V, tau, R, Fb = _general_factors(J, sizes, lambda_max, eps, unit, False)
+    if status == SOLVED:
+        _general_x(J, b, x0, use_x0, damped, V, tau, R, Fb, out)
+    return status
+
+
+_general_first = _general  # (the kernel that hands back, whichever _general is now: tests)
 
 
 _SIZES: dict[tuple, np.ndarray] = {}
@@ -982,9 +1061,12 @@ _NO_X0 = np.zeros(0)
 
 
 def _sizes(sizes) -> np.ndarray | None:
-    """``sizes`` as an int64 array (cached per tuple), after compiling the kernels on first use; None if numba
-    cannot be imported after all (then :data:`ENABLED` becomes False: the numpy path from now on)."""
+    """``sizes`` as an int64 array (cached per tuple), after compiling the kernels on first use; None if the switch
+    is off (:data:`ENABLED`, kernels not made: nothing compiled, numba not imported) or numba cannot be imported
+    after all (then :data:`ENABLED` becomes False: the numpy path from now on)."""
     if not _READY:
+        if not _jit.ENABLED:
+            return None
         try:
             _compile()
         except ImportError:  # pragma: no cover - numba found but not importable (_jit turned the switch off)
@@ -1019,8 +1101,23 @@ def general(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps:
         s = np.asarray(sizes, dtype=np.int64)
     x = np.empty(n)
     use = x0 is not None
-    status = _general(J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
+    args = (J, b, s, x0 if use else _NO_X0, use, float(lambda_max), float(eps), _UNIT, x)
+    status = _general(*args)
+    if status == PIVOT_SVD:
+        status = _pivot_svd()(*args)
     return x if status == SOLVED else None
+
+
+def _pivot_svd():
+    """:func:`_general_svd`, from now on also as :func:`_general` (this module's global, which :func:`_tpm` and the
+    planned step's solve call): the process has met a stack whose pivot block needs its SVD, and its next solves
+    take the kernel that decides every pivot at once (no hand-back; the same bits either way). Compiled only: as
+    Python (the switch off) :func:`tpm` takes :func:`_general_svd` at once, and :func:`_compile` finds the module's
+    own functions under their names."""
+    global _general
+    if _READY:
+        _general = _general_svd
+    return _general_svd
 
 
 # ----------------------------------------------------------------------------------------
@@ -1109,17 +1206,20 @@ def recursion(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, ep
                       ranks)
 
 
-def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
-    """``out <- x`` of TPM: the factorization's kernel (:func:`_past_rank` when ``m > n``, else :func:`_general`)
-    and, on a stack it does not take (a singular pivot, a certificate that cannot decide), the recursion
-    (:func:`_recursion`: the same answer where both apply, the exact one where a pivot is singular). Returns
-    :data:`FACTORED` or :data:`RECURSION`, the path that answered. Python calling the kernels, not a kernel: one
-    kernel holding all three would compile all three on a process's first solve (~15 s of CPU on a first run); this
-    way numba compiles the branch a stack takes, and the recursion when it answers."""
+def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out, pivot_svd=False):
+    """``out <- x`` of TPM: the factorization's kernel (:func:`_past_rank` when ``m > n``, else :func:`_general`,
+    and :func:`_general_svd` when a pivot block needs its SVD, or at once with ``pivot_svd``) and, on a stack it does
+    not take (a singular pivot, a certificate that cannot decide), the recursion (:func:`_recursion`: the same answer
+    where both apply, the exact one where a pivot is singular). Returns :data:`FACTORED` or :data:`RECURSION`, the
+    path that answered. Python calling the kernels, not a kernel: one kernel holding them all would compile them all
+    on a process's first solve (~15 s of CPU on a first run); this way numba compiles the branch a stack takes, and
+    the recursion when it answers."""
     if J.shape[0] > n:                                 # rank n reached before the last level: x0 has no effect
         status = _past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out)
     else:
-        status = _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+        status = PIVOT_SVD if pivot_svd else _general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
+        if status == PIVOT_SVD:
+            status = _pivot_svd()(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out)
     if status == SOLVED:
         return FACTORED
     ranks = np.empty(sizes.shape[0], dtype=np.int64)
@@ -1127,20 +1227,22 @@ def _tpm(J, b, sizes, n, lambda_max, eps, unit, margin, cond, x0, use_x0, out):
     return RECURSION
 
 
-def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None) -> np.ndarray:
+def tpm(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float, eps: float, x0=None,
+        pivot_svd: bool = False) -> np.ndarray:
     """TPM of a stacked, checked stack (:func:`hqp_tpm.solvers.tpm.tpm_stacked`): :func:`_tpm`, its kernels
     compiled when :data:`ENABLED`, else the same source as Python (its loops are made for the compiler: ~2-8 ms a
-    solve)."""
+    solve; it decides every pivot in one pass, :func:`_general_svd`). ``pivot_svd``: :func:`_general` already handed
+    these arrays back (:data:`PIVOT_SVD`)."""
     use = x0 is not None
     x0 = np.ascontiguousarray(x0, dtype=float) if use else _NO_X0
     out = np.empty(n)
     if _jit.ENABLED:
         s = _SIZES.get(sizes) if _READY and type(sizes) is tuple else None
         if s is not None or (s := _sizes(sizes)) is not None:
-            _tpm(J, b, s, n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use, out)
+            _tpm(J, b, s, n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use, out, pivot_svd)
             return out
     _tpm_py(J, b, np.asarray(sizes, dtype=np.int64), n, float(lambda_max), float(eps), _UNIT, MARGIN, COND, x0, use,
-            out)
+            out, True)
     return out
 
 

@@ -175,7 +175,7 @@ def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float =
     when ``m > n``, else ``x = Q R^{-T} F b``), the recursion on a stack they do not take (module doc: the same
     answer where both apply, the exact one where a pivot is singular). ``kernel_status``: what the factorization's
     kernel already answered on these arrays (``DECLINED`` or ``UNDECIDED``, from a caller that ran it fused with
-    other work): the recursion runs."""
-    if kernel_status is None:
-        return _compiled.tpm(J, b, sizes, n, lambda_max, eps, x0)
+    other work): the recursion runs; ``PIVOT_SVD``: the kernel that decides every pivot by its block's SVD."""
+    if kernel_status is None or kernel_status == _compiled.PIVOT_SVD:
+        return _compiled.tpm(J, b, sizes, n, lambda_max, eps, x0, pivot_svd=kernel_status is not None)
     return _compiled.recursion(J, b, sizes, n, lambda_max, eps, x0)
