@@ -925,3 +925,23 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
             pin.framesForwardKinematics(fast.robot.model, full, fast.state.q)
             for fid in fids:
                 np.testing.assert_array_equal(fast.state.data.oMf[fid].homogeneous, full.oMf[fid].homogeneous)
+
+
+def test_a_pivot_block_that_needs_its_svd_switches_the_fused_kernel():
+    """``romeo_tpm`` (m <= n) meets a pivot block only its SVD decides at its first step: the fused TPM kernel hands
+    the step back (``PIVOT_SVD``), the lean step finishes it with ``tpm_stacked`` and from then on runs the fused
+    kernel that decides every pivot at once (no hand-back each such step, as before); every command equals the
+    readable step's to the bit."""
+    from hqp_tpm.app.build import build
+    from hqp_tpm.app.scenario import load
+
+    fast, ref = (build(load("romeo_tpm"))[1] for _ in range(2))
+    lean = fast._compiled_step()
+    assert type(lean) is LeanStep
+    first = lean._kernel
+    for _ in range(60):
+        np.testing.assert_array_equal(fast.step().command, ref.step(record=True).command)
+    if first is not None:  # (compiled)
+        assert lean._kernel is not first
+        assert _compiled_step._KERNELS.get((_compiled_step.TPM, False, True)) is not None
+    np.testing.assert_array_equal(fast.q, ref.q)

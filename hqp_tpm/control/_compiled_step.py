@@ -19,6 +19,8 @@ from hqp_tpm.solvers.levels import MAX_SUMSQ
 from hqp_tpm.tasks.base import tracking_command
 
 SOLVED, DECLINED, UNDECIDED = _compiled.SOLVED, _compiled.DECLINED, _compiled.UNDECIDED
+#: the TPM kernel met a pivot block only its SVD decides: ``tpm_stacked(kernel_status=PIVOT_SVD)`` finishes.
+PIVOT_SVD = _compiled.PIVOT_SVD
 #: ``J`` or ``b`` holds a non-finite value, or their sum of squares exceeds ``levels.MAX_SUMSQ`` (nothing solved).
 NONFINITE_ROWS = 3
 #: the solution holds a non-finite value.
@@ -47,7 +49,7 @@ HEAD = 9
 #: the compiled kernels by what they solve (:func:`kernel`), compiled or loaded on first use
 _KERNELS: dict = {}
 # the kernels the steps call, set by _build (globals: numba resolves them when it compiles a step)
-_write_rows = _past_rank = _general = _sns_loop = _velocity_box = _acceleration_box = None
+_write_rows = _past_rank = _general = _general_svd = _sns_loop = _velocity_box = _acceleration_box = None
 _frame_jacobian = _rotation_error = _frame_placement = _frame_jdot_qdot = _mat = _vec = None
 _command, _harmonic = tracking_command, harmonic_point  # (Task.command's, Harmonic.reference's; compiled by _build)
 
@@ -199,6 +201,16 @@ def _tpm_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     return _wide_solve(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
 
 
+def _tpm_step_svd(buf, ints, floats, q, v):  # pragma: no cover - compiled
+    """:data:`TPM`, ``m <= n``, for a program whose stack has met a pivot block only its SVD decides
+    (:data:`PIVOT_SVD`): :func:`_tpm_step` with ``_general_svd``, which decides every pivot (no hand-back)."""
+    status, pi, pf = _write_rows(buf, ints, floats, q, v)
+    if status != WRITTEN:
+        return status
+    J, b, x0, out, sizes = _step_arrays(buf, ints)
+    return _x_status(_general_svd(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], out), out)
+
+
 def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """:data:`TPM`, ``m > n``: the rows, the TPM kernel (``_past_rank``), ``x``'s finiteness."""
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
@@ -297,11 +309,11 @@ def _stacked_tpm_tall(J, b, sizes, v, damping, lambda_max, eps, unit, margin, co
 def _solves() -> bool:
     """Make the dispatchers of the solvers' kernels (numba compiles or loads each on the first call of a kernel that
     calls it) and of this module's pieces; False if numba cannot be imported after all."""
-    global _past_rank, _general, _x_status, _wide_solve, _tall_solve, _step_arrays, _stacked_rows
+    global _past_rank, _general, _general_svd, _x_status, _wide_solve, _tall_solve, _step_arrays, _stacked_rows
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return False
     if _KERNELS.get("solves") is None:
-        _past_rank, _general = _compiled._past_rank, _compiled._general
+        _past_rank, _general, _general_svd = _compiled._past_rank, _compiled._general, _compiled._general_svd
         _x_status, _step_arrays = (_jit.dispatcher(f, inline=True) for f in (_x_status_py, _step_arrays_py))
         _wide_solve, _tall_solve = (_jit.dispatcher(f, inline=True) for f in (_wide_solve_py, _tall_solve_py))
         _stacked_rows = _jit.dispatcher(_stacked_rows_py)
@@ -323,7 +335,7 @@ def stacked_kernel(tall: bool):
     return _stacked_tpm_tall if tall else _stacked_tpm
 
 
-def _build(solve: int, tall: bool):
+def _build(solve: int, tall: bool, svd: bool = False):
     """Compile the kernel of ``solve`` (``tall``: the TPM kernel of ``m > n``) after the kernels it calls (each
     step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
     ``m > n`` kernel); None if numba cannot be imported."""
@@ -350,9 +362,10 @@ def _build(solve: int, tall: bool):
             return None
     _sns_loop = _compiled_sns._sns_loop
     _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
-    step = {ROWS: _rows_step, TPM: _tpm_step_tall if tall else _tpm_step, SNS: _sns_step}[solve]
-    _KERNELS[(solve, tall)] = _jit.dispatcher(step)
-    return _KERNELS[(solve, tall)]
+    step = {ROWS: _rows_step, TPM: _tpm_step_tall if tall else _tpm_step_svd if svd else _tpm_step,
+            SNS: _sns_step}[solve]
+    _KERNELS[(solve, tall, svd)] = _jit.dispatcher(step)
+    return _KERNELS[(solve, tall, svd)]
 
 
 def _checked(a: np.ndarray, ndim: int) -> np.ndarray:
@@ -558,10 +571,11 @@ class Program:
         return {"scale": scale, "saturated": [int(j) for j in joints[: int(nsat)]], "iterations": int(iterations)}
 
 
-def kernel(solve: int = TPM, tall: bool = False):
+def kernel(solve: int = TPM, tall: bool = False, svd: bool = False):
     """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; ``tall``: a TPM
-    program of ``m > n`` rows, whose kernel is another; compiled or loaded on first use), or None if numba cannot be
-    imported after all (then :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
+    program of ``m > n`` rows, whose kernel is another; ``svd``: the TPM kernel of ``m <= n`` that decides every
+    pivot by its block's SVD, for a stack that met :data:`PIVOT_SVD`; compiled or loaded on first use), or None if
+    numba cannot be imported after all (then :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
 
     ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the
     null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the
@@ -569,4 +583,5 @@ def kernel(solve: int = TPM, tall: bool = False):
     and ``x`` of the SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`.
     """
     tall = bool(tall) and solve == TPM
-    return _KERNELS.get((solve, tall)) or _build(solve, tall)
+    svd = bool(svd) and solve == TPM and not tall
+    return _KERNELS.get((solve, tall, svd)) or _build(solve, tall, svd)

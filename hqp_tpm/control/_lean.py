@@ -241,6 +241,9 @@ class LeanStep(CompiledStep):
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
             if status == _compiled_step.NONFINITE_X:
                 raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {t:.6f}")
+            if status == _compiled_step.PIVOT_SVD:  # a pivot block only its SVD decides: from now on the kernel
+                kernel = _compiled_step.kernel(_compiled_step.TPM, svd=True)  # that decides every pivot at once
+                self._kernel = kernel and _compiled.typed(kernel, self._buf, self._ints, self._floats, q, v)
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
             # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): below
         else:
@@ -262,7 +265,7 @@ class LeanStep(CompiledStep):
                                    eps=self.eps)
         elif solver == "tpm":
             if self.sizes:  # (after the fused kernel declined, its answer: tpm_stacked does not run it again)
-                declined = status in (_compiled_step.DECLINED, _compiled_step.UNDECIDED)
+                declined = status in (_compiled_step.DECLINED, _compiled_step.UNDECIDED, _compiled_step.PIVOT_SVD)
                 x = tpm_stacked(J, b, self.sizes, self.n, self.lambda_max, self.eps, x0,
                                 kernel_status=status if declined else None)
             else:
