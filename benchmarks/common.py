@@ -240,9 +240,12 @@ def write_csv(path: Path, rows: Sequence[dict], env: dict[str, str]) -> None:
             w.writerow({k: (f"{v:.6g}" if isinstance(v, float) else v) for k, v in r.items()})
 
 
-def write_markdown(path: Path, title: str, env: dict[str, str], sections: Sequence[tuple[str, str]]) -> None:
+def write_markdown(path: Path, title: str, env: dict[str, str], sections: Sequence[tuple[str, str]],
+                   argv: Sequence[str] | None = None) -> None:
+    """``argv``: the command's arguments as shown (default ``sys.argv``; a caller shows a local path as a name)."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    parts = [f"# {title}", "", f"Command: `{' '.join([Path(sys.executable).name, *sys.argv])}`", "",
+    shown = [Path(sys.executable).name, *(sys.argv if argv is None else argv)]
+    parts = [f"# {title}", "", f"Command: `{' '.join(shown)}`", "",
              "## Environment", "", env_markdown(env), ""]
     for heading, body in sections:
         parts += [f"## {heading}", "", body.rstrip(), ""]

@@ -83,6 +83,18 @@ def spread(values, digits=2) -> str:
     return f"{median(values):.{digits}f} ({min(values):.{digits}f}-{max(values):.{digits}f})"
 
 
+def checkout_name(path: Path) -> str:
+    """The other checkout as the results file names it: its commit (a git checkout) or its folder's name (no local
+    paths in the repository's files)."""
+    proc = subprocess.run(["git", "-C", str(path), "rev-parse", "--short", "HEAD"], capture_output=True, text=True)
+    return f"commit `{proc.stdout.strip()}`" if proc.returncode == 0 else f"`{path.name}` (a copy)"
+
+
+def shown_argv(args) -> list[str]:
+    """``sys.argv`` with the other checkout's path shown as ``OLD_CHECKOUT``."""
+    return ["OLD_CHECKOUT" if args.ab is not None and a == str(args.ab) else a for a in sys.argv]
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200)
@@ -155,7 +167,7 @@ def main(argv=None) -> int:
         ratios_ab = [b / a for a, b in zip(pairs["old"], pairs["new"], strict=True)]
         ab_table = common.md_table([f"`hqp-tpm run lwr_relaxed --steps {args.steps}`, cold",
                                     f"process CPU s, median (min-max) of {args.repeat}"],
-                                   [[f"old: `{args.ab}`", spread(pairs["old"])], ["new: this checkout",
+                                   [[f"old: {checkout_name(args.ab)}", spread(pairs["old"])], ["new: this checkout",
                                                                                   spread(pairs["new"])]])
         ab_table += (f"\n\nNew / old, pair by pair: median {median(ratios_ab):.3f} (min {min(ratios_ab):.3f}, max "
                      f"{max(ratios_ab):.3f}).")
@@ -164,7 +176,7 @@ def main(argv=None) -> int:
         (f"The first run (fresh processes, `NUMBA_CACHE_DIR` a new empty folder, then the same again; {args.repeat} "
          "times each)", run_table),
         ("A short script, kernels on (warm cache) and off (medians; the empty-cache row: one run)", script_table),
-    ])
+    ], argv=shown_argv(args))
     common.progress(f"wrote {args.out}")
     return 0
 
