@@ -151,8 +151,8 @@ def test_whole_body_avoidance_steps_equal():
     """From step 790 of ``romeo_obstacles_sns_tpm`` until the run has met the obstacle row, obstacle and self rows,
     and none (each planned again as the stack changes: inequality rows shifted by ``J v`` then kept while active).
     The run is sensitive to rounding (near-tie saturations), so where the obstacle row leaves again differs between
-    pinocchio versions and machines (step 1077 with pinocchio 4.1, 1092 with 3.4 here; later on CI): the test steps
-    until it has seen all three, at most 700 steps."""
+    pinocchio versions and machines (step 1090 with pinocchio 4.1, 1053 with 3.4 here; after step 1090 on CI once):
+    the test steps until it has seen all three, at most 700 steps."""
     ref, fast = romeo_obstacles(790)
     tail = "com > left_foot > left_hand > right_hand"
     want = frozenset({f"right_sole > avoid_obstacle > {tail}", f"right_sole > avoid_obstacle > avoid_self > {tail}",
