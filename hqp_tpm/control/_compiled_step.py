@@ -313,7 +313,8 @@ def _solves() -> bool:
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return False
     if _KERNELS.get("solves") is None:
-        _past_rank, _general, _general_svd = _compiled._past_rank, _compiled._general, _compiled._general_svd
+        # (_general_first: the kernel that hands back PIVOT_SVD, even after the process rebound _compiled._general)
+        _past_rank, _general, _general_svd = _compiled._past_rank, _compiled._general_first, _compiled._general_svd
         _x_status, _step_arrays = (_jit.dispatcher(f, inline=True) for f in (_x_status_py, _step_arrays_py))
         _wide_solve, _tall_solve = (_jit.dispatcher(f, inline=True) for f in (_wide_solve_py, _tall_solve_py))
         _stacked_rows = _jit.dispatcher(_stacked_rows_py)
