@@ -336,26 +336,41 @@ def stacked_kernel(tall: bool):
     return _stacked_tpm_tall if tall else _stacked_tpm
 
 
-def _build(solve: int, tall: bool, svd: bool = False):
-    """Compile the kernel of ``solve`` (``tall``: the TPM kernel of ``m > n``) after the kernels it calls (each
-    step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
-    ``m > n`` kernel); None if numba cannot be imported."""
-    global _write_rows, _sns_loop, _velocity_box, _acceleration_box, _frame_placement
-    global _frame_jacobian, _rotation_error, _frame_jdot_qdot, _mat, _vec, _command, _harmonic
+def _rows_writer() -> bool:
+    """Make :func:`_rows`' dispatcher ``_write_rows`` after binding its callees; False if numba cannot be imported."""
+    global _write_rows, _frame_placement, _frame_jacobian, _rotation_error, _frame_jdot_qdot, _mat, _vec, _command
+    global _harmonic
     if not _solves():
-        return None
+        return False
     if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
-        return None
+        return False
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
         _frame_placement, _frame_jdot_qdot = _robot_compiled.frame_placement, _robot_compiled.frame_jdot_qdot
         readers = _jit.address_readers()
         if readers is None:
-            return None
+            return False
         _mat, _vec = readers
         _command = _jit.dispatcher(tracking_command, inline=True)
         _harmonic = _jit.dispatcher(harmonic_point, inline=True)
         _write_rows = _jit.dispatcher(_rows)
+    return True
+
+
+def rows_writer():
+    """:func:`_rows` compiled, ``(buf, ints, floats, q, v) -> (status, pi, pf)``, for a caller that writes a program's
+    rows alone and reads no status (:class:`~hqp_tpm.control._task_rows.TaskProgram`): no kernel compiled around it
+    (~0.3 s of a first run); None if numba cannot be imported."""
+    return _write_rows if _rows_writer() else None
+
+
+def _build(solve: int, tall: bool, svd: bool = False):
+    """Compile the kernel of ``solve`` (``tall``: the TPM kernel of ``m > n``) after the kernels it calls (each
+    step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
+    ``m > n`` kernel); None if numba cannot be imported."""
+    global _sns_loop, _velocity_box, _acceleration_box
+    if not _rows_writer():
+        return None
     if solve == SNS and not _compiled_sns._READY:
         try:
             _compiled_sns._compile()

@@ -222,7 +222,7 @@ class TaskProgram:
         source = source_of(task)
         if source is None or (type(source) is FrameRows and source.R_d is not None):
             return None
-        kernel = _compiled_step.kernel(_compiled_step.ROWS)
+        kernel = _compiled_step.rows_writer()
         if kernel is None:
             return None
         self = cls.__new__(cls)
