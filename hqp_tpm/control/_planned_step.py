@@ -386,6 +386,4 @@ class _PairLevel:
         self.task, self.J, self.lower = task, J, lower
 
     def level(self) -> Level:
-        upper = np.full(self.lower.size, np.inf)
-        upper.flags.writeable = False
-        return Level(self.J, lower=self.lower, upper=upper, name=self.task.name, defer_finite=True)
+        return self.task.level_of(self.J, self.lower)

@@ -139,10 +139,14 @@ class PairAvoidance(Task):
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
         if order != 1:
             raise ScenarioError("the whole_body policy works at velocity level only")
-        if self._upper.size != self.dim:
-            self._upper = np.full(self.dim, np.inf)
+        return self.level_of(self.J, self.lower)
+
+    def level_of(self, J: np.ndarray, lower: np.ndarray) -> Level:
+        """The level of rows ``J qd >= lower`` (these rows, e.g. kept from an earlier step)."""
+        if self._upper.size != lower.size:
+            self._upper = np.full(lower.size, np.inf)
             self._upper.flags.writeable = False
-        return Level(self.J, lower=self.lower, upper=self._upper, name=self.name, defer_finite=True)
+        return Level(J, lower=lower, upper=self._upper, name=self.name, defer_finite=True)
 
     def rows_from(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
         """``(J_a, lower_a - J_a v)``: the rows of :meth:`level` seen from ``v`` with ``lower - J v > 0``, as
