@@ -68,7 +68,7 @@ def test_compiled_rate_box_is_the_reference_to_the_bit():
     for _ in range(500):
         q = rng.uniform(q_lo, q_up)
         v = rng.uniform(-2.0, 2.0, robot.nv) * rng.choice([0.0, 0.01, 1.0])
-        assert _compiled.velocity_rate_box(q, v, lim.kernel_limits, lim.kernel_indices, 1e-3, lo, up)
+        assert _compiled.velocity_box(q, lim.kernel_limits, lim.kernel_indices, 1e-3, lo, up, v)
         ref = lim.limits.velocity_box(q[lim.qidx], v[lim.cols])
         np.testing.assert_array_equal(lo[lim.cols], ref[0])
         np.testing.assert_array_equal(up[lim.cols], ref[1])

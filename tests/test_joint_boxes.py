@@ -11,6 +11,7 @@ from hypothesis import strategies as st
 from threadpoolctl import threadpool_limits
 
 from hqp_tpm.errors import BoxError, HqpTpmError, ShapeError
+from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.joint_boxes import BoxLimits, acceleration_box, is_viable, velocity_box
 
 #: Number of hypothesis draws of (limits, state); rollouts are 2,000 steps each.
@@ -285,21 +286,33 @@ def test_infinite_limits_and_zero_rates():
 
 
 # ----------------------------------------------------------------------------------------
-# The precomputed limits (BoxLimits, a controller's every step) against the literal formulas.
+# The kernels (BoxLimits, JointLimits, the compiled SNS step) against the literal formulas.
 # ----------------------------------------------------------------------------------------
-def literal_velocity_box(q, q_min, q_max, v_max, a_max, dt):
-    """velocity_box as first written: every term per call, np.errstate for 0 * inf."""
-    with np.errstate(invalid="ignore"):
-        stop_lo = -np.sqrt(2.0 * a_max * np.maximum(q - q_min, 0.0))
-        stop_up = np.sqrt(2.0 * a_max * np.maximum(q_max - q, 0.0))
+def literal_velocity_box(q, q_min, q_max, v_max, a_max, dt, dq=None):
+    """velocity_box as first written: every term per call, np.errstate for 0 * inf; with ``dq`` (the previous
+    command) the discrete braking term (docs/internals.md#joint-boxes), then the command-rate box. Also whether every
+    position box was non-empty (the kernels' flag)."""
+    ad = a_max * dt
+    with np.errstate(invalid="ignore", divide="ignore"):
+        def braking(gap):
+            if dq is None:
+                return np.sqrt(2.0 * a_max * gap)
+            m = np.floor((np.sqrt(1.0 + 8.0 * (gap / (ad * dt))) - 1.0) * 0.5)
+            return (gap / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0)
+
+        stop_lo = -braking(np.maximum(q - q_min, 0.0))
+        stop_up = braking(np.maximum(q_max - q, 0.0))
     stop_lo = np.where(np.isneginf(q_min), -np.inf, np.where(a_max == 0.0, 0.0, stop_lo))
     stop_up = np.where(np.isposinf(q_max), np.inf, np.where(a_max == 0.0, 0.0, stop_up))
-    return literal_project(np.maximum((q_min - q) / dt, stop_lo), np.minimum((q_max - q) / dt, stop_up),
-                           -v_max, v_max, q < q_min, q > q_max)
+    p_lo, p_up = np.maximum((q_min - q) / dt, stop_lo), np.minimum((q_max - q) / dt, stop_up)
+    lo, up = literal_project(p_lo, p_up, -v_max, v_max, q < q_min, q > q_max)
+    if dq is not None:
+        lo, up = np.minimum(np.maximum(dq - ad, lo), up), np.minimum(np.maximum(dq + ad, lo), up)
+    return lo, up, bool((p_lo <= p_up).all())
 
 
 def literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt):
-    """acceleration_box as first written."""
+    """acceleration_box as first written; also whether every state was viable (the kernels' flag)."""
     def braking(delta):
         ad = a_max * dt
         with np.errstate(invalid="ignore"):
@@ -308,9 +321,10 @@ def literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt):
         return np.where(delta >= 0.0, root, 2.0 * delta / dt)
 
     delta_up, delta_lo = q_max - q - 0.5 * dq * dt, q - q_min + 0.5 * dq * dt
-    return literal_project((-braking(delta_lo) - dq) / dt, (braking(delta_up) - dq) / dt,
-                           np.clip((-v_max - dq) / dt, -a_max, a_max), np.clip((v_max - dq) / dt, -a_max, a_max),
-                           delta_lo < 0.0, delta_up < 0.0)
+    p_lo, p_up = (-braking(delta_lo) - dq) / dt, (braking(delta_up) - dq) / dt
+    lo, up = literal_project(p_lo, p_up, np.clip((-v_max - dq) / dt, -a_max, a_max),
+                             np.clip((v_max - dq) / dt, -a_max, a_max), delta_lo < 0.0, delta_up < 0.0)
+    return lo, up, bool(((delta_lo >= 0.0) & (delta_up >= 0.0) & (p_lo <= p_up)).all())
 
 
 def literal_project(p_lo, p_up, lo, up, violated_lo, violated_up):
@@ -321,6 +335,28 @@ def literal_project(p_lo, p_up, lo, up, violated_lo, violated_up):
     return np.clip(p_lo, lo, up), np.clip(p_up, lo, up)
 
 
+def assert_same_box(got, expected):
+    """The same bits, even the zeros' signs."""
+    for g, e in zip(got, expected[:2], strict=True):
+        np.testing.assert_array_equal(g, e)
+        assert np.signbit(g).tolist() == np.signbit(e).tolist()
+
+
+def random_case(rng, n):
+    """Limits (infinite, zero-width, v_max = 0, a_max = 0 among them) and a state inside, on, just beyond and far
+    beyond them."""
+    q_min, q_max, v_max, a_max, dt = random_limits(rng, n)
+    q_max = np.where(rng.random(n) < 0.05, np.where(np.isfinite(q_min), q_min, q_max), q_max)
+    v_max[rng.random(n) < 0.05] = 0.0
+    a_max[rng.random(n) < 0.1] = 0.0
+    q = np.where(rng.random(n) < 0.7, inside(rng, q_min, q_max), rng.uniform(-8.0, 8.0, n))
+    beyond = rng.random(n)
+    q = np.where((beyond < 0.05) & np.isfinite(q_min), np.nextafter(q_min, -np.inf), q)
+    q = np.where((beyond > 0.95) & np.isfinite(q_max), np.nextafter(q_max, np.inf), q)
+    dq = rng.uniform(-2.0, 2.0, n) * v_max * rng.choice([0.0, 0.01, 1.0, 3.0])
+    return q_min, q_max, v_max, a_max, dt, q, dq
+
+
 def test_box_limits_equal_the_literal_formulas_without_warnings():
     """Same bits as the literal boxes, with zero a_max, infinite limits and states outside; no RuntimeWarning."""
     rng = np.random.default_rng(11)
@@ -328,22 +364,49 @@ def test_box_limits_equal_the_literal_formulas_without_warnings():
         warnings.simplefilter("error")
         for _ in range(500):
             n = int(rng.integers(1, 30))
-            q_min, q_max, v_max, a_max, dt = random_limits(rng, n)
-            a_max[rng.random(n) < 0.1] = 0.0
+            q_min, q_max, v_max, a_max, dt, q, dq = random_case(rng, n)
             limits = BoxLimits(q_min, q_max, v_max, a_max, dt)
-            q = np.where(rng.random(n) < 0.8, inside(rng, q_min, q_max), rng.uniform(-8.0, 8.0, n))
-            dq = rng.uniform(-2.0, 2.0, n) * v_max
-            for got, expected in ((limits.velocity_box(q), literal_velocity_box(q, q_min, q_max, v_max, a_max, dt)),
-                                  (velocity_box(q, q_min, q_max, v_max, a_max, dt), limits.velocity_box(q)),
-                                  (limits.acceleration_box(q, dq),
-                                   literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt)),
-                                  (acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt),
-                                   limits.acceleration_box(q, dq))):
-                np.testing.assert_array_equal(got[0], expected[0])
-                np.testing.assert_array_equal(got[1], expected[1])
-                assert np.signbit(got[0]).tolist() == np.signbit(expected[0]).tolist()  # even the zeros' signs
+            assert_same_box(limits.velocity_box(q), literal_velocity_box(q, q_min, q_max, v_max, a_max, dt))
+            assert_same_box(velocity_box(q, q_min, q_max, v_max, a_max, dt), limits.velocity_box(q))
+            assert_same_box(limits.velocity_box(q, dq), literal_velocity_box(q, q_min, q_max, v_max, a_max, dt, dq))
+            assert_same_box(limits.acceleration_box(q, dq),
+                            literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt))
+            assert_same_box(acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt), limits.acceleration_box(q, dq))
         viable = is_viable([0.0, 0.5], [0.0, 0.1], [-1.0, -1.0], [1.0, 1.0], 1.0, [0.0, 0.0], 0.01)  # a_max = 0
         assert viable.tolist() == [True, False]
+
+
+@pytest.mark.parametrize("source", [False, True], ids=["as-run", "python-source"])
+def test_kernels_equal_the_literal_formulas_and_flag_recovery(source):
+    """The box kernels (compiled when numba is on, and their Python source) at scattered state and box indices, as
+    JointLimits and the compiled SNS step call them: the literal boxes' bits, the other entries untouched, and False
+    exactly when a position box was empty (velocity) or a state not viable (acceleration)."""
+    kernels = [getattr(k, "py_func", k) if source else k for k in (_compiled.velocity_box, _compiled.acceleration_box)]
+    rng = np.random.default_rng(12)
+    flags = set()
+    for _ in range(300):
+        n = int(rng.integers(1, 12))
+        q_min, q_max, v_max, a_max, dt, q, dq = random_case(rng, n)
+        P = BoxLimits(q_min, q_max, v_max, a_max, dt).rows
+        idx = np.vstack([rng.permutation(n + 3)[:n], rng.permutation(n + 2)[:n]]).astype(np.int64)
+        q_all, v_all = np.full(n + 3, np.nan), np.full(n + 2, np.nan)
+        q_all[idx[0]], v_all[idx[1]] = q, dq
+        for which, expected in ((0, literal_velocity_box(q, q_min, q_max, v_max, a_max, dt)),
+                                (1, literal_velocity_box(q, q_min, q_max, v_max, a_max, dt, dq)),
+                                (2, literal_acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt))):
+            lo, up = np.full(n + 2, 7.0), np.full(n + 2, 7.0)
+            if which == 0:
+                ok = kernels[0](q_all, P, idx, dt, lo, up)
+            elif which == 1:
+                ok = kernels[0](q_all, P, idx, dt, lo, up, v_all)
+            else:
+                ok = kernels[1](q_all, v_all, P, idx, dt, lo, up)
+            assert_same_box((lo[idx[1]], up[idx[1]]), expected)
+            assert ok == expected[2]
+            flags.add(ok)
+            rest = np.setdiff1d(np.arange(n + 2), idx[1])
+            assert (lo[rest] == 7.0).all() and (up[rest] == 7.0).all()
+    assert flags == {True, False}
 
 
 def test_box_limits_check_the_limits_once_at_construction():

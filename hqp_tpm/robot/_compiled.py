@@ -1,7 +1,8 @@
 """Compiled (numba) kernels of the robot layer (private): joint boxes, integration, target checks and copies, a
 frame's placement, Jacobian, ``J-dot q-dot`` and rotation error. Each does the readable code's (or pinocchio's)
 operations in the same order: the same bits, except :func:`log3` and :func:`frame_jdot_qdot` (~1e-15).
-Switched by :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off). Details: docs/internals.md#robot-kernels."""
+Switched by :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off). Details: docs/internals.md#robot-kernels.
+``max(b, a)`` where numpy has ``np.maximum(a, b)`` (and so for ``min``): on a tie of zeros, numpy's sign."""
 
 from __future__ import annotations
 
@@ -13,76 +14,88 @@ from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
 
 
-@_njit
-def velocity_box(q, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.velocity_box`` at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a position box is
-    empty (recovery: the caller uses ``BoxLimits``). ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``."""
-    for j in range(P.shape[1]):
-        qj = q[idx[0, j]]
-        q_min, q_max, v_max, two_a = P[0, j], P[1, j], P[2, j], P[4, j]
-        g = qj - q_min
-        stop_lo = -math.sqrt(two_a * max(g, 0.0))
-        g = q_max - qj
-        stop_up = math.sqrt(two_a * max(g, 0.0))
-        p_lo = max((q_min - qj) / dt, stop_lo)
-        p_up = min((q_max - qj) / dt, stop_up)
-        if not p_lo <= p_up:
-            return False
-        c = idx[1, j]
-        lo[c] = min(max(p_lo, -v_max), v_max)
-        up[c] = min(max(p_up, -v_max), v_max)
-    return True
+@_njit(inline=True)
+def _braking(gap, two_a, ad, dt, discrete):  # pragma: no cover - compiled
+    """The speed from which a joint ``gap >= 0`` from its limit stops before it at ``a_max > 0`` (``two_a = 2 a_max``,
+    ``ad = a_max dt``): ``sqrt(2 a_max gap)``, or ``discrete``: the same with the velocity held for periods ``dt``
+    (docs/internals.md#joint-boxes)."""
+    if not discrete:
+        return math.sqrt(two_a * gap)
+    m = math.floor((math.sqrt(1.0 + 8.0 * (gap / (ad * dt))) - 1.0) * 0.5)
+    return (gap / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0)
+
+
+@_njit(inline=True)
+def _braking_velocity(delta, two_a, ad, dt):  # pragma: no cover - compiled
+    """The largest next velocity ``w`` that can still stop within ``delta``: ``w**2 / (2 a) + w dt <= delta``, i.e.
+    ``-a dt + sqrt((a dt)**2 + 2 a delta)``; for ``delta < 0`` (not viable) ``2 delta / dt``."""
+    if not delta >= 0.0:
+        return 2.0 * delta / dt
+    if delta == math.inf:
+        return math.inf
+    return -ad + math.sqrt(ad * ad + two_a * delta)
+
+
+@_njit(inline=True)
+def _project(p_lo, p_up, lo, up, violated_lo, violated_up):  # pragma: no cover - compiled
+    """The position box ``[p_lo, p_up]`` clipped into the rate box ``[lo, up]``; if it is empty the violated side
+    wins (both bounds at its value)."""
+    if p_lo > p_up:
+        if violated_lo:
+            p_up = p_lo
+        elif violated_up:
+            p_lo = p_up
+    p_up = max(p_lo, p_up)  # (an empty box with neither side violated cannot occur: keep the order anyway)
+    return min(up, max(lo, p_lo)), min(up, max(lo, p_up))
 
 
 @_njit
-def velocity_rate_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.velocity_box(q, dq=v)`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a position box is empty."""
+def velocity_box(q, P, idx, dt, lo, up, v=None):  # pragma: no cover - compiled
+    """:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.velocity_box` at ``q[idx[0]]`` (and the previous command
+    ``v[idx[1]]``) into ``lo[idx[1]]``, ``up[idx[1]]``. ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``.
+    False if a position box was empty (a joint outside its limits: the recovery rule applied)."""
+    inside = True
     for j in range(P.shape[1]):
-        c = idx[1, j]
-        qj = q[idx[0, j]]
-        q_min, q_max, v_max, ad = P[0, j], P[1, j], P[2, j], P[5, j]
-        ad2 = ad * dt
-        g = max(qj - q_min, 0.0)
-        m = math.floor((math.sqrt(1.0 + 8.0 * (g / ad2)) - 1.0) * 0.5)
-        stop_lo = -((g / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0))
-        g = max(q_max - qj, 0.0)
-        m = math.floor((math.sqrt(1.0 + 8.0 * (g / ad2)) - 1.0) * 0.5)
-        stop_up = (g / dt + ad * (m * (m + 1.0)) * 0.5) / (m + 1.0)
-        p_lo = max((q_min - qj) / dt, stop_lo)
-        p_up = min((q_max - qj) / dt, stop_up)
-        if not p_lo <= p_up:
-            return False
-        a = min(max(p_lo, -v_max), v_max)
-        b = min(max(p_up, -v_max), v_max)
-        lo[c] = min(max(v[c] - ad, a), b)
-        up[c] = min(max(v[c] + ad, a), b)
-    return True
+        c, qj = idx[1, j], q[idx[0, j]]
+        q_min, q_max, v_max, two_a, ad = P[0, j], P[1, j], P[2, j], P[4, j], P[5, j]
+        if q_min == -math.inf:
+            stop_lo = -math.inf
+        else:
+            stop_lo = -_braking(max(0.0, qj - q_min), two_a, ad, dt, v is not None) if two_a != 0.0 else 0.0
+        if q_max == math.inf:
+            stop_up = math.inf
+        else:
+            stop_up = _braking(max(0.0, q_max - qj), two_a, ad, dt, v is not None) if two_a != 0.0 else 0.0
+        p_lo = max(stop_lo, (q_min - qj) / dt)
+        p_up = min(stop_up, (q_max - qj) / dt)
+        inside = inside and p_lo <= p_up
+        a, b = _project(p_lo, p_up, -v_max, v_max, qj < q_min, qj > q_max)
+        if v is None:
+            lo[c], up[c] = a, b
+        else:  # command_rate_box
+            lo[c], up[c] = min(b, max(a, v[c] - ad)), min(b, max(a, v[c] + ad))
+    return inside
 
 
 @_njit
 def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """``BoxLimits.acceleration_box`` at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False for a
-    state outside its viable set or an empty position box."""
+    """:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.acceleration_box` at ``(q[idx[0]], v[idx[1]])`` into
+    ``lo[idx[1]]``, ``up[idx[1]]``; False if a state was outside its viable set (the recovery rules applied)."""
+    viable = True
     for j in range(P.shape[1]):
         c = idx[1, j]
         qj, dq = q[idx[0, j]], v[c]
         q_min, q_max, v_max, a_max, two_a, ad = P[0, j], P[1, j], P[2, j], P[3, j], P[4, j], P[5, j]
-        lo_v = min(max((-v_max - dq) / dt, -a_max), a_max)
-        up_v = min(max((v_max - dq) / dt, -a_max), a_max)
+        lo_v = min(a_max, max(-a_max, (-v_max - dq) / dt))
+        up_v = min(a_max, max(-a_max, (v_max - dq) / dt))
         h = 0.5 * dq * dt
         delta_up = q_max - qj - h
         delta_lo = qj - q_min + h
-        if not (delta_up >= 0.0 and delta_lo >= 0.0):
-            return False
-        w_up = -ad + math.sqrt(ad * ad + two_a * delta_up)
-        w_lo = -(-ad + math.sqrt(ad * ad + two_a * delta_lo))
-        p_lo = (w_lo - dq) / dt
-        p_up = (w_up - dq) / dt
-        if not p_lo <= p_up:
-            return False
-        lo[c] = min(max(p_lo, lo_v), up_v)
-        up[c] = min(max(p_up, lo_v), up_v)
-    return True
+        p_lo = (-_braking_velocity(delta_lo, two_a, ad, dt) - dq) / dt
+        p_up = (_braking_velocity(delta_up, two_a, ad, dt) - dq) / dt
+        viable = viable and delta_up >= 0.0 and delta_lo >= 0.0 and p_lo <= p_up
+        lo[c], up[c] = _project(p_lo, p_up, lo_v, up_v, delta_lo < 0.0, delta_up < 0.0)
+    return viable
 
 
 @_njit

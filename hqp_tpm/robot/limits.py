@@ -46,39 +46,28 @@ class JointLimits:
         self._up = np.full(robot.nv, np.inf)
         self.velocity_limits = np.full(robot.nv, np.inf)
         self.velocity_limits[self.cols] = self.v_max
-        L = self.limits
-        #: the compiled kernels' inputs: the limits as rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt`` (None
-        #: when a position limit is infinite or an ``a_max`` not positive: then BoxLimits), the joints' q and v indices
-        self.kernel_limits = (np.ascontiguousarray(np.vstack([L.q_min, L.q_max, L.v_max, L.a_max, L._two_a,
-                                                               L.a_max * L.dt]))
-                              if self.cols.size and np.isfinite(L.q_min).all() and np.isfinite(L.q_max).all()
-                              and (L.a_max > 0).all() else None)
+        #: the joints' q and v indices (the kernels' ``idx``)
         self.kernel_indices = np.ascontiguousarray(np.vstack([self.qidx, self.cols]).astype(np.int64))
+        #: the limits' rows (:attr:`BoxLimits.rows`) for a kernel that computes the box inside another (the compiled
+        #: SNS step); None when a position limit is infinite or an ``a_max`` not positive (the caller gives the box)
+        self.kernel_limits = (self.limits.rows if self.cols.size and np.isfinite(self.limits.rows[:2]).all()
+                              and (self.a_max > 0).all() else None)
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
-        if self.kernel_box(state.q, state.v, self._lo, self._up):
-            return self._lo.copy(), self._up.copy()
         return self.reference_box(state)
 
     def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> bool:
-        """The box at ``(q, v)`` by the compiled kernel into ``lo``, ``up`` (their limited columns); False when it
-        cannot (numba off, an infinite limit or ``a_max <= 0``, a recovery case: then :meth:`reference_box`)."""
-        P = self.kernel_limits
-        if P is None or not _compiled.ENABLED:
-            return False
-        if self.order == 1:
-            if self.command_rate:
-                return _compiled.velocity_rate_box(q, v, P, self.kernel_indices, self.limits.dt, lo, up)
-            return _compiled.velocity_box(q, P, self.kernel_indices, self.limits.dt, lo, up)
-        return _compiled.acceleration_box(q, v, P, self.kernel_indices, self.limits.dt, lo, up)
+        """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written); True."""
+        P, idx, dt = self.limits.rows, self.kernel_indices, self.dt
+        if self.order == 2:
+            _compiled.acceleration_box(q, v, P, idx, dt, lo, up)
+        elif self.command_rate:
+            _compiled.velocity_box(q, P, idx, dt, lo, up, v)
+        else:
+            _compiled.velocity_box(q, P, idx, dt, lo, up)
+        return True
 
     def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
-        """The box by :class:`~hqp_tpm.robot.joint_boxes.BoxLimits` (recovery rules included)."""
-        q = state.q[self.qidx]  # the state's q, v are finite and of the right sizes
-        if self.order == 1:
-            lo, up = self.limits.velocity_box(q, state.v[self.cols] if self.command_rate else None)
-        else:
-            lo, up = self.limits.acceleration_box(q, state.v[self.cols])
-        self._lo[self.cols] = lo
-        self._up[self.cols] = up
+        """The box at ``state`` (new arrays, one entry per velocity column)."""
+        self.kernel_box(state.q, state.v, self._lo, self._up)
         return self._lo.copy(), self._up.copy()
