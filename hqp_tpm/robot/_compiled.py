@@ -1,8 +1,9 @@
 """Compiled (numba) kernels of the robot layer (private): joint boxes, integration, target checks and copies, a
 frame's placement, Jacobian, ``J-dot q-dot`` and rotation error. Each does the readable code's (or pinocchio's)
 operations in the same order: the same bits, except :func:`log3` and :func:`frame_jdot_qdot` (~1e-15).
-Switched by :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off). Details: docs/internals.md#robot-kernels.
-``max(b, a)`` where numpy has ``np.maximum(a, b)`` (and so for ``min``): on a tie of zeros, numpy's sign."""
+Switched by :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off, and the joint boxes and the integration,
+their only implementation, run as Python). Details: docs/internals.md#robot-kernels. ``max(b, a)`` where numpy has
+``np.maximum(a, b)`` (and so for ``min``): on a tie of zeros, numpy's sign."""
 
 from __future__ import annotations
 

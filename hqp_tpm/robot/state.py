@@ -138,14 +138,10 @@ class State:
         return self.data.oMf[fid]
 
     def position(self, fid: int) -> np.ndarray:
-        if self._partial:
-            self._complete()
-        return self.data.oMf[fid].translation
+        return self.placement(fid).translation
 
     def rotation(self, fid: int) -> np.ndarray:
-        if self._partial:
-            self._complete()
-        return self.data.oMf[fid].rotation
+        return self.placement(fid).rotation
 
     def jacobian(self, fid: int) -> np.ndarray:
         """6 x nv frame Jacobian, world-aligned at the frame origin (linear rows first)."""
@@ -269,18 +265,15 @@ class State:
     def integrate(self, q, v, a, dt: float, order: int) -> tuple[np.ndarray, np.ndarray]:
         """Next ``(q, v)``: velocity level ``q + v dt``; acceleration level ``q + v dt + a dt^2 / 2`` and ``v + a dt``
         (docs/setups.md, 'Initial state and run')."""
-        if self.euclidean and _compiled.ENABLED:  # pin.integrate is q + dq here: one compiled call, same operations
-            n = q.shape[0]
-            q_next, v_next = np.empty(n), np.empty(n)
+        if self.euclidean:  # pin.integrate is q + dq here: one kernel call, the same operations
+            q_next, v_next = np.empty(q.shape[0]), np.empty(q.shape[0])
             _compiled.euclidean_step(q, v, a, dt, order, q_next, v_next)
             return q_next, v_next
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
-        if _compiled.ENABLED:  # one compiled call, the same operations
-            dq, v_next = np.empty(v.shape[0]), np.empty(v.shape[0])
-            _compiled.acceleration_step(v, a, dt, dq, v_next)
-            return pin.integrate(self.model, q, dq), v_next
-        return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
+        dq, v_next = np.empty(v.shape[0]), np.empty(v.shape[0])
+        _compiled.acceleration_step(v, a, dt, dq, v_next)
+        return pin.integrate(self.model, q, dq), v_next
 
 
 def _cols(model, fid: int) -> np.ndarray:

@@ -12,7 +12,7 @@ from hqp_tpm.references.trajectories import Trajectory
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import Gains, SelectionRows, Task, trajectory_target
-from hqp_tpm.tasks.manipulability import JointAngles
+from hqp_tpm.tasks.manipulability import joint_columns
 
 
 class Posture(Task):
@@ -27,10 +27,7 @@ class Posture(Task):
     """
 
     def __init__(self, robot: Robot, target=None, gains: Gains | None = None, *, joints=None, name: str = "posture"):
-        names = [n for n in robot.joint_names if not robot.has_free_flyer or robot.joint_names.index(n) >= 6]
-        self.joints = list(joints) if joints is not None else names
-        self.cols = np.array([robot.joint_index(j) for j in self.joints], dtype=int)
-        self.angles = JointAngles(robot, self.joints)
+        self.joints, self.cols, self.angles = joint_columns(robot, joints)
         self.dim = len(self.cols)
         self._J = np.zeros((self.dim, robot.nv))
         self._J[np.arange(self.dim), self.cols] = 1.0
