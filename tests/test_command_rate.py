@@ -8,14 +8,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from test_joint_boxes import literal_velocity_box
 
 from hqp_tpm.app import build, scenario
 from hqp_tpm.app.results import chatter
 from hqp_tpm.errors import ParameterError
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.joint_boxes import BoxLimits, command_rate_box
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.robot.model import Robot
+from hqp_tpm.robot.state import State
 
 
 def _limits(rng, n):
@@ -58,18 +59,18 @@ def test_disjoint_boxes_the_position_and_velocity_limits_win():
     np.testing.assert_array_equal(b, [1.0, -1.0, 0.55])
 
 
-@pytest.mark.skipif(not _compiled.AVAILABLE, reason="numba not installed")
-def test_compiled_rate_box_is_the_reference_to_the_bit():
+def test_joint_limits_rate_box_is_the_literal_formula_to_the_bit():
+    """JointLimits(command_rate=True) on a robot's state (its kernel, compiled or as Python): the literal discrete
+    braking and rate box of tests/test_joint_boxes.py."""
     rng = np.random.default_rng(3)
     robot = Robot.load("lwr4")
     lim = JointLimits(robot, order=1, dt=1e-3, command_rate=True, acceleration_limit=30.0)
-    lo, up = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
     q_lo, q_up = robot.position_limits()
     for _ in range(500):
-        q = rng.uniform(q_lo, q_up)
+        q = rng.uniform(q_lo, q_up) * rng.choice([1.0, 1.02])
         v = rng.uniform(-2.0, 2.0, robot.nv) * rng.choice([0.0, 0.01, 1.0])
-        assert _compiled.velocity_box(q, lim.kernel_limits, lim.kernel_indices, 1e-3, lo, up, v)
-        ref = lim.limits.velocity_box(q[lim.qidx], v[lim.cols])
+        lo, up = lim(State(robot).update(q, v), 0.0)
+        ref = literal_velocity_box(q[lim.qidx], lim.q_min, lim.q_max, lim.v_max, lim.a_max, 1e-3, v[lim.cols])
         np.testing.assert_array_equal(lo[lim.cols], ref[0])
         np.testing.assert_array_equal(up[lim.cols], ref[1])
 
