@@ -61,7 +61,7 @@ class BoxLimits:
 
     Its :meth:`velocity_box` and :meth:`acceleration_box` take finite float vectors of the right size, not validated;
     both run the kernels of :mod:`hqp_tpm.robot._compiled` joint by joint (as Python with ``HQP_TPM_COMPILED=0``:
-    then ~1-2 us per joint).
+    then ~2-4 us per joint).
     """
 
     def __init__(self, q_min, q_max, v_max, a_max, dt):
