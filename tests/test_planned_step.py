@@ -234,7 +234,7 @@ def test_unsupported_set_ups_say_why(change, why):
 
 @pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm", "romeo_sns_tpm", "romeo_sns"])
 def test_runner_compiled_run_records_the_same_arrays(name):
-    """``runner.run`` with ``ctrl.step()`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what
+    """``runner.run`` with ``ctrl.step()`` (PlannedStep, fused for a fixed stack) records what
     the readable run (``record=True``) records (floats within 1e-12: close), probes and the SNS solvers' scale,
     iterations and saturated
     joints included (the lean run once dropped them: notebook 03 plots ``scale``)."""
@@ -404,7 +404,7 @@ def test_fixed_stack_with_a_pointing_task_runs_the_planned_step(name, cone):
 
 def test_every_shipped_scenario_runs_compiled():
     """``ctrl.step()`` is the compiled step for every shipped scenario, whatever its solver (a fixed stack of
-    equality tasks: LeanStep; any other fixed stack or a shipped policy: PlannedStep)."""
+    equality tasks: fused; any other fixed stack or a shipped policy: planned every step)."""
     from importlib import resources
 
     from hqp_tpm.app.build import build_run

@@ -20,7 +20,6 @@ from collections.abc import Callable
 import numpy as np
 from scipy.linalg.blas import ddot as _ddot
 
-from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.control._planned_step import PlannedStep, planned
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
@@ -185,17 +184,15 @@ class Controller:
         """The compiled step of the policy under this controller's settings (None: the readable step), planned on first
         use and again when the policy, a setting or the structure of the policy's stack changed.
 
-        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; any other fixed stack (e.g.
-        with a pointing cone), a stack function (:class:`FunctionPolicy`), a ``StackPolicy`` or ``PlanningPolicy``
-        (every shipped policy): :class:`hqp_tpm.control._planned_step.PlannedStep`; any other policy: its own
+        A fixed stack, a stack function (:class:`FunctionPolicy`), a ``StackPolicy`` or ``PlanningPolicy`` (every
+        shipped policy): :class:`hqp_tpm.control._planned_step.PlannedStep`; any other policy: its own
         (:meth:`Policy.compiled_step`)."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast
         if key != self._fast_key or (fast is not None and not fast.current()):
-            policy = self._policy  # (a stack given as levels or a function: the planned step, any task's rows)
-            fast = self._fast = LeanStep.of(self) or (PlannedStep.of(self) if planned(policy)
-                                                      else policy.compiled_step(self))
+            policy = self._policy
+            fast = self._fast = PlannedStep.of(self) if planned(policy) else policy.compiled_step(self)
             self._fast_key = key
         return fast
 
