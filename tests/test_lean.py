@@ -274,14 +274,15 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
     import pinocchio as pin
 
     from hqp_tpm import JointLimits
-    from hqp_tpm.control._planned_step import JointBox
+    from hqp_tpm.control._planned_step import joint_box
     from hqp_tpm.robot.model import Robot
     from hqp_tpm.robot.state import State
 
     robot = Robot.load(robot_name)
     limits = JointLimits(robot, order=order, dt=1e-3, position=position)
-    box, st = JointBox(limits), State(robot)
-    assert box.fast == position
+    box, st = joint_box(limits, np.empty(robot.nv), np.empty(robot.nv)), State(robot)
+    P = limits.kernel_limits
+    assert (P is not None) == position
     lo, up = robot.position_limits()
     rng = np.random.default_rng(5)
     fast = 0
@@ -299,12 +300,13 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
         for got in (box(st), limits(st, 0.0)):
             np.testing.assert_array_equal(got[0], want[0])
             np.testing.assert_array_equal(got[1], want[1])
-        if compiled and box.fast:
+        if compiled and P is not None:
             from hqp_tpm.robot import _compiled
 
             lo_k, up_k = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
-            fast += (_compiled.velocity_box(st.q, box._P, box._idx, 1e-3, lo_k, up_k) if order == 1 else
-                     _compiled.acceleration_box(st.q, st.v, box._P, box._idx, 1e-3, lo_k, up_k))
+            idx = limits.kernel_indices
+            fast += (_compiled.velocity_box(st.q, P, idx, 1e-3, lo_k, up_k) if order == 1 else
+                     _compiled.acceleration_box(st.q, st.v, P, idx, 1e-3, lo_k, up_k))
     assert (fast > 100) == (position and compiled)  # the kernels do the common case (without numba: BoxLimits)
 
 
@@ -451,7 +453,7 @@ def test_fused_sns_tpm_equals_the_readable_step(kind, monkeypatch):
 
 def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     """The kernel computes the joint limits' box; with a joint beyond its position limit (the box's recovery
-    rules) it hands back: the JointBox's BoxLimits path and sns_tpm_stacked give the readable step's numbers."""
+    rules) it hands back: the joint box's BoxLimits path and sns_tpm_stacked give the readable step's numbers."""
     from benchmarks.peers import problems as P
     from hqp_tpm.robot import _compiled
 
@@ -464,9 +466,10 @@ def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     cfg = dataclasses.replace(prob.configs[0], q=q)
     ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
     lean = Lean.of(fast)
-    box = lean.box
+    box = fast.box
     assert not lean._program.box_given  # the kernel computes the box, and declines here
-    assert not _compiled.velocity_box(q, box._P, box._idx, box._dt, np.zeros(7), np.zeros(7))
+    assert not _compiled.velocity_box(q, box.kernel_limits, box.kernel_indices, box.limits.dt, np.zeros(7),
+                                      np.zeros(7))
     for _ in range(5):
         res = ref.step(record=True)
         assert_equal_steps(lean.step(), res.command)

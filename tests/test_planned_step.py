@@ -345,7 +345,7 @@ def test_planned_solve_kernel_equals_tpm_stacked():
     from hqp_tpm.solvers._fullrank import COND, MARGIN
     from hqp_tpm.solvers.tpm import tpm_stacked
 
-    if _compiled_step.stacked_kernel(False) is None:
+    if _compiled_step.stacked_kernel() is None:
         pytest.skip("numba is not installed")
     rng = np.random.default_rng(5)
     seen = set()
@@ -363,7 +363,7 @@ def test_planned_solve_kernel_equals_tpm_stacked():
         damping = float(rng.choice([0.0, 3.0]))
         lam, eps = (0.05, 0.1) if trial % 2 else (0.0, 0.0)
         x, x0 = np.empty(n), np.empty(n)
-        kernel = _compiled_step.stacked_kernel(m > n)
+        kernel = _compiled_step.stacked_kernel()
         status = kernel(J, b, _compiled._sizes(sizes), v, damping, lam, eps, _compiled._UNIT, MARGIN, COND, x0, x)
         seen.add(int(status))
         if status == _compiled_step.SOLVED:

@@ -12,7 +12,7 @@ import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._task_rows import TaskProgram, program_rows, write_own_rows
-from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
+from hqp_tpm.control.command_rate import rate_limited, shifted
 from hqp_tpm.control.policy import FixedStack, FunctionPolicy, PlanningPolicy, Policy, StackPolicy
 from hqp_tpm.control.stack import Stack, merge_levels
 from hqp_tpm.control.step_result import StepResult
@@ -22,7 +22,7 @@ from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
-from hqp_tpm.solvers.registry import ANALYTIC, solve
+from hqp_tpm.solvers.registry import ANALYTIC
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance, PairAvoidance
@@ -38,27 +38,17 @@ def planned(policy: Policy) -> bool:
     return isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) in (FixedStack, FunctionPolicy)
 
 
-class JointBox:
-    """:class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into two preallocated arrays by
-    :meth:`JointLimits.kernel_box` (``BoxLimits``' bits) or :meth:`JointLimits.reference_box` (recovery rules)."""
+def joint_box(limits: JointLimits, lo: np.ndarray, up: np.ndarray):
+    """``box(state) -> (lo, up)``: :class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into ``lo``,
+    ``up`` by :meth:`JointLimits.kernel_box` (``BoxLimits``' bits) or :meth:`JointLimits.reference_box` (recovery
+    rules)."""
+    lo[...], up[...] = -np.inf, np.inf
 
-    __slots__ = ("limits", "lo", "up", "fast", "_P", "_idx", "_dt")
-
-    def __init__(self, limits: JointLimits, out: tuple[np.ndarray, np.ndarray] | None = None):
-        """``out``: the two arrays to write the box into (default: new ones)."""
-        self.limits = limits
-        nv = limits.robot.nv
-        self.lo, self.up = (np.empty(nv), np.empty(nv)) if out is None else out
-        self.lo[...], self.up[...] = -np.inf, np.inf
-        self.fast = limits.kernel_limits is not None  # (finite position limits, a_max > 0)
-        # the compiled kernels' inputs (hqp_tpm.robot._compiled): the limits as rows, the joint indices (JointLimits')
-        self._P, self._idx, self._dt = limits.kernel_limits, limits.kernel_indices, limits.limits.dt
-
-    def __call__(self, state) -> tuple[np.ndarray, np.ndarray]:
-        """``(lower, upper)`` at ``state`` (the arrays are this object's, overwritten by the next call)."""
-        if not self.limits.kernel_box(state.q, state.v, self.lo, self.up):
-            self.lo[...], self.up[...] = self.limits.reference_box(state)
-        return self.lo, self.up
+    def box(state) -> tuple[np.ndarray, np.ndarray]:
+        if not limits.kernel_box(state.q, state.v, lo, up):
+            lo[...], up[...] = limits.reference_box(state)
+        return lo, up
+    return box
 
 
 class PlannedStep:
@@ -108,8 +98,8 @@ class PlannedStep:
         # the pointing and the avoidance tasks write straight into the stacked rows (their row writers: one compiled
         # call each): one writer per (task, first row), built on first use (_place)
         self._placed: dict[tuple[int, int], tuple | bool] = {}
-        self._stacked, self._x0 = [None, None], np.zeros(self.n)  # the compiled solves of m <= n, m > n
-        # sns_tpm: the stacked rows solved in the joint limits' box (JointBox: the box's numbers in fewer calls), the
+        self._stacked, self._x0 = None, np.zeros(self.n)  # the compiled solve (_compiled_step.stacked_kernel)
+        # sns_tpm: the stacked rows solved in the joint limits' box (joint_box: the box's numbers in fewer calls), the
         # null-space term x0 one more, lowest level (as the registry adds it); the box bounds the command's rate
         # (velocity level): the rows shifted by J v and solved for the change (command_rate.solve_around)
         self.sns = ctrl.solver == "sns_tpm"
@@ -119,7 +109,8 @@ class PlannedStep:
         self.rate = ctrl.solver not in ANALYTIC and ctrl.order == 1 and rate_limited(ctrl.box)
         joint = type(ctrl.box) is JointLimits
         self.planned_box = box = ctrl.box
-        self.box = JointBox(box) if joint else None if box is None else (lambda st: box(st, ctrl.t))
+        self.box = None if box is None else joint_box(box, np.empty(self.n), np.empty(self.n)) if joint else (
+            lambda st: box(st, ctrl.t))
         self.info: dict | None = {}
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
         self._stack = self._box_now = self._program = self._kernel = self._label = None
@@ -150,7 +141,7 @@ class PlannedStep:
         box = self.planned_box
         if ctrl.solver == "tpm":
             mode = _compiled_step.TPM
-        elif self.sns and not self.rate and not self.damping and (box is None or type(self.box) is JointBox):
+        elif self.sns and not self.rate and not self.damping and (box is None or type(box) is JointLimits):
             mode = _compiled_step.SNS
         else:
             mode = _compiled_step.ROWS
@@ -161,9 +152,9 @@ class PlannedStep:
         self.J, self.b = self._flat[: a * n].reshape(a, n), self._flat[a * n:]
         self._x0, self._out = buf[o: o + n], buf[o + n: o + 2 * n]
         if mode == _compiled_step.SNS:  # the box written into the buffer (no box: they stay infinite)
-            lo_up = buf[o + 2 * n: o + 3 * n], buf[o + 3 * n: o + 4 * n]
-            lo_up[0][...], lo_up[1][...] = -np.inf, np.inf
-            self.box = None if box is None else JointBox(box, lo_up)
+            lo, up = buf[o + 2 * n: o + 3 * n], buf[o + 3 * n: o + 4 * n]
+            lo[...], up[...] = -np.inf, np.inf
+            self.box = None if box is None else joint_box(box, lo, up)
         program = _compiled_step.Program(a, n, sizes, order, self.lambda_max, self.eps, bool(self.damping), solve=mode)
         st, gathers, written, frames, own = ctrl.state, [], set(), {}, False
         for task, r0, k, _, _ in made:
@@ -177,9 +168,9 @@ class PlannedStep:
                     written.add(ctrl.robot.frame_id(task.frame))
             gathers.append(gather)
         self._frames = tuple(f for f in frames if f not in program.placed or f in written)
-        if mode == _compiled_step.SNS and type(self.box) is JointBox and self.box.fast:  # the box in the kernel
+        if mode == _compiled_step.SNS and box is not None and box.kernel_limits is not None:  # the box in the kernel
             program.set_box(_compiled_step.BOX_VELOCITY if order == 1 else _compiled_step.BOX_ACCELERATION,
-                            self.box._P, self.box._idx, self.box._dt)
+                            box.kernel_limits, box.kernel_indices, box.limits.dt)
         self._program = program.build()
         self._ints, self._floats = program.ints, program.floats  # (written in place, never replaced)
         self._com = program.com_in_update  # (set by a row program at velocity level only)
@@ -304,7 +295,7 @@ class PlannedStep:
             if self.damping:
                 np.multiply(v, -self.damping, out=self._x0)
             if self._box_writer is not None:
-                self._box_writer(st)  # the JointBox writes into the buffer's lo, up (else the kernel does)
+                self._box_writer(st)  # the joint_box writes into the buffer's lo, up (else the kernel does)
             status = self._kernel(self._buf, self._ints, self._floats, q, v)
             if status == 0:  # SOLVED
                 self.info = None if self._sns_kernel else {}  # (None: the kernel's, in the kept buffer)
@@ -317,7 +308,7 @@ class PlannedStep:
                 kernel = _compiled_step.kernel(_compiled_step.TPM, svd=True)  # that decides every pivot at once
                 self._kernel = kernel and _robot_kernels.typed(kernel, self._buf, self._ints, self._floats, q, v)
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
-            # BOX_HANDED_BACK (the JointBox's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): the rows written
+            # BOX_HANDED_BACK (the joint_box's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): the rows written
             return self._solve(st, t, self.b.size, self._sizes, status)
         st = ctrl.state.update(q, v, t, validate=False)
         policy.update(st, t)
@@ -337,16 +328,12 @@ class PlannedStep:
     def _blend(self, st, t: float, x: np.ndarray) -> np.ndarray:
         """The policy's blend of ``x`` with other stacks solved as the readable step solves them
         (:meth:`Controller._solve_step`), clipped into the box when there is one."""
-        ctrl, n, box = self.ctrl, self.n, self._box_now
+        ctrl, box = self.ctrl, self._box_now
         x0 = ctrl.null_space_term(ctrl._v)
 
         def resolve(other: Stack) -> np.ndarray:
             try:
-                levels = other.to_levels(st, t, self.order)
-                if self.rate:
-                    return solve_around(ctrl.solver, levels, n, ctrl._v, box, lambda_max=self.lambda_max,
-                                        eps=self.eps, solve=solve)[0]
-                return solve(ctrl.solver, levels, n, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)[0]
+                return ctrl.solve_levels(other.to_levels(st, t, self.order), x0, box)[0]
             except NonFiniteError as exc:  # named as the readable step names it (Controller._compute)
                 raise type(exc)(f"{exc}{ctrl._where()}") from exc
 
@@ -372,8 +359,7 @@ class PlannedStep:
         if self.other:
             return self._registry(st, t, J, b)
         if status is None and sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call
-            tall = m > self.n
-            kernel = self._stacked[tall] or self._load_kernel(tall)
+            kernel = self._stacked = self._stacked or _compiled_step.stacked_kernel()
             if kernel is not None:
                 x, x0 = np.empty(self.n), self._x0
                 status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
@@ -436,23 +422,11 @@ class PlannedStep:
         :meth:`Controller._solve_step`)."""
         ctrl = self.ctrl
         self._box_now = box = self.box(st) if self.box is not None else None
-        levels = self._levels(J, b, self._made)
-        if self.rate:
-            x, info = solve_around(ctrl.solver, levels, self.n, ctrl._v, box, lambda_max=self.lambda_max,
-                                   eps=self.eps, solve=solve)
-        else:
-            x, info = solve(ctrl.solver, levels, self.n, x0=ctrl.null_space_term(ctrl._v), box=box,
-                            lambda_max=self.lambda_max, eps=self.eps)
+        x, info = ctrl.solve_levels(self._levels(J, b, self._made), ctrl.null_space_term(ctrl._v), box)
         if not all_finite(x):
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         self.info = info
         return x
-
-    def _load_kernel(self, tall: bool):
-        """The compiled solve of :meth:`compute` for ``m > n`` rows (``tall``) or not
-        (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
-        self._stacked[tall] = _compiled_step.stacked_kernel(tall)
-        return self._stacked[tall]
 
     def current(self) -> bool:
         """Whether the step still fits the controller's policy (a fused stack: no level replaced or added)."""

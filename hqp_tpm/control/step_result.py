@@ -28,16 +28,14 @@ class StepResult:
     A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
     it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
 
-    # (a compiled step's result sets t, command, _kept and what it knows; the others are computed when read)
+    # (a compiled step's result sets t, command, _kept = (step, q, v, ...) and what it knows; the others are computed
+    # when read: PlannedStep.result)
     _info = _stack = _levels = _x0 = _box = LAZY
     _kept = None
 
-    def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
-                 kept: tuple | None = None):
-        """``kept``: ``(step, q, v, ...)`` of a compiled step
-        (:class:`~hqp_tpm.control._planned_step.PlannedStep`), which computes the fields passed as ``LAZY``."""
+    def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None):
         self.t, self.command, self._info = t, command, {} if info is None else info
-        self._stack, self._levels, self._x0, self._box, self._kept = stack, levels, x0, box, kept
+        self._stack, self._levels, self._x0, self._box = stack, levels, x0, box
 
     @property
     def info(self) -> dict:
