@@ -333,7 +333,7 @@ class PlannedStep:
 
         def resolve(other: Stack) -> np.ndarray:
             try:
-                return ctrl.solve_levels(other.to_levels(st, t, self.order), x0, box)[0]
+                return ctrl._solve_levels(other.to_levels(st, t, self.order), x0, box)[0]
             except NonFiniteError as exc:  # named as the readable step names it (Controller._compute)
                 raise type(exc)(f"{exc}{ctrl._where()}") from exc
 
@@ -422,7 +422,7 @@ class PlannedStep:
         :meth:`Controller._solve_step`)."""
         ctrl = self.ctrl
         self._box_now = box = self.box(st) if self.box is not None else None
-        x, info = ctrl.solve_levels(self._levels(J, b, self._made), ctrl.null_space_term(ctrl._v), box)
+        x, info = ctrl._solve_levels(self._levels(J, b, self._made), ctrl.null_space_term(ctrl._v), box)
         if not all_finite(x):
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         self.info = info

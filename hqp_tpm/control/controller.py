@@ -159,11 +159,11 @@ class Controller:
         stack = policy(st, self.t)
         levels = stack.to_levels(st, self.t, self.order)
         x0, box = self.solve_inputs(st, self.t, self.v)
-        x, info = self.solve_levels(levels, x0, box)
+        x, info = self._solve_levels(levels, x0, box)
         check = crosscheck_step(self, st, stack, levels, x0, box, x) if self.crosscheck else None
         if policy.blends:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
             def resolve(other: Stack) -> np.ndarray:
-                return self.solve_levels(other.to_levels(st, self.t, self.order), x0, box)[0]
+                return self._solve_levels(other.to_levels(st, self.t, self.order), x0, box)[0]
             x = policy.blend(st, self.t, stack, x, resolve)
             if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
                 x = np.minimum(np.maximum(x, box[0]), box[1])
@@ -173,7 +173,7 @@ class Controller:
             info = {**info, "crosscheck": check(x)}
         return StepResult(self.t, stack, levels, x, info, x0, box)
 
-    def solve_levels(self, levels, x0: np.ndarray | None, box) -> tuple[np.ndarray, dict]:
+    def _solve_levels(self, levels, x0: np.ndarray | None, box) -> tuple[np.ndarray, dict]:
         """``(x, info)``: ``levels`` solved with this controller's solver and settings, ``x0`` and ``box`` (when the box
         bounds the command's rate: the stack solved for the change, :func:`solve_around`)."""
         if box is not None and self.order == 1 and rate_limited(self.box) and self.solver not in ANALYTIC:
