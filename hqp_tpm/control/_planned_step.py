@@ -281,7 +281,7 @@ class PlannedStep:
 
     def compute(self) -> np.ndarray:
         """The command at the controller's current state (policy state advanced as in a step)."""
-        ctrl, policy = self.ctrl, self.policy
+        ctrl = self.ctrl
         if not ctrl._started:
             ctrl.start()
         t, q, v = ctrl.t, ctrl._q, ctrl._v
@@ -298,7 +298,8 @@ class PlannedStep:
                 self._box_writer(st)  # the joint_box writes into the buffer's lo, up (else the kernel does)
             status = self._kernel(self._buf, self._ints, self._floats, q, v)
             if status == 0:  # SOLVED
-                self.info = None if self._sns_kernel else {}  # (None: the kernel's, in the kept buffer)
+                if self._sns_kernel:
+                    self.info = None  # (the kernel's, in the kept buffer)
                 return self._out.copy()
             if status == _compiled_step.NONFINITE_ROWS:
                 return ctrl._compute().command  # the readable path raises the typed error naming the task
@@ -310,7 +311,7 @@ class PlannedStep:
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
             # BOX_HANDED_BACK (the joint_box's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): the rows written
             return self._solve(st, t, self.b.size, self._sizes, status)
-        st = ctrl.state.update(q, v, t, validate=False)
+        st, policy = ctrl.state.update(q, v, t, validate=False), self.policy
         policy.update(st, t)
         if isinstance(policy, PlanningPolicy):
             tasks, extras = policy.plan(st, t)
@@ -439,17 +440,18 @@ class PlannedStep:
         """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written
         (its stack and levels, the readable step's, built when asked)."""
         r = _new(StepResult)  # (the fields not set here are computed on first read: StepResult's defaults)
-        r.t, r.command = t, x
+        r.t, r.command, info = t, x, self.info
         if self._program is not None:  # (J and b in one buffer, with the fused SNS solve's info when it solved)
             r._stack = self._stack
-            rows = (self._buf if self.info is None else self._flat).copy()
-        else:
-            made = self._made
-            m = made[-1][1] + made[-1][2] if made else 0
-            rows = (self.J[:m].copy(), self.b[:m].copy())
-        if self.info is not None:
-            r._info = self.info if self.sns or self.other else {}
-        r._kept = (self, q, v, rows, self._made, self.tasks, self._extras, self._stack)
+            if info is None:
+                r._kept = (self, q, v, self._buf.copy(), self._made)
+            else:
+                r._kept, r._info = (self, q, v, self._flat.copy(), self._made), info or {}
+            return r
+        made = self._made
+        m = made[-1][1] + made[-1][2] if made else 0
+        r._info = info if self.sns or self.other else {}
+        r._kept = (self, q, v, (self.J[:m].copy(), self.b[:m].copy()), made, self.tasks, self._extras, self._stack)
         return r
 
     def info_of(self, kept: tuple) -> dict:
@@ -496,9 +498,10 @@ class PlannedStep:
         return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
     def label_of(self, kept: tuple) -> str:
-        stack = kept[7]
-        if stack is not None:
-            return self._label if stack is self._stack and self._label is not None else stack.label()
+        if self._label is not None:  # (a fused stack's)
+            return self._label
+        if kept[7] is not None:
+            return kept[7].label()
         key = tuple(task.name for task in kept[5])
         text = self._labels.get(key)
         if text is None:
