@@ -212,9 +212,12 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
-    J, b, _, out, sizes = _step_arrays(buf, ints)
-    m, n = ints[0], ints[1]
+    m, n, nlev = ints[0], ints[1], ints[3]
     mn = m * n
+    J = buf[:mn].reshape((m, n))
+    b = buf[mn: mn + m]
+    out = buf[mn + m + n: mn + m + 2 * n]
+    sizes = ints[HEAD: HEAD + nlev]
     lo = buf[mn + m + 2 * n: mn + m + 3 * n]
     up = buf[mn + m + 3 * n: mn + m + 4 * n]
     state = buf[mn + m + 4 * n: mn + m + 7 * n].reshape((3, n))

@@ -310,7 +310,7 @@ class PlannedStep:
                 self._kernel = kernel and _robot_kernels.typed(kernel, self._buf, self._ints, self._floats, q, v)
             # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
             # BOX_HANDED_BACK (the joint_box's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): the rows written
-            return self._solve(st, t, self.b.size, self._sizes, status)
+            return self._solve(st, t, self.J, self.b, self._sizes, status)
         st, policy = ctrl.state.update(q, v, t, validate=False), self.policy
         policy.update(st, t)
         if isinstance(policy, PlanningPolicy):
@@ -321,7 +321,8 @@ class PlannedStep:
             levels, extras = stack.levels, stack.extras
             tasks = tuple(task for level in levels for task in level)
         self.tasks, self._extras, self._stack = tasks, extras, stack
-        x = self._solve(st, t, *self._rows(st, t, levels, extras))
+        m, sizes = self._rows(st, t, levels, extras)
+        x = self._solve(st, t, self.J[:m], self.b[:m], sizes)
         if policy.blends:
             x = self._blend(st, t, x)
         return x
@@ -346,11 +347,11 @@ class PlannedStep:
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         return x
 
-    def _solve(self, st, t: float, m: int, sizes: tuple[int, ...], status: int | None = None) -> np.ndarray:
-        """The solution of the ``m`` rows written (the readable step's solve); ``status``: the fused kernel's, which
-        found them finite and did not solve them."""
+    def _solve(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...],
+               status: int | None = None) -> np.ndarray:
+        """The solution of the rows written (the readable step's solve); ``status``: the fused kernel's, which found
+        them finite and did not solve them."""
         ctrl = self.ctrl
-        J, b = self.J[:m], self.b[:m]
         # an inactive cone's row, or (sns_tpm, other solvers) the rows, NaN, inf or too large (one sum fails for all
         # three): the readable path raises the typed error naming the task
         if status is None and (self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ):
@@ -411,7 +412,7 @@ class PlannedStep:
             x = np.minimum(np.maximum(v + d, lo), up)
         else:
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, x0=ctrl.null_space_term(ctrl._v))
+                                       return_info=True, x0=-self.damping * ctrl._v if self.damping else None)
         if not all_finite(x):
             raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
         self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
