@@ -397,14 +397,14 @@ class PlannedStep:
         if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
             v = ctrl._v
             bs = self._bs[:J.shape[0]]
-            groups: dict[int, list] = {}
+            a0 = g0 = -1
             for _task, a, k, lv, g in self._made:
-                groups.setdefault(g, []).append((a, k, lv is False or lv.b is not None))
-            for rows in groups.values():  # equality rows shifted a level at a time (the readable step's bits of J v);
-                if all(eq for *_, eq in rows):  # an inequality level's rows are written shifted
-                    rows = [(rows[0][0], rows[-1][0] + rows[-1][1] - rows[0][0], True)]
-                for a, k, eq in rows:
-                    bs[a:a + k] = b[a:a + k] - J[a:a + k] @ v if eq else b[a:a + k]
+                if lv is not False and lv.b is None:  # an inequality level's rows (written shifted)
+                    bs[a:a + k], g0 = b[a:a + k], -1
+                    continue
+                if g != g0:  # equality rows shifted a level at a time (the readable step's bits of J v)
+                    a0, g0 = a, g
+                np.subtract(b[a0:a + k], J[a0:a + k] @ v, out=bs[a0:a + k])
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
             d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
