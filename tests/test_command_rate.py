@@ -113,7 +113,7 @@ def test_romeo_commands_change_by_at_most_a_max_dt_and_lean_equals_readable(name
     assert max(rate_f, rate_s) <= bound + 1e-9
     assert max(box_f, box_s) <= 1e-9
     # the compiled step computes the feet's rotation errors itself (log3 within a few ulps of pinocchio's, the
-    # guarantee of hqp_tpm.control._lean): bit-equal with pinocchio >= 3.8, 5e-12 apart with pin 3.4.0
+    # guarantee of hqp_tpm.control._planned_step): bit-equal with pinocchio >= 3.8, 5e-12 apart with pin 3.4.0
     np.testing.assert_allclose(fast, slow, rtol=0, atol=1e-9)
 
 

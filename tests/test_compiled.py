@@ -470,8 +470,8 @@ def test_tpm_scenarios_equal_with_the_kernel_on_and_off(name, compiled, monkeypa
     planned = []  # (a policy's planned step solves through the stacked kernel: hqp_tpm.control._planned_step)
     stacked = _compiled_step.stacked_kernel
 
-    def counted(tall):
-        solve = stacked(tall)
+    def counted():
+        solve = stacked()
         return None if solve is None else (lambda *a: planned.append(solve(*a)) or planned[-1])
 
     monkeypatch.setattr(_compiled_step, "stacked_kernel", counted)

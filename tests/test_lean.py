@@ -1,4 +1,4 @@
-"""The compiled step of a fixed stack (hqp_tpm.control._lean) equals the readable step (Task -> Level -> solver).
+"""The fused step of a fixed stack (hqp_tpm.control._planned_step) equals the readable step (Task -> Level -> solver).
 
 Two controllers built alike from the same state, one stepped by ``Controller.step(record=True)`` (the readable
 path, the oracle), the other by ``Controller.step()`` (its compiled step, :class:`Lean`): commands, ``q`` and ``v``
@@ -22,25 +22,30 @@ import numpy as np
 import pytest
 
 from hqp_tpm.control import _compiled_step
-from hqp_tpm.control._lean import LeanStep
+from hqp_tpm.control._planned_step import PlannedStep
+from hqp_tpm.control.policy import FixedStack
 from hqp_tpm.errors import MagnitudeError, NonFiniteError
 
 TOL = 1e-12
 
 
 class Lean:
-    """``ctrl.step()`` through its compiled step (a LeanStep): :meth:`step`, :meth:`compute` give the command of
-    ``ctrl.step()``, ``ctrl.compute()`` (asserting that the compiled step planned for it ran), :attr:`info` the last
-    result's; any other name is the LeanStep's (its internals)."""
+    """``ctrl.step()`` through its compiled step (a fused PlannedStep): :meth:`step`, :meth:`compute` give the command
+    of ``ctrl.step()``, ``ctrl.compute()`` (asserting that the compiled step planned for it ran), :attr:`info` the last
+    result's; any other name is the PlannedStep's (its internals)."""
 
     def __init__(self, ctrl, fast):
         self.__dict__.update(ctrl=ctrl, fast=fast, res=None)
 
     @classmethod
     def of(cls, ctrl):
-        """The compiled step of ``ctrl`` if it is a LeanStep, else None."""
+        """The compiled step of ``ctrl`` if it is a fused PlannedStep (a fixed stack of equality tasks; the kernels
+        switched off: the planned step of a fixed stack), else None."""
         fast = ctrl._compiled_step()
-        return cls(ctrl, fast) if type(fast) is LeanStep else None
+        if type(fast) is not PlannedStep:
+            return None
+        fused = fast._program is not None or not _compiled_step._compiled.ENABLED and type(ctrl.policy) is FixedStack
+        return cls(ctrl, fast) if fused else None
 
     def _ran(self, res):
         assert self.ctrl._fast is self.fast and res._kept is not None  # (the compiled step ran, not a new one)
@@ -110,7 +115,7 @@ QP_TOL = 1e-9
 def assert_same_steps(make, steps, exact=True):
     ref, fast = make(), make()
     lean = Lean.of(fast)
-    assert lean is not None, LeanStep.why_not(fast)
+    assert lean is not None, PlannedStep.why_not(fast)
     tol = TOL if exact else QP_TOL
     for _ in range(steps):
         x_ref = ref.step(record=True).command
@@ -140,10 +145,9 @@ def test_every_qualifying_scenario(name):
     from hqp_tpm.app.scenario import load
 
     built = [build(load(name))[1]]
-    why = LeanStep.why_not(built[0])
-    assert (why is None) == (name in QUALIFYING), why
-    if why is not None:
-        assert Lean.of(built[0]) is None and isinstance(why, str) and why
+    assert (Lean.of(built[0]) is not None) == (name in QUALIFYING)
+    if name not in QUALIFYING:
+        assert type(built[0]._compiled_step()) is PlannedStep or PlannedStep.why_not(built[0])
         return
     qp = built[0].solver.startswith("qp")  # the cascaded QP is not reproducible to the bit (README, known problems)
     ref, _ = assert_same_steps(lambda: built.pop() if built else build(load(name))[1], 20 if qp else 30, exact=not qp)
@@ -223,16 +227,16 @@ def test_unsupported_setups_are_named():
     from hqp_tpm.app.scenario import load
 
     tracking = build(load("lwr_tracking"))[1]      # a pointing cone: inequality rows
-    assert Lean.of(tracking) is None and "pointing" in LeanStep.why_not(tracking)
+    assert Lean.of(tracking) is None and type(tracking._compiled_step()) is PlannedStep
     avoid = build(load("lwr_avoid3d"))[1]           # Algorithm 1 rebuilds the stack every step
-    assert Lean.of(avoid) is None and "Algorithm1" in LeanStep.why_not(avoid)
+    assert Lean.of(avoid) is None and type(avoid._compiled_step()) is PlannedStep
     from benchmarks.peers import problems as P
 
     robot = P.load_robot(P.IIWA)
     prob = P.iiwa_problem(robot, 1, n=1)
     cross = P.hqp_controller(robot, prob, prob.configs[0])
     cross.crosscheck = "sns_tpm"
-    assert Lean.of(cross) is None and "crosscheck" in LeanStep.why_not(cross)
+    assert Lean.of(cross) is None and "crosscheck" in PlannedStep.why_not(cross)
 
 
 @pytest.mark.filterwarnings("ignore:overflow encountered:RuntimeWarning")
@@ -270,14 +274,15 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
     import pinocchio as pin
 
     from hqp_tpm import JointLimits
-    from hqp_tpm.control._lean import JointBox
+    from hqp_tpm.control._planned_step import joint_box
     from hqp_tpm.robot.model import Robot
     from hqp_tpm.robot.state import State
 
     robot = Robot.load(robot_name)
     limits = JointLimits(robot, order=order, dt=1e-3, position=position)
-    box, st = JointBox(limits), State(robot)
-    assert box.fast == position
+    box, st = joint_box(limits, np.empty(robot.nv), np.empty(robot.nv)), State(robot)
+    P = limits.kernel_limits
+    assert (P is not None) == position
     lo, up = robot.position_limits()
     rng = np.random.default_rng(5)
     fast = 0
@@ -295,12 +300,13 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
         for got in (box(st), limits(st, 0.0)):
             np.testing.assert_array_equal(got[0], want[0])
             np.testing.assert_array_equal(got[1], want[1])
-        if compiled and box.fast:
+        if compiled and P is not None:
             from hqp_tpm.robot import _compiled
 
             lo_k, up_k = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
-            fast += (_compiled.velocity_box(st.q, box._P, box._idx, 1e-3, lo_k, up_k) if order == 1 else
-                     _compiled.acceleration_box(st.q, st.v, box._P, box._idx, 1e-3, lo_k, up_k))
+            idx = limits.kernel_indices
+            fast += (_compiled.velocity_box(st.q, P, idx, 1e-3, lo_k, up_k) if order == 1 else
+                     _compiled.acceleration_box(st.q, st.v, P, idx, 1e-3, lo_k, up_k))
     assert (fast > 100) == (position and compiled)  # the kernels do the common case (without numba: BoxLimits)
 
 
@@ -407,7 +413,7 @@ def test_fused_rows_for_other_solvers(kind, solver, monkeypatch):
 
 def _sns_spy(monkeypatch):
     """Counts the lean step's calls of sns_tpm_stacked (the path after the fused kernel hands back)."""
-    from hqp_tpm.control import _lean as lean_mod
+    from hqp_tpm.control import _planned_step as lean_mod
 
     calls = []
     real = lean_mod.sns_tpm_stacked
@@ -447,7 +453,7 @@ def test_fused_sns_tpm_equals_the_readable_step(kind, monkeypatch):
 
 def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     """The kernel computes the joint limits' box; with a joint beyond its position limit (the box's recovery
-    rules) it hands back: the JointBox's BoxLimits path and sns_tpm_stacked give the readable step's numbers."""
+    rules) it hands back: the joint box's BoxLimits path and sns_tpm_stacked give the readable step's numbers."""
     from benchmarks.peers import problems as P
     from hqp_tpm.robot import _compiled
 
@@ -460,9 +466,10 @@ def test_fused_sns_tpm_box_beyond_the_position_limits(monkeypatch):
     cfg = dataclasses.replace(prob.configs[0], q=q)
     ref, fast = (P.hqp_controller(robot, prob, cfg, "sns_tpm") for _ in range(2))
     lean = Lean.of(fast)
-    box = lean.box
+    box = fast.box
     assert not lean._program.box_given  # the kernel computes the box, and declines here
-    assert not _compiled.velocity_box(q, box._P, box._idx, box._dt, np.zeros(7), np.zeros(7))
+    assert not _compiled.velocity_box(q, box.kernel_limits, box.kernel_indices, box.limits.dt, np.zeros(7),
+                                      np.zeros(7))
     for _ in range(5):
         res = ref.step(record=True)
         assert_equal_steps(lean.step(), res.command)
@@ -576,7 +583,7 @@ def test_row_programs_follow_targets_gains_and_trajectories_changed_mid_run(orde
     lean = Lean.of(fast)
     assert lean._kernel is not None and lean._program.ints[5] >= 2
     for i, task in enumerate(lean.tasks):  # a frame position a row program (a Harmonic reference too: copied)
-        assert type(task) is not FramePosition or lean._fused[i] is not lean.writers[i]
+        assert type(task) is not FramePosition or "_own_rows" not in lean._gathers[i].__qualname__
     target = pin.SE3(pin.rpy.rpyToMatrix(0.1, -0.2, 0.3), np.array([0.3, 0.2, 0.7]))
     wave = Harmonic(center=np.array([0.2, 0.3]), cos_amplitude=np.array([0.1, 0.0]),
                     sin_amplitude=np.array([0.0, 0.1]), omega=3.0)
@@ -625,7 +632,7 @@ def test_targets_assigned_every_step_are_followed_without_edit_counters():
     for order in (1, 2):
         ref, fast = make(order), make(order)
         lean = Lean.of(fast)
-        assert all(w is not v for w, v in zip(lean._fused, lean.writers, strict=True))  # every task: a row program
+        assert all("_own_rows" not in g.__qualname__ for g in lean._gathers)  # every task: a row program
         for i in range(30):
             M = pin.SE3(pin.rpy.rpyToMatrix(*rng.uniform(-0.3, 0.3, 3)), rng.uniform(0.2, 0.6, 3))
             x, q_d, kp = rng.uniform(-0.2, 0.4, 2), rng.uniform(-1, 1, 7), float(rng.uniform(1, 9))
@@ -916,7 +923,7 @@ def test_kernel_places_the_frames_its_tasks_read(monkeypatch):
             m.setattr(State, "frame_placement_source", lambda self, fid: None)
             other = Lean.of(placed_by_state)
         assert lean._program.placed == set(fids) and not other._program.placed
-        assert lean._fused_frames == ()  # (a Harmonic reference too: its rows are the kernel's)
+        assert lean._frames == ()  # (a Harmonic reference too: its rows are the kernel's)
         for _ in range(5):
             x = lean.step()
             np.testing.assert_array_equal(x, other.step())
@@ -937,7 +944,7 @@ def test_a_pivot_block_that_needs_its_svd_switches_the_fused_kernel():
 
     fast, ref = (build(load("romeo_tpm"))[1] for _ in range(2))
     lean = fast._compiled_step()
-    assert type(lean) is LeanStep
+    assert type(lean) is PlannedStep
     first = lean._kernel
     for _ in range(60):
         np.testing.assert_array_equal(fast.step().command, ref.step(record=True).command)

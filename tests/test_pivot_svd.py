@@ -108,7 +108,7 @@ def test_planned_step_kernel_hands_back_and_tpm_stacked_finishes(monkeypatch):
     """The planned step's compiled solve (``_general`` fused with the rows' checks) hands these stacks back; the
     caller's ``tpm_stacked(kernel_status=...)`` gives the bits of ``tpm_stacked`` alone, and from then on
     ``_general`` is the kernel deciding every pivot (no more hand-backs)."""
-    kernel = _compiled_step.stacked_kernel(False)
+    kernel = _compiled_step.stacked_kernel()
     if kernel is None:
         pytest.skip("numba is not installed")
     rng = np.random.default_rng(4)

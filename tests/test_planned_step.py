@@ -234,7 +234,7 @@ def test_unsupported_set_ups_say_why(change, why):
 
 @pytest.mark.parametrize("name", ["lwr_relaxed", "romeo_tpm", "romeo_sns_tpm", "romeo_sns"])
 def test_runner_compiled_run_records_the_same_arrays(name):
-    """``runner.run`` with ``ctrl.step()`` (PlannedStep for Algorithm 1, LeanStep for a fixed stack) records what
+    """``runner.run`` with ``ctrl.step()`` (PlannedStep, fused for a fixed stack) records what
     the readable run (``record=True``) records (floats within 1e-12: close), probes and the SNS solvers' scale,
     iterations and saturated
     joints included (the lean run once dropped them: notebook 03 plots ``scale``)."""
@@ -345,7 +345,7 @@ def test_planned_solve_kernel_equals_tpm_stacked():
     from hqp_tpm.solvers._fullrank import COND, MARGIN
     from hqp_tpm.solvers.tpm import tpm_stacked
 
-    if _compiled_step.stacked_kernel(False) is None:
+    if _compiled_step.stacked_kernel() is None:
         pytest.skip("numba is not installed")
     rng = np.random.default_rng(5)
     seen = set()
@@ -363,7 +363,7 @@ def test_planned_solve_kernel_equals_tpm_stacked():
         damping = float(rng.choice([0.0, 3.0]))
         lam, eps = (0.05, 0.1) if trial % 2 else (0.0, 0.0)
         x, x0 = np.empty(n), np.empty(n)
-        kernel = _compiled_step.stacked_kernel(m > n)
+        kernel = _compiled_step.stacked_kernel()
         status = kernel(J, b, _compiled._sizes(sizes), v, damping, lam, eps, _compiled._UNIT, MARGIN, COND, x0, x)
         seen.add(int(status))
         if status == _compiled_step.SOLVED:
@@ -404,7 +404,7 @@ def test_fixed_stack_with_a_pointing_task_runs_the_planned_step(name, cone):
 
 def test_every_shipped_scenario_runs_compiled():
     """``ctrl.step()`` is the compiled step for every shipped scenario, whatever its solver (a fixed stack of
-    equality tasks: LeanStep; any other fixed stack or a shipped policy: PlannedStep)."""
+    equality tasks: fused; any other fixed stack or a shipped policy: planned every step)."""
     from importlib import resources
 
     from hqp_tpm.app.build import build_run

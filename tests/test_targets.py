@@ -7,7 +7,7 @@ import pinocchio as pin
 import pytest
 
 from hqp_tpm import Controller, FrameOrientation, FramePose, FramePosition, Gains, Posture, Stack
-from hqp_tpm.control._lean import LeanStep
+from hqp_tpm.control._planned_step import PlannedStep
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.references.trajectories import Constant, Harmonic
 from hqp_tpm.robot.model import Robot
@@ -39,7 +39,7 @@ def test_targets_assigned_through_the_property_are_followed(iiwa, order):
     ref, fast = make(), make()
     fast.step()
     ref.step(record=True)
-    assert type(fast._compiled_step()) is LeanStep
+    assert type(fast._compiled_step()) is PlannedStep and fast._compiled_step()._program is not None
     pose = fast.policy.stack.tasks()[0]
     held = pose.row_source()  # the arrays the compiled step reads
     for i in range(25):

@@ -65,12 +65,12 @@ def _iiwa_controller(robot):
 
 
 def test_acceleration_level_step_runs_the_position_pass_and_the_state_completes(iiwa):
-    from hqp_tpm.control._lean import LeanStep
+    from hqp_tpm.control._planned_step import PlannedStep
 
     fast, _, _ = _iiwa_controller(iiwa)
     ref, _, _ = _iiwa_controller(iiwa)
     step = fast._compiled_step()
-    if type(step) is not LeanStep or step._kernel is None:
+    if type(step) is not PlannedStep or step._kernel is None:
         pytest.skip("no fused kernel (numba off)")
     assert step._positions  # every Jdot qd in the kernel: pinocchio's velocity pass not run
     fid = iiwa.frame_id("iiwa_ee")

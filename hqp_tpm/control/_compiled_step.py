@@ -1,4 +1,4 @@
-"""The lean step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._lean`).
+"""The fused step's rows, box and solve in one compiled call (private; :mod:`hqp_tpm.control._planned_step`).
 
 :func:`kernel` gives one kernel per thing solved (:data:`ROWS`, :data:`TPM`, :data:`SNS`), each compiling only what
 it calls; :class:`Program` packs its arguments. A status other than :data:`SOLVED` hands the step back to the caller
@@ -164,21 +164,6 @@ def _x_status(status, out):  # pragma: no cover - compiled (inlined)
     return SOLVED
 
 
-def _wide_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out):  # pragma: no cover - compiled
-    """``m <= n``: ``out <- x`` of ``_general`` with ``x0`` (the TPM kernel ``tpm_stacked`` calls), then ``x``'s
-    finiteness: :data:`SOLVED`, :data:`NONFINITE_X` or the kernel's status (``DECLINED`` if ``m > n``)."""
-    if J.shape[0] > J.shape[1]:
-        return DECLINED
-    return _x_status(_general(J, b, sizes, x0, use_x0, lambda_max, eps, unit, out), out)
-
-
-def _tall_solve(J, b, sizes, x0, use_x0, lambda_max, eps, unit, margin, cond, out):  # pragma: no cover - compiled
-    """``m > n``: ``out <- x`` of ``_past_rank`` (``x0`` has no effect), as :func:`_wide_solve`."""
-    if J.shape[0] <= J.shape[1]:
-        return DECLINED
-    return _x_status(_past_rank(J, b, sizes, J.shape[1], lambda_max, eps, unit, margin, cond, out), out)
-
-
 def _step_arrays(buf, ints):  # pragma: no cover - compiled (inlined)
     """``(J, b, x0, out, sizes)``: the views of a program's buffer and integers a solve reads and writes."""
     m, n, nlev = ints[0], ints[1], ints[3]
@@ -198,7 +183,7 @@ def _tpm_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     if status != WRITTEN:
         return status
     J, b, x0, out, sizes = _step_arrays(buf, ints)
-    return _wide_solve(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
+    return _x_status(_general(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], out), out)
 
 
 def _tpm_step_svd(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -217,7 +202,7 @@ def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
     if status != WRITTEN:
         return status
     J, b, x0, out, sizes = _step_arrays(buf, ints)
-    return _tall_solve(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], floats[3], floats[4], out)
+    return _x_status(_past_rank(J, b, sizes, ints[1], floats[0], floats[1], floats[2], floats[3], floats[4], out), out)
 
 
 def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
@@ -280,60 +265,46 @@ def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled
     return 1
 
 
-def _stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
-    """The planned step's solve (:mod:`hqp_tpm.control._planned_step`) on its stacked ``J`` (``m x n``, ``m <= n``),
-    ``b``: their finiteness, ``x0 = -damping v`` when ``damping`` (:func:`_stacked_rows`), the TPM kernel
-    ``tpm_stacked`` would call (``_general``), ``x``'s finiteness (:func:`_x_status`); the statuses of
-    :func:`kernel`. Three compiled calls, not one kernel: a kernel calling ``_general`` would compile all of its
-    code once more (numba links and optimizes a callee's code again into each caller), ~2 s of a first run.
+def stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
+    """The planned step's solve (:mod:`hqp_tpm.control._planned_step`) on its stacked ``J`` (``m x n``), ``b``: their
+    finiteness, ``x0 = -damping v`` when ``damping`` (:func:`_stacked_rows`), the TPM kernel ``tpm_stacked`` would
+    call (``_general``; ``m > n``: ``_past_rank``, ``x0`` without effect), ``x``'s finiteness (:func:`_x_status`);
+    the statuses of :func:`kernel`. Compiled calls, not one kernel: a kernel calling ``_general`` would compile all of
+    its code once more (numba links and optimizes a callee's code again into each caller), ~2 s of a first run.
     (``_compiled._general`` read at each call: after a stack whose pivot block needs its SVD it is the kernel
     deciding every pivot, ``_compiled._pivot_svd``.)"""
     use_x0 = _stacked_rows(J, b, v, damping, x0)
     if use_x0 < 0:
         return NONFINITE_ROWS
-    if J.shape[0] > J.shape[1]:
-        return DECLINED
-    return _x_status(_compiled._general(J, b, sizes, x0, use_x0 == 1, lambda_max, eps, unit, out), out)
-
-
-def _stacked_tpm_tall(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
-    """:func:`_stacked_tpm` for ``m > n`` (``_past_rank``; ``x0`` has no effect)."""
-    if _stacked_rows(J, b, v, damping, x0) < 0:
-        return NONFINITE_ROWS
     m, n = J.shape
-    if m <= n:
-        return DECLINED
-    return _x_status(_past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out), out)
+    if m > n:
+        return _x_status(_past_rank(J, b, sizes, n, lambda_max, eps, unit, margin, cond, out), out)
+    return _x_status(_compiled._general(J, b, sizes, x0, use_x0 == 1, lambda_max, eps, unit, out), out)
 
 
 def _solves() -> bool:
     """Make the dispatchers of the solvers' kernels (numba compiles or loads each on the first call of a kernel that
     calls it) and of this module's pieces; False if numba cannot be imported after all."""
-    global _past_rank, _general, _general_svd, _x_status, _wide_solve, _tall_solve, _step_arrays, _stacked_rows
+    global _past_rank, _general, _general_svd, _x_status, _step_arrays, _stacked_rows
     if _compiled._sizes(()) is None:  # prepares (or loads) hqp_tpm.solvers._compiled's kernels first
         return False
     if _KERNELS.get("solves") is None:
         # (_general_first: the kernel that hands back PIVOT_SVD, even after the process rebound _compiled._general)
         _past_rank, _general, _general_svd = _compiled._past_rank, _compiled._general_first, _compiled._general_svd
         _x_status, _step_arrays = (_jit.dispatcher(f, inline=True) for f in (_x_status_py, _step_arrays_py))
-        _wide_solve, _tall_solve = (_jit.dispatcher(f, inline=True) for f in (_wide_solve_py, _tall_solve_py))
         _stacked_rows = _jit.dispatcher(_stacked_rows_py)
         _KERNELS["solves"] = True
     return True
 
 
 _x_status_py, _step_arrays_py, _stacked_rows_py = _x_status, _step_arrays, _stacked_rows  # (the Python sources)
-_wide_solve_py, _tall_solve_py = _wide_solve, _tall_solve
 
 
-def stacked_kernel(tall: bool):
-    """:func:`_stacked_tpm` (``tall``: :func:`_stacked_tpm_tall`, for ``m > n``) ``(J, b, sizes, v, damping,
-    lambda_max, eps, unit, margin, cond, x0, out) -> status`` (``sizes`` an int64 array, ``x0`` and ``out`` of
-    length ``n``; its kernels compiled or loaded on first use: a run compiles only the branch its stacks take), or
-    None if numba cannot be imported after all. The other branch's shapes are declined (``DECLINED``)."""
-    if not _solves():
-        return None
-    return _stacked_tpm_tall if tall else _stacked_tpm
+def stacked_kernel():
+    """:func:`stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out) -> status``
+    (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; its kernels compiled or loaded on first use: a run
+    compiles only the branch its stacks take), or None if numba cannot be imported after all."""
+    return stacked_tpm if _solves() else None
 
 
 def _rows_writer() -> bool:
@@ -424,11 +395,11 @@ class Program:
         self.ints = self.floats = None
         #: the frames the kernel places itself (:meth:`add_frame`'s ``placement``)
         self.placed: set[int] = set()
-        #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the lean step's state update
+        #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the fused step's state update
         #: at velocity level computes them in its pinocchio pass (:meth:`hqp_tpm.robot.state.State.update_positions`)
         self.com_in_update = False
         #: a task's rows read pinocchio's velocity pass (at order 2, a frame's ``Jdot qd`` not computed in the kernel:
-        #: :meth:`add_frame` without ``jdot``); else the lean step's state update runs the position pass only
+        #: :meth:`add_frame` without ``jdot``); else the fused step's state update runs the position pass only
         self.velocity_pass = False
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
@@ -527,7 +498,7 @@ class Program:
     def set_box(self, kind: int, limits: np.ndarray, idx: np.ndarray, dt: float) -> None:
         """With :data:`SNS`: the kernel computes the box (:data:`BOX_VELOCITY` or :data:`BOX_ACCELERATION`) from
         ``limits`` (the rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``) and ``idx`` (configuration and velocity
-        indices, 2 x joints), as :class:`~hqp_tpm.control._lean.JointBox`'s kernels."""
+        indices, 2 x joints), as :class:`~hqp_tpm.control._planned_step.JointBox`'s kernels."""
         if self.solve != SNS or kind not in (BOX_VELOCITY, BOX_ACCELERATION) or limits.shape != (6, idx.shape[1]):
             raise ValueError("set_box: an SNS program, BOX_VELOCITY or BOX_ACCELERATION, 6 x k limits, 2 x k indices")
         self.mats.append(np.ascontiguousarray(limits, dtype=float))
@@ -561,11 +532,11 @@ class Program:
 
     def __deepcopy__(self, memo):
         raise TypeError("a fused-step program holds the addresses of its arrays: build it again for the copy "
-                        "(LeanStep does: copy.deepcopy(lean_step) builds the copied controller's lean step)")
+                        "(a copied controller plans its own step)")
 
     def __reduce_ex__(self, protocol):
-        raise TypeError("a fused-step program holds the addresses of its arrays: it cannot be pickled (a LeanStep "
-                        "pickles as its controller)")
+        raise TypeError("a fused-step program holds the addresses of its arrays: it cannot be pickled (a controller "
+                        "pickles without its compiled step)")
 
     def bind_mat(self, slot: int, a: np.ndarray) -> None:
         """Point slot ``slot`` of :attr:`mats` at ``a`` (a float64, C-contiguous matrix; the program keeps it alive)."""

@@ -1,7 +1,9 @@
-"""The planned step: ``ctrl.step()`` of every policy that plans (:class:`PlanningPolicy`, :class:`StackPolicy`),
-of a fixed stack the lean step does not take (a pointing cone) and of a stack function. Per step: state update,
-``policy.update``, the plan, the rows written into one stacked ``J``, ``b``, one solve, the blend. Same numbers as
-the readable step (``tests/test_planned_step.py``). Details: docs/architecture.md, "How ctrl.step() runs compiled".
+"""The compiled step: ``ctrl.step()`` of every policy that plans (:class:`PlanningPolicy`, :class:`StackPolicy`),
+of a fixed stack and of a stack function. Per step: state update, ``policy.update``, the plan, the rows written into
+one stacked ``J``, ``b``, one solve, the blend. A fixed stack of equality tasks is planned once: its rows,
+finiteness test and solve in one compiled call where it can (:mod:`hqp_tpm.control._compiled_step`). Same numbers as
+the readable step (``tests/test_planned_step.py``, ``tests/test_lean.py``). Details: docs/architecture.md, "How
+ctrl.step() runs compiled".
 """
 
 from __future__ import annotations
@@ -9,23 +11,25 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.control import _compiled_step
-from hqp_tpm.control._lean import JointBox
-from hqp_tpm.control._task_rows import TaskProgram
-from hqp_tpm.control.command_rate import rate_limited, shifted, solve_around
+from hqp_tpm.control._task_rows import TaskProgram, program_rows, write_own_rows
+from hqp_tpm.control.command_rate import rate_limited, shifted
 from hqp_tpm.control.policy import FixedStack, FunctionPolicy, PlanningPolicy, Policy, StackPolicy
 from hqp_tpm.control.stack import Stack, merge_levels
-from hqp_tpm.control.step_result import LAZY, CompiledStep, StepResult
+from hqp_tpm.control.step_result import StepResult
 from hqp_tpm.errors import NonFiniteError, SolverFailedError
+from hqp_tpm.robot import _compiled as _robot_kernels
 from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
-from hqp_tpm.solvers.registry import ANALYTIC, solve
+from hqp_tpm.solvers.registry import ANALYTIC
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance, PairAvoidance
 from hqp_tpm.tasks.base import Task
 from hqp_tpm.tasks.pointing import Pointing
+
+_new = object.__new__
 
 
 def planned(policy: Policy) -> bool:
@@ -34,17 +38,33 @@ def planned(policy: Policy) -> bool:
     return isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) in (FixedStack, FunctionPolicy)
 
 
-class PlannedStep(CompiledStep):
-    """The lean step of a :class:`~hqp_tpm.control.controller.Controller` whose policy plans (build it with :meth:`of`).
+def joint_box(limits: JointLimits, lo: np.ndarray, up: np.ndarray):
+    """``box(state) -> (lo, up)``: :class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into ``lo``,
+    ``up`` by :meth:`JointLimits.kernel_box` (``BoxLimits``' bits) or :meth:`JointLimits.reference_box` (recovery
+    rules)."""
+    lo[...], up[...] = -np.inf, np.inf
 
-    :meth:`compute` gives the command of the readable step at the controller's state (``ctrl.step()`` runs it:
-    :class:`~hqp_tpm.control.step_result.CompiledStep`). The controller stays the owner of the state.
+    def box(state) -> tuple[np.ndarray, np.ndarray]:
+        if not limits.kernel_box(state.q, state.v, lo, up):
+            lo[...], up[...] = limits.reference_box(state)
+        return lo, up
+    return box
+
+
+class PlannedStep:
+    """The compiled step of a :class:`~hqp_tpm.control.controller.Controller` (build it with :meth:`of`).
+
+    :meth:`compute` gives the command of the readable step at the controller's state; :meth:`result` right after it
+    the :class:`StepResult`, keeping ``(step, q, v, rows, made, tasks, extras, stack)`` (the controller replaces,
+    never writes, its ``q``, ``v``) for the fields computed on demand. The controller stays the owner of the state.
     """
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_placed", "_kernel", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
-                 "_bs", "_stack", "_box_now", "other", "_unchecked",
-                 "planned_box")
+                 "_placed", "_stacked", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
+                 "_bs", "_stack", "_box_now", "other", "_unchecked", "planned_box",
+                 # the fused step of a fixed stack of equality tasks (_fuse)
+                 "_program", "_kernel", "_buf", "_flat", "_out", "_ints", "_floats", "_sizes", "_gathers", "_frames",
+                 "_positions", "_com", "_box_writer", "_sns_kernel", "_levels_planned", "_label")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -78,8 +98,8 @@ class PlannedStep(CompiledStep):
         # the pointing and the avoidance tasks write straight into the stacked rows (their row writers: one compiled
         # call each): one writer per (task, first row), built on first use (_place)
         self._placed: dict[tuple[int, int], tuple | bool] = {}
-        self._kernel, self._x0 = [None, None], np.zeros(self.n)  # the compiled solves of m <= n, m > n
-        # sns_tpm: the stacked rows solved in the joint limits' box (JointBox: the box's numbers in fewer calls), the
+        self._stacked, self._x0 = None, np.zeros(self.n)  # the compiled solve (_compiled_step.stacked_kernel)
+        # sns_tpm: the stacked rows solved in the joint limits' box (joint_box: the box's numbers in fewer calls), the
         # null-space term x0 one more, lowest level (as the registry adds it); the box bounds the command's rate
         # (velocity level): the rows shifted by J v and solved for the change (command_rate.solve_around)
         self.sns = ctrl.solver == "sns_tpm"
@@ -89,12 +109,81 @@ class PlannedStep(CompiledStep):
         self.rate = ctrl.solver not in ANALYTIC and ctrl.order == 1 and rate_limited(ctrl.box)
         joint = type(ctrl.box) is JointLimits
         self.planned_box = box = ctrl.box
-        self.box = JointBox(box) if joint else None if box is None else (lambda st: box(st, ctrl.t))
-        self.info: dict = {}
+        self.box = None if box is None else joint_box(box, np.empty(self.n), np.empty(self.n)) if joint else (
+            lambda st: box(st, ctrl.t))
+        self.info: dict | None = {}
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
-        self._stack = self._box_now = None
+        self._stack = self._box_now = self._program = self._kernel = self._label = None
         self._unchecked = False  # (an inactive cone's row not finite: the readable step decides, _solve)
+        policy = ctrl.policy
+        if type(policy) is FixedStack and type(policy).update is Policy.update and not policy.blends \
+                and not policy.stack.extras and all(type(task).level is Task.level for task in policy.stack.tasks()) \
+                and _robot_kernels.AVAILABLE and _compiled.ENABLED:
+            self._fuse(policy.stack)
         return self
+
+    def _fuse(self, stack: Stack) -> None:
+        """A fixed stack of equality tasks, planned once: the rows of the tasks that have a row program (the others'
+        own rows written before), their finiteness and the solve (TPM; SNS-TPM without x0, in no box or the joint
+        limits' box; else the rows only) in one compiled call (:mod:`hqp_tpm.control._compiled_step`)."""
+        ctrl, n, order = self.ctrl, self.n, self.order
+        made, sizes, a = [], [], 0
+        for g, level in enumerate(stack.levels):
+            a0 = a
+            for task in level:
+                if task.dim:
+                    made.append((task, a, task.dim, False, g))
+                    a += task.dim
+            if a > a0:
+                sizes.append(a - a0)
+        if not sizes:
+            return
+        box = self.planned_box
+        if ctrl.solver == "tpm":
+            mode = _compiled_step.TPM
+        elif self.sns and not self.rate and not self.damping and (box is None or type(box) is JointLimits):
+            mode = _compiled_step.SNS
+        else:
+            mode = _compiled_step.ROWS
+        # J, b, x0, the kernel's x (and the SNS box) in one buffer (J and b: one finiteness test per step)
+        buf = self._buf = np.zeros(_compiled_step.Program.buffer_size(a, n, mode))
+        o = a * n + a
+        self._flat = buf[:o]
+        self.J, self.b = self._flat[: a * n].reshape(a, n), self._flat[a * n:]
+        self._x0, self._out = buf[o: o + n], buf[o + n: o + 2 * n]
+        if mode == _compiled_step.SNS:  # the box written into the buffer (no box: they stay infinite)
+            lo, up = buf[o + 2 * n: o + 3 * n], buf[o + 3 * n: o + 4 * n]
+            lo[...], up[...] = -np.inf, np.inf
+            self.box = None if box is None else joint_box(box, lo, up)
+        program = _compiled_step.Program(a, n, sizes, order, self.lambda_max, self.eps, bool(self.damping), solve=mode)
+        st, gathers, written, frames, own = ctrl.state, [], set(), {}, False
+        for task, r0, k, _, _ in made:
+            J, b = self.J[r0:r0 + k], self.b[r0:r0 + k]
+            gather = program_rows(task, st, order, program, r0, J)
+            if task.frame is not None:
+                frames[ctrl.robot.frame_id(task.frame)] = True
+            if gather is None:  # its own rows, written before the kernel runs (it reads its frame: placed here)
+                gather, own = _own_rows(task, st, order, J, b), True
+                if task.frame is not None:
+                    written.add(ctrl.robot.frame_id(task.frame))
+            gathers.append(gather)
+        self._frames = tuple(f for f in frames if f not in program.placed or f in written)
+        if mode == _compiled_step.SNS and box is not None and box.kernel_limits is not None:  # the box in the kernel
+            program.set_box(_compiled_step.BOX_VELOCITY if order == 1 else _compiled_step.BOX_ACCELERATION,
+                            box.kernel_limits, box.kernel_indices, box.limits.dt)
+        self._program = program.build()
+        self._ints, self._floats = program.ints, program.floats  # (written in place, never replaced)
+        self._com = program.com_in_update  # (set by a row program at velocity level only)
+        # order 1, or order 2 with every task in the program and every Jdot qd computed in the kernel: the position
+        # pass only (the kernel places the frames its tasks read)
+        self._positions = order == 1 or not program.velocity_pass and not own
+        self._sns_kernel = mode == _compiled_step.SNS
+        self._box_writer = self.box if self._sns_kernel and program.box_given and self.box is not None else None
+        self._made, self._sizes, self._gathers, self._bs = made, tuple(sizes), tuple(gathers), np.zeros(a)
+        self.tasks, self._stack = tuple(task for task, *_ in made), stack
+        self._levels_planned, self._label = list(stack.levels), stack.label()
+        kernel = _compiled_step.kernel(mode, tall=a > n)  # (its code for these arrays and the controller's q, v)
+        self._kernel = kernel and _robot_kernels.typed(kernel, buf, self._ints, self._floats, ctrl._q, ctrl._v)
 
     def _place(self, task: Task, a: int) -> tuple | bool:
         """The row writer of ``task`` writing rows ``a...`` of ``self.J``, ``self.b`` as ``(write, cone, takes_extra,
@@ -192,11 +281,37 @@ class PlannedStep(CompiledStep):
 
     def compute(self) -> np.ndarray:
         """The command at the controller's current state (policy state advanced as in a step)."""
-        ctrl, policy = self.ctrl, self.policy
+        ctrl = self.ctrl
         if not ctrl._started:
             ctrl.start()
-        t = ctrl.t
-        st = ctrl.state.update(ctrl._q, ctrl._v, t, validate=False)
+        t, q, v = ctrl.t, ctrl._q, ctrl._v
+        if self._kernel is not None and _robot_kernels.ENABLED:  # (one switch: hqp_tpm._jit's)
+            if self._positions:  # (the kernel places the frames its tasks read; the CoM here when it reads it)
+                st = ctrl.state.update_positions(q, v, t, self._frames, self._com)
+            else:
+                st = ctrl.state.update(q, v, t, validate=False, frames=self._frames)
+            for gather in self._gathers:  # the program's tasks gather their arrays, the others write their rows
+                gather(t)
+            if self.damping:
+                np.multiply(v, -self.damping, out=self._x0)
+            if self._box_writer is not None:
+                self._box_writer(st)  # the joint_box writes into the buffer's lo, up (else the kernel does)
+            status = self._kernel(self._buf, self._ints, self._floats, q, v)
+            if status == 0:  # SOLVED
+                if self._sns_kernel:
+                    self.info = None  # (the kernel's, in the kept buffer)
+                return self._out.copy()
+            if status == _compiled_step.NONFINITE_ROWS:
+                return ctrl._compute().command  # the readable path raises the typed error naming the task
+            if status == _compiled_step.NONFINITE_X:
+                raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
+            if status == _compiled_step.PIVOT_SVD:  # a pivot block only its SVD decides: from now on the kernel
+                kernel = _compiled_step.kernel(_compiled_step.TPM, svd=True)  # that decides every pivot at once
+                self._kernel = kernel and _robot_kernels.typed(kernel, self._buf, self._ints, self._floats, q, v)
+            # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
+            # BOX_HANDED_BACK (the joint_box's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): the rows written
+            return self._solve(st, t, self.J, self.b, self._sizes, status)
+        st, policy = ctrl.state.update(q, v, t, validate=False), self.policy
         policy.update(st, t)
         if isinstance(policy, PlanningPolicy):
             tasks, extras = policy.plan(st, t)
@@ -206,7 +321,8 @@ class PlannedStep(CompiledStep):
             levels, extras = stack.levels, stack.extras
             tasks = tuple(task for level in levels for task in level)
         self.tasks, self._extras, self._stack = tasks, extras, stack
-        x = self._solve(st, t, levels, extras)
+        m, sizes = self._rows(st, t, levels, extras)
+        x = self._solve(st, t, self.J[:m], self.b[:m], sizes)
         if policy.blends:
             x = self._blend(st, t, x)
         return x
@@ -214,16 +330,12 @@ class PlannedStep(CompiledStep):
     def _blend(self, st, t: float, x: np.ndarray) -> np.ndarray:
         """The policy's blend of ``x`` with other stacks solved as the readable step solves them
         (:meth:`Controller._solve_step`), clipped into the box when there is one."""
-        ctrl, n, box = self.ctrl, self.n, self._box_now
+        ctrl, box = self.ctrl, self._box_now
         x0 = ctrl.null_space_term(ctrl._v)
 
         def resolve(other: Stack) -> np.ndarray:
             try:
-                levels = other.to_levels(st, t, self.order)
-                if self.rate:
-                    return solve_around(ctrl.solver, levels, n, ctrl._v, box, lambda_max=self.lambda_max,
-                                        eps=self.eps, solve=solve)[0]
-                return solve(ctrl.solver, levels, n, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)[0]
+                return ctrl._solve_levels(other.to_levels(st, t, self.order), x0, box)[0]
             except NonFiniteError as exc:  # named as the readable step names it (Controller._compute)
                 raise type(exc)(f"{exc}{ctrl._where()}") from exc
 
@@ -235,23 +347,21 @@ class PlannedStep(CompiledStep):
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         return x
 
-    def _solve(self, st, t: float, levels, extras) -> np.ndarray:
-        """The solution of the planned levels' rows (the readable step's solve)."""
+    def _solve(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...],
+               status: int | None = None) -> np.ndarray:
+        """The solution of the rows written (the readable step's solve); ``status``: the fused kernel's, which found
+        them finite and did not solve them."""
         ctrl = self.ctrl
-        m, sizes = self._rows(st, t, levels, extras)
-        J, b = self.J[:m], self.b[:m]
         # an inactive cone's row, or (sns_tpm, other solvers) the rows, NaN, inf or too large (one sum fails for all
         # three): the readable path raises the typed error naming the task
-        if self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ:
+        if status is None and (self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ):
             return ctrl._compute().command
         if self.sns:
             return self._sns(st, t, J, b, sizes)
         if self.other:
             return self._registry(st, t, J, b)
-        status = None  # (the compiled kernel's answer, if it ran and declined)
-        if sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call (same numbers)
-            tall = m > self.n
-            kernel = self._kernel[tall] or self._load_kernel(tall)
+        if status is None and sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call
+            kernel = self._stacked = self._stacked or _compiled_step.stacked_kernel()
             if kernel is not None:
                 x, x0 = np.empty(self.n), self._x0
                 status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
@@ -287,11 +397,14 @@ class PlannedStep(CompiledStep):
         if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
             v = ctrl._v
             bs = self._bs[:J.shape[0]]
-            for _task, a, k, lv, _g in self._made:
-                if lv is False or lv.b is not None:  # equality rows (an inequality level's are written shifted)
-                    np.subtract(b[a:a + k], J[a:a + k] @ v, out=bs[a:a + k])
-                else:
-                    bs[a:a + k] = b[a:a + k]
+            a0 = g0 = -1
+            for _task, a, k, lv, g in self._made:
+                if lv is not False and lv.b is None:  # an inequality level's rows (written shifted)
+                    bs[a:a + k], g0 = b[a:a + k], -1
+                    continue
+                if g != g0:  # equality rows shifted a level at a time (the readable step's bits of J v)
+                    a0, g0 = a, g
+                np.subtract(b[a0:a + k], J[a0:a + k] @ v, out=bs[a0:a + k])
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
             d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
@@ -299,7 +412,7 @@ class PlannedStep(CompiledStep):
             x = np.minimum(np.maximum(v + d, lo), up)
         else:
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, x0=ctrl.null_space_term(ctrl._v))
+                                       return_info=True, x0=-self.damping * ctrl._v if self.damping else None)
         if not all_finite(x):
             raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
         self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
@@ -311,43 +424,63 @@ class PlannedStep(CompiledStep):
         :meth:`Controller._solve_step`)."""
         ctrl = self.ctrl
         self._box_now = box = self.box(st) if self.box is not None else None
-        levels = self._levels(J, b, self._made)
-        if self.rate:
-            x, info = solve_around(ctrl.solver, levels, self.n, ctrl._v, box, lambda_max=self.lambda_max,
-                                   eps=self.eps, solve=solve)
-        else:
-            x, info = solve(ctrl.solver, levels, self.n, x0=ctrl.null_space_term(ctrl._v), box=box,
-                            lambda_max=self.lambda_max, eps=self.eps)
+        x, info = ctrl._solve_levels(self._levels(J, b, self._made), ctrl.null_space_term(ctrl._v), box)
         if not all_finite(x):
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         self.info = info
         return x
 
-    def _load_kernel(self, tall: bool):
-        """The compiled solve of :meth:`compute` for ``m > n`` rows (``tall``) or not
-        (:func:`hqp_tpm.control._compiled_step.stacked_kernel`)."""
-        self._kernel[tall] = _compiled_step.stacked_kernel(tall)
-        return self._kernel[tall]
-
     def current(self) -> bool:
-        """Always: the stack is planned at every step."""
-        return True
+        """Whether the step still fits the controller's policy (a fused stack: no level replaced or added)."""
+        if self._program is None:
+            return True
+        stack = self.ctrl._policy.stack
+        return stack is self._stack and stack.levels == self._levels_planned and not stack.extras
 
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
         """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written
         (its stack and levels, the readable step's, built when asked)."""
+        r = _new(StepResult)  # (the fields not set here are computed on first read: StepResult's defaults)
+        r.t, r.command, info = t, x, self.info
+        if self._program is not None:  # (J and b in one buffer, with the fused SNS solve's info when it solved)
+            r._stack = self._stack
+            if info is None:
+                r._kept = (self, q, v, self._buf.copy(), self._made)
+            else:
+                r._kept, r._info = (self, q, v, self._flat.copy(), self._made), info or {}
+            return r
         made = self._made
         m = made[-1][1] + made[-1][2] if made else 0
-        rows = (self.J[:m].copy(), self.b[:m].copy(), made, self.tasks, self._extras, self._stack)
-        return StepResult(t, LAZY, LAZY, x, self.info if self.sns or self.other else {}, LAZY, LAZY, (self, q, v, rows))
+        r._info = info if self.sns or self.other else {}
+        r._kept = (self, q, v, (self.J[:m].copy(), self.b[:m].copy()), made, self.tasks, self._extras, self._stack)
+        return r
+
+    def info_of(self, kept: tuple) -> dict:
+        return self._program.sns_info(kept[3])
 
     def stack_of(self, kept: tuple) -> Stack:
-        if kept[3][5] is not None:  # (the stack a StackPolicy policy gave)
-            return kept[3][5]
-        return Stack([(task,) for task in kept[3][3]], kept[3][4])
+        if kept[7] is not None:  # (the stack a StackPolicy policy gave)
+            return kept[7]
+        return Stack([(task,) for task in kept[5]], kept[6])
 
     def levels_of(self, kept: tuple) -> list[Level]:
-        return self._levels(*kept[3][:3])
+        rows = kept[3]
+        if type(rows) is not tuple:  # (the fused step's buffer)
+            m, n = self.b.size, self.n
+            rows = rows[: m * n].reshape(m, n), rows[m * n: m * n + m]
+        return self._levels(*rows, kept[4])
+
+    def x0_of(self, kept: tuple) -> np.ndarray | None:
+        """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with (a later
+        setting of the controller's does not change a result it gave)."""
+        return -self.damping * kept[2] if self.damping else None
+
+    def box_of(self, t: float, kept: tuple) -> tuple[np.ndarray, np.ndarray] | None:
+        """The box the step was planned with at the kept state (in :meth:`Controller.scratch_state`)."""
+        box = self.planned_box
+        if box is None:
+            return None
+        return box(self.ctrl.scratch_state().update(kept[1], kept[2], t, validate=False), t)
 
     @staticmethod
     def _levels(J: np.ndarray, b: np.ndarray, made: list) -> list[Level]:
@@ -366,13 +499,20 @@ class PlannedStep(CompiledStep):
         return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
     def label_of(self, kept: tuple) -> str:
-        if kept[3][5] is not None:
-            return kept[3][5].label()
-        key = tuple(task.name for task in kept[3][3])
+        if self._label is not None:  # (a fused stack's)
+            return self._label
+        if kept[7] is not None:
+            return kept[7].label()
+        key = tuple(task.name for task in kept[5])
         text = self._labels.get(key)
         if text is None:
             text = self._labels[key] = " > ".join(key)
         return text
+
+
+def _own_rows(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
+    """``write(t)``: ``task``'s own rows at ``state`` into ``J``, ``b`` (:func:`write_own_rows`)."""
+    return lambda t: write_own_rows(task, state, t, order, J, b)
 
 
 class _PairLevel:

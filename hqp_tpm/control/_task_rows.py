@@ -1,9 +1,9 @@
 """The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source`
-registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack
-(:mod:`hqp_tpm.control._lean`) or, as a :class:`TaskProgram`, one task's in the planned step of a policy
-(:mod:`hqp_tpm.control._planned_step`). The kernel reads pinocchio's frame placements and Jacobians and the targets in
-place and writes ``J`` and ``b`` with :func:`~hqp_tpm.tasks.base.tracking_command`: the numbers of the task's
-:meth:`~hqp_tpm.tasks.base.Task.jacobian` and :meth:`~hqp_tpm.tasks.base.Task.command`."""
+registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack or, as a
+:class:`TaskProgram`, one task's in the step of a policy that plans (:mod:`hqp_tpm.control._planned_step`). The
+kernel reads pinocchio's frame placements and Jacobians and the targets in place and writes ``J`` and ``b`` with
+:func:`~hqp_tpm.tasks.base.tracking_command`: the numbers of the task's :meth:`~hqp_tpm.tasks.base.Task.jacobian`
+and :meth:`~hqp_tpm.tasks.base.Task.command`."""
 
 from __future__ import annotations
 
@@ -147,11 +147,11 @@ def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: i
     at, _, _, _, slot = program.add_frame(row, source.rows, source.rows, g.kp, g.kd, x=com,
                                           transposed=Jcom.T)  # (pinocchio updates both in place)
     refresh = ReferenceSlots(task, program, at - 2, at + d, d, slot, program.switches[0]).refresh
-    program.com_in_update = True  # (the lean step's state update computes them: com_kinematics then returns)
+    program.com_in_update = True  # (the fused step's state update computes them: com_kinematics then returns)
 
     def gather(t: float) -> None:
         refresh(t)
-        state.com_kinematics(1)  # (nothing when the lean step's state update computed them: com_in_update)
+        state.com_kinematics(1)  # (nothing when the fused step's state update computed them: com_in_update)
     return gather
 
 

@@ -13,8 +13,8 @@ solved around the previous command ``v`` instead: ``qdot = v + d`` with ``d`` th
 Nothing binding (exact pseudo-inverses), ``d = J# (b - J v) - (I - J# J) v`` so ``qdot = J# b``: the usual
 solution. A binding box scales the *change* (SNS-TPM: ``J qdot = J v + s (b - J v)``, the free motion
 ``(1 - s) v``): a task falls behind by a lag, not by a jump of the command. The result is clipped into the box
-(``v + (lower - v)`` may round one ulp outside it). :class:`~hqp_tpm.control.controller.Controller` and the lean
-step (:mod:`hqp_tpm.control._lean`) both call :func:`solve_around`: one formula, the same numbers.
+(``v + (lower - v)`` may round one ulp outside it). :class:`~hqp_tpm.control.controller.Controller` and the compiled
+step (:mod:`hqp_tpm.control._planned_step`) both call :func:`solve_around`: one formula, the same numbers.
 """
 
 from __future__ import annotations

@@ -20,7 +20,6 @@ from collections.abc import Callable
 import numpy as np
 from scipy.linalg.blas import ddot as _ddot
 
-from hqp_tpm.control._lean import LeanStep
 from hqp_tpm.control._planned_step import PlannedStep, planned
 from hqp_tpm.control.command_rate import rate_limited, solve_around
 from hqp_tpm.control.crosscheck import CrosscheckLog, crosscheck_step
@@ -160,18 +159,11 @@ class Controller:
         stack = policy(st, self.t)
         levels = stack.to_levels(st, self.t, self.order)
         x0, box = self.solve_inputs(st, self.t, self.v)
-        if box is not None and self.order == 1 and rate_limited(self.box) and self.solver not in ANALYTIC:
-            def solve_levels(lv):  # the box bounds the command's rate: the stack solved for the change
-                return solve_around(self.solver, lv, self.robot.nv, self._v, box, lambda_max=self.lambda_max,
-                                    eps=self.eps, solve=solve)
-        else:
-            def solve_levels(lv):
-                return solve(self.solver, lv, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
-        x, info = solve_levels(levels)
+        x, info = self._solve_levels(levels, x0, box)
         check = crosscheck_step(self, st, stack, levels, x0, box, x) if self.crosscheck else None
         if policy.blends:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
             def resolve(other: Stack) -> np.ndarray:
-                return solve_levels(other.to_levels(st, self.t, self.order))[0]
+                return self._solve_levels(other.to_levels(st, self.t, self.order), x0, box)[0]
             x = policy.blend(st, self.t, stack, x, resolve)
             if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
                 x = np.minimum(np.maximum(x, box[0]), box[1])
@@ -181,21 +173,27 @@ class Controller:
             info = {**info, "crosscheck": check(x)}
         return StepResult(self.t, stack, levels, x, info, x0, box)
 
+    def _solve_levels(self, levels, x0: np.ndarray | None, box) -> tuple[np.ndarray, dict]:
+        """``(x, info)``: ``levels`` solved with this controller's solver and settings, ``x0`` and ``box`` (when the box
+        bounds the command's rate: the stack solved for the change, :func:`solve_around`)."""
+        if box is not None and self.order == 1 and rate_limited(self.box) and self.solver not in ANALYTIC:
+            return solve_around(self.solver, levels, self.robot.nv, self._v, box, lambda_max=self.lambda_max,
+                                eps=self.eps, solve=solve)
+        return solve(self.solver, levels, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
+
     def _compiled_step(self):
         """The compiled step of the policy under this controller's settings (None: the readable step), planned on first
         use and again when the policy, a setting or the structure of the policy's stack changed.
 
-        A :class:`FixedStack` of equality tasks: :class:`hqp_tpm.control._lean.LeanStep`; any other fixed stack (e.g.
-        with a pointing cone), a stack function (:class:`FunctionPolicy`), a ``StackPolicy`` or ``PlanningPolicy``
-        (every shipped policy): :class:`hqp_tpm.control._planned_step.PlannedStep`; any other policy: its own
+        A fixed stack, a stack function (:class:`FunctionPolicy`), a ``StackPolicy`` or ``PlanningPolicy`` (every
+        shipped policy): :class:`hqp_tpm.control._planned_step.PlannedStep`; any other policy: its own
         (:meth:`Policy.compiled_step`)."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast
         if key != self._fast_key or (fast is not None and not fast.current()):
-            policy = self._policy  # (a stack given as levels or a function: the planned step, any task's rows)
-            fast = self._fast = LeanStep.of(self) or (PlannedStep.of(self) if planned(policy)
-                                                      else policy.compiled_step(self))
+            policy = self._policy
+            fast = self._fast = PlannedStep.of(self) if planned(policy) else policy.compiled_step(self)
             self._fast_key = key
         return fast
 

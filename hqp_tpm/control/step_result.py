@@ -1,5 +1,5 @@
-"""What one control step computed: :class:`StepResult`, and :class:`Kept`, what a compiled step keeps to fill the
-result's costly fields on demand (:meth:`hqp_tpm.control.controller.Controller.step`)."""
+"""What one control step computed: :class:`StepResult`, whose costly fields a compiled step fills on demand
+(:meth:`hqp_tpm.control.controller.Controller.step`)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,6 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 if TYPE_CHECKING:
-    from hqp_tpm.control.controller import Controller
     from hqp_tpm.control.stack import Stack
 
 LAZY = object()  # a StepResult field not computed yet
@@ -29,16 +28,14 @@ class StepResult:
     A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
     it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
 
-    # (a compiled step's result sets t, command, _kept and what it knows; the others are computed when read)
+    # (a compiled step's result sets t, command, _kept = (step, q, v, ...) and what it knows; the others are computed
+    # when read: PlannedStep.result)
     _info = _stack = _levels = _x0 = _box = LAZY
     _kept = None
 
-    def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None,
-                 kept: tuple | None = None):
-        """``kept``: ``(step, q, v, rows)`` of a compiled step (:class:`CompiledStep`), which computes the fields passed
-        as ``LAZY``."""
+    def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None):
         self.t, self.command, self._info = t, command, {} if info is None else info
-        self._stack, self._levels, self._x0, self._box, self._kept = stack, levels, x0, box, kept
+        self._stack, self._levels, self._x0, self._box = stack, levels, x0, box
 
     @property
     def info(self) -> dict:
@@ -79,34 +76,3 @@ class StepResult:
         info = f", info: {', '.join(self.info)}" if self.info else ""
         return (f"StepResult(t={self.t:.4f}, stack={self.label()!r}, |command|={np.linalg.norm(cmd):.4g} "
                 f"({cmd.size} values){info})")
-
-
-class CompiledStep:
-    """Base of a controller's compiled steps (:class:`hqp_tpm.control._lean.LeanStep`, Algorithm 1's
-    :class:`hqp_tpm.control._planned_step.PlannedStep`): the readable step's numbers in fewer calls. ``compute() ->
-    command`` at the controller's state; ``result(t, q, v, command) -> StepResult`` right after it, keeping ``(step,
-    q, v, rows, ...)`` (the controller replaces, never writes, its ``q``, ``v``) for ``stack_of``, ``levels_of``,
-    ``label_of``, ``info_of``, :meth:`box_of`; ``current()``: the controller's policy is still the one planned for."""
-
-    __slots__ = ()
-    ctrl: Controller
-    #: the null-space damping ``D`` (0 at velocity level) and the controller's box (None or a callable
-    #: ``box(state, t)``) the step was planned with
-    damping: float
-    planned_box: object
-
-    def info_of(self, kept: tuple) -> dict:  # pragma: no cover - a step that passes a LAZY info overrides it
-        raise NotImplementedError
-
-    def x0_of(self, kept: tuple) -> np.ndarray | None:
-        """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with (a later
-        setting of the controller's does not change a result it gave)."""
-        d = self.damping
-        return -d * kept[2] if d else None
-
-    def box_of(self, t: float, kept: tuple) -> tuple[np.ndarray, np.ndarray] | None:
-        """The box the step was planned with at the kept state (in :meth:`Controller.scratch_state`)."""
-        box = self.planned_box
-        if box is None:
-            return None
-        return box(self.ctrl.scratch_state().update(kept[1], kept[2], t, validate=False), t)
