@@ -40,13 +40,11 @@ def planned(policy: Policy) -> bool:
 
 def joint_box(limits: JointLimits, lo: np.ndarray, up: np.ndarray):
     """``box(state) -> (lo, up)``: :class:`~hqp_tpm.robot.limits.JointLimits`' box at a state, written into ``lo``,
-    ``up`` by :meth:`JointLimits.kernel_box` (``BoxLimits``' bits) or :meth:`JointLimits.reference_box` (recovery
-    rules)."""
+    ``up`` by :meth:`JointLimits.kernel_box` (``BoxLimits``' bits, recovery rules included)."""
     lo[...], up[...] = -np.inf, np.inf
 
     def box(state) -> tuple[np.ndarray, np.ndarray]:
-        if not limits.kernel_box(state.q, state.v, lo, up):
-            lo[...], up[...] = limits.reference_box(state)
+        limits.kernel_box(state.q, state.v, lo, up)
         return lo, up
     return box
 

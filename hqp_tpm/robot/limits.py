@@ -56,8 +56,8 @@ class JointLimits:
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
         return self.reference_box(state)
 
-    def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> bool:
-        """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written); True."""
+    def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> None:
+        """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written)."""
         P, idx, dt = self.limits.rows, self.kernel_indices, self.dt
         if self.order == 2:
             _compiled.acceleration_box(q, v, P, idx, dt, lo, up)
@@ -65,7 +65,6 @@ class JointLimits:
             _compiled.velocity_box(q, P, idx, dt, lo, up, v)
         else:
             _compiled.velocity_box(q, P, idx, dt, lo, up)
-        return True
 
     def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
         """The box at ``state`` (new arrays, one entry per velocity column)."""

@@ -168,8 +168,8 @@ def tpm(levels: Iterable, *, lambda_max: float = 0.0, eps: float = 0.0,
 def tpm_stacked(J: np.ndarray, b: np.ndarray, sizes, n: int, lambda_max: float = 0.0, eps: float = 0.0,
                 x0: np.ndarray | None = None, kernel_status: int | None = None) -> np.ndarray:
     """:func:`tpm` of a stack already stacked and checked: ``J`` (m x n, m >= 1) and ``b`` finite floats,
-    ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the lean step,
-    :mod:`hqp_tpm.control.lean`, checks once at construction and the arrays once per step).
+    ``sizes`` the row counts of the levels, damping and ``x0`` valid. No validation (the compiled step,
+    :mod:`hqp_tpm.control._planned_step`, checks once at construction and the arrays once per step).
 
     One kernel (:func:`hqp_tpm.solvers._compiled.tpm`): the factorization's kernels first (the full-rank shortcut
     when ``m > n``, else ``x = Q R^{-T} F b``), the recursion on a stack they do not take (module doc: the same
