@@ -269,9 +269,10 @@ def test_non_finite_rows_raise_like_the_readable_step_and_change_nothing(solver,
 @pytest.mark.parametrize("order", [1, 2])
 @pytest.mark.parametrize("robot_name", ["iiwa7", "romeo21"])
 def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compiled):
-    """The lean box and JointLimits' (both one compiled call where they can, else BoxLimits) equal
-    JointLimits.reference_box (its BoxLimits formulas) to the last bit: inside the limits, on them, beyond them."""
+    """The compiled step's box (joint_box), JointLimits' and its reference_box (all the robot kernels) equal the
+    literal formulas (tests/test_joint_boxes.py) to the last bit: inside the limits, on them, beyond them."""
     import pinocchio as pin
+    from test_joint_boxes import literal_acceleration_box, literal_velocity_box
 
     from hqp_tpm import JointLimits
     from hqp_tpm.control._planned_step import joint_box
@@ -296,8 +297,15 @@ def test_lean_joint_box_equals_joint_limits(robot_name, order, position, compile
             q[:7] = pin.SE3ToXYZQUAT(pin.SE3.Random())
         v = rng.normal(0.0, (0.05, 0.5, 3.0)[k % 3], robot.nv)
         st.update(q, v)
-        want = limits.reference_box(st)
-        for got in (box(st), limits(st, 0.0)):
+        qj, vj, L = st.q[limits.qidx], st.v[limits.cols], limits.limits
+        if order == 1:
+            lit = literal_velocity_box(qj, L.q_min, L.q_max, L.v_max, L.a_max, L.dt,
+                                       vj if limits.command_rate else None)
+        else:
+            lit = literal_acceleration_box(qj, vj, L.q_min, L.q_max, L.v_max, L.a_max, L.dt)
+        want = np.full(robot.nv, -np.inf), np.full(robot.nv, np.inf)
+        want[0][limits.cols], want[1][limits.cols] = lit[0], lit[1]
+        for got in (box(st), limits(st, 0.0), limits.reference_box(st)):
             np.testing.assert_array_equal(got[0], want[0])
             np.testing.assert_array_equal(got[1], want[1])
         if compiled and P is not None:
