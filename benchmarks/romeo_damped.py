@@ -246,6 +246,9 @@ def perf_profile(n_configs: int, seconds: float) -> int:
     _, _, cases = stacks(n_configs)
     for J, b, sizes, lo, up in cases:
         _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+    if not _compiled_sns._READY:
+        print("the kernels are not compiled (HQP_TPM_COMPILED=0 or no numba): nothing to profile")
+        return 1
     if not _perf_map((_compiled, _compiled_sns)):
         print("the kernels came from numba's cache: run with an empty NUMBA_CACHE_DIR (module doc)")
         return 1
