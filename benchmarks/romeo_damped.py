@@ -1,6 +1,7 @@
 """Damped Romeo, solve alone: sns_tpm and tpm on the 200 peers configurations with the library's damping.
 
     OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py [--configs 200] [--repeats 3] [--warm] [--ab COMMIT]
+    OMP_NUM_THREADS=1 NUMBA_CACHE_DIR=$(mktemp -d) python benchmarks/romeo_damped.py --perf 20
 
 The stacks are those of :mod:`benchmarks.peers.problems`' ``romeo_vel`` (6 levels, m > n) with kp = 100 and
 ``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute(record=True)``, the readable step). Prints,
@@ -10,7 +11,10 @@ loop and how many ``tpm`` solves its kernel answered by the recursion. ``--warm`
 (closed loops; :func:`warm_start`). ``--ab COMMIT``: the SNS-TPM kernel of this tree against that commit's, one
 process (:func:`kernels_at` loads the commit's kernel modules under another name), interleaved per configuration
 and call, thread CPU time of ``_compiled_sns.sns_tpm_loop`` (the kernel and its small wrapper), per-configuration
-ratios; also the largest difference of the two commands and whether the decisions agree.
+ratios; also the largest difference of the two commands and whether the decisions agree. ``--perf SECONDS``:
+where the SNS-TPM kernel's time goes, by compiled function (:func:`perf_profile`: Linux ``perf`` sampling this
+process while it runs the kernel on the stacks; the kernels must be compiled in this process, hence the empty
+``NUMBA_CACHE_DIR``).
 """
 
 from __future__ import annotations
@@ -90,10 +94,14 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--warm", action="store_true")
     ap.add_argument("--ab", metavar="COMMIT", help="time this tree's SNS-TPM kernel against COMMIT's (one process)")
+    ap.add_argument("--perf", metavar="SECONDS", type=float, help="profile the SNS-TPM kernel by compiled function")
     args = ap.parse_args(argv)
     if args.ab:
         with common.one_blas_thread():
             return ab(args.ab, args.configs, args.repeats)
+    if args.perf:
+        with common.one_blas_thread():
+            return perf_profile(args.configs, args.perf)
     from hqp_tpm.solvers.sns import sns_tpm_stacked
     from hqp_tpm.solvers.tpm import tpm_stacked
 
@@ -189,6 +197,104 @@ def ab(commit: str, n_configs: int, repeats: int) -> int:
           f"{np.median(ratios):.3f}")
     print(f"  same decisions (status, saturated joints, passes, feasibility): {same} of {len(cases)}; largest "
           f"command difference (relative to max(1, |x|)): {diff:.2e}")
+    return 0
+
+
+def _perf_map(modules) -> int:
+    """Write ``/tmp/perf-<pid>.map`` (perf's map of JIT code) for the compiled functions of ``modules``'
+    dispatchers, as LLVM named them (kernels numba inlined are counted in their callers); each function's size up
+    to the next one's address. Returns the number of functions (0 when the kernels came from numba's cache: their
+    libraries keep no LLVM module to name the functions)."""
+    import os
+
+    found = set()
+    for mod in modules:
+        for disp in vars(mod).values():
+            for cres in getattr(disp, "overloads", {}).values():
+                lib = cres.library
+                module = getattr(lib, "_final_module", None)
+                if module is None:
+                    continue
+                for fn in module.functions:
+                    if not fn.is_declaration:
+                        addr = lib.get_pointer_to_function(fn.name)
+                        if addr:
+                            found.add((addr, fn.name))
+    rows = sorted(found)
+    with open(f"/tmp/perf-{os.getpid()}.map", "w") as fh:
+        for i, (addr, name) in enumerate(rows):
+            size = min(rows[i + 1][0] - addr, 1 << 20) if i + 1 < len(rows) else 1 << 16
+            short = name.split("solvers", 1)[-1].lstrip("0123456789")
+            fh.write(f"{addr:x} {size:x} {short}\n")
+    return len(rows)
+
+
+def perf_profile(n_configs: int, seconds: float) -> int:
+    """Sample this process with Linux ``perf`` while ``_compiled_sns.sns_tpm_loop`` runs on the damped Romeo stacks
+    for ``seconds`` (after compiling and warming up, the garbage collector off) and print each compiled function's
+    share of the samples (the kernels' share of allocation, reference counting and the Python wrapper listed
+    beside them)."""
+    import gc
+    import os
+    import shutil
+
+    from hqp_tpm.solvers import _compiled, _compiled_sns
+
+    if shutil.which("perf") is None:
+        print("perf is not installed")
+        return 1
+    _, _, cases = stacks(n_configs)
+    for J, b, sizes, lo, up in cases:
+        _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+    if not _compiled_sns._READY:
+        print("the kernels are not compiled (HQP_TPM_COMPILED=0 or no numba): nothing to profile")
+        return 1
+    if not _perf_map((_compiled, _compiled_sns)):
+        print("the kernels came from numba's cache: run with an empty NUMBA_CACHE_DIR (module doc)")
+        return 1
+    out = Path(tempfile.mkdtemp()) / "perf.data"
+    gc.collect()
+    gc.disable()
+    rec = subprocess.Popen(["perf", "record", "-q", "-F", "4000", "-p", str(os.getpid()), "-o", str(out)],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    time.sleep(1.0)                                   # (perf attached)
+    calls = 0
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        for J, b, sizes, lo, up in cases:
+            _compiled_sns.sns_tpm_loop(J, b, sizes, lo, up, LAMBDA_MAX, EPS)
+        calls += len(cases)
+    rec.send_signal(2)
+    rec.wait()
+    gc.enable()
+    rep = subprocess.run(["perf", "report", "-i", str(out), "--no-children", "--sort", "dso,symbol", "--stdio",
+                          "-q"], capture_output=True, text=True).stdout
+    shares = collections.Counter()
+    for line in rep.splitlines():
+        parts = line.split()
+        if len(parts) < 4 or not parts[0].endswith("%"):
+            continue
+        sym = line.split("[.]", 1)[-1].strip() if "[.]" in line else parts[-1]
+        name = sym.split()[0]
+        for tag in ("_compiled_sns", "_compiled"):   # (numba's mangled names: ..._compiled_sns9_sns_loopB2v1..)
+            if tag in name:
+                name = name.split(tag, 1)[1].lstrip("0123456789").split("B", 1)[0]
+                if "_" not in name[1:] and not name.startswith("_"):
+                    name = "_" + name
+                break
+        else:
+            if any(k in name for k in ("malloc", "free", "memset", "memmove", "unlink_chunk", "consolidate")):
+                name = "(libc malloc/free/memset)"
+            elif name.startswith("NRT_"):
+                name = f"({name})"
+            elif "python" in line or name.startswith("_Py") or name.startswith("Py"):
+                name = "(Python: the wrapper, the loop)"
+        shares[name] += float(parts[0][:-1])
+    total = sum(shares.values())
+    print(f"damped Romeo SNS-TPM kernel, perf samples by function: {calls} calls in {seconds:.0f} s "
+          f"({1e6 * seconds / max(calls, 1):.1f} us a call, wall), one BLAS thread")
+    for name, v in shares.most_common(25):
+        print(f"  {name:40s} {100.0 * v / total:5.1f} %")
     return 0
 
 
