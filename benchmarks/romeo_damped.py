@@ -201,7 +201,7 @@ def ab(commit: str, n_configs: int, repeats: int) -> int:
 
 
 def _perf_map(modules) -> int:
-    """Write ``/tmp/perf-<pid>.map`` (perf's map of JIT code) for the compiled functions of ``modules``'
+    """Write ``perf-<pid>.map`` (perf's map of JIT code) for the compiled functions of ``modules``'
     dispatchers, as LLVM named them (kernels numba inlined are counted in their callers); each function's size up
     to the next one's address. Returns the number of functions (0 when the kernels came from numba's cache: their
     libraries keep no LLVM module to name the functions)."""
@@ -221,7 +221,7 @@ def _perf_map(modules) -> int:
                         if addr:
                             found.add((addr, fn.name))
     rows = sorted(found)
-    with open(f"/tmp/perf-{os.getpid()}.map", "w") as fh:
+    with open(Path("/tmp") / f"perf-{os.getpid()}.map", "w") as fh:  # where perf looks
         for i, (addr, name) in enumerate(rows):
             size = min(rows[i + 1][0] - addr, 1 << 20) if i + 1 < len(rows) else 1 << 16
             short = name.split("solvers", 1)[-1].lstrip("0123456789")
