@@ -3,14 +3,23 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-if TYPE_CHECKING:
-    from hqp_tpm.control.stack import Stack
-
 LAZY = object()  # a StepResult field not computed yet
+
+
+class _OnDemand:
+    """A field of a :class:`StepResult`, computed on first read by the step that made it (its ``<field>_of``)."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.field, self.of = "_" + name, name + "_of"
+
+    def __get__(self, r, owner: type | None = None):
+        value = getattr(r, self.field)
+        if value is LAZY:
+            value = getattr(r._kept[0], self.of)(r)
+            setattr(r, self.field, value)
+        return value
 
 
 class StepResult:
@@ -37,35 +46,7 @@ class StepResult:
         self.t, self.command, self._info = t, command, {} if info is None else info
         self._stack, self._levels, self._x0, self._box = stack, levels, x0, box
 
-    @property
-    def info(self) -> dict:
-        if self._info is LAZY:
-            self._info = self._kept[0].info_of(self._kept)
-        return self._info
-
-    @property
-    def stack(self) -> Stack:
-        if self._stack is LAZY:
-            self._stack = self._kept[0].stack_of(self._kept)
-        return self._stack
-
-    @property
-    def levels(self) -> list:
-        if self._levels is LAZY:
-            self._levels = self._kept[0].levels_of(self._kept)
-        return self._levels
-
-    @property
-    def x0(self) -> np.ndarray | None:
-        if self._x0 is LAZY:
-            self._x0 = self._kept[0].x0_of(self._kept)
-        return self._x0
-
-    @property
-    def box(self) -> tuple[np.ndarray, np.ndarray] | None:
-        if self._box is LAZY:
-            self._box = self._kept[0].box_of(self.t, self._kept)
-        return self._box
+    info, stack, levels, x0, box = _OnDemand(), _OnDemand(), _OnDemand(), _OnDemand(), _OnDemand()
 
     def label(self) -> str:
         """``"a > b+c"``: the stack as text (:meth:`Stack.label`)."""
