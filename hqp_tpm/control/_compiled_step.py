@@ -371,18 +371,15 @@ class Program:
         self._dt = 0.0
         self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), 0, 0, *sizes]
         self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND, 0.0]  # (then the step's time)
-        #: the arrays the kernel reads (2-D, 1-D; float64, C-contiguous) by slot: a task owns its slots (it puts its
-        #: arrays there before :meth:`build`; after it, :meth:`bind_mat` and :meth:`bind_vec` replace one)
+        #: the arrays the kernel reads (2-D, 1-D; float64, C-contiguous) by slot; a task owns its slots
         self.mats: list[np.ndarray] = []
         self.vecs: list[np.ndarray] = []
         self.ints = self.floats = None
         #: the frames the kernel places itself (:meth:`add_frame`'s ``placement``)
         self.placed: set[int] = set()
-        #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the fused step's state update
-        #: at velocity level computes them in its pinocchio pass (:meth:`hqp_tpm.robot.state.State.update_positions`)
+        #: a task's rows read pinocchio's CoM and its Jacobian: the fused step's state update computes them (order 1)
         self.com_in_update = False
-        #: a task's rows read pinocchio's velocity pass (at order 2, a frame's ``Jdot qd`` not computed in the kernel:
-        #: :meth:`add_frame` without ``jdot``); else the fused step's state update runs the position pass only
+        #: a task's rows read pinocchio's velocity pass (order 2, :meth:`add_frame` without ``jdot``)
         self.velocity_pass = False
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
@@ -457,9 +454,8 @@ class Program:
         self._ints += [FRAME, row, dim, k, mat, vec, xslot, jsrc, ip, rot, len(cols), place,
                        int(jdot is not None), *rows, *xrows, *cols, *ends, *tail, -1]
         self.vecs.append(np.zeros(dim))  # (the extra command's, bound to the entry while it has one)
-        #: where the last frame entry's ``ixd`` and extra slot are in :attr:`ints` (:data:`HARMONIC`: its reference
-        #: from ``[base, a, b]`` per row and ``omega, phase`` at the end of its floats; a slot: its extra command
-        #: there, added as :meth:`~hqp_tpm.tasks.base.Task.command` adds it), and the extra command's slot
+        #: where the last frame entry's ``ixd`` (or :data:`HARMONIC`) and extra command slot (or -1) are in
+        #: :attr:`ints`, and the extra command's vecs slot
         self.switches = (ixd, len(self._ints) - 1, len(self.vecs) - 1)
         return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot, xslot
 

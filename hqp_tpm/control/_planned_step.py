@@ -388,11 +388,13 @@ class PlannedStep:
                 if lv is not False and lv.b is None:
                     bs[a:a + k], g = b[a:a + k], -1
                 if g != g0:
-                    _shift(J[a0:e], b[a0:e], v, bs[a0:e])
+                    if e > a0:
+                        _shift(J[a0:e], b[a0:e], v, bs[a0:e])
                     a0, e, g0 = a, a, g
                 if g >= 0:
                     e = a + k
-            _shift(J[a0:e], b[a0:e], v, bs[a0:e])
+            if e > a0:
+                _shift(J[a0:e], b[a0:e], v, bs[a0:e])
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
             d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
