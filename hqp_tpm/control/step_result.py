@@ -9,16 +9,18 @@ LAZY = object()  # a StepResult field not computed yet
 
 
 class _OnDemand:
-    """A field of a :class:`StepResult`, computed on first read by the step that made it (its ``<field>_of``)."""
+    """A field of a :class:`StepResult` that the step which made it computes on first read (``of(step, result)``)."""
+
+    def __init__(self, of) -> None:
+        self.of = of
 
     def __set_name__(self, owner: type, name: str) -> None:
-        self.field, self.of = "_" + name, name + "_of"
+        self.field = "_" + name
 
     def __get__(self, r, owner: type | None = None):
-        value = getattr(r, self.field)
+        value = r.__dict__.get(self.field, LAZY)
         if value is LAZY:
-            value = getattr(r._kept[0], self.of)(r)
-            setattr(r, self.field, value)
+            value = r.__dict__[self.field] = self.of(r._kept[0], r)
         return value
 
 
@@ -39,14 +41,17 @@ class StepResult:
 
     # (a compiled step's result sets t, command, _kept = (step, q, v, ...) and what it knows; the others are computed
     # when read: PlannedStep.result)
-    _info = _stack = _levels = _x0 = _box = LAZY
     _kept = None
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None):
         self.t, self.command, self._info = t, command, {} if info is None else info
         self._stack, self._levels, self._x0, self._box = stack, levels, x0, box
 
-    info, stack, levels, x0, box = _OnDemand(), _OnDemand(), _OnDemand(), _OnDemand(), _OnDemand()
+    info = _OnDemand(lambda step, r: step.info_of(r))
+    stack = _OnDemand(lambda step, r: step.stack_of(r))
+    levels = _OnDemand(lambda step, r: step.levels_of(r))
+    x0 = _OnDemand(lambda step, r: step.x0_of(r))
+    box = _OnDemand(lambda step, r: step.box_of(r))
 
     def label(self) -> str:
         """``"a > b+c"``: the stack as text (:meth:`Stack.label`)."""
