@@ -212,15 +212,10 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
-    m, n, nlev = ints[0], ints[1], ints[3]
-    mn = m * n
-    J = buf[:mn].reshape((m, n))
-    b = buf[mn: mn + m]
-    out = buf[mn + m + n: mn + m + 2 * n]
-    sizes = ints[HEAD: HEAD + nlev]
-    lo = buf[mn + m + 2 * n: mn + m + 3 * n]
-    up = buf[mn + m + 3 * n: mn + m + 4 * n]
-    state = buf[mn + m + 4 * n: mn + m + 7 * n].reshape((3, n))
+    J, b, _, out, sizes = _step_arrays(buf, ints)
+    n = ints[1]
+    o = ints[0] * (n + 1) + 2 * n  # the box lo, up, the loop's scratch (3 x n), then the solve's info
+    lo, up, state = buf[o: o + n], buf[o + n: o + 2 * n], buf[o + 2 * n: o + 5 * n].reshape((3, n))
     bi = pi + n  # (the loop's scratch,) the box: where from, the slot of its limits in mats, its joint count, indices
     box = ints[bi]
     if box != BOX_GIVEN:
@@ -239,7 +234,7 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     for i in range(n):
         if not math.isfinite(out[i]):
             return NONFINITE_X
-    o = mn + m + 7 * n  # the solved step's info
+    o += 5 * n
     buf[o], buf[o + 1], buf[o + 2] = scale, nsat, iterations
     buf[o + 3] = 1.0 if feasible else 0.0
     for i in range(nsat):  # the saturated joints, from the loop's scratch
@@ -266,13 +261,10 @@ def _stacked_rows(J, b, v, damping, x0):  # pragma: no cover - compiled
 
 
 def stacked_tpm(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out):
-    """The planned step's solve (:mod:`hqp_tpm.control._planned_step`) on its stacked ``J`` (``m x n``), ``b``: their
-    finiteness, ``x0 = -damping v`` when ``damping`` (:func:`_stacked_rows`), the TPM kernel ``tpm_stacked`` would
-    call (``_general``; ``m > n``: ``_past_rank``, ``x0`` without effect), ``x``'s finiteness (:func:`_x_status`);
-    the statuses of :func:`kernel`. Compiled calls, not one kernel: a kernel calling ``_general`` would compile all of
-    its code once more (numba links and optimizes a callee's code again into each caller), ~2 s of a first run.
-    (``_compiled._general`` read at each call: after a stack whose pivot block needs its SVD it is the kernel
-    deciding every pivot, ``_compiled._pivot_svd``.)"""
+    """The planned step's TPM solve of its stacked ``J`` (``m x n``), ``b``: :func:`_stacked_rows`, the kernel
+    ``tpm_stacked`` would call (``_compiled._general``, read at each call: it may become the SVD one; ``m > n``:
+    ``_past_rank``), ``x``'s finiteness; the statuses of :func:`kernel`. Compiled calls, not one kernel: a kernel
+    calling ``_general`` would compile its code once more (~2 s of a first run)."""
     use_x0 = _stacked_rows(J, b, v, damping, x0)
     if use_x0 < 0:
         return NONFINITE_ROWS
@@ -307,32 +299,27 @@ def stacked_kernel():
     return stacked_tpm if _solves() else None
 
 
-def _rows_writer() -> bool:
-    """Make :func:`_rows`' dispatcher ``_write_rows`` after binding its callees; False if numba cannot be imported."""
+def rows_writer():
+    """:func:`_rows` compiled, ``(buf, ints, floats, q, v) -> (status, pi, pf)``, after binding its callees (for a
+    caller that writes a program's rows alone: :class:`~hqp_tpm.control._task_rows.TaskProgram`, no kernel compiled
+    around it); None if numba cannot be imported."""
     global _write_rows, _frame_placement, _frame_jacobian, _rotation_error, _frame_jdot_qdot, _mat, _vec, _command
     global _harmonic
     if not _solves():
-        return False
+        return None
     if not _jit.compile_module(vars(_robot_compiled)):  # (dispatchers already, unless the switch was off at import)
-        return False
+        return None
     if _write_rows is None:
         _frame_jacobian, _rotation_error = _robot_compiled.frame_jacobian, _robot_compiled.rotation_error
         _frame_placement, _frame_jdot_qdot = _robot_compiled.frame_placement, _robot_compiled.frame_jdot_qdot
         readers = _jit.address_readers()
         if readers is None:
-            return False
+            return None
         _mat, _vec = readers
         _command = _jit.dispatcher(tracking_command, inline=True)
         _harmonic = _jit.dispatcher(harmonic_point, inline=True)
         _write_rows = _jit.dispatcher(_rows)
-    return True
-
-
-def rows_writer():
-    """:func:`_rows` compiled, ``(buf, ints, floats, q, v) -> (status, pi, pf)``, for a caller that writes a program's
-    rows alone and reads no status (:class:`~hqp_tpm.control._task_rows.TaskProgram`): no kernel compiled around it
-    (~0.3 s of a first run); None if numba cannot be imported."""
-    return _write_rows if _rows_writer() else None
+    return _write_rows
 
 
 def _build(solve: int, tall: bool, svd: bool = False):
@@ -340,7 +327,7 @@ def _build(solve: int, tall: bool, svd: bool = False):
     step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
     ``m > n`` kernel); None if numba cannot be imported."""
     global _sns_loop, _velocity_box, _acceleration_box
-    if not _rows_writer():
+    if rows_writer() is None:
         return None
     if solve == SNS and not _compiled_sns._READY:
         try:
@@ -367,17 +354,13 @@ class Program:
     """The packed arguments of :func:`kernel` for a stack of ``m`` rows in levels of ``sizes`` at ``order``, and the
     tasks whose rows the kernel writes (:meth:`add_selection`, :meth:`add_frame`).
 
-    ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (``solve``:
-    :data:`ROWS`, the kernel stops after the rows and their finiteness test, returning :data:`WRITTEN`; :data:`TPM`;
-    :data:`SNS`, then ``ints`` has ``n`` more entries, the loop's scratch, and the box's), ``floats =
-    [lambda_max, eps, unit, margin, cond, tasks...]``; a task's entry is its kind, first row and row count, its indices,
-    and its gains and reference values (see the methods). The arrays the kernel reads besides those (a frame's Jacobian
-    and vectors, pinocchio's views) are slots of :attr:`mats` and :attr:`vecs`, given to the kernel as an address table
-    at the end of ``ints`` (from ``mats_at``: address, rows, columns per matrix; from ``vecs_at``: address, length per
-    vector), so that the kernel takes five arguments whatever the stack (numba's dispatch cost grows with each array it
-    types). A task is given its slots (the program's own arrays, or views it puts there before :meth:`build`); after it,
-    :meth:`bind_mat` and :meth:`bind_vec` point a slot at another array (the program keeps it alive).
-    :meth:`buffer_size`: the length of the kernel's ``buf``."""
+    ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (with
+    :data:`SNS`, ``n`` more, the loop's scratch, and the box's), ``floats = [lambda_max, eps, unit, margin, cond,
+    time, tasks...]``; a task's entry: its kind, first row, row count, indices, gains and reference values. The other
+    arrays the kernel reads (pinocchio's views, targets) are slots of :attr:`mats` and :attr:`vecs`, passed as an
+    address table at the end of ``ints`` (address, rows, columns per matrix from ``mats_at``; address, length per
+    vector from ``vecs_at``): five arguments whatever the stack (docs/architecture.md). After :meth:`build`,
+    :meth:`bind_mat` and :meth:`bind_vec` point a slot at another array (kept alive)."""
 
     def __init__(self, m: int, n: int, sizes, order: int, lambda_max: float, eps: float, use_x0: bool,
                  solve: int = TPM):
@@ -388,18 +371,15 @@ class Program:
         self._dt = 0.0
         self._ints = [m, n, int(use_x0), len(sizes), order, 0, int(solve), 0, 0, *sizes]
         self._floats = [lambda_max, eps, _compiled._UNIT, MARGIN, COND, 0.0]  # (then the step's time)
-        #: the arrays the kernel reads (2-D, 1-D; float64, C-contiguous) by slot: a task owns its slots (it puts its
-        #: arrays there before :meth:`build`; after it, :meth:`bind_mat` and :meth:`bind_vec` replace one)
+        #: the arrays the kernel reads (2-D, 1-D; float64, C-contiguous) by slot; a task owns its slots
         self.mats: list[np.ndarray] = []
         self.vecs: list[np.ndarray] = []
         self.ints = self.floats = None
         #: the frames the kernel places itself (:meth:`add_frame`'s ``placement``)
         self.placed: set[int] = set()
-        #: a task's rows read pinocchio's CoM and CoM Jacobian (set by its row program): the fused step's state update
-        #: at velocity level computes them in its pinocchio pass (:meth:`hqp_tpm.robot.state.State.update_positions`)
+        #: a task's rows read pinocchio's CoM and its Jacobian: the fused step's state update computes them (order 1)
         self.com_in_update = False
-        #: a task's rows read pinocchio's velocity pass (at order 2, a frame's ``Jdot qd`` not computed in the kernel:
-        #: :meth:`add_frame` without ``jdot``); else the fused step's state update runs the position pass only
+        #: a task's rows read pinocchio's velocity pass (order 2, :meth:`add_frame` without ``jdot``)
         self.velocity_pass = False
 
     def _gains(self, kp: float, kd: float, values: int) -> int:
@@ -421,22 +401,17 @@ class Program:
     def add_frame(self, row: int, rows, xrows, kp: float, kd: float, x: np.ndarray | None = None,
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
                   placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int, int]:
-        """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` with ``S = mats[mat]``, ``e = [x_d - x[xrows], w]``
-        and ``b`` as :meth:`hqp_tpm.tasks.base.Task.command` (``xrows`` may be empty, ``w`` absent when ``len(xrows) ==
-        len(rows)``). ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``; ``x``, a view pinocchio updates), ``w`` (if
-        any), at order 2 ``rate = J qd`` and ``Jdot qd``, then ``x_d`` (if ``xrows``: slot ``xslot``).
+        """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` (``S = mats[mat]``), ``e = [x_d - x[xrows], w]``,
+        ``b`` as :meth:`hqp_tpm.tasks.base.Task.command`. ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w``
+        (if ``len(xrows) < len(rows)``), at order 2 ``J qd`` and ``Jdot qd``, then ``x_d`` (if ``xrows``: ``xslot``).
 
-        ``jacobian = (JT, cols, p)`` (:meth:`~hqp_tpm.robot.state.State.frame_jacobian_source`, the frame's position):
-        the kernel writes ``S`` and, at order 2, ``rate`` (else the caller, every step). ``rotation = (RT, RdT)`` (the
-        frame's and the target's rotations transposed, row-major views): the kernel writes ``w = log3(R_d R^T)``.
-        ``transposed`` (``n x q``, e.g. the CoM Jacobian transposed, order 1 only): ``S^T`` in slot ``mat``.
-        ``placement = (fid, RiT, pi, P, RfT)`` (with ``jacobian``;
-        :meth:`~hqp_tpm.robot.state.State.frame_placement_source`): the kernel places frame ``fid`` first and
-        :attr:`placed` gets it. ``jdot`` (order 2, with ``jacobian``, one entry per column;
-        :meth:`~hqp_tpm.robot.state.State.frame_jdot_source`): the kernel computes ``Jdot qd`` (no velocity pass).
-        Returns ``(at, mat, vec, rot, xslot)``: ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats` (``x_d``
-        there: a Harmonic's base), ``rot`` the slot of ``RT`` (-1 without ``rotation``), ``xslot`` -1 without
-        ``xrows``."""
+        The kernel computes, given ``jacobian = (JT, cols, p)`` (the state's ``frame_jacobian_source``), ``S`` and at
+        order 2 ``J qd``; ``rotation = (RT, RdT)`` (row-major views), ``w = log3(R_d R^T)``; ``placement = (fid, RiT,
+        pi, P, RfT)`` (``frame_placement_source``), the frame's placement (:attr:`placed` gets ``fid``); ``jdot``
+        (order 2, ``frame_jdot_source``), ``Jdot qd``; else the caller writes them every step. ``transposed`` (order 1,
+        ``n x q``, e.g. the CoM Jacobian transposed): ``S^T`` in slot ``mat``. Returns ``(at, mat, vec, rot, xslot)``:
+        ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1: none),
+        ``xslot`` -1 without ``xrows``."""
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
@@ -479,9 +454,8 @@ class Program:
         self._ints += [FRAME, row, dim, k, mat, vec, xslot, jsrc, ip, rot, len(cols), place,
                        int(jdot is not None), *rows, *xrows, *cols, *ends, *tail, -1]
         self.vecs.append(np.zeros(dim))  # (the extra command's, bound to the entry while it has one)
-        #: where the last frame entry's ``ixd`` and extra slot are in :attr:`ints` (:data:`HARMONIC`: its reference
-        #: from ``[base, a, b]`` per row and ``omega, phase`` at the end of its floats; a slot: its extra command
-        #: there, added as :meth:`~hqp_tpm.tasks.base.Task.command` adds it), and the extra command's slot
+        #: where the last frame entry's ``ixd`` (or :data:`HARMONIC`) and extra command slot (or -1) are in
+        #: :attr:`ints`, and the extra command's vecs slot
         self.switches = (ixd, len(self._ints) - 1, len(self.vecs) - 1)
         return self._gains(kp, kd, k + 2 * dim + 2), mat, vec, rot, xslot
 
@@ -559,16 +533,11 @@ class Program:
 
 
 def kernel(solve: int = TPM, tall: bool = False, svd: bool = False):
-    """The compiled kernel of a program built with ``solve`` (:data:`ROWS`, :data:`TPM`, :data:`SNS`; ``tall``: a TPM
-    program of ``m > n`` rows, whose kernel is another; ``svd``: the TPM kernel of ``m <= n`` that decides every
-    pivot by its block's SVD, for a stack that met :data:`PIVOT_SVD`; compiled or loaded on first use), or None if
-    numba cannot be imported after all (then :data:`hqp_tpm.solvers._compiled.ENABLED` is False).
-
-    ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J (row-major), b, x0, x, (lo, up)]`` (``x0`` the
-    null-space term's, read if ``ints[2] = 1``); the program's rows of ``J`` and ``b`` from ``q``, ``v`` and the
-    arrays of the program's slots, finiteness of ``J`` and ``b``, then (TPM) ``x`` of the TPM kernel or (SNS) the box
-    and ``x`` of the SNS loop, and finiteness of ``x``; ``ints`` and ``floats`` those of a :class:`Program`.
-    """
+    """The compiled kernel of a :class:`Program` built with ``solve`` (``tall``: a TPM program of ``m > n`` rows;
+    ``svd``: the TPM kernel deciding every pivot by its block's SVD, after :data:`PIVOT_SVD`), compiled or loaded on
+    first use; None if numba cannot be imported after all. ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J
+    (row-major), b, x0, x, (lo, up, ...)]``; the program's rows from ``q``, ``v`` and its slots, their finiteness,
+    then (TPM) the TPM kernel's ``x`` or (SNS) the box and the SNS loop's ``x``, and ``x``'s finiteness."""
     tall = bool(tall) and solve == TPM
     svd = bool(svd) and solve == TPM and not tall
     return _KERNELS.get((solve, tall, svd)) or _build(solve, tall, svd)

@@ -50,19 +50,17 @@ def joint_box(limits: JointLimits, lo: np.ndarray, up: np.ndarray):
 
 
 class PlannedStep:
-    """The compiled step of a :class:`~hqp_tpm.control.controller.Controller` (build it with :meth:`of`).
-
-    :meth:`compute` gives the command of the readable step at the controller's state; :meth:`result` right after it
-    the :class:`StepResult`, keeping ``(step, q, v, rows, made, tasks, extras, stack)`` (the controller replaces,
-    never writes, its ``q``, ``v``) for the fields computed on demand. The controller stays the owner of the state.
-    """
+    """The compiled step of a :class:`~hqp_tpm.control.controller.Controller` (:meth:`of`): :meth:`compute` gives the
+    readable step's command at the controller's state, :meth:`result` right after it the :class:`StepResult`, keeping
+    ``(step, q, v, rows, made, tasks, extras, stack)`` for the fields computed on demand (the controller replaces,
+    never writes, its ``q``, ``v``)."""
 
     __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
                  "_placed", "_stacked", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
                  "_bs", "_stack", "_box_now", "other", "_unchecked", "planned_box",
                  # the fused step of a fixed stack of equality tasks (_fuse)
                  "_program", "_kernel", "_buf", "_flat", "_out", "_ints", "_floats", "_sizes", "_gathers", "_frames",
-                 "_positions", "_com", "_box_writer", "_sns_kernel", "_levels_planned", "_label")
+                 "_positions", "_com", "_box_writer", "_levels_planned", "_label")
 
     @staticmethod
     def why_not(ctrl) -> str | None:
@@ -93,16 +91,14 @@ class PlannedStep:
         self._extras: dict = {}
         self._made: list = []  # per level of the last step: (task, first row, rows, its Level or None: equality rows)
         self._labels: dict[tuple[str, ...], str] = {}
-        # the pointing and the avoidance tasks write straight into the stacked rows (their row writers: one compiled
-        # call each): one writer per (task, first row), built on first use (_place)
+        # the row writers writing straight into the stacked rows, by (task, first row), built on first use (_place)
         self._placed: dict[tuple[int, int], tuple | bool] = {}
-        self._stacked, self._x0 = None, np.zeros(self.n)  # the compiled solve (_compiled_step.stacked_kernel)
-        # sns_tpm: the stacked rows solved in the joint limits' box (joint_box: the box's numbers in fewer calls), the
-        # null-space term x0 one more, lowest level (as the registry adds it); the box bounds the command's rate
-        # (velocity level): the rows shifted by J v and solved for the change (command_rate.solve_around)
+        # the compiled TPM solve (_compiled_step.stacked_kernel), its x0 and x (in the fused step's buffer: _fuse)
+        self._stacked, self._x0, self._out = None, np.zeros(self.n), np.zeros(self.n)
+        # sns_tpm: the stacked rows solved in the box (a JointLimits': joint_box), x0 one more, lowest level (as the
+        # registry adds it); rate: the box bounds the command's rate, solved for the change (solve_around)
         self.sns = ctrl.solver == "sns_tpm"
-        # any other solver (nullspace, sns, the cascaded QP): the readable step's levels, made of the rows written
-        # here, solved through the registry (hqp_tpm.solvers.registry.solve), as Controller._solve_step does
+        # any other solver: the readable step's levels of the rows written, through the registry (_registry)
         self.other = ctrl.solver not in ("tpm", "sns_tpm")
         self.rate = ctrl.solver not in ANALYTIC and ctrl.order == 1 and rate_limited(ctrl.box)
         joint = type(ctrl.box) is JointLimits
@@ -175,8 +171,7 @@ class PlannedStep:
         # order 1, or order 2 with every task in the program and every Jdot qd computed in the kernel: the position
         # pass only (the kernel places the frames its tasks read)
         self._positions = order == 1 or not program.velocity_pass and not own
-        self._sns_kernel = mode == _compiled_step.SNS
-        self._box_writer = self.box if self._sns_kernel and program.box_given and self.box is not None else None
+        self._box_writer = self.box if mode == _compiled_step.SNS and program.box_given else None
         self._made, self._sizes, self._gathers, self._bs = made, tuple(sizes), tuple(gathers), np.zeros(a)
         self.tasks, self._stack = tuple(task for task, *_ in made), stack
         self._levels_planned, self._label = list(stack.levels), stack.label()
@@ -295,19 +290,9 @@ class PlannedStep:
             if self._box_writer is not None:
                 self._box_writer(st)  # the joint_box writes into the buffer's lo, up (else the kernel does)
             status = self._kernel(self._buf, self._ints, self._floats, q, v)
-            if status == 0:  # SOLVED
-                if self._sns_kernel:
-                    self.info = None  # (the kernel's, in the kept buffer)
-                return self._out.copy()
-            if status == _compiled_step.NONFINITE_ROWS:
-                return ctrl._compute().command  # the readable path raises the typed error naming the task
-            if status == _compiled_step.NONFINITE_X:
-                raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
             if status == _compiled_step.PIVOT_SVD:  # a pivot block only its SVD decides: from now on the kernel
                 kernel = _compiled_step.kernel(_compiled_step.TPM, svd=True)  # that decides every pivot at once
                 self._kernel = kernel and _robot_kernels.typed(kernel, self._buf, self._ints, self._floats, q, v)
-            # WRITTEN (another solver's turn), DECLINED/UNDECIDED (tpm_stacked's numpy reference decides),
-            # BOX_HANDED_BACK (the joint_box's recovery rules) or SNS_HANDED_BACK (sns_tpm_stacked): the rows written
             return self._solve(st, t, self.J, self.b, self._sizes, status)
         st, policy = ctrl.state.update(q, v, t, validate=False), self.policy
         policy.update(st, t)
@@ -347,31 +332,34 @@ class PlannedStep:
 
     def _solve(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...],
                status: int | None = None) -> np.ndarray:
-        """The solution of the rows written (the readable step's solve); ``status``: the fused kernel's, which found
-        them finite and did not solve them."""
+        """The solution of the rows written (the readable step's solve); ``status``: the fused kernel's (None: no kernel
+        ran yet; ``tpm``: finiteness, ``x0`` and the TPM kernel in one compiled call here)."""
         ctrl = self.ctrl
-        # an inactive cone's row, or (sns_tpm, other solvers) the rows, NaN, inf or too large (one sum fails for all
-        # three): the readable path raises the typed error naming the task
-        if status is None and (self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ):
-            return ctrl._compute().command
+        if status is None:
+            # an inactive cone's row, or (sns_tpm, other solvers) the rows, NaN, inf or too large (one sum fails for
+            # all three): the readable path raises the typed error naming the task
+            if self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ:
+                return ctrl._compute().command
+            if not (self.sns or self.other) and sizes and _compiled.ENABLED:
+                kernel = self._stacked = self._stacked or _compiled_step.stacked_kernel()
+                if kernel is not None:
+                    status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
+                                    _compiled._UNIT, MARGIN, COND, self._x0, self._out)
+        if status == _compiled_step.SOLVED:
+            if self.sns:
+                self.info = None  # (the fused SNS kernel's, in the kept buffer)
+            return self._out.copy()
+        if status == _compiled_step.NONFINITE_ROWS:
+            return ctrl._compute().command  # the readable path raises the typed error naming the task
+        if status == _compiled_step.NONFINITE_X:
+            raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
+        # any other status hands the rows (found finite) back: WRITTEN (another solver's turn), DECLINED, UNDECIDED
+        # or PIVOT_SVD (tpm_stacked's numpy reference decides), BOX_HANDED_BACK (the joint_box's recovery rules) or
+        # SNS_HANDED_BACK (sns_tpm_stacked)
         if self.sns:
             return self._sns(st, t, J, b, sizes)
         if self.other:
             return self._registry(st, t, J, b)
-        if status is None and sizes and _compiled.ENABLED:  # finiteness, x0 and the TPM kernel in one compiled call
-            kernel = self._stacked = self._stacked or _compiled_step.stacked_kernel()
-            if kernel is not None:
-                x, x0 = np.empty(self.n), self._x0
-                status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
-                                _compiled._UNIT, MARGIN, COND, x0, x)
-                if status == _compiled_step.SOLVED:
-                    return x
-                if status == _compiled_step.NONFINITE_ROWS:
-                    return ctrl._compute().command  # the readable path raises the typed error naming the task
-                if status == _compiled_step.NONFINITE_X:
-                    raise SolverFailedError(f"solver 'tpm' returned a non-finite command at t = {t:.6f}")
-                # DECLINED / UNDECIDED: tpm_stacked's numpy reference decides, below, on the rows the kernel found
-                # finite, with the x0 it wrote
         if status is None:
             if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
@@ -393,16 +381,20 @@ class PlannedStep:
         self._box_now = self.box(st) if self.box is not None else None
         lo, up = self._box_now or (np.full(n, -np.inf), np.full(n, np.inf))
         if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
-            v = ctrl._v
-            bs = self._bs[:J.shape[0]]
-            a0 = g0 = -1
+            # each run of a level's equality rows (a0:e) shifted at once (the readable step's bits of J v); an
+            # inequality level's rows were written shifted
+            v, bs, a0, e, g0 = ctrl._v, self._bs[:J.shape[0]], 0, 0, -1
             for _task, a, k, lv, g in self._made:
-                if lv is not False and lv.b is None:  # an inequality level's rows (written shifted)
-                    bs[a:a + k], g0 = b[a:a + k], -1
-                    continue
-                if g != g0:  # equality rows shifted a level at a time (the readable step's bits of J v)
-                    a0, g0 = a, g
-                np.subtract(b[a0:a + k], J[a0:a + k] @ v, out=bs[a0:a + k])
+                if lv is not False and lv.b is None:
+                    bs[a:a + k], g = b[a:a + k], -1
+                if g != g0:
+                    if e > a0:
+                        _shift(J[a0:e], b[a0:e], v, bs[a0:e])
+                    a0, e, g0 = a, a, g
+                if g >= 0:
+                    e = a + k
+            if e > a0:
+                _shift(J[a0:e], b[a0:e], v, bs[a0:e])
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
             d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
@@ -453,32 +445,33 @@ class PlannedStep:
         r._kept = (self, q, v, (self.J[:m].copy(), self.b[:m].copy()), made, self.tasks, self._extras, self._stack)
         return r
 
-    def info_of(self, kept: tuple) -> dict:
-        return self._program.sns_info(kept[3])
+    def info_of(self, r: StepResult) -> dict:
+        return self._program.sns_info(r._kept[3])
 
-    def stack_of(self, kept: tuple) -> Stack:
+    def stack_of(self, r: StepResult) -> Stack:
+        kept = r._kept
         if kept[7] is not None:  # (the stack a StackPolicy policy gave)
             return kept[7]
         return Stack([(task,) for task in kept[5]], kept[6])
 
-    def levels_of(self, kept: tuple) -> list[Level]:
-        rows = kept[3]
+    def levels_of(self, r: StepResult) -> list[Level]:
+        rows = r._kept[3]
         if type(rows) is not tuple:  # (the fused step's buffer)
             m, n = self.b.size, self.n
             rows = rows[: m * n].reshape(m, n), rows[m * n: m * n + m]
-        return self._levels(*rows, kept[4])
+        return self._levels(*rows, r._kept[4])
 
-    def x0_of(self, kept: tuple) -> np.ndarray | None:
+    def x0_of(self, r: StepResult) -> np.ndarray | None:
         """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with (a later
         setting of the controller's does not change a result it gave)."""
-        return -self.damping * kept[2] if self.damping else None
+        return -self.damping * r._kept[2] if self.damping else None
 
-    def box_of(self, t: float, kept: tuple) -> tuple[np.ndarray, np.ndarray] | None:
+    def box_of(self, r: StepResult) -> tuple[np.ndarray, np.ndarray] | None:
         """The box the step was planned with at the kept state (in :meth:`Controller.scratch_state`)."""
         box = self.planned_box
         if box is None:
             return None
-        return box(self.ctrl.scratch_state().update(kept[1], kept[2], t, validate=False), t)
+        return box(self.ctrl.scratch_state().update(r._kept[1], r._kept[2], r.t, validate=False), r.t)
 
     @staticmethod
     def _levels(J: np.ndarray, b: np.ndarray, made: list) -> list[Level]:
@@ -506,6 +499,12 @@ class PlannedStep:
         if text is None:
             text = self._labels[key] = " > ".join(key)
         return text
+
+
+def _shift(J: np.ndarray, b: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
+    """``out = b - J v`` (one matrix-vector product, no temporary)."""
+    np.dot(J, v, out=out)
+    np.subtract(b, out, out=out)
 
 
 def _own_rows(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):

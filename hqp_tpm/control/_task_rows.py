@@ -1,9 +1,7 @@
-"""The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source`
-registered with a :class:`~hqp_tpm.control._compiled_step.Program`, the fused step's of a fixed stack or, as a
-:class:`TaskProgram`, one task's in the step of a policy that plans (:mod:`hqp_tpm.control._planned_step`). The
-kernel reads pinocchio's frame placements and Jacobians and the targets in place and writes ``J`` and ``b`` with
-:func:`~hqp_tpm.tasks.base.tracking_command`: the numbers of the task's :meth:`~hqp_tpm.tasks.base.Task.jacobian`
-and :meth:`~hqp_tpm.tasks.base.Task.command`."""
+"""The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source` registered
+with a :class:`~hqp_tpm.control._compiled_step.Program` (the fused step's, or one task's: :class:`TaskProgram`). The
+kernel reads pinocchio's data and the targets in place and writes the numbers of the task's ``jacobian`` and
+``command`` (:func:`~hqp_tpm.tasks.base.tracking_command`)."""
 
 from __future__ import annotations
 
@@ -50,11 +48,10 @@ def write_own_rows(task: Task, state: State, t: float, order: int, J: np.ndarray
 
 class ReferenceSlots:
     """Keeps a program's copy of a task's reference ``(x_d, xd_d, xdd_d)`` and gains current. The kernel reads ``x_d``
-    from slot ``slot`` of the program's vecs (None: the task's own array): the trajectory's
-    :attr:`~hqp_tpm.references.trajectories.Trajectory.live` array where it has one, bound when it is not the one bound
-    last; else this object's array, into which a reference not the one copied last (by identity, part by part) is
-    copied. A :class:`~hqp_tpm.references.trajectories.Harmonic` reference of a frame entry (``harmonic``: the entry's
-    ``ixd`` in ``program.ints``): its terms copied when they change, the kernel computes it."""
+    from vecs slot ``slot`` (None: the task's own array): the trajectory's ``live`` array, bound when it changes, or
+    this object's array, into which a new reference (by identity, part by part) is copied. A
+    :class:`~hqp_tpm.references.trajectories.Harmonic` of a frame entry (``harmonic``: the entry's ``ixd`` in
+    ``program.ints``): its terms copied when they change, the kernel computes it."""
 
     __slots__ = ("task", "program", "gains", "gains_at", "at", "d", "slot", "own", "bound", "last", "harmonic",
                  "terms")
@@ -117,12 +114,10 @@ class ReferenceSlots:
 
 def program_rows(task: Task, state: State, order: int, program, row: int, J: np.ndarray,
                  place: bool = True, rate: bool = True) -> Callable[[float], None] | None:
-    """Register ``task``'s rows (from stacked row ``row`` on; ``J`` their view of the stacked Jacobian) with
-    ``program`` and return ``gather(t)``, which copies what changed into the program before each kernel call; None:
-    the task has no row source the kernel can read (the step calls its ``jacobian`` and ``command``). ``place``: the
-    kernel places the frames it reads where it can (else the state update places them); ``rate``: at order 2 the kernel
-    computes a frame's Jacobian and ``J qd`` where it can (else pinocchio's Jacobian and numpy's ``J qd``, the bits of
-    ``command``)."""
+    """Register ``task``'s rows (stacked rows ``row...``, ``J`` their view) with ``program``; returns ``gather(t)``,
+    which copies what changed into the program before each kernel call, or None (no row source the kernel reads).
+    ``place``: the kernel places the frames it reads where it can; ``rate``: at order 2 it computes a frame's Jacobian
+    and ``J qd`` where it can (else pinocchio's Jacobian and numpy's ``J qd``, the bits of ``command``)."""
     source = source_of(task)
     if type(source) is SelectionRows:
         J[...] = task.jacobian(state)  # (constant: written once, the kernel writes b only)
@@ -206,12 +201,10 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
 
 
 class TaskProgram:
-    """One task's rows written by the compiled rows kernel into ``J``, ``b`` (the planned step's,
-    :mod:`hqp_tpm.control._planned_step`): ``write(t, extra=None)`` gives the numbers of the task's ``jacobian`` and
-    ``command(state, t, order, extra)`` to the last bit, the extra command added in the kernel as ``command`` adds
-    it. For the tasks without a rotation error (frame positions, the CoM at velocity level, a posture without an
-    extra command; the planned step's state update places every frame, the kernel does not; at order 2 ``J qd`` is
-    numpy's dot of pinocchio's Jacobian, as in ``command``: the same bits)."""
+    """One task's rows written by the compiled rows kernel into ``J``, ``b`` (the planned step's): ``write(t,
+    extra=None)`` gives the bits of its ``jacobian`` and ``command(state, t, order, extra)``. For the tasks without a
+    rotation error (the planned step's state update places every frame; at order 2 ``J qd`` is numpy's, as in
+    ``command``)."""
 
     __slots__ = ("task", "state", "order", "J", "b", "program", "gather", "kernel", "buf", "rows", "extra")
 

@@ -1,20 +1,7 @@
-"""The solve under a command-rate bound: the stack solved for the change of the command (velocity level, issue 31).
-
-With ``JointLimits(command_rate=True)`` the box on ``qdot`` is also ``qdot_prev +- a_max T``
-(:func:`hqp_tpm.robot.joint_boxes.command_rate_box`), and 0 is then mostly outside it. The SNS solvers assume a
-box around 0 (their scale factor ``s`` shrinks the command towards 0; without 0 in the box they solve around the
-box point nearest to 0, which moves every task, the top one included: ``hqp_tpm.solvers.sns``). So the stack is
-solved around the previous command ``v`` instead: ``qdot = v + d`` with ``d`` the solution of
-
-* every level seen from ``v``: ``J_i d = b_i - J_i v`` (an inequality level's bounds shifted alike),
-* one more, lowest level ``d = -v`` (the registry's ``x0`` term: ``qdot = 0`` in what the tasks leave free),
-* the box ``[lower - v, upper - v]``, which holds 0 whenever ``v`` is inside the position and velocity box.
-
-Nothing binding (exact pseudo-inverses), ``d = J# (b - J v) - (I - J# J) v`` so ``qdot = J# b``: the usual
-solution. A binding box scales the *change* (SNS-TPM: ``J qdot = J v + s (b - J v)``, the free motion
-``(1 - s) v``): a task falls behind by a lag, not by a jump of the command. The result is clipped into the box
-(``v + (lower - v)`` may round one ulp outside it). :class:`~hqp_tpm.control.controller.Controller` and the compiled
-step (:mod:`hqp_tpm.control._planned_step`) both call :func:`solve_around`: one formula, the same numbers.
+"""The solve under a command-rate bound (velocity level, issue 31): the stack solved for the change ``d`` of the
+command from the previous one ``v``, ``qdot = v + d`` (the SNS solvers assume a box around 0, and the rate box
+``v +- a_max T`` mostly excludes 0). The formulas: docs/internals.md, "Solving under the command-rate box"; the
+readable and the compiled step both call :func:`solve_around`: one formula, the same numbers.
 """
 
 from __future__ import annotations

@@ -182,12 +182,9 @@ class Controller:
         return solve(self.solver, levels, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
 
     def _compiled_step(self):
-        """The compiled step of the policy under this controller's settings (None: the readable step), planned on first
-        use and again when the policy, a setting or the structure of the policy's stack changed.
-
-        A fixed stack, a stack function (:class:`FunctionPolicy`), a ``StackPolicy`` or ``PlanningPolicy`` (every
-        shipped policy): :class:`hqp_tpm.control._planned_step.PlannedStep`; any other policy: its own
-        (:meth:`Policy.compiled_step`)."""
+        """The compiled step under this controller's settings (None: the readable step), planned on first use and again
+        when the policy, a setting or the structure of the policy's stack changed: a :class:`PlannedStep` where
+        :func:`planned` takes the policy (every shipped one), else the policy's own (:meth:`Policy.compiled_step`)."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast

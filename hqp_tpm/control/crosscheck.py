@@ -7,11 +7,8 @@ policy that blends solutions (eq. (8) of papers/003) -- the same blend, run from
 (the policy's ``snapshot``/``restore``, :class:`~hqp_tpm.control.policy.Policy`). The hard box clips
 the other command as it clips the controller's.
 
-Each step records (``Controller.crosscheck_log``, :class:`CrosscheckLog`): the largest absolute
-difference of the two commands, the joint where it occurs, the difference relative to
-``max(1, ||command||)``, and whether the two solvers solve the same problem at this step (not when a
-box binds and one of them ignores it or scales the stack differently: SNS-TPM vs the QP, TPM vs any
-boxed solver). ``hqp_tpm.testing.plot_crosscheck`` draws it.
+The records (``Controller.crosscheck_log``, :class:`CrosscheckLog`, drawn by
+``hqp_tpm.testing.plot_crosscheck``): docs/cli.md, "Crosscheck".
 """
 
 from __future__ import annotations

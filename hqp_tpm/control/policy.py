@@ -1,34 +1,12 @@
 """The policy contract: what the controller, the runner and the app may ask of a policy.
 
-A policy decides the stack of every control step. :class:`Policy` is the written contract, an
-abstract base class so that every optional member has a default: the controller, the runner and the
-app call these members on any policy and never probe for attributes (``tests/test_no_probing.py``).
-A third-party policy that defines only the two required members runs everywhere (figures, replay,
-live viewer, explain) with the defaults below.
-
-Required (abstract):
-    ``__call__(state, t) -> Stack``   the stack of this step (papers/000 Algorithm 1, papers/003 Fig. 3...)
-    ``tasks() -> list[Task]``         every task the policy may put in a stack (started at the first step)
-
-Optional (defaults do nothing):
-    ``update(state, t)``              before the stack, after the state update: operator, distance field...
-    ``blends`` / ``blend(...)``       combine the solution with re-solved stacks (eq. (8) of papers/003,
-                                      eqs. (19), (30)-(31) of papers/004); ``blends = True`` turns it on
-    ``probe(ctrl, res) -> dict``      per-step values to record; their keys are listed in ``channels``
-    ``summary(arrays) -> dict``       run summary numbers from the recorded arrays
-    ``thresholds``                    recorded channel -> {threshold name: value} (for the figures)
-    ``scene() -> SceneItems``         what a viewer may draw (obstacles, control points, EE frame...);
-                                      default: the frame tasks' moving targets (the app adds the
-                                      scenario's obstacles)
-    ``snapshot()`` / ``restore(s)``   the state that carries from one step to the next, so that a rejected
-                                      step changes nothing (:meth:`Controller.step` is transactional)
-    ``compiled_step(ctrl)``           the policy's compiled step, or None (the readable step); derive from
-                                      ``StackPolicy`` or ``PlanningPolicy`` (below) to get the planned step
-                                      (every shipped policy does)
-
-:class:`DistancePolicy` is the shared base of the policies driven by a
-:class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body): it updates the
-field once per step in :meth:`update` and snapshots its history.
+A policy decides the stack of every control step. :class:`Policy` is the written contract, an abstract base class:
+``__call__(state, t) -> Stack`` and ``tasks()`` are required, every other member has a do-nothing default, so the
+controller, the runner and the app call them on any policy and never probe for attributes
+(``tests/test_no_probing.py``): a policy that defines only the two required members runs everywhere (figures, replay,
+live viewer, explain). Deriving from :class:`StackPolicy` or :class:`PlanningPolicy` gives it the compiled step (every
+shipped policy does). :class:`DistancePolicy` is the shared base of the policies driven by a
+:class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body).
 """
 
 from __future__ import annotations
@@ -109,7 +87,8 @@ class Policy(ABC):
         """Once per step after the state update, before :meth:`__call__` (operator, distances...)."""
 
     def blend(self, state: State, t: float, stack: Stack, x: np.ndarray, resolve: Resolve) -> np.ndarray:
-        """The command from the solution ``x`` of ``stack`` (used only when :attr:`blends` is True)."""
+        """The command from the solution ``x`` of ``stack`` (used only when :attr:`blends` is True): eq. (8) of
+        papers/003, eqs. (19), (30)-(31) of papers/004."""
         return x
 
     def probe(self, ctrl: Any, res: StepResult) -> dict:

@@ -1,10 +1,6 @@
-"""A stack orders tasks into priority levels; policies build the stack of each step.
-
-A :class:`Stack` is a list of levels (highest first), each one or more tasks of equal
-priority, plus optional extra commands added to a task's command (eq. (30) of papers/000).
-A *policy* (:class:`~hqp_tpm.control.policy.Policy`) gives the stack of every step;
-:class:`~hqp_tpm.control.policy.FixedStack` returns the same stack every step, dynamic policies (Algorithm 1 of
-papers/000, the switching of papers/003) rebuild it from the state.
+"""A stack orders tasks into priority levels: a :class:`Stack` is a list of levels (highest first), each one or more
+tasks of equal priority, plus optional extra commands added to a task's command (eq. (30) of papers/000). A policy
+(:class:`~hqp_tpm.control.policy.Policy`) gives the stack of every step.
 """
 
 from __future__ import annotations

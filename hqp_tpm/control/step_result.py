@@ -3,14 +3,25 @@
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-if TYPE_CHECKING:
-    from hqp_tpm.control.stack import Stack
-
 LAZY = object()  # a StepResult field not computed yet
+
+
+class _OnDemand:
+    """A field of a :class:`StepResult` that the step which made it computes on first read (``of(step, result)``)."""
+
+    def __init__(self, of) -> None:
+        self.of = of
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.field = "_" + name
+
+    def __get__(self, r, owner: type | None = None):
+        value = r.__dict__.get(self.field, LAZY)
+        if value is LAZY:
+            value = r.__dict__[self.field] = self.of(r._kept[0], r)
+        return value
 
 
 class StepResult:
@@ -30,42 +41,17 @@ class StepResult:
 
     # (a compiled step's result sets t, command, _kept = (step, q, v, ...) and what it knows; the others are computed
     # when read: PlannedStep.result)
-    _info = _stack = _levels = _x0 = _box = LAZY
     _kept = None
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None):
         self.t, self.command, self._info = t, command, {} if info is None else info
         self._stack, self._levels, self._x0, self._box = stack, levels, x0, box
 
-    @property
-    def info(self) -> dict:
-        if self._info is LAZY:
-            self._info = self._kept[0].info_of(self._kept)
-        return self._info
-
-    @property
-    def stack(self) -> Stack:
-        if self._stack is LAZY:
-            self._stack = self._kept[0].stack_of(self._kept)
-        return self._stack
-
-    @property
-    def levels(self) -> list:
-        if self._levels is LAZY:
-            self._levels = self._kept[0].levels_of(self._kept)
-        return self._levels
-
-    @property
-    def x0(self) -> np.ndarray | None:
-        if self._x0 is LAZY:
-            self._x0 = self._kept[0].x0_of(self._kept)
-        return self._x0
-
-    @property
-    def box(self) -> tuple[np.ndarray, np.ndarray] | None:
-        if self._box is LAZY:
-            self._box = self._kept[0].box_of(self.t, self._kept)
-        return self._box
+    info = _OnDemand(lambda step, r: step.info_of(r))
+    stack = _OnDemand(lambda step, r: step.stack_of(r))
+    levels = _OnDemand(lambda step, r: step.levels_of(r))
+    x0 = _OnDemand(lambda step, r: step.x0_of(r))
+    box = _OnDemand(lambda step, r: step.box_of(r))
 
     def label(self) -> str:
         """``"a > b+c"``: the stack as text (:meth:`Stack.label`)."""
