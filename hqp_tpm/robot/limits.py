@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.errors import ParameterError
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.joint_boxes import BoxLimits
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
@@ -54,19 +53,10 @@ class JointLimits:
                               and (self.a_max > 0).all() else None)
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
-        return self.reference_box(state)
-
-    def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> None:
-        """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written)."""
-        P, idx, dt = self.limits.rows, self.kernel_indices, self.dt
-        if self.order == 2:
-            _compiled.acceleration_box(q, v, P, idx, dt, lo, up)
-        elif self.command_rate:
-            _compiled.velocity_box(q, P, idx, dt, lo, up, v)
-        else:
-            _compiled.velocity_box(q, P, idx, dt, lo, up)
-
-    def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
         """The box at ``state`` (new arrays, one entry per velocity column)."""
         self.kernel_box(state.q, state.v, self._lo, self._up)
         return self._lo.copy(), self._up.copy()
+
+    def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> None:
+        """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written)."""
+        self.limits.box_into(q, v, lo, up, self.order, self.command_rate, self.kernel_indices)

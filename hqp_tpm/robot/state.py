@@ -205,7 +205,7 @@ class State:
             if not (JT.flags.c_contiguous and JT.flags.writeable and _same_memory((JT,), (data.J.T,))):
                 return None
             self._joint_jacobians_T = JT
-        return JT, _cols(model, fid)
+        return JT, _columns(model, fid)[0]
 
     def frame_jdot_source(self, fid: int) -> np.ndarray | None:
         """``ends`` for ``_compiled.frame_jdot_qdot`` (``ends[i]`` 1 where column ``cols[i]`` of
@@ -213,15 +213,13 @@ class State:
         fails (e.g. a joint whose motion subspace changes with ``q``)."""
         if self.frame_jacobian_source(fid) is None or not self._verified_source("jdot", fid):
             return None
-        return _ends(self.model, fid)
+        return _columns(self.model, fid)[1]
 
     def _verified_source(self, what: str, fid: int) -> bool:
         """:func:`verify_source`, once per state and frame."""
-        key = (what, fid)
-        ok = self._verified.get(key)
-        if ok is None:
-            ok = self._verified[key] = verify_source(self.model, what, fid)
-        return ok
+        if (what, fid) not in self._verified:
+            self._verified[what, fid] = verify_source(self.model, what, fid)
+        return self._verified[what, fid]
 
     # -- centre of mass --------------------------------------------------------------------------
     def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -244,12 +242,9 @@ class State:
 
     def _com_all(self):
         if "com" not in self._cache:  # from the kinematics of update() (no second forward pass)
-            if self._partial:
-                self._complete()
-            pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
-            Jc = pin.jacobianCenterOfMass(self.model, self.data, False)
+            self.com_kinematics(2)
             d = self.data
-            self._cache["com"] = (d.com[0].copy(), Jc.copy(), d.acom[0].copy(), d.vcom[0].copy())
+            self._cache["com"] = (d.com[0].copy(), d.Jcom.copy(), d.acom[0].copy())
         return self._cache["com"]
 
     def com(self) -> np.ndarray:
@@ -271,23 +266,15 @@ class State:
             return q_next, v_next
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
-        dq, v_next = np.empty(v.shape[0]), np.empty(v.shape[0])
-        _compiled.acceleration_step(v, a, dt, dq, v_next)
-        return pin.integrate(self.model, q, dq), v_next
+        return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
 
 
-def _cols(model, fid: int) -> np.ndarray:
-    """The velocity columns of the joints that support frame ``fid`` (the nonzero columns of its Jacobian)."""
-    joint = model.frames[fid].parentJoint
-    return np.array([c for j in model.supports[joint] for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])],
-                    dtype=np.int64)
-
-
-def _ends(model, fid: int) -> np.ndarray:
-    """Per column of :func:`_cols`: 1 where it is its joint's last (:meth:`State.frame_jdot_source`)."""
-    joint = model.frames[fid].parentJoint
-    return np.array([int(c == model.idx_vs[j] + model.nvs[j] - 1) for j in model.supports[joint]
-                     for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])], dtype=np.int64)
+def _columns(model, fid: int) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity columns of the joints that support frame ``fid`` (its Jacobian's nonzero columns) and per column 1
+    where it is its joint's last, else 0."""
+    spans = [(model.idx_vs[j], model.nvs[j]) for j in model.supports[model.frames[fid].parentJoint]]
+    cols = np.array([c for a, k in spans for c in range(a, a + k)], dtype=np.int64)
+    return cols, np.array([int(c == a + k - 1) for a, k in spans for c in range(a, a + k)], dtype=np.int64)
 
 
 #: How far the kernel's ``J-dot q-dot`` (:meth:`State.frame_jdot_source`) may be from pinocchio's on the probe state,
@@ -314,12 +301,12 @@ def verify_source(model, what: str, fid: int) -> bool:
             pin.computeJointJacobians(model, data)
             M = pin.updateFramePlacement(model, data, fid)
             out = np.zeros(6)
-            _compiled.frame_jdot_qdot(JT, _cols(model, fid), _ends(model, fid), v, np.array(M.translation), out)
+            _compiled.frame_jdot_qdot(JT, *_columns(model, fid), v, np.array(M.translation), out)
             want = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
             return bool(np.abs(out - want).max() <= JDOT_TOLERANCE * max(1.0, np.abs(want).max()))
         if what == "jacobian":
             S = np.zeros((6, model.nv))
-            _compiled.frame_jacobian(JT, _cols(model, fid), np.array(M.translation), S)
+            _compiled.frame_jacobian(JT, _columns(model, fid)[0], np.array(M.translation), S)
             return bool(np.array_equal(S, pin.getFrameJacobian(model, data, fid, LWA)))
         P = np.vstack((frame.placement.rotation, frame.placement.translation))
         R, p = np.empty((3, 3)), np.empty(3)
