@@ -12,13 +12,9 @@ from hqp_tpm.robot.state import State
 
 
 class JointLimits:
-    """``box(state, t) -> (lower, upper)`` for the controller: on ``qd`` (``order`` 1) or ``qdd`` (2), one entry per
-    velocity column (free-flyer columns unbounded); another order raises :class:`ParameterError`.
-
-    ``command_rate`` (order 1 only, else :class:`ParameterError`): the box also bounds the change from the previous
-    command, ``v +- a_max dt`` (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`); off (the default) it is
-    papers/002's box, position and velocity limits only. At order 2 the box bounds the command (``|qdd| <= a_max``).
-    """
+    """``box(state, t) -> (lower, upper)`` on ``qd`` (``order`` 1) or ``qdd`` (2), one entry per velocity column
+    (free-flyer columns unbounded). ``command_rate`` (order 1 only): the box also bounds the change from the previous
+    command, ``v +- a_max dt`` (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`); off: papers/002's box."""
 
     def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
                  acceleration_limit: float = 50.0, velocity_scale: float = 1.0, command_rate: bool = False):
@@ -41,8 +37,6 @@ class JointLimits:
         self.v_max = v if velocity else np.full(self.cols.size, 1e6)
         self.a_max = np.full(self.cols.size, float(acceleration_limit))
         self.limits = BoxLimits(self.q_min, self.q_max, self.v_max, self.a_max, self.dt)  # validated once
-        self._lo = np.full(robot.nv, -np.inf)
-        self._up = np.full(robot.nv, np.inf)
         self.velocity_limits = np.full(robot.nv, np.inf)
         self.velocity_limits[self.cols] = self.v_max
         #: the joints' q and v indices (the kernels' ``idx``)
@@ -54,8 +48,9 @@ class JointLimits:
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The box at ``state`` (new arrays, one entry per velocity column)."""
-        self.kernel_box(state.q, state.v, self._lo, self._up)
-        return self._lo.copy(), self._up.copy()
+        lo, up = np.full(self.robot.nv, -np.inf), np.full(self.robot.nv, np.inf)
+        self.kernel_box(state.q, state.v, lo, up)
+        return lo, up
 
     def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> None:
         """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written)."""

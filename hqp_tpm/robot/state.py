@@ -1,8 +1,5 @@
-"""One state update per control step: kinematics, Jacobians and J-dot q-dot computed once.
-
-:meth:`State.update` runs the forward kinematics with zero joint acceleration (a frame's classical acceleration is then
-its ``J-dot q-dot``) and the joint Jacobians; frame and CoM quantities are read lazily, cached until the next update.
-Details: docs/internals.md#state."""
+"""One state update per control step: kinematics, Jacobians and J-dot q-dot computed once, frame and CoM quantities
+read lazily and cached until the next update. Details: docs/internals.md#state."""
 
 from __future__ import annotations
 
@@ -85,11 +82,9 @@ class State:
         return q.reshape(-1), v.reshape(-1)
 
     def update(self, q, v, t: float = 0.0, *, validate: bool = True, frames=None, velocities: bool = True) -> State:
-        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
-
-        ``validate=False`` skips :meth:`check` (arrays the library checked itself). ``frames`` (frame ids) places only
-        those frames, ``velocities=False`` runs the position pass only; the first method that needs the rest computes
-        it (``state.data`` read directly holds only what was asked)."""
+        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once. ``validate=False`` skips
+        :meth:`check`; ``frames`` (ids) places only those frames, ``velocities=False`` runs the position pass only (the
+        first method that needs the rest computes it)."""
         if validate:
             q, v = self.check(q, v)
         self.q, self.v, self.t = q, v, float(t)
@@ -174,9 +169,8 @@ class State:
         return views if _same_memory(views, (again.translation, again.rotation)) else None
 
     def frame_placement_source(self, fid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(RiT, pi, P, RfT)`` for ``_compiled.frame_placement``: views of the parent joint's rotation (transposed)
-        and translation, the frame's placement in that joint (``P``, 4 x 3: rotation rows, then translation) and a view
-        of the frame's rotation transposed; None if this pinocchio returns copies or :func:`verify_source` fails."""
+        """``(RiT, pi, P, RfT)`` for ``_compiled.frame_placement`` (views of pinocchio's data, ``P`` the frame's
+        placement in its joint); None if this pinocchio returns copies or :func:`verify_source` fails."""
         model, data = self.model, self.data
         frame = model.frames[fid]
         Mi, Mf = data.oMi[frame.parentJoint], data.oMf[fid]
@@ -191,9 +185,8 @@ class State:
         return RiT, pi, P, RfT
 
     def frame_jacobian_source(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(JT, cols)`` for ``_compiled.frame_jacobian``: a view of ``data.J.T`` (``nv x 6``, world frame) and the
-        columns that support frame ``fid``; None if this pinocchio returns a copy, the model has mimic joints or
-        :func:`verify_source` fails."""
+        """``(JT, cols)`` for ``_compiled.frame_jacobian`` (a view of ``data.J.T``, the frame's columns); None if this
+        pinocchio returns a copy, the model has mimic joints or :func:`verify_source` fails."""
         model, data = self.model, self.data
         if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
             return None
@@ -208,9 +201,8 @@ class State:
         return JT, _columns(model, fid)[0]
 
     def frame_jdot_source(self, fid: int) -> np.ndarray | None:
-        """``ends`` for ``_compiled.frame_jdot_qdot`` (``ends[i]`` 1 where column ``cols[i]`` of
-        :meth:`frame_jacobian_source` is its joint's last); None where that source is None or :func:`verify_source`
-        fails (e.g. a joint whose motion subspace changes with ``q``)."""
+        """``ends`` for ``_compiled.frame_jdot_qdot`` (:func:`_columns`); None where :meth:`frame_jacobian_source` is
+        None or :func:`verify_source` fails."""
         if self.frame_jacobian_source(fid) is None or not self._verified_source("jdot", fid):
             return None
         return _columns(self.model, fid)[1]
@@ -283,10 +275,9 @@ JDOT_TOLERANCE = 1e-12
 
 
 def verify_source(model, what: str, fid: int) -> bool:
-    """Whether the compiled step may read and write pinocchio's memory by address for frame ``fid``: on a fresh
-    ``data`` and a probe configuration, views taken before an update hold its values after, and the kernel ``what``
-    (``"jacobian"``, ``"placement"`` or ``"jdot"``) gives pinocchio's numbers (to the bit; ``"jdot"`` to
-    :data:`JDOT_TOLERANCE`). Details: docs/internals.md#state."""
+    """Whether the compiled step may read and write pinocchio's memory by address for frame ``fid``: the kernel
+    ``what`` (``"jacobian"``, ``"placement"``, ``"jdot"``) gives pinocchio's numbers through views on a probe state
+    (docs/internals.md#state)."""
     data = model.createData()
     frame = model.frames[fid]
     try:

@@ -123,24 +123,17 @@ class Pointing(Task):
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
         """``write(t) -> e``: :meth:`jacobian` and :meth:`command` (no extra) into ``J``, ``b`` in one compiled call;
         returns :meth:`pointing_error`. For the planned step."""
-        model, data, fid = state.model, state.data, self.fid
+        model, data, fid, none = state.model, state.data, self.fid, np.zeros(6)
         views = state.frame_views(fid)
-        none = np.zeros(6)
-
-        def readable(t: float) -> float:
-            Jt = self.jacobian(state)
-            J[...] = Jt
-            b[...] = self.command(state, t, order, None, Jt)
-            return self.pointing_error(state)
-
-        if views is None:
-            return readable
-        R = views[1]
+        R = None if views is None else views[1]
         limit = np.inf if self.drift_limit is None else self.drift_limit
 
         def write(t: float) -> float:
-            if not _compiled.ENABLED:
-                return readable(t)
+            if R is None or not _compiled.ENABLED:  # (this pinocchio returns copies, or the kernels are off)
+                Jt = self.jacobian(state)
+                J[...] = Jt
+                b[...] = self.command(state, t, order, None, Jt)
+                return self.pointing_error(state)
             ref, g = self.trajectory.reference(t), self.gains
             Jf = pin.getFrameJacobian(model, data, fid, LWA)
             if order == 1:
