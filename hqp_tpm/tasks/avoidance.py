@@ -25,9 +25,7 @@ class Avoidance(Task):
             raise ParameterError(f"avoidance dimension must be 1 (eq. (29)) or 3 (eq. (28)), got {dim!r}")
         self.dim = dim
         super().__init__(name, np.zeros(dim))
-        self._J_c = None
-        self._jdqd_c = None
-        self._pair = None
+        self._J_c = self._jdqd_c = self._pair = None
         self.normal = np.zeros(3)
         self.magnitude = 0.0
         self.point = np.zeros(3)
