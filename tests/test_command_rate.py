@@ -92,7 +92,7 @@ def _romeo(name, steps, lean):
     lim = ctrl.box
     for _ in range(steps):
         v = ctrl.v.copy()
-        lo, up = lim.reference_box(ctrl.state.update(ctrl.q, ctrl.v, ctrl.t))
+        lo, up = lim(ctrl.state.update(ctrl.q, ctrl.v, ctrl.t), ctrl.t)
         x = step()
         worst_box = max(worst_box, float(np.max(np.maximum(lo - x, x - up))))
         worst_rate = max(worst_rate, float(np.abs(x - v)[lim.cols].max()))

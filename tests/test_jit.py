@@ -1,6 +1,6 @@
 """The jit layer (:mod:`hqp_tpm._jit`, issue 28 item 5): one switch, a cache that survives damage, read-only installs.
 
-Each run is a subprocess (:data:`PROBE`: the robot kernels ``acceleration_step`` and ``velocity_box`` and, where
+Each run is a subprocess (:data:`PROBE`: the robot kernels ``euclidean_step`` and ``velocity_box`` and, where
 the test says, a small ``tpm_stacked`` solve through the compiled TPM kernel) with its own ``NUMBA_CACHE_DIR``,
 warmed once for the module (the solve's kernels take ~15 s of CPU to compile cold; the robot kernels ~1 s).
 """
@@ -38,7 +38,7 @@ from hqp_tpm.robot import _compiled as rc
 out = []
 e = np.array([1.0, -2.0, 0.5, 3.0])
 dq, v_next = np.zeros(4), np.zeros(4)
-rc.acceleration_step(e, 0.1 * e, 0.3, dq, v_next)
+rc.euclidean_step(e, e, 0.1 * e, 0.3, 2, dq, v_next)
 out += dq.tolist() + v_next.tolist()
 P = np.array([[-1.0, -2.0], [1.0, 2.0], [0.5, 0.7], [3.0, 4.0], [6.0, 8.0], [0.03, 0.04]])
 idx = np.array([[0, 1], [0, 1]], dtype=np.int64)
@@ -89,7 +89,7 @@ def warm(tmp_path_factory):
     return cache, want
 
 
-def cache_files(cache: Path, suffix: str, names=("acceleration_step", "velocity_box")) -> list[Path]:
+def cache_files(cache: Path, suffix: str, names=("euclidean_step", "velocity_box")) -> list[Path]:
     """The probe's kernels' cache files of one kind (``.nbi`` index, ``.nbc`` data) under ``cache``."""
     return sorted(p for p in cache.rglob(f"*{suffix}") if any(f".{n}-" in p.name for n in names))
 
@@ -212,11 +212,11 @@ def test_switched_on_later_compiles_then(warm):
     cache, want = warm
     probe = PROBE.replace("out = []", "out = []\nassert 'numba' not in sys.modules and not rc.ENABLED\n"
                           "from hqp_tpm.solvers import _compiled as sc\nsc.ENABLED = True\n"
-                          "assert rc.ENABLED and type(rc.acceleration_step).__name__ == 'CPUDispatcher'")
+                          "assert rc.ENABLED and type(rc.euclidean_step).__name__ == 'CPUDispatcher'")
     got = run({"NUMBA_CACHE_DIR": str(cache), "HQP_TPM_COMPILED": "0"}, "solve", probe=probe)
     assert ok(got) == want and got.stderr == "", got.stderr
 
-#: The first kernel call of a process (``acceleration_step``) watched: the collections the cyclic garbage collector
+#: The first kernel call of a process (``euclidean_step``) watched: the collections the cyclic garbage collector
 #: started meanwhile, its switch after, whether numba's import froze the objects alive then, which of numba's compiler
 #: modules had been imported by then, the kernel's numbers, and the young objects left uncollected after. ``off`` in
 #: argv: the program switched the collector off itself.
@@ -232,7 +232,7 @@ if "off" in sys.argv:
 e = np.array([1.0, -2.0, 0.5, 3.0])
 dq, v_next = np.zeros(4), np.zeros(4)
 watching[0] = True
-rc.acceleration_step(e, 0.1 * e, 0.3, dq, v_next)
+rc.euclidean_step(e, e, 0.1 * e, 0.3, 2, dq, v_next)
 watching[0] = False
 compiler = [m for m in ("numba.np.linalg", "numba.np.arraymath", "numba.typed.typeddict") if m in sys.modules]
 print(repr([started, gc.isenabled(), frozen > 0, compiler, dq.tolist() + v_next.tolist(), gc.get_count()[0]]))

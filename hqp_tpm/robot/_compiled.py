@@ -1,9 +1,6 @@
-"""Compiled (numba) kernels of the robot layer (private): joint boxes, integration, target checks and copies, a
-frame's placement, Jacobian, ``J-dot q-dot`` and rotation error. Each does the readable code's (or pinocchio's)
-operations in the same order: the same bits, except :func:`log3` and :func:`frame_jdot_qdot` (~1e-15).
-Switched by :data:`hqp_tpm._jit.ENABLED` (``HQP_TPM_COMPILED=0``: off, and the joint boxes and the integration,
-their only implementation, run as Python). Details: docs/internals.md#robot-kernels. ``max(b, a)`` where numpy has
-``np.maximum(a, b)`` (and so for ``min``): on a tie of zeros, numpy's sign."""
+"""Compiled (numba) kernels of the robot layer (private), with the readable code's (or pinocchio's) operations in the
+same order: the same bits, except :func:`log3` and :func:`frame_jdot_qdot` (~1e-15). Switched by
+:data:`hqp_tpm._jit.ENABLED` (off: they run as Python). Details: docs/internals.md#robot-kernels."""
 
 from __future__ import annotations
 
@@ -17,9 +14,8 @@ from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (
 
 @_njit(inline=True)
 def _braking(gap, two_a, ad, dt, discrete):  # pragma: no cover - compiled
-    """The speed from which a joint ``gap >= 0`` from its limit stops before it at ``a_max > 0`` (``two_a = 2 a_max``,
-    ``ad = a_max dt``): ``sqrt(2 a_max gap)``, or ``discrete``: the same with the velocity held for periods ``dt``
-    (docs/internals.md#joint-boxes)."""
+    """The speed from which a joint ``gap >= 0`` from its limit stops before it (``two_a = 2 a_max``, ``ad = a_max
+    dt``): ``sqrt(2 a_max gap)``, or ``discrete`` with the velocity held for periods ``dt``."""
     if not discrete:
         return math.sqrt(two_a * gap)
     m = math.floor((math.sqrt(1.0 + 8.0 * (gap / (ad * dt))) - 1.0) * 0.5)
@@ -39,8 +35,7 @@ def _braking_velocity(delta, two_a, ad, dt):  # pragma: no cover - compiled
 
 @_njit(inline=True)
 def _project(p_lo, p_up, lo, up, violated_lo, violated_up):  # pragma: no cover - compiled
-    """The position box ``[p_lo, p_up]`` clipped into the rate box ``[lo, up]``; if it is empty the violated side
-    wins (both bounds at its value)."""
+    """The position box ``[p_lo, p_up]`` clipped into the rate box ``[lo, up]`` (empty: the violated side wins)."""
     if p_lo > p_up:
         if violated_lo:
             p_up = p_lo
@@ -52,9 +47,8 @@ def _project(p_lo, p_up, lo, up, violated_lo, violated_up):  # pragma: no cover 
 
 @_njit
 def velocity_box(q, P, idx, dt, lo, up, v=None):  # pragma: no cover - compiled
-    """:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.velocity_box` at ``q[idx[0]]`` (and the previous command
-    ``v[idx[1]]``) into ``lo[idx[1]]``, ``up[idx[1]]``. ``P`` rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``.
-    False if a position box was empty (a joint outside its limits: the recovery rule applied)."""
+    """The velocity box (with ``v``: the command-rate box) at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``
+    (``P``: :attr:`BoxLimits.rows`); False if a joint was outside its limits (the recovery rule applied)."""
     inside = True
     for j in range(P.shape[1]):
         c, qj = idx[1, j], q[idx[0, j]]
@@ -80,8 +74,8 @@ def velocity_box(q, P, idx, dt, lo, up, v=None):  # pragma: no cover - compiled
 
 @_njit
 def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
-    """:meth:`~hqp_tpm.robot.joint_boxes.BoxLimits.acceleration_box` at ``(q[idx[0]], v[idx[1]])`` into
-    ``lo[idx[1]]``, ``up[idx[1]]``; False if a state was outside its viable set (the recovery rules applied)."""
+    """The acceleration box at ``(q[idx[0]], v[idx[1]])`` into ``lo[idx[1]]``, ``up[idx[1]]``; False if a state was
+    not viable (the recovery rules applied)."""
     viable = True
     for j in range(P.shape[1]):
         c = idx[1, j]
@@ -100,17 +94,8 @@ def acceleration_box(q, v, P, idx, dt, lo, up):  # pragma: no cover - compiled
 
 
 @_njit
-def acceleration_step(v, a, dt, dq, v_next):  # pragma: no cover - compiled
-    """``dq = v dt + a dt^2 / 2`` and ``v_next = v + a dt`` (:meth:`State.integrate`, order 2), entry by entry."""
-    for i in range(v.shape[0]):
-        dq[i] = v[i] * dt + 0.5 * a[i] * dt * dt
-        v_next[i] = v[i] + a[i] * dt
-
-
-@_njit
 def euclidean_step(q, v, a, dt, order, q_next, v_next):  # pragma: no cover - compiled
-    """:meth:`State.integrate` where ``pin.integrate`` is ``q + dq``: order 1 ``q + a dt``, ``a``; order 2
-    ``q + (v dt + a dt^2 / 2)``, ``v + a dt``."""
+    """:meth:`State.integrate` where ``pin.integrate`` is ``q + dq``, entry by entry."""
     for i in range(q.shape[0]):
         if order == 1:
             q_next[i] = q[i] + a[i] * dt
@@ -122,8 +107,8 @@ def euclidean_step(q, v, a, dt, order, q_next, v_next):  # pragma: no cover - co
 
 @_njit
 def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
-    """``pin.updateFramePlacement``: ``R_f = R_i R_p`` into ``RfT`` (transposed) and ``p = R_i p_p + p_i``, from the
-    parent joint's ``RiT = R_i^T``, ``pi`` and ``P`` (rows of ``R_p``, then ``p_p``), with Eigen's order of sums."""
+    """``pin.updateFramePlacement`` (Eigen's order of sums): ``R_i R_p`` into ``RfT`` (transposed), ``R_i p_p + p_i``
+    into ``p``, from ``RiT = R_i^T``, ``pi`` and ``P`` (rows of ``R_p``, then ``p_p``)."""
     for a in range(3):
         r0, r1, r2 = RiT[0, a], RiT[1, a], RiT[2, a]
         if a < 2:
@@ -138,8 +123,8 @@ def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
 
 @_njit
 def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
-    """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into ``S`` (6 x nv, other columns not
-    written) from ``JT = data.J.T`` on the supporting columns ``cols``: linear ``v - p x omega``, angular ``omega``."""
+    """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into columns ``cols`` of ``S`` from
+    ``JT = data.J.T``: linear ``v - p x omega``, angular ``omega``."""
     p0, p1, p2 = p[0], p[1], p[2]
     for c in cols:
         a0, a1, a2 = JT[c, 3], JT[c, 4], JT[c, 5]
@@ -153,10 +138,8 @@ def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
 
 @_njit
 def frame_jdot_qdot(JT, cols, ends, v, p, jdq):  # pragma: no cover - compiled
-    """``jdq <- J-dot q-dot`` of a frame at ``p`` (``pin.getFrameClassicalAcceleration(..., LOCAL_WORLD_ALIGNED)`` at
-    zero ``q-ddot``) from ``JT = data.J.T`` and ``v`` on the supporting columns ``cols`` (root first; ``ends[i]`` 1 at
-    a joint's last column), without a velocity pass: ``A = sum V x V_J``, then ``[a + alpha x p + w x (u + w x p),
-    alpha]`` (``V = [u, w]``, ``A = [a, alpha]``)."""
+    """``jdq <- J-dot q-dot`` of a frame at ``p`` (pinocchio's classical acceleration at zero ``q-ddot``) from ``JT =
+    data.J.T``, ``v`` on columns ``cols`` (``ends``: :meth:`State.frame_jdot_source`), without a velocity pass."""
     u0 = u1 = u2 = w0 = w1 = w2 = 0.0           # the parent body's velocity V = [u, w]
     j0 = j1 = j2 = k0 = k1 = k2 = 0.0           # the joint's velocity V_J = [j, k] (its columns summed)
     a0 = a1 = a2 = b0 = b1 = b2 = 0.0           # A = [a, b]
@@ -195,15 +178,14 @@ def frame_jdot_qdot(JT, cols, ends, v, p, jdq):  # pragma: no cover - compiled
     jdq[5] = b2
 
 
-#: How far from orthonormal (rows 0, 1) and right-handed (row 2 their cross product) a rotation may be in
-#: :func:`rotation_rows` (entry by entry; :func:`hqp_tpm.tasks.frame_pose.rotation_matrix` decides what fails it).
+#: How far from orthonormal and right-handed a rotation may be in :func:`rotation_rows` (entry by entry)
 ROTATION_TOL = 1e-7
 
 
 @_njit
 def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
-    """Whether ``[[a, b, c], [d, e, f], [g, h, i]]`` is a finite rotation matrix to :data:`ROTATION_TOL`: rows 0 and 1
-    of unit length and orthogonal, row 2 their cross product (NaN fails every test)."""
+    """Whether ``[[a, b, c], [d, e, f], [g, h, i]]`` is a finite rotation matrix to :data:`ROTATION_TOL` (rows 0, 1
+    orthonormal, row 2 their cross product)."""
     tol = ROTATION_TOL
     return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
             and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
@@ -212,9 +194,8 @@ def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
 
 @_njit
 def pose_into(H, pose):  # pragma: no cover - compiled
-    """A pose target ``H`` (4 x 4 homogeneous, e.g. ``pin.SE3.homogeneous``) copied into ``pose`` (a task's own
-    placement: the translation, then the rotation transposed, row by row) if its translation is finite and its rotation
-    passes :func:`rotation_rows`; False (nothing written) else."""
+    """A 4 x 4 pose ``H`` into ``pose`` (translation, then the rotation transposed, row by row) if its translation is
+    finite and its rotation passes :func:`rotation_rows`; False (nothing written) else."""
     if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])):
         return False
     if not rotation_rows(H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 0], H[2, 1], H[2, 2]):
@@ -261,8 +242,7 @@ def _theta_axis(i0, val, R, axis):  # pragma: no cover - compiled
 
 @_njit
 def log3(M, w):  # pragma: no cover - compiled
-    """``w <- pin.log3(M)`` for a rotation matrix ``M`` (3 x 3): pinocchio's ``log3_impl`` (3.x) step by step (within
-    a few ulps of it)."""
+    """``w <- pin.log3(M)``: pinocchio's ``log3_impl`` (3.x) step by step (within a few ulps of it)."""
     R = np.empty((3, 3))
     n0 = math.sqrt(M[0, 0] * M[0, 0] + M[1, 0] * M[1, 0] + M[2, 0] * M[2, 0])
     n1 = math.sqrt(M[0, 1] * M[0, 1] + M[1, 1] * M[1, 1] + M[2, 1] * M[2, 1])
@@ -298,8 +278,7 @@ def log3(M, w):  # pragma: no cover - compiled
 
 @_njit
 def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
-    """``w <- log3(R_d R^T)`` (the frame tasks' rotation error) from ``RdT = R_d^T``, ``RT = R^T`` (row-major views of
-    pinocchio's column-major matrices)."""
+    """``w <- log3(R_d R^T)`` (the frame tasks' rotation error) from ``RdT = R_d^T``, ``RT = R^T``."""
     E = np.empty((3, 3))
     for i in range(3):
         for j in range(3):
@@ -308,8 +287,7 @@ def rotation_error(RdT, RT, w):  # pragma: no cover - compiled
 
 
 def typed(kernel, *args):
-    """``kernel``'s compiled code for the types of ``args``, called without numba's per-call type dispatch (only for
-    arguments always of these types)."""
+    """``kernel``'s compiled code for the types of ``args`` (no per-call dispatch: arguments always of these types)."""
     return kernel.compile(tuple(kernel.typeof_pyval(a) for a in args))
 
 

@@ -1,12 +1,8 @@
-"""Joint boxes ``lower <= command <= upper`` (on ``qdot`` or ``qddot``) for one period ``dt`` from joint limits.
-
-The SNS solvers' box (Flacco, De Luca, Khatib, T-RO 2015). Always ``lower <= upper``. Inside the limits (at
-acceleration level: inside the *viable* set, :func:`is_viable`) every command in the box keeps the next sampled state
-inside them; outside, it is a *recovery* box that drives the joint back at the largest admissible rate (velocity and
-acceleration limits take precedence over position limits). Position limits may be infinite; ``v_max``, ``a_max``
-must be finite and ``>= 0``, ``dt`` finite and ``> 0``: else :class:`BoxError` (:class:`ShapeError` for a wrong size)
-naming the joint and the value. Derivations: docs/internals.md#joint-boxes.
-"""
+"""Joint boxes ``lower <= command <= upper`` (on ``qdot`` or ``qddot``, always ``lower <= upper``) for one period
+``dt``: the SNS solvers' box (Flacco, De Luca, Khatib, T-RO 2015), a recovery box outside the (viable) limits.
+Position limits may be infinite; ``v_max``, ``a_max`` finite and ``>= 0``, ``dt`` finite and ``> 0``: else
+:class:`BoxError` (:class:`ShapeError` for a wrong size) naming the joint and the value. Derivations:
+docs/internals.md#joint-boxes."""
 
 from __future__ import annotations
 
@@ -57,73 +53,60 @@ def _check_limits(q, q_min, q_max, v_max, a_max, dt, dq=None):
 
 
 class BoxLimits:
-    """Joint limits validated once (errors as the module's functions), for the boxes of many states.
-
-    Its :meth:`velocity_box` and :meth:`acceleration_box` take finite float vectors of the right size, not validated;
-    both run the kernels of :mod:`hqp_tpm.robot._compiled` joint by joint (as Python with ``HQP_TPM_COMPILED=0``:
-    then ~2-4 us per joint).
-    """
+    """Joint limits validated once (errors as the module's functions), for the boxes of many states: its methods take
+    finite float vectors of the right size, not validated, and run the kernels of :mod:`hqp_tpm.robot._compiled`."""
 
     def __init__(self, q_min, q_max, v_max, a_max, dt):
         n = _as_vector(q_min, None, "q_min", finite=False).shape[0]
         _, _, q_min, q_max, v_max, a_max, dt = _check_limits(np.zeros(n), q_min, q_max, v_max, a_max, dt)
         self.q_min, self.q_max, self.v_max, self.a_max, self.dt = q_min, q_max, v_max, a_max, dt
-        self.rate_step = a_max * dt  # the largest change of a velocity-level command in one period
         #: the kernels' rows: ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``
-        self.rows = np.ascontiguousarray(np.vstack([q_min, q_max, v_max, a_max, 2.0 * a_max, self.rate_step]))
+        self.rows = np.ascontiguousarray(np.vstack([q_min, q_max, v_max, a_max, 2.0 * a_max, a_max * dt]))
         self._idx = np.vstack([np.arange(n), np.arange(n)]).astype(np.int64)
 
-    def velocity_box(self, q, dq=None) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`velocity_box` at ``q``. With ``dq`` (the previous command) the braking term is the discrete one and
-        the box is then intersected with ``dq +- a_max dt`` (:func:`command_rate_box`): a command inside the previous
-        box always leaves the two intersecting."""
-        lo, up = np.empty(self._idx.shape[1]), np.empty(self._idx.shape[1])
-        if dq is None:
-            _compiled.velocity_box(q, self.rows, self._idx, self.dt, lo, up)
+    def box_into(self, q, v, lo, up, order: int = 1, rate: bool = False, idx=None) -> None:
+        """The box at ``(q, v)`` into ``lo[idx[1]]``, ``up[idx[1]]`` (``q`` read at ``idx[0]``; default: every joint):
+        the velocity box (``rate``: with the command-rate bound, ``v`` the previous command) or at ``order`` 2 the
+        acceleration box."""
+        idx = self._idx if idx is None else idx
+        if order == 2:
+            _compiled.acceleration_box(q, v, self.rows, idx, self.dt, lo, up)
+        elif rate:
+            _compiled.velocity_box(q, self.rows, idx, self.dt, lo, up, v)
         else:
-            _compiled.velocity_box(q, self.rows, self._idx, self.dt, lo, up, dq)
+            _compiled.velocity_box(q, self.rows, idx, self.dt, lo, up)
+
+    def velocity_box(self, q, dq=None) -> tuple[np.ndarray, np.ndarray]:
+        """:func:`velocity_box` at ``q``; with ``dq`` (the previous command) the braking term is the discrete one and
+        the box is intersected with ``dq +- a_max dt`` (:func:`command_rate_box`; docs/internals.md#joint-boxes)."""
+        lo, up = np.empty(self._idx.shape[1]), np.empty(self._idx.shape[1])
+        self.box_into(q, dq, lo, up, 1, dq is not None)
         return lo, up
 
     def acceleration_box(self, q, dq) -> tuple[np.ndarray, np.ndarray]:
-        """:func:`acceleration_box` at ``(q, dq)`` (finite float vectors, not validated)."""
+        """:func:`acceleration_box` at ``(q, dq)``."""
         lo, up = np.empty(self._idx.shape[1]), np.empty(self._idx.shape[1])
-        _compiled.acceleration_box(q, dq, self.rows, self._idx, self.dt, lo, up)
+        self.box_into(q, dq, lo, up, 2)
         return lo, up
 
 
 def velocity_box(q, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray, np.ndarray]:
-    """Box on ``qdot`` for one period ``dt`` (Flacco-De Luca-Khatib T-RO 2015, docs/setups.md).
-
-    ``Qdot_min = max((q_min - q)/dt, -v_max, -sqrt(2 a_max (q - q_min)))`` and
-    ``Qdot_max = min((q_max - q)/dt,  v_max,  sqrt(2 a_max (q_max - q)))``: the position one period ahead, the
-    velocity limit and a braking term (the joint can stop before its limit at ``a_max``). Inside the limits the box
-    contains 0 and ``q + qdot dt`` stays inside. Outside (recovery) the violated side's square root is 0: the joint
-    returns in one period if ``v_max`` allows, else at ``v_max``. ``|qdot| <= v_max`` always.
-    """
+    """Box on ``qdot`` for one period ``dt``: ``Qdot_max = min((q_max - q)/dt, v_max, sqrt(2 a_max (q_max - q)))``,
+    ``Qdot_min`` mirrored; outside the limits the recovery box (docs/internals.md#joint-boxes)."""
     q, _, q_min, q_max, v_max, a_max, dt = _check_limits(q, q_min, q_max, v_max, a_max, dt)
     return BoxLimits(q_min, q_max, v_max, a_max, dt).velocity_box(q)
 
 
 def command_rate_box(lo, up, dq, step) -> tuple[np.ndarray, np.ndarray]:
-    """The velocity box ``[lo, up]`` (``lo <= up``) intersected with the command-rate box ``dq +- step``.
-
-    ``dq`` is the previous command, ``step = a_max dt`` (the drive sees at most ``a_max``). The rate box is clipped into
-    ``[lo, up]``, so ``lower <= upper`` always; where the two do not intersect, both bounds are the end of ``[lo, up]``
-    nearest ``dq`` (position and velocity limits take precedence).
-    """
+    """The velocity box ``[lo, up]`` intersected with the command-rate box ``dq +- step`` (``dq`` the previous
+    command, ``step = a_max dt``) clipped into it: where they miss, the end of ``[lo, up]`` nearest ``dq``."""
     return np.minimum(np.maximum(dq - step, lo), up), np.minimum(np.maximum(dq + step, lo), up)
 
 
 def acceleration_box(q, dq, q_min, q_max, v_max, a_max, dt) -> tuple[np.ndarray, np.ndarray]:
-    """Box on ``qddot`` for one period ``dt`` (a constant ``qddot`` integrated exactly).
-
-    The intersection of ``|qddot| <= a_max``, ``|dq + qddot dt| <= v_max`` and ``(w_lo - dq)/dt <= qddot <=
-    (w_up - dq)/dt`` with ``w_up = -a_max dt + sqrt((a_max dt)**2 + 2 a_max (q_max - q - dq dt / 2))`` (mirrored for
-    ``w_lo``): the next state can still brake to a stop before its limits. For a viable state (:func:`is_viable`) the
-    box is non-empty and every command in it leads to a viable state, so the sampled positions stay inside forever.
-    Recovery (not viable, or outside the limits): the velocity term is clipped into ``[-a_max, a_max]``, the braking
-    term into the result, and if it is empty the violated side wins; ``lower <= upper`` always.
-    """
+    """Box on ``qddot`` for one period ``dt``: ``|qddot| <= a_max``, ``|dq + qddot dt| <= v_max`` and the next state
+    able to brake before its limits; for a viable state (:func:`is_viable`) every command in it keeps the state viable,
+    else the recovery box (docs/internals.md#joint-boxes)."""
     q, dq, q_min, q_max, v_max, a_max, dt = _check_limits(q, q_min, q_max, v_max, a_max, dt, dq=dq)
     return BoxLimits(q_min, q_max, v_max, a_max, dt).acceleration_box(q, dq)
 

@@ -6,20 +6,15 @@ from __future__ import annotations
 import numpy as np
 
 from hqp_tpm.errors import ParameterError
-from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.joint_boxes import BoxLimits
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 
 
 class JointLimits:
-    """``box(state, t) -> (lower, upper)`` for the controller: on ``qd`` (``order`` 1) or ``qdd`` (2), one entry per
-    velocity column (free-flyer columns unbounded); another order raises :class:`ParameterError`.
-
-    ``command_rate`` (order 1 only, else :class:`ParameterError`): the box also bounds the change from the previous
-    command, ``v +- a_max dt`` (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`); off (the default) it is
-    papers/002's box, position and velocity limits only. At order 2 the box bounds the command (``|qdd| <= a_max``).
-    """
+    """``box(state, t) -> (lower, upper)`` on ``qd`` (``order`` 1) or ``qdd`` (2), one entry per velocity column
+    (free-flyer columns unbounded). ``command_rate`` (order 1 only): the box also bounds the change from the previous
+    command, ``v +- a_max dt`` (:func:`~hqp_tpm.robot.joint_boxes.command_rate_box`); off: papers/002's box."""
 
     def __init__(self, robot: Robot, *, order: int, dt: float, position: bool = True, velocity: bool = True,
                  acceleration_limit: float = 50.0, velocity_scale: float = 1.0, command_rate: bool = False):
@@ -42,8 +37,6 @@ class JointLimits:
         self.v_max = v if velocity else np.full(self.cols.size, 1e6)
         self.a_max = np.full(self.cols.size, float(acceleration_limit))
         self.limits = BoxLimits(self.q_min, self.q_max, self.v_max, self.a_max, self.dt)  # validated once
-        self._lo = np.full(robot.nv, -np.inf)
-        self._up = np.full(robot.nv, np.inf)
         self.velocity_limits = np.full(robot.nv, np.inf)
         self.velocity_limits[self.cols] = self.v_max
         #: the joints' q and v indices (the kernels' ``idx``)
@@ -54,19 +47,11 @@ class JointLimits:
                               and (self.a_max > 0).all() else None)
 
     def __call__(self, state: State, t: float) -> tuple[np.ndarray, np.ndarray]:
-        return self.reference_box(state)
+        """The box at ``state`` (new arrays, one entry per velocity column)."""
+        lo, up = np.full(self.robot.nv, -np.inf), np.full(self.robot.nv, np.inf)
+        self.kernel_box(state.q, state.v, lo, up)
+        return lo, up
 
     def kernel_box(self, q: np.ndarray, v: np.ndarray, lo: np.ndarray, up: np.ndarray) -> None:
         """The box at ``(q, v)`` into ``lo``, ``up`` (their limited columns; the others are not written)."""
-        P, idx, dt = self.limits.rows, self.kernel_indices, self.dt
-        if self.order == 2:
-            _compiled.acceleration_box(q, v, P, idx, dt, lo, up)
-        elif self.command_rate:
-            _compiled.velocity_box(q, P, idx, dt, lo, up, v)
-        else:
-            _compiled.velocity_box(q, P, idx, dt, lo, up)
-
-    def reference_box(self, state: State) -> tuple[np.ndarray, np.ndarray]:
-        """The box at ``state`` (new arrays, one entry per velocity column)."""
-        self.kernel_box(state.q, state.v, self._lo, self._up)
-        return self._lo.copy(), self._up.copy()
+        self.limits.box_into(q, v, lo, up, self.order, self.command_rate, self.kernel_indices)

@@ -49,14 +49,9 @@ class Robot:
 
     def __post_init__(self) -> None:
         names: list[str] = []
-        for jid in range(1, self.model.njoints):
-            joint = self.model.joints[jid]
-            jname = self.model.names[jid]
-            if joint.nv == 1:
-                names.append(jname)
-            else:
-                axes = ["x", "y", "z", "wx", "wy", "wz"] if joint.nv == 6 else [str(k) for k in range(joint.nv)]
-                names.extend(f"{jname}_{a}" for a in axes)
+        for joint, jname in zip(self.model.joints[1:], self.model.names[1:], strict=True):
+            axes = ["x", "y", "z", "wx", "wy", "wz"] if joint.nv == 6 else [str(k) for k in range(joint.nv)]
+            names.extend([jname] if joint.nv == 1 else [f"{jname}_{a}" for a in axes])
         self.joint_names = names
         self.name = self.name or self.model.name
 

@@ -1,8 +1,5 @@
-"""One state update per control step: kinematics, Jacobians and J-dot q-dot computed once.
-
-:meth:`State.update` runs the forward kinematics with zero joint acceleration (a frame's classical acceleration is then
-its ``J-dot q-dot``) and the joint Jacobians; frame and CoM quantities are read lazily, cached until the next update.
-Details: docs/internals.md#state."""
+"""One state update per control step: kinematics, Jacobians and J-dot q-dot computed once, frame and CoM quantities
+read lazily and cached until the next update. Details: docs/internals.md#state."""
 
 from __future__ import annotations
 
@@ -85,11 +82,9 @@ class State:
         return q.reshape(-1), v.reshape(-1)
 
     def update(self, q, v, t: float = 0.0, *, validate: bool = True, frames=None, velocities: bool = True) -> State:
-        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once.
-
-        ``validate=False`` skips :meth:`check` (arrays the library checked itself). ``frames`` (frame ids) places only
-        those frames, ``velocities=False`` runs the position pass only; the first method that needs the rest computes
-        it (``state.data`` read directly holds only what was asked)."""
+        """Forward kinematics (positions, velocities, J-dot q-dot) and joint Jacobians, once. ``validate=False`` skips
+        :meth:`check`; ``frames`` (ids) places only those frames, ``velocities=False`` runs the position pass only (the
+        first method that needs the rest computes it)."""
         if validate:
             q, v = self.check(q, v)
         self.q, self.v, self.t = q, v, float(t)
@@ -174,9 +169,8 @@ class State:
         return views if _same_memory(views, (again.translation, again.rotation)) else None
 
     def frame_placement_source(self, fid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
-        """``(RiT, pi, P, RfT)`` for ``_compiled.frame_placement``: views of the parent joint's rotation (transposed)
-        and translation, the frame's placement in that joint (``P``, 4 x 3: rotation rows, then translation) and a view
-        of the frame's rotation transposed; None if this pinocchio returns copies or :func:`verify_source` fails."""
+        """``(RiT, pi, P, RfT)`` for ``_compiled.frame_placement`` (views of pinocchio's data, ``P`` the frame's
+        placement in its joint); None if this pinocchio returns copies or :func:`verify_source` fails."""
         model, data = self.model, self.data
         frame = model.frames[fid]
         Mi, Mf = data.oMi[frame.parentJoint], data.oMf[fid]
@@ -191,9 +185,8 @@ class State:
         return RiT, pi, P, RfT
 
     def frame_jacobian_source(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(JT, cols)`` for ``_compiled.frame_jacobian``: a view of ``data.J.T`` (``nv x 6``, world frame) and the
-        columns that support frame ``fid``; None if this pinocchio returns a copy, the model has mimic joints or
-        :func:`verify_source` fails."""
+        """``(JT, cols)`` for ``_compiled.frame_jacobian`` (a view of ``data.J.T``, the frame's columns); None if this
+        pinocchio returns a copy, the model has mimic joints or :func:`verify_source` fails."""
         model, data = self.model, self.data
         if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
             return None
@@ -205,23 +198,20 @@ class State:
             if not (JT.flags.c_contiguous and JT.flags.writeable and _same_memory((JT,), (data.J.T,))):
                 return None
             self._joint_jacobians_T = JT
-        return JT, _cols(model, fid)
+        return JT, _columns(model, fid)[0]
 
     def frame_jdot_source(self, fid: int) -> np.ndarray | None:
-        """``ends`` for ``_compiled.frame_jdot_qdot`` (``ends[i]`` 1 where column ``cols[i]`` of
-        :meth:`frame_jacobian_source` is its joint's last); None where that source is None or :func:`verify_source`
-        fails (e.g. a joint whose motion subspace changes with ``q``)."""
+        """``ends`` for ``_compiled.frame_jdot_qdot`` (:func:`_columns`); None where :meth:`frame_jacobian_source` is
+        None or :func:`verify_source` fails."""
         if self.frame_jacobian_source(fid) is None or not self._verified_source("jdot", fid):
             return None
-        return _ends(self.model, fid)
+        return _columns(self.model, fid)[1]
 
     def _verified_source(self, what: str, fid: int) -> bool:
         """:func:`verify_source`, once per state and frame."""
-        key = (what, fid)
-        ok = self._verified.get(key)
-        if ok is None:
-            ok = self._verified[key] = verify_source(self.model, what, fid)
-        return ok
+        if (what, fid) not in self._verified:
+            self._verified[what, fid] = verify_source(self.model, what, fid)
+        return self._verified[what, fid]
 
     # -- centre of mass --------------------------------------------------------------------------
     def com_views(self) -> tuple[np.ndarray, np.ndarray, np.ndarray] | None:
@@ -244,12 +234,9 @@ class State:
 
     def _com_all(self):
         if "com" not in self._cache:  # from the kinematics of update() (no second forward pass)
-            if self._partial:
-                self._complete()
-            pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
-            Jc = pin.jacobianCenterOfMass(self.model, self.data, False)
+            self.com_kinematics(2)
             d = self.data
-            self._cache["com"] = (d.com[0].copy(), Jc.copy(), d.acom[0].copy(), d.vcom[0].copy())
+            self._cache["com"] = (d.com[0].copy(), d.Jcom.copy(), d.acom[0].copy())
         return self._cache["com"]
 
     def com(self) -> np.ndarray:
@@ -271,23 +258,15 @@ class State:
             return q_next, v_next
         if order == 1:
             return pin.integrate(self.model, q, a * dt), a.copy()
-        dq, v_next = np.empty(v.shape[0]), np.empty(v.shape[0])
-        _compiled.acceleration_step(v, a, dt, dq, v_next)
-        return pin.integrate(self.model, q, dq), v_next
+        return pin.integrate(self.model, q, v * dt + 0.5 * a * dt * dt), v + a * dt
 
 
-def _cols(model, fid: int) -> np.ndarray:
-    """The velocity columns of the joints that support frame ``fid`` (the nonzero columns of its Jacobian)."""
-    joint = model.frames[fid].parentJoint
-    return np.array([c for j in model.supports[joint] for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])],
-                    dtype=np.int64)
-
-
-def _ends(model, fid: int) -> np.ndarray:
-    """Per column of :func:`_cols`: 1 where it is its joint's last (:meth:`State.frame_jdot_source`)."""
-    joint = model.frames[fid].parentJoint
-    return np.array([int(c == model.idx_vs[j] + model.nvs[j] - 1) for j in model.supports[joint]
-                     for c in range(model.idx_vs[j], model.idx_vs[j] + model.nvs[j])], dtype=np.int64)
+def _columns(model, fid: int) -> tuple[np.ndarray, np.ndarray]:
+    """The velocity columns of the joints that support frame ``fid`` (its Jacobian's nonzero columns) and per column 1
+    where it is its joint's last, else 0."""
+    spans = [(model.idx_vs[j], model.nvs[j]) for j in model.supports[model.frames[fid].parentJoint]]
+    cols = np.array([c for a, k in spans for c in range(a, a + k)], dtype=np.int64)
+    return cols, np.array([int(c == a + k - 1) for a, k in spans for c in range(a, a + k)], dtype=np.int64)
 
 
 #: How far the kernel's ``J-dot q-dot`` (:meth:`State.frame_jdot_source`) may be from pinocchio's on the probe state,
@@ -296,10 +275,9 @@ JDOT_TOLERANCE = 1e-12
 
 
 def verify_source(model, what: str, fid: int) -> bool:
-    """Whether the compiled step may read and write pinocchio's memory by address for frame ``fid``: on a fresh
-    ``data`` and a probe configuration, views taken before an update hold its values after, and the kernel ``what``
-    (``"jacobian"``, ``"placement"`` or ``"jdot"``) gives pinocchio's numbers (to the bit; ``"jdot"`` to
-    :data:`JDOT_TOLERANCE`). Details: docs/internals.md#state."""
+    """Whether the compiled step may read and write pinocchio's memory by address for frame ``fid``: the kernel
+    ``what`` (``"jacobian"``, ``"placement"``, ``"jdot"``) gives pinocchio's numbers through views on a probe state
+    (docs/internals.md#state)."""
     data = model.createData()
     frame = model.frames[fid]
     try:
@@ -314,12 +292,12 @@ def verify_source(model, what: str, fid: int) -> bool:
             pin.computeJointJacobians(model, data)
             M = pin.updateFramePlacement(model, data, fid)
             out = np.zeros(6)
-            _compiled.frame_jdot_qdot(JT, _cols(model, fid), _ends(model, fid), v, np.array(M.translation), out)
+            _compiled.frame_jdot_qdot(JT, *_columns(model, fid), v, np.array(M.translation), out)
             want = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
             return bool(np.abs(out - want).max() <= JDOT_TOLERANCE * max(1.0, np.abs(want).max()))
         if what == "jacobian":
             S = np.zeros((6, model.nv))
-            _compiled.frame_jacobian(JT, _cols(model, fid), np.array(M.translation), S)
+            _compiled.frame_jacobian(JT, _columns(model, fid)[0], np.array(M.translation), S)
             return bool(np.array_equal(S, pin.getFrameJacobian(model, data, fid, LWA)))
         P = np.vstack((frame.placement.rotation, frame.placement.translation))
         R, p = np.empty((3, 3)), np.empty(3)

@@ -8,25 +8,19 @@ import math
 
 from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
+from hqp_tpm.robot.spatial import cross3
 from hqp_tpm.tasks.base import tracking_command
 
 _command = _njit(tracking_command, inline=True, into=(__name__, "_command"))  # Task.command's law, compiled here
-
-
-@_njit
-def _cross(a0, a1, a2, b0, b1, b2):  # pragma: no cover - compiled
-    """:func:`hqp_tpm.robot.spatial.cross3` on scalars."""
-    return a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0
+_cross = _njit(cross3, inline=True, into=(__name__, "_cross"))
 
 
 @_njit
 def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order, limit):  # pragma: no cover - compiled
-    """The pointing row (19) ``J = (z_e x z_d)^T J_O`` and its command into ``J`` (1 x n) and ``b`` (1); returns the
-    error ``e = x_d - z_d^T z_e`` (21). ``R`` the frame's rotation, ``Jf`` its 6 x n Jacobian, ``vel``, ``acc`` its
-    velocity and ``J̇ q̇`` (order 2), ``(x_d, xd, xdd)`` the reference, ``limit`` the ``drift_limit`` (inf: none).
-    """
+    """The pointing row (19) ``J = (z_e x z_d)^T J_O`` and its command into ``J``, ``b``; returns ``x_d - z_d^T z_e``.
+    ``R``, ``Jf``, ``vel``, ``acc``: the frame's rotation, Jacobian, velocity and ``J̇ q̇``; ``limit``: drift_limit."""
     z0, z1, z2 = R[0, 2], R[1, 2], R[2, 2]
-    c0, c1, c2 = _cross(z0, z1, z2, z_d[0], z_d[1], z_d[2])
+    c0, c1, c2 = _cross((z0, z1, z2), (z_d[0], z_d[1], z_d[2]))
     n = J.shape[1]
     for c in range(n):
         J[0, c] = c0 * Jf[3, c] + c1 * Jf[4, c] + c2 * Jf[5, c]
@@ -37,9 +31,9 @@ def pointing_row(J, b, R, z_d, Jf, v, vel, acc, x_d, xd, xdd, kp, kd, order, lim
     rate = 0.0
     for c in range(n):
         rate += J[0, c] * v[c]
-    a0, a1, a2 = _cross(acc[3], acc[4], acc[5], z0, z1, z2)
-    u0, u1, u2 = _cross(vel[3], vel[4], vel[5], z0, z1, z2)
-    w0, w1, w2 = _cross(vel[3], vel[4], vel[5], u0, u1, u2)
+    a0, a1, a2 = _cross((acc[3], acc[4], acc[5]), (z0, z1, z2))
+    u0, u1, u2 = _cross((vel[3], vel[4], vel[5]), (z0, z1, z2))
+    w0, w1, w2 = _cross((vel[3], vel[4], vel[5]), (u0, u1, u2))
     jdq = z_d[0] * (a0 + w0) + z_d[1] * (a1 + w1) + z_d[2] * (a2 + w2)
     b[0] = _command(2, e, xd[0], xdd[0], rate, jdq, kp, kd)
     if limit < math.inf:

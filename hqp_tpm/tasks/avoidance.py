@@ -1,9 +1,7 @@
 """Collision avoidance tasks: papers/000's 1-D relaxed (29) and 3-D (28), and the whole-body pairs' one-sided rows.
 
-The policy calls :meth:`Avoidance.assign` every step with the witness point's ``J_c``, ``Jdot_c qd``, the repulsion
-direction ``n`` and magnitude ``r``. 1-D (29): ``J = n^T J_c``, command ``r`` (velocity level) or
-``r - n^T Jdot_c qd`` (acceleration level); 3-D (28): ``J = J_c``, command ``r n`` or ``r n - Jdot_c qd``.
-"""
+1-D (29): ``J = n^T J_c``, command ``r`` (velocity level) or ``r - n^T Jdot_c qd`` (acceleration level); 3-D (28):
+``J = J_c``, command ``r n`` or ``r n - Jdot_c qd`` (``J_c``, ``n``, ``r``: :meth:`Avoidance.assign`, every step)."""
 
 from __future__ import annotations
 
@@ -27,9 +25,7 @@ class Avoidance(Task):
             raise ParameterError(f"avoidance dimension must be 1 (eq. (29)) or 3 (eq. (28)), got {dim!r}")
         self.dim = dim
         super().__init__(name, np.zeros(dim))
-        self._J_c = None
-        self._jdqd_c = None
-        self._pair = None
+        self._J_c = self._jdqd_c = self._pair = None
         self.normal = np.zeros(3)
         self.magnitude = 0.0
         self.point = np.zeros(3)
@@ -84,8 +80,8 @@ class Avoidance(Task):
         return Level(self.jacobian(state), self.command(state, t, order), name=self.name, defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """``write(t)``: the rows of :meth:`jacobian` and :meth:`command` for the pair assigned at call time into
-        ``J`` (dim x n) and ``b`` (dim), the same numbers (1-D: one compiled call). For the planned step."""
+        """``write(t)``: :meth:`jacobian` and :meth:`command` of the pair assigned at call time into ``J``, ``b``
+        (1-D: one compiled call). For the planned step."""
         def write(t: float) -> None:
             pair = self._pair
             if self.dim == 1 and _compiled.ENABLED and pair is not None and self._J_c is None:
@@ -149,9 +145,8 @@ class PairAvoidance(Task):
         return Level(J, lower=lower, upper=self._upper, name=self.name, defer_finite=True)
 
     def rows_from(self, v: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
-        """``(J_a, lower_a - J_a v)``: the rows of :meth:`level` seen from ``v`` with ``lower - J v > 0``, as
-        ``command_rate.shifted(level, v).as_equality()`` in fewer calls; None if ``J`` or ``lower`` would fail the
-        level's checks (that path raises the error)."""
+        """``(J_a, lower_a - J_a v)``: the rows with ``lower - J v > 0`` (``shifted(level, v).as_equality()`` in fewer
+        calls); None if ``J`` or ``lower`` would fail the level's checks (that path raises the error)."""
         J = self.J
         if not MIN_SUMSQ <= sumsq(J) <= MAX_SUMSQ or math.isnan(sumsq(self.lower)):
             return None

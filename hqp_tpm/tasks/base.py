@@ -20,18 +20,16 @@ from hqp_tpm.solvers.levels import Level
 
 
 def tracking_command(order: int, e, xd, xdd, rate, jdq, kp: float, kd: float):
-    """The task's right-hand side ``b`` from its error ``e = x_d - x``: ``xd + kp e`` (eq. (7) of papers/000, order
-    1) or ``xdd + kd (xd - J qd) + kp e - Jdot qd`` (eq. (12), order 2; ``rate = J qd``, ``jdq = Jdot qd``).
-    The one home of this law: :meth:`Task.command` calls it on arrays, the compiled row kernels on scalars."""
+    """The right-hand side ``b`` from the error ``e`` (orders 1, 2 as in the module's formulas; ``rate = J qd``, ``jdq
+    = Jdot qd``): the one home of this law, on arrays and on the compiled kernels' scalars."""
     if order == 1:
         return xd + kp * e
     return xdd + kd * (xd - rate) + kp * e - jdq
 
 
 class FrameRows(NamedTuple):
-    """A frame task's rows (:meth:`Task.row_source`): rows ``rows`` (0-2 linear, 3-5 angular) of frame ``fid``'s
-    world-aligned Jacobian; error ``x_d - p[position[i]]`` on the first ``len(position)`` rows (``x_d`` the reference
-    or ``p_d``) and ``log3(R_d R^T)`` on the others (``p_d``, ``R_d``: arrays the task updates in place)."""
+    """A frame task's rows ``rows`` (0-2 linear, 3-5 angular) of its world-aligned Jacobian: error ``x_d -
+    p[position]`` (``x_d``: the reference or ``p_d``), then ``log3(R_d R^T)`` (``p_d``, ``R_d`` updated in place)."""
 
     fid: int
     rows: tuple[int, ...]
@@ -41,15 +39,14 @@ class FrameRows(NamedTuple):
 
 
 class SelectionRows(NamedTuple):
-    """Rows of a constant selection Jacobian (:meth:`Task.row_source`): ``x = q[qidx]``, ``J qd = v[vidx]``,
-    ``Jdot qd = 0``."""
+    """Rows of a constant selection Jacobian: ``x = q[qidx]``, ``J qd = v[vidx]``, ``Jdot qd = 0``."""
 
     qidx: tuple[int, ...]
     vidx: tuple[int, ...]
 
 
 class CenterOfMassRows(NamedTuple):
-    """Rows ``rows`` of the centre of mass and its Jacobian (:meth:`Task.row_source`)."""
+    """Rows ``rows`` of the centre of mass and its Jacobian."""
 
     rows: tuple[int, ...]
 
@@ -141,8 +138,7 @@ class Task(ABC):
         return tracking_command(2, e, xd_d, xdd, rate, self.jdot_qdot(state), g.kp, g.kd)
 
     def row_source(self) -> FrameRows | SelectionRows | CenterOfMassRows | None:
-        """What this task's rows are made of, for the compiled step (the numbers of :meth:`jacobian` and
-        :meth:`command`); None (this default): the step calls :meth:`jacobian` and :meth:`command`."""
+        """What the compiled step writes this task's rows from (None: it calls :meth:`jacobian`, :meth:`command`)."""
         return None
 
     def level(self, state: State, t: float, order: int, extra: np.ndarray | None = None) -> Level:
@@ -170,10 +166,8 @@ def _set_target(self, value) -> None:
 
 #: ``target`` of the tasks whose trajectory is their target (:class:`~hqp_tpm.tasks.posture.Posture`,
 #: :class:`~hqp_tpm.tasks.frame_position.FramePosition`, :class:`~hqp_tpm.tasks.com.CenterOfMass`)
-trajectory_target = property(lambda self: self.trajectory, _set_target, doc="""The reference the task tracks (its
-    :attr:`trajectory`). Assigning a constant (``dim`` values) or a :class:`Trajectory` replaces it, validated as the
-    constructor's target (:class:`ShapeError`, :class:`NonFiniteError` naming the task; a relative constant stays
-    relative).""")
+trajectory_target = property(lambda self: self.trajectory, _set_target, doc="""The reference the task tracks. Assign
+    ``dim`` values or a :class:`Trajectory`: validated as the constructor's target (a refused one changes nothing).""")
 
 
 def select_axes(axes: str) -> np.ndarray:

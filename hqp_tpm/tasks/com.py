@@ -15,8 +15,6 @@ class CenterOfMass(Task):
     ``CenterOfMass(robot, target, gains, axes="xy")``; ``CenterOfMass(target, gains)`` (no robot) is accepted too."""
 
     target = trajectory_target
-    """The reference the task tracks. Assign a position (one value per axis) or a Trajectory between steps: validated as
-    the constructor's target (ShapeError, NonFiniteError naming the task; a refused target changes nothing)."""
 
     def __init__(self, robot: Robot | None = None, target=None, gains: Gains | None = None, *, axes: str = "xyz",
                  name: str = "com"):

@@ -13,8 +13,6 @@ class FramePosition(Task):
     """``x = p_frame[axes]``, ``J = J_v[axes]``, ``Jdot qd`` = classical linear acceleration at zero q-ddot."""
 
     target = trajectory_target
-    """The reference the task tracks. Assign a position (one value per axis) or a Trajectory between steps: validated as
-    the constructor's target (ShapeError, NonFiniteError naming the task; a refused target changes nothing)."""
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
                  axes: str = "xyz", name: str | None = None):

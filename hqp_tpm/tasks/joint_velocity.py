@@ -1,8 +1,5 @@
-"""A joint-space velocity as a task: ``J = I``, command ``qd_0`` (velocity level only).
-
-Below other levels it adds the projected term of papers/004's solution (5): ``[T, JointVelocity(qd_0)]`` solves to
-``J_T^# xd_T + N_T qd_0`` with every solver (how ``hqp_tpm/policies/petric.py`` writes its (22)-(23) and (25)).
-"""
+"""A joint-space velocity as a task: ``J = I``, command ``qd_0`` (velocity level only); below other levels the
+projected term ``N_T qd_0`` of papers/004's solution (5) (docs/internals.md#tasks)."""
 
 from __future__ import annotations
 

@@ -1,12 +1,7 @@
-"""Relaxed pointing task of papers/000: equality (16)-(19) or cone inequality (21).
+"""Relaxed pointing task of papers/000: equality (16)-(19) or cone inequality (21), in the stack while ``e > 0``.
 
-``p_rp = z_d^T z_e`` with ``z_e`` the frame's z axis; ``J_rp = z_d^T S(z_e)^T J_O`` (19);
-``Jdot_rp qd = z_d^T (alpha x z_e + omega x (omega x z_e))`` with ``alpha = Jdot_O qd``. Error
-``e = cos(alpha_d) - p_rp``; the inequality ``cos(alpha_d) <= p_rp`` (21) is in the stack only while ``e > 0``.
-
-``drift_limit`` (rad/s^2, default None: the paper as written): at acceleration level (12) the row cancels its drift
-``Jdot_rp qd`` only while ``|Jdot_rp qd| / ||J_rp||`` is at most ``drift_limit`` (why: docs/pointing_drift.md).
-"""
+``p_rp = z_d^T z_e`` (``z_e`` the frame's z axis), ``J_rp = z_d^T S(z_e)^T J_O`` (19), ``Jdot_rp qd = z_d^T (alpha x
+z_e + omega x (omega x z_e))``, ``e = cos(alpha_d) - p_rp``. ``drift_limit``: docs/pointing_drift.md."""
 
 from __future__ import annotations
 
@@ -62,7 +57,7 @@ class Pointing(Task):
         super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
 
     def __getstate__(self) -> dict:
-        """Copied and pickled without its kept view of a state's rotation (a copy's view would be a frozen array)."""
+        """Copied and pickled without its kept view of a state's rotation."""
         return {**self.__dict__, "_column": None}
 
     def axis(self, state: State) -> np.ndarray:
@@ -126,26 +121,19 @@ class Pointing(Task):
                      defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """``write(t) -> e``: the row of :meth:`jacobian` and :meth:`command` (no extra) into ``J`` (1 x n) and ``b``
-        (1), the same numbers in one compiled call; returns :meth:`pointing_error`. For the planned step."""
-        model, data, fid = state.model, state.data, self.fid
+        """``write(t) -> e``: :meth:`jacobian` and :meth:`command` (no extra) into ``J``, ``b`` in one compiled call;
+        returns :meth:`pointing_error`. For the planned step."""
+        model, data, fid, none = state.model, state.data, self.fid, np.zeros(6)
         views = state.frame_views(fid)
-        none = np.zeros(6)
-
-        def readable(t: float) -> float:
-            Jt = self.jacobian(state)
-            J[...] = Jt
-            b[...] = self.command(state, t, order, None, Jt)
-            return self.pointing_error(state)
-
-        if views is None:
-            return readable
-        R = views[1]
+        R = None if views is None else views[1]
         limit = np.inf if self.drift_limit is None else self.drift_limit
 
         def write(t: float) -> float:
-            if not _compiled.ENABLED:
-                return readable(t)
+            if R is None or not _compiled.ENABLED:  # (this pinocchio returns copies, or the kernels are off)
+                Jt = self.jacobian(state)
+                J[...] = Jt
+                b[...] = self.command(state, t, order, None, Jt)
+                return self.pointing_error(state)
             ref, g = self.trajectory.reference(t), self.gains
             Jf = pin.getFrameJacobian(model, data, fid, LWA)
             if order == 1:
@@ -160,15 +148,13 @@ class Pointing(Task):
 
 
 def dot3(a: np.ndarray, b: np.ndarray) -> float:
-    """``a . b`` of two 3-vectors summed left to right, as the compiled row does (a BLAS dot may use FMA and round
-    otherwise)."""
+    """``a . b`` of two 3-vectors summed left to right, as the compiled row does."""
     x, y = a.tolist(), b.tolist()
     return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
 
 
 def drift_left_out(jdq: float, row: np.ndarray, limit: float) -> bool:
-    """Whether the drift ``jdq`` of a pointing row ``row`` is left out of its command: ``jdq^2 > limit^2 ||row||^2``
-    (summed in the compiled row's order)."""
+    """Whether the drift ``jdq`` of a pointing row ``row`` is left out of its command: ``jdq^2 > limit^2 ||row||^2``."""
     s = 0.0
     for x in row.tolist():
         s += x * x

@@ -22,9 +22,6 @@ class Posture(Task):
     ``robot.reference("half_sitting")`` of a floating-base robot): the joints' angles are read from it."""
 
     target = trajectory_target
-    """The reference the task tracks. Assign the joints' angles, a whole configuration or a Trajectory between steps:
-    validated as the constructor's target (ShapeError, NonFiniteError naming the task; a refused one changes nothing).
-    """
 
     def __init__(self, robot: Robot, target=None, gains: Gains | None = None, *, joints=None, name: str = "posture"):
         self.joints, self.cols, self.angles = joint_columns(robot, joints)
