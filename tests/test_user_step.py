@@ -14,7 +14,7 @@ import pytest
 from hqp_tpm import Controller, FramePose, Gains, NonFiniteError, ParameterError, Posture, ShapeError, Stack
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
-from hqp_tpm.robot.state import LWA, State, _cols, _ends, verify_source
+from hqp_tpm.robot.state import LWA, State, _columns, verify_source
 
 
 @pytest.fixture(scope="module")
@@ -37,7 +37,7 @@ def test_kernel_jdot_qdot_is_pinocchios_classical_acceleration(name, frames):
         for frame in frames:
             fid = robot.frame_id(frame)
             out = np.full(6, np.nan)
-            _compiled.frame_jdot_qdot(data.J.T, _cols(model, fid), _ends(model, fid), v,
+            _compiled.frame_jdot_qdot(data.J.T, *_columns(model, fid), v,
                                       np.array(data.oMf[fid].translation), out)
             want = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
             assert np.abs(out - want).max() <= 1e-13 * max(1.0, np.abs(want).max())
