@@ -42,6 +42,7 @@ import gc
 import hashlib
 import importlib.util
 import io
+import math
 import os
 import pickletools
 import re
@@ -501,6 +502,45 @@ def table_vector(ints, slot):  # pragma: no cover - compiled
     """The vector of slot ``slot`` of the address table from ``ints[8]`` (address, length per slot)."""
     at = ints[8] + 2 * slot
     return numba.carray(_float_pointer(ints[at]), (ints[at + 1],))
+
+
+# -- a kernel's variant that calls fewer kernels (a first run compiles only what its caller uses) -----------------
+@kernel(inline=True)
+def _unused_3(a, b, out):  # pragma: no cover - compiled (inlined)
+    """Stands in for a kernel of three arguments that a :func:`variant` never calls: NaN into ``out``, its last."""
+    for i in range(out.shape[0]):
+        out[i] = math.nan
+
+
+@kernel(inline=True)
+def _unused_5(a, b, c, d, out):  # pragma: no cover - compiled (inlined)
+    """:func:`_unused_3` of five arguments."""
+    for i in range(out.shape[0]):
+        out[i] = math.nan
+
+
+@kernel(inline=True)
+def _unused_6(a, b, c, d, e, out):  # pragma: no cover - compiled (inlined)
+    """:func:`_unused_3` of six arguments."""
+    for i in range(out.shape[0]):
+        out[i] = math.nan
+
+
+def variant(fn, suffix: str, *unused: str):
+    """A copy of the kernel source ``fn`` (for :func:`dispatcher`) whose globals named ``unused`` (kernels it calls,
+    each writing into its last argument, a vector) are stubs that write NaN there: numba compiles none of their
+    code, nor the kernels they call. For a caller that never takes the branches calling them (should it after all,
+    the NaN fails its finiteness test). The copy reads ``fn``'s other globals as they are now, and is named
+    ``fn.__qualname__ + suffix``: numba caches it in files of its own. None if numba cannot be imported."""
+    if not compile_module(globals()):  # (the stubs as numba dispatchers)
+        return None
+    stubs = {3: _unused_3, 5: _unused_5, 6: _unused_6}
+    names = dict(fn.__globals__)
+    for name in unused:
+        names[name] = stubs[getattr(names[name], "py_func", names[name]).__code__.co_argcount]
+    copy = types.FunctionType(fn.__code__, names, fn.__name__ + suffix, fn.__defaults__, fn.__closure__)
+    copy.__qualname__, copy.__module__, copy.__doc__ = fn.__qualname__ + suffix, fn.__module__, fn.__doc__
+    return copy
 
 
 def address_readers():

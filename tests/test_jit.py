@@ -415,3 +415,55 @@ def test_a_first_solve_compiles_only_the_branch_it_takes(tmp_path):
     finally:
         _jit.set_enabled(on)
     np.testing.assert_allclose(x, want, rtol=1e-12, atol=1e-15)
+
+
+#: The planned step's task programs (a frame position at order 1 with its Jacobian in the kernel and at order 2, a
+#: posture) written once each, then a rows program with a rotation error run through the same kernel; which of the
+#: kernels only the fused step's rows call numba compiled (their signature counts), and the statuses.
+TASK_ROWS = r"""
+import numpy as np
+from hqp_tpm import Gains, Robot
+from hqp_tpm.control import _compiled_step as cs
+from hqp_tpm.control._task_rows import TaskProgram
+from hqp_tpm.references.trajectories import Harmonic
+from hqp_tpm.robot import _compiled as rc
+from hqp_tpm.robot.state import State
+from hqp_tpm.tasks.frame_position import FramePosition
+from hqp_tpm.tasks.posture import Posture
+robot = Robot.load("iiwa7")
+n = robot.nv
+st = State(robot)
+st.update(robot.neutral() + 0.3, np.full(n, 0.2), 0.1)
+circle = Harmonic(center=np.array([0.1, 0.6, -0.2]), cos_amplitude=np.array([0.2, 0.0, 0.3]),
+                  sin_amplitude=np.array([0.0, -0.1, 0.05]), omega=1.7)
+written = []
+for order in (1, 2):
+    for task in (FramePosition(robot, "iiwa_ee", circle, Gains(7.0, 3.0)), Posture(robot, None, Gains(2.0, 1.0))):
+        task.start(st)
+        J, b = np.full((task.dim, n), np.nan), np.full(task.dim, np.nan)
+        TaskProgram.of(task, st, order, J, b)(0.1)
+        written.append(bool(np.isfinite(J).all() and np.isfinite(b).all()))
+fid = robot.frame_id("iiwa_ee")
+p, R = st.frame_views(fid)
+prog = cs.Program(6, n, (6,), 1, 0.0, 0.0, False, solve=cs.ROWS)
+prog.add_frame(0, range(6), range(3), 1.0, 0.0, x=p, jacobian=(*st.frame_jacobian_source(fid), p),
+               rotation=(R.T, np.eye(3)))
+prog.build()
+buf = np.zeros(prog.buffer_size(6, n, cs.ROWS))
+status = int(cs.rows_writer()(buf, prog.ints, prog.floats, st.q, st.v)[0])
+print(repr([written, status == cs.NONFINITE_ROWS, [len(k.signatures) for k in (
+    rc.rotation_error, rc.log3, rc.frame_placement, rc.frame_jdot_qdot, rc.frame_jacobian)]]))
+"""
+
+
+def test_task_programs_compile_only_the_rows_they_write(tmp_path):
+    """Issue 29 (first run): the planned step's task programs never compute a rotation error, a frame placement or
+    ``Jdot qd`` in the kernel (:class:`~hqp_tpm.control._task_rows.TaskProgram`), so their rows kernel
+    (:func:`hqp_tpm._jit.variant` of the fused step's) compiles none of those kernels (on 56091bc it compiled all
+    four: ~1.2 s of CPU of the cold ``hqp-tpm run lwr_relaxed``); the frame Jacobian it computes at velocity level is
+    compiled. A program that asks for a rotation error after all gets non-finite rows from it, not wrong numbers (the
+    bits of the rows: ``tests/test_task_rows.py``)."""
+    written, nonfinite, signatures = ast.literal_eval(ok(run({"NUMBA_CACHE_DIR": str(tmp_path)},
+                                                             probe=TASK_ROWS)).strip().splitlines()[-1])
+    assert signatures == [0, 0, 0, 0, 1]
+    assert written == [True] * 4 and nonfinite

@@ -299,10 +299,9 @@ def stacked_kernel():
     return stacked_tpm if _solves() else None
 
 
-def rows_writer():
-    """:func:`_rows` compiled, ``(buf, ints, floats, q, v) -> (status, pi, pf)``, after binding its callees (for a
-    caller that writes a program's rows alone: :class:`~hqp_tpm.control._task_rows.TaskProgram`, no kernel compiled
-    around it); None if numba cannot be imported."""
+def _rows_writer():
+    """:func:`_rows` compiled, ``(buf, ints, floats, q, v) -> (status, pi, pf)``, after binding its callees (the
+    fused kernels call it); None if numba cannot be imported."""
     global _write_rows, _frame_placement, _frame_jacobian, _rotation_error, _frame_jdot_qdot, _mat, _vec, _command
     global _harmonic
     if not _solves():
@@ -322,12 +321,25 @@ def rows_writer():
     return _write_rows
 
 
+def rows_writer():
+    """The task programs' rows kernel (:class:`~hqp_tpm.control._task_rows.TaskProgram`, ``(buf, ints, floats, q, v)
+    -> (status, pi, pf)``): :func:`_rows` without the rotation error, the frame placement and ``Jdot qd``, which a
+    task program never asks for (:func:`hqp_tpm._jit.variant`; ~1.2 s of a first run); None if numba cannot be
+    imported."""
+    if _rows_writer() is None:
+        return None
+    if "task rows" not in _KERNELS:
+        _KERNELS["task rows"] = _jit.dispatcher(_jit.variant(
+            _rows, "_of_task", "_rotation_error", "_frame_placement", "_frame_jdot_qdot"))
+    return _KERNELS["task rows"]
+
+
 def _build(solve: int, tall: bool, svd: bool = False):
     """Compile the kernel of ``solve`` (``tall``: the TPM kernel of ``m > n``) after the kernels it calls (each
     step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
     ``m > n`` kernel); None if numba cannot be imported."""
     global _sns_loop, _velocity_box, _acceleration_box
-    if rows_writer() is None:
+    if _rows_writer() is None:
         return None
     if solve == SNS and not _compiled_sns._READY:
         try:
