@@ -13,6 +13,11 @@
    there) and :func:`hqp_tpm._jit.compile_seconds`; medians, and the median of the pairs' CPU ratio compiled /
    numpy (pairs: the ratio holds when the machine's speed drifts).
 
+``--kernels``: where a cold run's CPU goes, kernel by kernel: ``--repeat`` more cold runs (of the other checkout and
+this one in turn with ``--ab``), each with numba's ``numba:compile`` events listened to (numba imported first, then the
+CLI run in that process): the thread CPU of each compile less the compiles it started (the kernels it calls, numba's
+own numpy implementations), per function compiled; medians.
+
 ``--ab OLD_CHECKOUT`` (a directory with an earlier commit's files, ``git archive COMMIT | tar -x -C DIR``): also the
 cold run of that checkout and of this one in turn, ``--repeat`` pairs, each with an empty cache of its own: process
 CPU medians and the median of the pairs' ratio (the machine's load drifts; pairs run back to back).
@@ -63,6 +68,39 @@ print({"setup_cpu_s": t1 - t0, "first_step_cpu_s": t2 - t1, "steps_cpu_s": t3 - 
        "kernels_s": _jit.compile_seconds(), "compiled": bool(_jit.ENABLED)})
 """
 
+#: A cold ``hqp-tpm run`` in this process with numba's compile events listened to: per compiled function, the thread
+#: CPU of its compiles less the compiles they started (argv: steps, output folder); one JSON line.
+PROFILE = r"""
+import collections, json, runpy, sys, time
+from numba.core import event
+stack, own, count = [], collections.defaultdict(float), collections.Counter()
+class Compiles(event.Listener):
+    def on_start(self, ev):
+        f = getattr(ev.data.get("dispatcher"), "py_func", None)
+        name = getattr(f, "__module__", "?") + "." + getattr(f, "__qualname__", "?")
+        stack.append([name, time.thread_time(), 0.0])
+    def on_end(self, ev):
+        name, t0, inner = stack.pop()
+        dt = time.thread_time() - t0
+        own[name] += dt - inner
+        count[name] += 1
+        if stack:
+            stack[-1][2] += dt
+event.register("numba:compile", Compiles())
+sys.argv = ["hqp-tpm", "run", "lwr_relaxed", "--steps", sys.argv[1], "--quiet", "--out", sys.argv[2]]
+try:
+    runpy.run_module("hqp_tpm.app.cli", run_name="__main__")
+except SystemExit:
+    pass
+print(json.dumps({"own": own, "count": count, "process": time.process_time()}))
+"""
+
+
+def kernel_name(name: str) -> str:
+    """A compiled function's name in the table: the package's kernels by module and name, numba's own numpy
+    implementations (``np.empty``, ``np.dot``, ...) together."""
+    return name.removeprefix("hqp_tpm.") if name.startswith("hqp_tpm.") else "numba's numpy implementations"
+
 
 def child(cmd: list[str], env: dict[str, str], cwd=None) -> tuple[float, subprocess.CompletedProcess]:
     """Run ``cmd`` (in ``cwd``); the child's CPU seconds (user + system) and its result."""
@@ -95,6 +133,26 @@ def shown_argv(args) -> list[str]:
     return ["OLD_CHECKOUT" if args.ab is not None and a == str(args.ab) else a for a in sys.argv]
 
 
+def kernel_table(kernels: dict[str, list[dict]], ab: bool) -> str:
+    """Per compiled function (:func:`kernel_name`), the median over the runs of its own compile CPU (a run that did
+    not compile it counts 0); then all compiles and the process CPU of those runs."""
+    sides = ("old", "new") if ab else ("new",)
+    grouped = {sd: [] for sd in sides}  # per side, per run: {name: seconds}
+    for sd in sides:
+        for run in kernels[sd]:
+            g: dict[str, float] = {}
+            for name, sec in run["own"].items():
+                g[kernel_name(name)] = g.get(kernel_name(name), 0.0) + sec
+            grouped[sd].append(g)
+    names = {name for sd in sides for g in grouped[sd] for name in g}
+    per = {name: {sd: median([g.get(name, 0.0) for g in grouped[sd]]) for sd in sides} for name in names}
+    rows = [[f"`{name}`"] + [f"{per[name][sd]:.2f}" if per[name][sd] else "-" for sd in sides]
+            for name in sorted(names, key=lambda k: -max(per[k].values()))]
+    rows.append(["all compiles"] + [f"{median([sum(r['own'].values()) for r in kernels[sd]]):.2f}" for sd in sides])
+    rows.append(["process CPU of these runs"] + [f"{median([r['process'] for r in kernels[sd]]):.2f}" for sd in sides])
+    return common.md_table(["compiled function", *(f"{sd}: own compile CPU s" for sd in sides)], rows)
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--steps", type=int, default=200)
@@ -102,6 +160,7 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="cold and warm runs, and script pairs (medians)")
     ap.add_argument("--out", type=Path, default=common.RESULTS / "first_run.md")
     ap.add_argument("--ab", type=Path, metavar="OLD_CHECKOUT", help="cold runs of that checkout and this one in turn")
+    ap.add_argument("--kernels", action="store_true", help="also the cold run's compile CPU kernel by kernel")
     args = ap.parse_args(argv)
     env0 = common.environment()
     base = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_") and k != "HQP_TPM_COMPILED"}
@@ -118,6 +177,15 @@ def main(argv=None) -> int:
                 pairs[which].append(child([sys.executable, "-m", "hqp_tpm.app.cli", "run", "lwr_relaxed", "--steps",
                                            str(args.steps), "--quiet", "--out", str(Path(tmp) / f"ab{which}{i}")],
                                           env, cwd=root)[0])  # (python -m puts the working directory first)
+        kernels: dict[str, list[dict]] = {"old": [], "new": []}
+        for i in range(args.repeat if args.kernels else 0):  # the cold run's compiles, kernel by kernel
+            for which, root in ((("old", args.ab.resolve()),) if args.ab else ()) + (("new", common.ROOT),):
+                common.progress(f"cold run, compiles kernel by kernel, {which}, {i + 1}/{args.repeat}")
+                env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / f"k-{which}{i}"),
+                       "PYTHONPATH": str(root) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+                res = child([sys.executable, "-c", PROFILE, str(args.steps), str(Path(tmp) / f"k{which}{i}")], env,
+                            cwd=root)[1]
+                kernels[which].append(json.loads(res.stdout.strip().splitlines()[-1]))
         for i in range(args.repeat):
             env = {**base, "NUMBA_CACHE_DIR": str(Path(tmp) / f"cache{i}")}
             for what in runs:
@@ -172,6 +240,9 @@ def main(argv=None) -> int:
         ab_table += (f"\n\nNew / old, pair by pair: median {median(ratios_ab):.3f} (min {min(ratios_ab):.3f}, max "
                      f"{max(ratios_ab):.3f}).")
         sections.append((f"Cold runs of two checkouts in turn ({args.repeat} pairs, each an empty cache)", ab_table))
+    if args.kernels:
+        sections.append((f"Where a cold run's compile CPU goes (`--kernels`: {args.repeat} cold runs each, numba's "
+                         "compile events; medians)", kernel_table(kernels, bool(args.ab))))
     common.write_markdown(args.out, "The first run and short scripts", env0, sections + [
         (f"The first run (fresh processes, `NUMBA_CACHE_DIR` a new empty folder, then the same again; {args.repeat} "
          "times each)", run_table),
