@@ -30,3 +30,15 @@ def test_center_of_mass_takes_the_robot_like_the_other_tasks():
         assert task.gains.kp == 5.0 and task.dim == 2
         assert np.allclose(task.reference(0.0)[0], [0.1, 0.2])
     assert old_none.gains.kp == 5.0
+
+
+def test_step_result_fields_read_on_the_class_and_on_a_result():
+    """The on-demand fields are descriptors: read on the class (help(), documentation tools) they give themselves,
+    read on a result its value."""
+    from hqp_tpm.control.step_result import StepResult
+
+    r = StepResult(0.5, None, [], np.zeros(2), info={"a": 1}, x0=np.ones(2))
+    for name in ("info", "stack", "levels", "x0", "box"):
+        assert vars(StepResult)[name] is getattr(StepResult, name)
+    assert r.info == {"a": 1} and r.stack is None and r.levels == [] and r.box is None
+    assert np.array_equal(r.x0, np.ones(2))

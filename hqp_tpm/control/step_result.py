@@ -18,6 +18,8 @@ class _OnDemand:
         self.field = "_" + name
 
     def __get__(self, r, owner: type | None = None):
+        if r is None:  # read on the class (help(), documentation tools)
+            return self
         value = r.__dict__.get(self.field, LAZY)
         if value is LAZY:
             value = r.__dict__[self.field] = self.of(r._kept[0], r)
