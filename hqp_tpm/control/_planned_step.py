@@ -363,7 +363,7 @@ class PlannedStep:
         if status is None:
             if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
                 return ctrl._compute().command      # the readable path raises the typed error naming the task
-            x0 = -self.damping * ctrl._v if self.damping else None
+            x0 = self._null_space_term(ctrl._v)
         else:
             x0 = self._x0 if self.damping else None
         if sizes:
@@ -402,7 +402,7 @@ class PlannedStep:
             x = np.minimum(np.maximum(v + d, lo), up)
         else:
             x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, x0=-self.damping * ctrl._v if self.damping else None)
+                                       return_info=True, x0=self._null_space_term(ctrl._v))
         if not all_finite(x):
             raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
         self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
@@ -464,7 +464,11 @@ class PlannedStep:
     def x0_of(self, r: StepResult) -> np.ndarray | None:
         """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with (a later
         setting of the controller's does not change a result it gave)."""
-        return -self.damping * r._kept[2] if self.damping else None
+        return self._null_space_term(r._kept[2])
+
+    def _null_space_term(self, v: np.ndarray) -> np.ndarray | None:
+        """``x0 = -D v`` with the damping ``D`` the step was planned with (eq. (15) of papers/000; None without)."""
+        return -self.damping * v if self.damping else None
 
     def box_of(self, r: StepResult) -> tuple[np.ndarray, np.ndarray] | None:
         """The box the step was planned with at the kept state (in :meth:`Controller.scratch_state`)."""
