@@ -12,7 +12,7 @@ import numpy as np
 
 from hqp_tpm.control import _compiled_step
 from hqp_tpm.control._task_rows import TaskProgram, program_rows, write_own_rows
-from hqp_tpm.control.command_rate import rate_limited, shifted
+from hqp_tpm.control.command_rate import rate_limited, shift_rows, shifted
 from hqp_tpm.control.policy import FixedStack, FunctionPolicy, PlanningPolicy, Policy, StackPolicy
 from hqp_tpm.control.stack import Stack, merge_levels
 from hqp_tpm.control.step_result import StepResult
@@ -389,12 +389,12 @@ class PlannedStep:
                     bs[a:a + k], g = b[a:a + k], -1
                 if g != g0:
                     if e > a0:
-                        _shift(J[a0:e], b[a0:e], v, bs[a0:e])
+                        shift_rows(J[a0:e], b[a0:e], v, bs[a0:e])
                     a0, e, g0 = a, a, g
                 if g >= 0:
                     e = a + k
             if e > a0:
-                _shift(J[a0:e], b[a0:e], v, bs[a0:e])
+                shift_rows(J[a0:e], b[a0:e], v, bs[a0:e])
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
             d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
@@ -503,12 +503,6 @@ class PlannedStep:
         if text is None:
             text = self._labels[key] = " > ".join(key)
         return text
-
-
-def _shift(J: np.ndarray, b: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
-    """``out = b - J v`` (one matrix-vector product, no temporary)."""
-    np.dot(J, v, out=out)
-    np.subtract(b, out, out=out)
 
 
 def _own_rows(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):

@@ -1,7 +1,8 @@
 """The solve under a command-rate bound (velocity level, issue 31): the stack solved for the change ``d`` of the
 command from the previous one ``v``, ``qdot = v + d`` (the SNS solvers assume a box around 0, and the rate box
-``v +- a_max T`` mostly excludes 0). The formulas: docs/internals.md, "Solving under the command-rate box"; the
-readable and the compiled step both call :func:`solve_around`: one formula, the same numbers.
+``v +- a_max T`` mostly excludes 0). The formulas: docs/internals.md, "Solving under the command-rate box". The
+readable step calls :func:`solve_around`; the planned SNS-TPM step shifts its stacked rows with :func:`shift_rows`
+(the bits of :func:`shifted`) and solves them as :func:`solve_around` does.
 """
 
 from __future__ import annotations
@@ -25,6 +26,12 @@ def shifted(level: Level, v: np.ndarray) -> Level:
     if level.b is not None:
         return Level(level.J, level.b - Jv, name=level.name)
     return Level(level.J, lower=level.lower - Jv, upper=level.upper - Jv, active=level.active, name=level.name)
+
+
+def shift_rows(J: np.ndarray, b: np.ndarray, v: np.ndarray, out: np.ndarray) -> None:
+    """``out = b - J v`` into ``out`` (one matrix-vector product, no temporary): :func:`shifted`'s equality rows."""
+    np.dot(J, v, out=out)
+    np.subtract(b, out, out=out)
 
 
 def solve_around(solver: str, levels, n: int, v: np.ndarray, box: tuple[np.ndarray, np.ndarray], *,
