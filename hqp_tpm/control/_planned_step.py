@@ -1,12 +1,11 @@
-"""The compiled step: ``ctrl.step()`` of every policy that plans (:class:`PlanningPolicy`, :class:`StackPolicy`),
-of a fixed stack and of a stack function. Per step: state update, ``policy.update``, the plan, the rows written into
-one stacked ``J``, ``b``, one solve, the blend. A fixed stack of equality tasks is planned once: its rows,
-finiteness test and solve in one compiled call where it can (:mod:`hqp_tpm.control._compiled_step`). Same numbers as
-the readable step (``tests/test_planned_step.py``, ``tests/test_lean.py``). Details: docs/architecture.md, "How
-ctrl.step() runs compiled".
+"""The compiled step of every planning or stack policy, fixed stack and stack function: state update, the plan, the
+rows written into one stacked ``J``, ``b``, one solve, the blend; a fixed stack of equality tasks fused into one
+compiled call (:mod:`hqp_tpm.control._compiled_step`). Details: docs/architecture.md, "How ctrl.step() runs compiled".
 """
 
 from __future__ import annotations
+
+from functools import partial
 
 import numpy as np
 
@@ -22,7 +21,6 @@ from hqp_tpm.robot.limits import JointLimits
 from hqp_tpm.solvers import _compiled
 from hqp_tpm.solvers._fullrank import COND, MARGIN
 from hqp_tpm.solvers.levels import MAX_SUMSQ, Level, all_finite, sumsq
-from hqp_tpm.solvers.registry import ANALYTIC
 from hqp_tpm.solvers.sns import sns_tpm_stacked
 from hqp_tpm.solvers.tpm import tpm_stacked
 from hqp_tpm.tasks.avoidance import Avoidance, PairAvoidance
@@ -33,8 +31,7 @@ _new = object.__new__
 
 
 def planned(policy: Policy) -> bool:
-    """Whether the planned step takes ``policy``'s stacks: a :class:`PlanningPolicy` or :class:`StackPolicy` (every
-    shipped policy), a :class:`FixedStack` or a stack function (:class:`FunctionPolicy`)."""
+    """Whether the planned step takes ``policy``: a planning or stack policy, a fixed stack or a stack function."""
     return isinstance(policy, (PlanningPolicy, StackPolicy)) or type(policy) in (FixedStack, FunctionPolicy)
 
 
@@ -50,14 +47,12 @@ def joint_box(limits: JointLimits, lo: np.ndarray, up: np.ndarray):
 
 
 class PlannedStep:
-    """The compiled step of a :class:`~hqp_tpm.control.controller.Controller` (:meth:`of`): :meth:`compute` gives the
-    readable step's command at the controller's state, :meth:`result` right after it the :class:`StepResult`, keeping
-    ``(step, q, v, rows, made, tasks, extras, stack)`` for the fields computed on demand (the controller replaces,
-    never writes, its ``q``, ``v``)."""
+    """A controller's compiled step (:meth:`of`): :meth:`compute` gives the readable step's command, :meth:`result` its
+    :class:`StepResult`, keeping ``(step, q, v, rows, made, tasks, extras, stack)`` for the fields read later."""
 
-    __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_labels",
-                 "_placed", "_stacked", "_x0", "_extras", "_made", "sns", "rate", "box", "info",
-                 "_bs", "_stack", "_box_now", "other", "_unchecked", "planned_box",
+    __slots__ = ("ctrl", "policy", "n", "order", "lambda_max", "eps", "damping", "J", "b", "tasks", "_placed",
+                 "_stacked", "_x0", "_extras", "_made", "sns", "rate", "box", "info", "_bs", "_stack", "_box_now",
+                 "other", "_unchecked", "planned_box",
                  # the fused step of a fixed stack of equality tasks (_fuse)
                  "_program", "_kernel", "_buf", "_flat", "_out", "_ints", "_floats", "_sizes", "_gathers", "_frames",
                  "_positions", "_com", "_box_writer", "_levels_planned", "_label")
@@ -85,22 +80,17 @@ class PlannedStep:
         self.n, self.order = ctrl.robot.nv, ctrl.order
         self.lambda_max, self.eps = ctrl.lambda_max, ctrl.eps
         self.damping = ctrl.nullspace_damping if ctrl.order == 2 else 0.0
-        self.J = np.zeros((8, self.n))
-        self.b = np.zeros(8)
+        self.J, self.b = np.zeros((8, self.n)), np.zeros(8)
         self.tasks: tuple[Task, ...] = ()
         self._extras: dict = {}
         self._made: list = []  # per level of the last step: (task, first row, rows, its Level or None: equality rows)
-        self._labels: dict[tuple[str, ...], str] = {}
         # the row writers writing straight into the stacked rows, by (task, first row), built on first use (_place)
         self._placed: dict[tuple[int, int], tuple | bool] = {}
         # the compiled TPM solve (_compiled_step.stacked_kernel), its x0 and x (in the fused step's buffer: _fuse)
         self._stacked, self._x0, self._out = None, np.zeros(self.n), np.zeros(self.n)
-        # sns_tpm: the stacked rows solved in the box (a JointLimits': joint_box), x0 one more, lowest level (as the
-        # registry adds it); rate: the box bounds the command's rate, solved for the change (solve_around)
-        self.sns = ctrl.solver == "sns_tpm"
-        # any other solver: the readable step's levels of the rows written, through the registry (_registry)
+        self.sns = ctrl.solver == "sns_tpm"  # the stacked rows solved in the box (_sns); other: as levels (_registry)
         self.other = ctrl.solver not in ("tpm", "sns_tpm")
-        self.rate = ctrl.solver not in ANALYTIC and ctrl.order == 1 and rate_limited(ctrl.box)
+        self.rate = self.sns and ctrl.order == 1 and rate_limited(ctrl.box)
         joint = type(ctrl.box) is JointLimits
         self.planned_box = box = ctrl.box
         self.box = None if box is None else joint_box(box, np.empty(self.n), np.empty(self.n)) if joint else (
@@ -109,7 +99,7 @@ class PlannedStep:
         self._bs = np.zeros(8)  # (rate: the shifted right-hand sides b - J v)
         self._stack = self._box_now = self._program = self._kernel = self._label = None
         self._unchecked = False  # (an inactive cone's row not finite: the readable step decides, _solve)
-        policy = ctrl.policy
+        policy = self.policy
         if type(policy) is FixedStack and type(policy).update is Policy.update and not policy.blends \
                 and not policy.stack.extras and all(type(task).level is Task.level for task in policy.stack.tasks()) \
                 and _robot_kernels.AVAILABLE and _compiled.ENABLED:
@@ -117,9 +107,8 @@ class PlannedStep:
         return self
 
     def _fuse(self, stack: Stack) -> None:
-        """A fixed stack of equality tasks, planned once: the rows of the tasks that have a row program (the others'
-        own rows written before), their finiteness and the solve (TPM; SNS-TPM without x0, in no box or the joint
-        limits' box; else the rows only) in one compiled call (:mod:`hqp_tpm.control._compiled_step`)."""
+        """A fixed stack of equality tasks planned once: its rows, their finiteness and the solve (TPM; SNS-TPM without
+        x0, in no box or the joint limits'; else none) in one compiled call (:mod:`hqp_tpm.control._compiled_step`)."""
         ctrl, n, order = self.ctrl, self.n, self.order
         made, sizes, a = [], [], 0
         for g, level in enumerate(stack.levels):
@@ -157,7 +146,7 @@ class PlannedStep:
             if task.frame is not None:
                 frames[ctrl.robot.frame_id(task.frame)] = True
             if gather is None:  # its own rows, written before the kernel runs (it reads its frame: placed here)
-                gather, own = _own_rows(task, st, order, J, b), True
+                gather, own = partial(write_own_rows, task, st, order=order, J=J, b=b), True
                 if task.frame is not None:
                     written.add(ctrl.robot.frame_id(task.frame))
             gathers.append(gather)
@@ -179,14 +168,13 @@ class PlannedStep:
         self._kernel = kernel and _robot_kernels.typed(kernel, buf, self._ints, self._floats, ctrl._q, ctrl._v)
 
     def _place(self, task: Task, a: int) -> tuple | bool:
-        """The row writer of ``task`` writing rows ``a...`` of ``self.J``, ``self.b`` as ``(write, cone, takes_extra,
-        dim, task)``, or False for a task without one (an inequality pointing task's ``write`` returns its error: its
-        row is in the stack while it is positive, as :meth:`Pointing.level` says)."""
+        """``task``'s row writer into rows ``a...`` as ``(write, cone, takes_extra, dim, task)``, or False (a cone's
+        ``write`` returns its error: its row is in the stack while it is positive, :meth:`Pointing.level`)."""
         kind, dim, w = type(task), task.dim, False
         if a + dim > self.J.shape[0]:
             self._grow(a + dim)
         J, b = self.J[a:a + dim], self.b[a:a + dim]
-        if kind is Avoidance or (kind is Pointing and not (self.rate and not self.other and task.inequality)):
+        if kind is Avoidance or (kind is Pointing and not (self.rate and task.inequality)):
             w = (task.row_writer(self.ctrl.state, self.order, J, b), kind is Pointing and task.inequality, False, dim,
                  task)
         elif kind.level is Task.level and (write := TaskProgram.of(task, self.ctrl.state, self.order, J, b)):
@@ -217,50 +205,43 @@ class PlannedStep:
                         w[0](t)
                     else:                     # with the extra command (Algorithm 1's EE repulsion (30))
                         w[0](t, extra)
-                    m = w[3]
-                    if not m:
-                        continue
-                    made.append((task, a, m, w[1], g))
-                    a += m
+                    if w[3]:
+                        made.append((task, a, w[3], w[1], g))
+                        a += w[3]
                     continue
                 kind = type(task)
                 lv = False                    # (the level of the result: False, equality rows; True, the cone row)
-                if kind.level is Task.level:  # an equality task: its own rows, no Level object
-                    Jt = task.jacobian(st)
+                if kind.level is Task.level or kind is Pointing and task.inequality and not self.rate:
+                    Jt = task.jacobian(st)    # an equality task's own rows, no Level object; or Pointing.level's
                     bt = task.command(st, t, order, extra, Jt)
+                    if kind is Pointing:      # cone row while e > 0 (else an inactive level, as the readable levels)
+                        if not task.pointing_error(st) > 0.0:
+                            made.append((task, a, 0, (Jt, bt), g))
+                            self._unchecked |= not sumsq(Jt) + sumsq(bt) <= MAX_SUMSQ
+                            continue
+                        lv = True
                 elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
                     Jt, bt = task.jacobian(st), task.command(st, t, order)
-                elif kind is Pointing and task.inequality and (self.other or not self.rate):  # Pointing.level: its
-                    # cone row while e > 0
-                    Jt = task.jacobian(st)
-                    bt = task.command(st, t, order, extra, Jt)
-                    if not task.pointing_error(st) > 0.0:  # (an inactive level, as in the readable levels)
-                        made.append((task, a, 0, (Jt, bt), g))
-                        self._unchecked |= not sumsq(Jt) + sumsq(bt) <= MAX_SUMSQ
-                        continue
-                    lv = True
-                elif kind is PairAvoidance and self.rate and not self.other and task.J.ndim == 2 \
-                        and task.J.shape[0] == task.lower.size and (rows := task.rows_from(st.v)) is not None:
-                    Jt, bt = rows  # its active rows seen from v; its level built when a result asks
-                    lv = _PairLevel(task, task.J, task.lower)
+                elif kind is PairAvoidance and self.rate and task.J.ndim == 2 and task.J.shape[0] == task.lower.size \
+                        and (rows := task.rows_from(st.v)) is not None:
+                    Jt, bt = rows  # its active rows seen from v; its level (PairAvoidance.level's) when a result asks
+                    lv = partial(task.level_of, task.J, task.lower)
                 else:
                     lv = task.level(st, t, order, extra)
                     if lv.b is not None:
                         Jt, bt = lv.J, lv.b
-                    elif self.rate and not self.other:  # its active rows seen from v, written shifted
+                    elif self.rate:  # its active rows seen from v, written shifted
                         Jt, bt = shifted(lv.check_finite(), st.v).as_equality()
                     else:
                         Jt, bt = lv.check_finite().as_equality()
                 m = Jt.shape[0]
-                if not m:
-                    if lv is not False and lv is not True:  # a level without active rows, in the readable levels too
-                        made.append((task, a, 0, lv, g))
-                    continue
-                if a + m > self.J.shape[0]:
-                    self._grow(a + m)
-                self.J[a:a + m] = Jt
-                self.b[a:a + m] = bt
-                made.append((task, a, m, lv, g))
+                if m:
+                    if a + m > self.J.shape[0]:
+                        self._grow(a + m)
+                    self.J[a:a + m] = Jt
+                    self.b[a:a + m] = bt
+                if m or lv is not False and lv is not True:  # (a level without active rows: in the readable levels)
+                    made.append((task, a, m, lv, g))
                 a += m
             if a > a0:
                 sizes.append(a - a0)
@@ -311,21 +292,13 @@ class PlannedStep:
         return x
 
     def _blend(self, st, t: float, x: np.ndarray) -> np.ndarray:
-        """The policy's blend of ``x`` with other stacks solved as the readable step solves them
-        (:meth:`Controller._solve_step`), clipped into the box when there is one."""
-        ctrl, box = self.ctrl, self._box_now
-        x0 = ctrl.null_space_term(ctrl._v)
-
-        def resolve(other: Stack) -> np.ndarray:
-            try:
-                return ctrl._solve_levels(other.to_levels(st, t, self.order), x0, box)[0]
-            except NonFiniteError as exc:  # named as the readable step names it (Controller._compute)
-                raise type(exc)(f"{exc}{ctrl._where()}") from exc
-
+        """The policy's blend of ``x`` as the readable step blends (:meth:`Controller._blend`)."""
+        ctrl = self.ctrl
         stack = self._stack if self._stack is not None else Stack([(task,) for task in self.tasks], self._extras)
-        x = self.policy.blend(st, t, stack, x, resolve)
-        if box is not None:
-            x = np.minimum(np.maximum(x, box[0]), box[1])
+        try:
+            x = ctrl._blend(st, stack, x, ctrl.null_space_term(ctrl._v), self._box_now)
+        except NonFiniteError as exc:  # named as the readable step names it (Controller._compute)
+            raise type(exc)(f"{exc}{ctrl._where()}") from exc
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {ctrl.solver!r} returned a non-finite command at t = {t:.6f}")
         return x
@@ -334,17 +307,17 @@ class PlannedStep:
                status: int | None = None) -> np.ndarray:
         """The solution of the rows written (the readable step's solve); ``status``: the fused kernel's (None: no kernel
         ran yet; ``tpm``: finiteness, ``x0`` and the TPM kernel in one compiled call here)."""
-        ctrl = self.ctrl
+        ctrl, kernel = self.ctrl, None
         if status is None:
-            # an inactive cone's row, or (sns_tpm, other solvers) the rows, NaN, inf or too large (one sum fails for
-            # all three): the readable path raises the typed error naming the task
-            if self._unchecked or (self.sns or self.other) and not sumsq(J) + sumsq(b) <= MAX_SUMSQ:
-                return ctrl._compute().command
             if not (self.sns or self.other) and sizes and _compiled.ENABLED:
                 kernel = self._stacked = self._stacked or _compiled_step.stacked_kernel()
-                if kernel is not None:
-                    status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
-                                    _compiled._UNIT, MARGIN, COND, self._x0, self._out)
+            # an inactive cone's row, or the rows NaN, inf or too large (one sum fails for all three; else the
+            # kernel's test): the readable path raises the typed error naming the task
+            if self._unchecked or kernel is None and not sumsq(J) + sumsq(b) <= MAX_SUMSQ:
+                return ctrl._compute().command
+            if kernel is not None:
+                status = kernel(J, b, _compiled._sizes(sizes), ctrl._v, self.damping, self.lambda_max, self.eps,
+                                _compiled._UNIT, MARGIN, COND, self._x0, self._out)
         if status == _compiled_step.SOLVED:
             if self.sns:
                 self.info = None  # (the fused SNS kernel's, in the kept buffer)
@@ -360,12 +333,7 @@ class PlannedStep:
             return self._sns(st, t, J, b, sizes)
         if self.other:
             return self._registry(st, t, J, b)
-        if status is None:
-            if not sumsq(J) + sumsq(b) <= MAX_SUMSQ:  # NaN, inf or too large rows (one sum fails for all three):
-                return ctrl._compute().command      # the readable path raises the typed error naming the task
-            x0 = self._null_space_term(ctrl._v)
-        else:
-            x0 = self._x0 if self.damping else None
+        x0 = self._null_space_term(ctrl._v)  # (the kernels' x0 to the bit)
         if sizes:
             x = tpm_stacked(J, b, sizes, self.n, self.lambda_max, self.eps, x0, kernel_status=status)
         else:
@@ -375,43 +343,40 @@ class PlannedStep:
         return x
 
     def _sns(self, st, t: float, J: np.ndarray, b: np.ndarray, sizes: tuple[int, ...]) -> np.ndarray:
-        """The SNS-TPM command from the stacked (finite) rows, as the readable step solves them (registry.solve, and
-        command_rate.solve_around when the box bounds the command's rate)."""
-        ctrl, n = self.ctrl, self.n
+        """The SNS-TPM command from the stacked (finite) rows, as registry.solve (a rate box: as
+        command_rate.solve_around, docs/internals.md#compiled-step)."""
+        ctrl, n, v = self.ctrl, self.n, self.ctrl._v
         self._box_now = self.box(st) if self.box is not None else None
-        lo, up = self._box_now or (np.full(n, -np.inf), np.full(n, np.inf))
-        if self.rate:  # the levels seen from v, one more level d = -v, the box around v (solve_around)
-            # each run of a level's equality rows (a0:e) shifted at once (the readable step's bits of J v); an
+        lo, up = box = self._box_now or (np.full(n, -np.inf), np.full(n, np.inf))
+        x0 = self._null_space_term(v)
+        if self.rate:  # each run of a level's equality rows shifted at once (the readable step's bits of J v); an
             # inequality level's rows were written shifted
-            v, bs, a0, e, g0 = ctrl._v, self._bs[:J.shape[0]], 0, 0, -1
+            bs, runs = self._bs[:J.shape[0]], []  # runs: [first row, end, level or -1]
             for _task, a, k, lv, g in self._made:
-                if lv is not False and lv.b is None:
+                if lv is not False and (type(lv) is partial or lv.b is None):
                     bs[a:a + k], g = b[a:a + k], -1
-                if g != g0:
-                    if e > a0:
-                        shift_rows(J[a0:e], b[a0:e], v, bs[a0:e])
-                    a0, e, g0 = a, a, g
-                if g >= 0:
-                    e = a + k
-            if e > a0:
-                shift_rows(J[a0:e], b[a0:e], v, bs[a0:e])
+                if runs and runs[-1][2] == g:
+                    runs[-1][1] = a + k
+                else:
+                    runs.append([a, a + k, g])
+            for a0, e, g in runs:
+                if g >= 0 and e > a0:
+                    shift_rows(J[a0:e], b[a0:e], v, bs[a0:e])
             if not sumsq(bs) <= MAX_SUMSQ:
                 return ctrl._compute().command
-            d, sinfo = sns_tpm_stacked(J, bs, sizes, lo - v, up - v, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, x0=-v)
-            x = np.minimum(np.maximum(v + d, lo), up)
-        else:
-            x, sinfo = sns_tpm_stacked(J, b, sizes, lo, up, lambda_max=self.lambda_max, eps=self.eps,
-                                       return_info=True, x0=self._null_space_term(ctrl._v))
+            b, x0, box = bs, -v, (lo - v, up - v)
+        x, sinfo = sns_tpm_stacked(J, b, sizes, *box, lambda_max=self.lambda_max, eps=self.eps, return_info=True,
+                                   x0=x0)
+        if self.rate:
+            x = np.minimum(np.maximum(v + x, lo), up)
         if not all_finite(x):
             raise SolverFailedError(f"solver 'sns_tpm' returned a non-finite command at t = {t:.6f}")
         self.info = {"scale": sinfo.scale, "saturated": list(sinfo.saturated), "iterations": sinfo.iterations}
         return x
 
     def _registry(self, st, t: float, J: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """The command of any other solver: the readable step's levels (:meth:`levels_of` of the rows written)
-        solved through the registry, or around ``v`` when the box bounds the command's rate (as
-        :meth:`Controller._solve_step`)."""
+        """Any other solver's command: the readable step's levels of the rows written, solved as
+        :meth:`Controller._solve_levels` solves."""
         ctrl = self.ctrl
         self._box_now = box = self.box(st) if self.box is not None else None
         x, info = ctrl._solve_levels(self._levels(J, b, self._made), ctrl.null_space_term(ctrl._v), box)
@@ -428,8 +393,7 @@ class PlannedStep:
         return stack is self._stack and stack.levels == self._levels_planned and not stack.extras
 
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
-        """The :class:`StepResult` of the command ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written
-        (its stack and levels, the readable step's, built when asked)."""
+        """The :class:`StepResult` of ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written."""
         r = _new(StepResult)  # (the fields not set here are computed on first read: StepResult's defaults)
         r.t, r.command, info = t, x, self.info
         if self._program is not None:  # (J and b in one buffer, with the fused SNS solve's info when it solved)
@@ -449,10 +413,8 @@ class PlannedStep:
         return self._program.sns_info(r._kept[3])
 
     def stack_of(self, r: StepResult) -> Stack:
-        kept = r._kept
-        if kept[7] is not None:  # (the stack a StackPolicy policy gave)
-            return kept[7]
-        return Stack([(task,) for task in kept[5]], kept[6])
+        kept = r._kept  # (kept[7]: the stack a StackPolicy gave)
+        return kept[7] if kept[7] is not None else Stack([(task,) for task in kept[5]], kept[6])
 
     def levels_of(self, r: StepResult) -> list[Level]:
         rows = r._kept[3]
@@ -462,8 +424,7 @@ class PlannedStep:
         return self._levels(*rows, r._kept[4])
 
     def x0_of(self, r: StepResult) -> np.ndarray | None:
-        """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with (a later
-        setting of the controller's does not change a result it gave)."""
+        """The null-space term ``-D qd`` at the kept state, with the damping ``D`` the step was planned with."""
         return self._null_space_term(r._kept[2])
 
     def _null_space_term(self, v: np.ndarray) -> np.ndarray | None:
@@ -488,8 +449,8 @@ class PlannedStep:
                 lv = task.cone_level(J[a:a + k], b[a:a + k], True)
             elif type(lv) is tuple:  # its row while e <= 0: an inactive level
                 lv = task.cone_level(*lv, False)
-            elif type(lv) is _PairLevel:
-                lv = lv.level()
+            elif type(lv) is partial:  # a PairAvoidance's level (_rows)
+                lv = lv()
             groups.setdefault(g, []).append(lv)
         return [parts[0] if len(parts) == 1 else merge_levels(parts) for parts in groups.values()]
 
@@ -498,27 +459,4 @@ class PlannedStep:
             return self._label
         if kept[7] is not None:
             return kept[7].label()
-        key = tuple(task.name for task in kept[5])
-        text = self._labels.get(key)
-        if text is None:
-            text = self._labels[key] = " > ".join(key)
-        return text
-
-
-def _own_rows(task: Task, state, order: int, J: np.ndarray, b: np.ndarray):
-    """``write(t)``: ``task``'s own rows at ``state`` into ``J``, ``b`` (:func:`write_own_rows`)."""
-    return lambda t: write_own_rows(task, state, t, order, J, b)
-
-
-class _PairLevel:
-    """A :class:`PairAvoidance`'s level at a step (its ``J`` and ``lower`` then), built when a result asks for it:
-    :meth:`PairAvoidance.level`'s numbers."""
-
-    __slots__ = ("task", "J", "lower")
-    b = None  # (an inequality level)
-
-    def __init__(self, task: PairAvoidance, J: np.ndarray, lower: np.ndarray):
-        self.task, self.J, self.lower = task, J, lower
-
-    def level(self) -> Level:
-        return self.task.level_of(self.J, self.lower)
+        return " > ".join(task.name for task in kept[5])

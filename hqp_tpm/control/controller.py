@@ -1,16 +1,9 @@
 """The control loop: one state update, the policy's stack, one solve, one integration per step.
 
-Velocity level (``order=1``): ``qd = solve(levels)``, ``q <- q + qd T``.
-Acceleration level (``order=2``): ``qdd = solve(levels) + (I - J# J) qdd_0`` with the null-space damping
-``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), then ``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T``.
-
-The policy follows :class:`~hqp_tpm.control.policy.Policy`. One that ``blends`` gets the solution ``x`` and returns the
-command (``resolve(stack)`` solves another stack with the same solver and settings): the smooth stack transitions of
-papers/003, eq. (8). With a solver that keeps a hard box (SNS, QP) the blended command is clipped into the box.
-
-A step is transactional: if it fails (non-finite command or state, wrong shapes, solver error, any exception) the
-controller *and the policy* (its stack, eq. (8) offset, operator, references, distance-field history:
-:meth:`Policy.snapshot`) are left exactly as they were before the step."""
+Velocity level: ``qd = solve(levels)``, ``q <- q + qd T``. Acceleration level: ``qdd = solve(levels) + (I - J# J)
+qdd_0``, ``qdd_0 = -D qd`` (eqs. (14)-(15) of papers/000), ``q <- q + qd T + qdd T^2 / 2``, ``qd <- qd + qdd T``. A
+policy that ``blends`` (eq. (8) of papers/003) turns the solution into the command (clipped into a hard box). A step is
+transactional: on any error the controller and the policy (:meth:`Policy.snapshot`) keep their state."""
 
 from __future__ import annotations
 
@@ -39,10 +32,8 @@ BoxFn = Callable[[State, float], tuple[np.ndarray, np.ndarray]]
 
 
 class Controller:
-    """Holds the robot state, a policy (or fixed stack), a solver name and the integration rule.
-
-    ``policy``: a :class:`~hqp_tpm.control.policy.Policy`, a :class:`Stack` or list of levels (a :class:`FixedStack`),
-    or a plain callable ``f(state, t) -> Stack``."""
+    """Holds the robot state, a policy, a solver name and the integration rule. ``policy``: a :class:`Policy`, a
+    :class:`Stack` or list of levels (a :class:`FixedStack`), or a callable ``f(state, t) -> Stack``."""
 
     def __init__(self, robot: Robot, policy, *, order: int = 2, dt: float = 1e-3, solver: str = "tpm",
                  lambda_max: float = 0.0, eps: float = 0.0, nullspace_damping: float = 0.0,
@@ -73,8 +64,7 @@ class Controller:
         self._fast = self._fast_key = self._scratch = None  # the compiled step and what it was planned for
 
     def __getstate__(self) -> dict:
-        """Copied and pickled without its compiled step (it reads this controller's arrays by address): the copy plans
-        its own at its first step."""
+        """Copied and pickled without its compiled step (it reads this controller's arrays by address)."""
         return {**self.__dict__, "_fast": None, "_fast_key": None}
 
     def __repr__(self) -> str:
@@ -132,8 +122,7 @@ class Controller:
         return -self.nullspace_damping * v if (self.order == 2 and self.nullspace_damping) else None
 
     def scratch_state(self) -> State:
-        """A second :class:`State` of the robot (the fields a compiled step's :class:`StepResult` computes on demand are
-        computed there, leaving :attr:`state` as the step left it)."""
+        """A second :class:`State` of the robot (where a compiled step's :class:`StepResult` computes its fields)."""
         if self._scratch is None:
             self._scratch = State(self.robot)
         return self._scratch
@@ -161,17 +150,23 @@ class Controller:
         x0, box = self.solve_inputs(st, self.t, self.v)
         x, info = self._solve_levels(levels, x0, box)
         check = crosscheck_step(self, st, stack, levels, x0, box, x) if self.crosscheck else None
-        if policy.blends:  # smooth stack transitions (eq. (8) of papers/003): the policy may re-solve a stack
-            def resolve(other: Stack) -> np.ndarray:
-                return self._solve_levels(other.to_levels(st, self.t, self.order), x0, box)[0]
-            x = policy.blend(st, self.t, stack, x, resolve)
-            if box is not None and self.solver not in ANALYTIC:  # the solver's hard box holds for the blend too
-                x = np.minimum(np.maximum(x, box[0]), box[1])
+        if policy.blends:
+            x = self._blend(st, stack, x, x0, box)
         if not np.isfinite(x).all():
             raise SolverFailedError(f"solver {self.solver!r} returned a non-finite command at t = {self.t:.6f}")
         if check is not None:
             info = {**info, "crosscheck": check(x)}
         return StepResult(self.t, stack, levels, x, info, x0, box)
+
+    def _blend(self, st: State, stack: Stack, x: np.ndarray, x0: np.ndarray | None, box) -> np.ndarray:
+        """The policy's blend of the solution ``x`` of ``stack`` (smooth stack transitions, eq. (8) of papers/003):
+        ``resolve`` solves another stack as the step does; the solver's hard box holds for the blend too."""
+        def resolve(other: Stack) -> np.ndarray:
+            return self._solve_levels(other.to_levels(st, self.t, self.order), x0, box)[0]
+        x = self._policy.blend(st, self.t, stack, x, resolve)
+        if box is not None and self.solver not in ANALYTIC:
+            x = np.minimum(np.maximum(x, box[0]), box[1])
+        return x
 
     def _solve_levels(self, levels, x0: np.ndarray | None, box) -> tuple[np.ndarray, dict]:
         """``(x, info)``: ``levels`` solved with this controller's solver and settings, ``x0`` and ``box`` (when the box
@@ -182,9 +177,8 @@ class Controller:
         return solve(self.solver, levels, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
 
     def _compiled_step(self):
-        """The compiled step under this controller's settings (None: the readable step), planned on first use and again
-        when the policy, a setting or the structure of the policy's stack changed: a :class:`PlannedStep` where
-        :func:`planned` takes the policy (every shipped one), else the policy's own (:meth:`Policy.compiled_step`)."""
+        """The compiled step (None: the readable step), planned again when the policy, a setting or its stack's
+        structure changed: a :class:`PlannedStep` where :func:`planned`, else :meth:`Policy.compiled_step`."""
         key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
         fast = self._fast
@@ -199,11 +193,9 @@ class Controller:
         return self._compiled_step() is not None
 
     def compute(self, record: bool = False) -> StepResult:
-        """State update, policy, solve: the command at the current state (no integration).
-
-        ``record``: the step through the readable path (Task -> Level -> solver), every field computed at once; else the
-        compiled step where the set-up has one (the same numbers, fields computed on demand). The policy's state
-        advances as in a step; on an error it is restored."""
+        """State update, policy, solve: the command at the current state (no integration; the policy's state advances,
+        restored on an error). ``record``: the readable path (Task -> Level -> solver), every field computed at once;
+        else the compiled step where there is one (the same numbers, fields computed on demand)."""
         fast = None if record else self._compiled_step()
         started, saved = self._started, self._policy.snapshot()
         try:
@@ -216,9 +208,8 @@ class Controller:
             raise
 
     def step(self, record: bool = False) -> StepResult:
-        """One control step, transactional: on any error the controller and its policy keep their state.
-
-        ``record``: as in :meth:`compute` (the readable path; ``--explain`` and the crosscheck read its record)."""
+        """One control step, transactional: on any error the controller and its policy keep their state. ``record``: as
+        in :meth:`compute` (the readable path; ``--explain`` and the crosscheck read its record)."""
         t, q, v = self.t, self._q, self._v
         fast = None if record else self._compiled_step()
         if fast is not None:
@@ -232,8 +223,7 @@ class Controller:
 
     def advance(self, command: Callable[[], np.ndarray]) -> np.ndarray:
         """Compute a command with ``command()``, integrate it over ``dt`` and advance the controller; returns the
-        command. Transactional: on any error the controller and its policy keep their state (the one place a step is
-        committed)."""
+        command. Transactional (the one place a step is committed)."""
         started, saved = self._started, self._policy.snapshot()
         try:
             x = command()
