@@ -55,9 +55,8 @@ _command, _harmonic = tracking_command, harmonic_point  # (Task.command's, Harmo
 
 
 def _rows(buf, ints, floats, q, v):  # pragma: no cover - compiled
-    """The program's rows of ``J`` and ``b`` and their finiteness: ``(status, pi, pf)``, ``status`` :data:`WRITTEN` or
-    :data:`NONFINITE_ROWS`, ``pi``, ``pf`` the ends of the tasks' entries in ``ints``, ``floats`` (where the SNS entries
-    start). Plain Python until :func:`_build`, as the three steps."""
+    """The program's rows of ``J``, ``b``: ``(WRITTEN or NONFINITE_ROWS, pi, pf)``, ``pi``, ``pf`` the ends of the
+    tasks' entries in ``ints``, ``floats`` (where the SNS entries start). Plain Python until :func:`_build`."""
     m, n, nlev, order, count = ints[0], ints[1], ints[3], ints[4], ints[5]
     mn = m * n
     J = buf[:mn].reshape((m, n))
@@ -186,16 +185,6 @@ def _tpm_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     return _x_status(_general(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], out), out)
 
 
-def _tpm_step_svd(buf, ints, floats, q, v):  # pragma: no cover - compiled
-    """:data:`TPM`, ``m <= n``, for a program whose stack has met a pivot block only its SVD decides
-    (:data:`PIVOT_SVD`): :func:`_tpm_step` with ``_general_svd``, which decides every pivot (no hand-back)."""
-    status, pi, pf = _write_rows(buf, ints, floats, q, v)
-    if status != WRITTEN:
-        return status
-    J, b, x0, out, sizes = _step_arrays(buf, ints)
-    return _x_status(_general_svd(J, b, sizes, x0, ints[2] != 0, floats[0], floats[1], floats[2], out), out)
-
-
 def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """:data:`TPM`, ``m > n``: the rows, the TPM kernel (``_past_rank``), ``x``'s finiteness."""
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
@@ -207,8 +196,7 @@ def _tpm_step_tall(buf, ints, floats, q, v):  # pragma: no cover - compiled
 
 def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
     """:data:`SNS`: the rows, the box (:meth:`Program.set_box`), the SNS-TPM loop, ``x``'s finiteness; the end of
-    ``buf`` gets the solve's info (:meth:`Program.sns_info`): the scale, nsat, iterations, feasible, the saturated
-    joints."""
+    ``buf`` gets the solve's info (:meth:`Program.sns_info`)."""
     status, pi, pf = _write_rows(buf, ints, floats, q, v)
     if status != WRITTEN:
         return status
@@ -231,9 +219,8 @@ def _sns_step(buf, ints, floats, q, v):  # pragma: no cover - compiled
         J, b, sizes, lo, up, floats[0], floats[1], floats[2], floats[3], floats[4], out, ints[pi: bi], state)
     if status != _compiled_sns.DONE:
         return SNS_HANDED_BACK
-    for i in range(n):
-        if not math.isfinite(out[i]):
-            return NONFINITE_X
+    if _x_status(SOLVED, out) != SOLVED:
+        return NONFINITE_X
     o += 5 * n
     buf[o], buf[o + 1], buf[o + 2] = scale, nsat, iterations
     buf[o + 3] = 1.0 if feasible else 0.0
@@ -293,9 +280,8 @@ _x_status_py, _step_arrays_py, _stacked_rows_py = _x_status, _step_arrays, _stac
 
 
 def stacked_kernel():
-    """:func:`stacked_tpm` ``(J, b, sizes, v, damping, lambda_max, eps, unit, margin, cond, x0, out) -> status``
-    (``sizes`` an int64 array, ``x0`` and ``out`` of length ``n``; its kernels compiled or loaded on first use: a run
-    compiles only the branch its stacks take), or None if numba cannot be imported after all."""
+    """:func:`stacked_tpm` (``sizes`` an int64 array; its kernels compiled or loaded on first use), or None if numba
+    cannot be imported after all."""
     return stacked_tpm if _solves() else None
 
 
@@ -322,10 +308,8 @@ def _rows_writer():
 
 
 def rows_writer():
-    """The task programs' rows kernel (:class:`~hqp_tpm.control._task_rows.TaskProgram`, ``(buf, ints, floats, q, v)
-    -> (status, pi, pf)``): :func:`_rows` without the rotation error, the frame placement and ``Jdot qd``, which a
-    task program never asks for (:func:`hqp_tpm._jit.variant`; ~1.2 s of a first run); None if numba cannot be
-    imported."""
+    """The rows kernel of a :class:`~hqp_tpm.control._task_rows.TaskProgram`: :func:`_rows` without the rotation error,
+    the frame placement and ``Jdot qd`` (:func:`hqp_tpm._jit.variant`; ~1.2 s of a first run); None without numba."""
     if _rows_writer() is None:
         return None
     if "task rows" not in _KERNELS:
@@ -335,9 +319,8 @@ def rows_writer():
 
 
 def _build(solve: int, tall: bool, svd: bool = False):
-    """Compile the kernel of ``solve`` (``tall``: the TPM kernel of ``m > n``) after the kernels it calls (each
-    step's callees only: a ``tpm`` user does not compile the SNS loop, a program with ``m <= n`` not the
-    ``m > n`` kernel); None if numba cannot be imported."""
+    """Compile the kernel of ``solve`` after the kernels it calls (its own only: a ``tpm`` user does not compile the
+    SNS loop); None if numba cannot be imported."""
     global _sns_loop, _velocity_box, _acceleration_box
     if _rows_writer() is None:
         return None
@@ -348,8 +331,10 @@ def _build(solve: int, tall: bool, svd: bool = False):
             return None
     _sns_loop = _compiled_sns._sns_loop
     _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
-    step = {ROWS: _rows_step, TPM: _tpm_step_tall if tall else _tpm_step_svd if svd else _tpm_step,
-            SNS: _sns_step}[solve]
+    step = {ROWS: _rows_step, TPM: _tpm_step_tall if tall else _tpm_step, SNS: _sns_step}[solve]
+    if svd:  # a stack that met a pivot block only its SVD decides: _tpm_step with _general_svd (no hand-back)
+        step = _jit.variant(_tpm_step, "_svd")
+        step.__globals__["_general"] = _general_svd
     _KERNELS[(solve, tall, svd)] = _jit.dispatcher(step)
     return _KERNELS[(solve, tall, svd)]
 
@@ -363,16 +348,9 @@ def _checked(a: np.ndarray, ndim: int) -> np.ndarray:
 
 
 class Program:
-    """The packed arguments of :func:`kernel` for a stack of ``m`` rows in levels of ``sizes`` at ``order``, and the
-    tasks whose rows the kernel writes (:meth:`add_selection`, :meth:`add_frame`).
-
-    ``ints = [m, n, use_x0, len(sizes), order, count, solve, mats_at, vecs_at, sizes..., tasks...]`` (with
-    :data:`SNS`, ``n`` more, the loop's scratch, and the box's), ``floats = [lambda_max, eps, unit, margin, cond,
-    time, tasks...]``; a task's entry: its kind, first row, row count, indices, gains and reference values. The other
-    arrays the kernel reads (pinocchio's views, targets) are slots of :attr:`mats` and :attr:`vecs`, passed as an
-    address table at the end of ``ints`` (address, rows, columns per matrix from ``mats_at``; address, length per
-    vector from ``vecs_at``): five arguments whatever the stack (docs/architecture.md). After :meth:`build`,
-    :meth:`bind_mat` and :meth:`bind_vec` point a slot at another array (kept alive)."""
+    """The packed arguments ``ints``, ``floats`` of :func:`kernel` for a stack of ``m`` rows in levels of ``sizes`` at
+    ``order``, and the tasks whose rows the kernel writes (:meth:`add_selection`, :meth:`add_frame`); the other arrays
+    it reads are slots of :attr:`mats`, :attr:`vecs` (layout: docs/internals.md#compiled-step)."""
 
     def __init__(self, m: int, n: int, sizes, order: int, lambda_max: float, eps: float, use_x0: bool,
                  solve: int = TPM):
@@ -414,16 +392,14 @@ class Program:
                   jacobian=None, rotation=None, transposed: np.ndarray | None = None,
                   placement=None, jdot: np.ndarray | None = None) -> tuple[int, int, int, int, int]:
         """Rows ``row...`` of a frame task: ``J[i] = S[rows[i]]`` (``S = mats[mat]``), ``e = [x_d - x[xrows], w]``,
-        ``b`` as :meth:`hqp_tpm.tasks.base.Task.command`. ``vecs`` from slot ``vec`` on: ``x`` (if ``xrows``), ``w``
-        (if ``len(xrows) < len(rows)``), at order 2 ``J qd`` and ``Jdot qd``, then ``x_d`` (if ``xrows``: ``xslot``).
-
-        The kernel computes, given ``jacobian = (JT, cols, p)`` (the state's ``frame_jacobian_source``), ``S`` and at
-        order 2 ``J qd``; ``rotation = (RT, RdT)`` (row-major views), ``w = log3(R_d R^T)``; ``placement = (fid, RiT,
-        pi, P, RfT)`` (``frame_placement_source``), the frame's placement (:attr:`placed` gets ``fid``); ``jdot``
-        (order 2, ``frame_jdot_source``), ``Jdot qd``; else the caller writes them every step. ``transposed`` (order 1,
-        ``n x q``, e.g. the CoM Jacobian transposed): ``S^T`` in slot ``mat``. Returns ``(at, mat, vec, rot, xslot)``:
-        ``at`` the offset of ``[x_d], xd_d, xdd_d`` in :attr:`floats`, ``rot`` the slot of ``RT`` (-1: none),
-        ``xslot`` -1 without ``xrows``."""
+        ``b`` as :meth:`hqp_tpm.tasks.base.Task.command`; the sources the kernel computes from, else the caller writes
+        them (docs/internals.md#compiled-step). Returns ``(at, mat, vec, rot, xslot)``: the offset of ``[x_d], xd_d,
+        xdd_d`` in :attr:`floats`, the slots of ``S``, of the first vector, of ``RT`` and of ``x_d`` (-1: none)."""
+        if (transposed is not None and (self.order != 1 or jacobian is not None)
+                or jdot is not None and (self.order != 2 or jacobian is None or len(jdot) != len(jacobian[1]))
+                or placement is not None and jacobian is None):
+            raise ValueError("add_frame: a transposed Jacobian at order 1 without a joint-Jacobian source; jdot at "
+                             "order 2 with it, one entry per column; a frame placed in the kernel with it")
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
@@ -431,11 +407,10 @@ class Program:
         self.vecs += [np.zeros(6) for _ in range(used)] + ([np.zeros(k)] if k else [])
         if x is not None:
             self.vecs[vec] = x
-        jsrc = ip = rot = -1
+        jsrc = ip = rot = place = -1
         cols: list[int] = []
+        tail: list[int] = []
         if transposed is not None:
-            if self.order != 1 or jacobian is not None:
-                raise ValueError("a transposed Jacobian: order 1, and no joint-Jacobian source")
             jsrc, self.mats[mat] = TRANSPOSED, transposed
         if jacobian is not None:
             JT, cols, p = jacobian
@@ -445,17 +420,9 @@ class Program:
         if rotation is not None:
             rot = len(self.mats)
             self.mats += [rotation[0], rotation[1]]
-        ends: list[int] = []
-        if self.order == 2 and jdot is None:
-            self.velocity_pass = True
-        if jdot is not None:
-            if self.order != 2 or jacobian is None or len(jdot) != len(cols):
-                raise ValueError("jdot: order 2, with the joint-Jacobian source, one entry per column")
-            ends = [int(e) for e in jdot]
-        place, tail = -1, []
+        self.velocity_pass |= self.order == 2 and jdot is None
+        ends = [] if jdot is None else [int(e) for e in jdot]
         if placement is not None:
-            if jacobian is None:
-                raise ValueError("a frame placed in the kernel: with its joint-Jacobian source")
             fid, RiT, pi, P, RfT = placement
             place = len(self.mats)
             self.mats += [RiT, np.ascontiguousarray(P, dtype=float), RfT]
@@ -482,9 +449,8 @@ class Program:
         return len(arrays) - 1
 
     def set_box(self, kind: int, limits: np.ndarray, idx: np.ndarray, dt: float) -> None:
-        """With :data:`SNS`: the kernel computes the box (:data:`BOX_VELOCITY` or :data:`BOX_ACCELERATION`) from
-        ``limits`` (the rows ``q_min, q_max, v_max, a_max, 2 a_max, a_max dt``) and ``idx`` (configuration and velocity
-        indices, 2 x joints), as :class:`~hqp_tpm.control._planned_step.JointBox`'s kernels."""
+        """With :data:`SNS`: the kernel computes the box (``kind``) from ``limits`` (rows ``q_min, q_max, v_max, a_max,
+        2 a_max, a_max dt``) and ``idx`` (``q`` and ``v`` indices, 2 x joints), as :meth:`JointLimits.kernel_box`."""
         if self.solve != SNS or kind not in (BOX_VELOCITY, BOX_ACCELERATION) or limits.shape != (6, idx.shape[1]):
             raise ValueError("set_box: an SNS program, BOX_VELOCITY or BOX_ACCELERATION, 6 x k limits, 2 x k indices")
         self.mats.append(np.ascontiguousarray(limits, dtype=float))
@@ -516,13 +482,9 @@ class Program:
         self.box_given = self._box[0] == BOX_GIVEN
         return self
 
-    def __deepcopy__(self, memo):
-        raise TypeError("a fused-step program holds the addresses of its arrays: build it again for the copy "
-                        "(a copied controller plans its own step)")
-
-    def __reduce_ex__(self, protocol):
-        raise TypeError("a fused-step program holds the addresses of its arrays: it cannot be pickled (a controller "
-                        "pickles without its compiled step)")
+    def __reduce_ex__(self, protocol):  # (copy.deepcopy asks it too)
+        raise TypeError("a fused-step program holds the addresses of its arrays: it cannot be copied nor pickled (a "
+                        "controller copies and pickles without its compiled step)")
 
     def bind_mat(self, slot: int, a: np.ndarray) -> None:
         """Point slot ``slot`` of :attr:`mats` at ``a`` (a float64, C-contiguous matrix; the program keeps it alive)."""
@@ -537,19 +499,16 @@ class Program:
         self.ints[at: at + 2] = a.__array_interface__["data"][0], a.shape[0]
 
     def sns_info(self, buf: np.ndarray) -> dict:
-        """The SNS solver's info (``scale``, ``saturated``, ``iterations``) from (a copy of) the kernel's ``buf`` after
-        a solve, as the readable step records it."""
+        """The SNS solver's info from (a copy of) the kernel's ``buf`` after a solve, as the readable step's."""
         m, n = self._ints[0], self._ints[1]
         scale, nsat, iterations, _, *joints = buf[m * n + m + 7 * n:].tolist()
         return {"scale": scale, "saturated": [int(j) for j in joints[: int(nsat)]], "iterations": int(iterations)}
 
 
 def kernel(solve: int = TPM, tall: bool = False, svd: bool = False):
-    """The compiled kernel of a :class:`Program` built with ``solve`` (``tall``: a TPM program of ``m > n`` rows;
-    ``svd``: the TPM kernel deciding every pivot by its block's SVD, after :data:`PIVOT_SVD`), compiled or loaded on
-    first use; None if numba cannot be imported after all. ``kernel(buf, ints, floats, q, v) -> status``: ``buf = [J
-    (row-major), b, x0, x, (lo, up, ...)]``; the program's rows from ``q``, ``v`` and its slots, their finiteness,
-    then (TPM) the TPM kernel's ``x`` or (SNS) the box and the SNS loop's ``x``, and ``x``'s finiteness."""
+    """The kernel ``(buf, ints, floats, q, v) -> status`` of a :class:`Program` built with ``solve`` (``tall``: ``m >
+    n``; ``svd``: after :data:`PIVOT_SVD`), compiled or loaded on first use (None: no numba): the rows, their
+    finiteness, then the solve and ``x``'s finiteness (``buf = [J, b, x0, x, (lo, up, ...)]``)."""
     tall = bool(tall) and solve == TPM
     svd = bool(svd) and solve == TPM and not tall
     return _KERNELS.get((solve, tall, svd)) or _build(solve, tall, svd)
