@@ -1,7 +1,5 @@
 """The task rows the compiled steps write (private): a task's :meth:`~hqp_tpm.tasks.base.Task.row_source` registered
-with a :class:`~hqp_tpm.control._compiled_step.Program` (the fused step's, or one task's: :class:`TaskProgram`). The
-kernel reads pinocchio's data and the targets in place and writes the numbers of the task's ``jacobian`` and
-``command`` (:func:`~hqp_tpm.tasks.base.tracking_command`)."""
+with a :class:`~hqp_tpm.control._compiled_step.Program` (the fused step's, or one task's: :class:`TaskProgram`)."""
 
 from __future__ import annotations
 
@@ -23,8 +21,7 @@ _DESCRIBED = ("value", "jacobian", "jdot_qdot", "error", "reference", "command",
 @cache
 def described(kind: type[Task]) -> bool:
     """Whether task class ``kind``'s :meth:`~Task.row_source` stands for its rows: no class below the one that defines
-    it overrides a method whose numbers it stands for (a subclass that changes ``jacobian`` only, say, is written by
-    its ``jacobian`` and ``command``)."""
+    it overrides a method whose numbers it stands for."""
     def owner(name: str) -> type:
         return next(k for k in kind.__mro__ if name in vars(k))
 
@@ -47,11 +44,9 @@ def write_own_rows(task: Task, state: State, t: float, order: int, J: np.ndarray
 
 
 class ReferenceSlots:
-    """Keeps a program's copy of a task's reference ``(x_d, xd_d, xdd_d)`` and gains current. The kernel reads ``x_d``
-    from vecs slot ``slot`` (None: the task's own array): the trajectory's ``live`` array, bound when it changes, or
-    this object's array, into which a new reference (by identity, part by part) is copied. A
-    :class:`~hqp_tpm.references.trajectories.Harmonic` of a frame entry (``harmonic``: the entry's ``ixd`` in
-    ``program.ints``): its terms copied when they change, the kernel computes it."""
+    """Keeps a program's copy of a task's reference ``(x_d, xd_d, xdd_d)`` and gains current: ``x_d`` in vecs slot
+    ``slot`` (None: the task's own array) bound to the trajectory's ``live`` array or copied; a frame entry's
+    :class:`~hqp_tpm.references.trajectories.Harmonic` (``harmonic``: its ``ixd`` in ``ints``): in the kernel."""
 
     __slots__ = ("task", "program", "gains", "gains_at", "at", "d", "slot", "own", "bound", "last", "harmonic",
                  "terms")
@@ -114,10 +109,9 @@ class ReferenceSlots:
 
 def program_rows(task: Task, state: State, order: int, program, row: int, J: np.ndarray,
                  place: bool = True, rate: bool = True) -> Callable[[float], None] | None:
-    """Register ``task``'s rows (stacked rows ``row...``, ``J`` their view) with ``program``; returns ``gather(t)``,
-    which copies what changed into the program before each kernel call, or None (no row source the kernel reads).
-    ``place``: the kernel places the frames it reads where it can; ``rate``: at order 2 it computes a frame's Jacobian
-    and ``J qd`` where it can (else pinocchio's Jacobian and numpy's ``J qd``, the bits of ``command``)."""
+    """Register ``task``'s rows (stacked rows ``row...``, ``J`` their view) with ``program``: ``gather(t)``, run before
+    each kernel call, or None. ``place``: the kernel places the frames it reads; ``rate``: at order 2 it computes a
+    frame's Jacobian and ``J qd`` (else pinocchio's and numpy's, the bits of ``command``), each where it can."""
     source = source_of(task)
     if type(source) is SelectionRows:
         J[...] = task.jacobian(state)  # (constant: written once, the kernel writes b only)
@@ -151,9 +145,8 @@ def _center_of_mass(task: Task, source: CenterOfMassRows, state: State, order: i
 
 
 def _frame(task: Task, source: FrameRows, state: State, order: int, program, row: int, place: bool, inside: bool):
-    """A frame task's rows: where the state gives views of pinocchio's joint Jacobians and placements (its
-    ``frame_*_source``) the kernel places the frame, computes its Jacobian, ``log3(R_d R^T)``, at order 2 ``J qd``
-    and, where it can, ``Jdot qd``; else they are gathered here."""
+    """A frame task's rows: the kernel places the frame, computes its Jacobian, ``log3(R_d R^T)``, ``J qd``, ``Jdot qd``
+    where the state gives their sources (``frame_*_source``); else they are gathered here."""
     fid, rows, position = source.fid, source.rows, source.position
     views = state.frame_views(fid)
     if views is None:
@@ -165,9 +158,8 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
     angular = k < d
     jsource = state.frame_jacobian_source(fid) if inside else None
     inside = jsource is not None  # the frame Jacobian, the rotation error (and J qd) computed in the kernel
-    placement = None
-    if place and inside and (placed := state.frame_placement_source(fid)) is not None:
-        placement = (fid, *placed)
+    placed = state.frame_placement_source(fid) if place and inside else None
+    placement = None if placed is None else (fid, *placed)
     ends = state.frame_jdot_source(fid) if inside and order == 2 else None  # (then Jdot qd in the kernel too)
     at, mat, vec, _, slot = program.add_frame(
         row, rows, position, g.kp, g.kd, x=p if k else None, jacobian=(*jsource, p) if inside else None,
@@ -201,10 +193,8 @@ def _frame(task: Task, source: FrameRows, state: State, order: int, program, row
 
 
 class TaskProgram:
-    """One task's rows written by the compiled rows kernel into ``J``, ``b`` (the planned step's): ``write(t,
-    extra=None)`` gives the bits of its ``jacobian`` and ``command(state, t, order, extra)``. For the tasks without a
-    rotation error (the planned step's state update places every frame; at order 2 ``J qd`` is numpy's, as in
-    ``command``)."""
+    """One task's rows (no rotation error) written by the compiled rows kernel into ``J``, ``b``: ``write(t,
+    extra=None)``, the bits of its ``jacobian`` and ``command(state, t, order, extra)``."""
 
     __slots__ = ("task", "state", "order", "J", "b", "program", "gather", "kernel", "buf", "rows", "extra")
 
@@ -213,10 +203,8 @@ class TaskProgram:
         """``task``'s program writing into ``J`` (``dim x n``), ``b``, or None (no row source without a rotation
         error, or no compiled kernel)."""
         source = source_of(task)
-        if source is None or (type(source) is FrameRows and source.R_d is not None):
-            return None
-        kernel = _compiled_step.rows_writer()
-        if kernel is None:
+        if source is None or type(source) is FrameRows and source.R_d is not None \
+                or (kernel := _compiled_step.rows_writer()) is None:
             return None
         self = cls.__new__(cls)
         dim, n = J.shape

@@ -1,8 +1,6 @@
-"""The solve under a command-rate bound (velocity level, issue 31): the stack solved for the change ``d`` of the
-command from the previous one ``v``, ``qdot = v + d`` (the SNS solvers assume a box around 0, and the rate box
-``v +- a_max T`` mostly excludes 0). The formulas: docs/internals.md, "Solving under the command-rate box". The
-readable step calls :func:`solve_around`; the planned SNS-TPM step shifts its stacked rows with :func:`shift_rows`
-(the bits of :func:`shifted`) and solves them as :func:`solve_around` does.
+"""The solve under a command-rate bound (velocity level): the stack solved for the change ``d`` from the previous
+command ``v``, ``qdot = v + d`` (the SNS solvers assume a box around 0; the rate box ``v +- a_max T`` mostly excludes
+it). The readable step calls :func:`solve_around`, the planned step :func:`shift_rows` (docs/internals.md).
 """
 
 from __future__ import annotations
@@ -15,8 +13,7 @@ from hqp_tpm.solvers.registry import solve
 
 
 def rate_limited(box) -> bool:
-    """Does the box function bound the command's rate (``JointLimits(command_rate=True)``)? Other box functions
-    (plain callables) do not."""
+    """Does the box function bound the command's rate (``JointLimits(command_rate=True)``)?"""
     return isinstance(box, JointLimits) and box.command_rate
 
 

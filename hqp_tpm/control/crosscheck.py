@@ -1,14 +1,8 @@
 """Cross-checking a controller's solver with another one, step by step, like for like.
 
-``Controller(..., crosscheck="qp:daqp")`` solves every step a second time with the other solver,
-through the same path as the command: the same levels (inequality rows as the analytic solvers used
-them: the active ones, as equalities), the same null-space term ``x0``, box and damping, and -- for a
-policy that blends solutions (eq. (8) of papers/003) -- the same blend, run from the same policy state
-(the policy's ``snapshot``/``restore``, :class:`~hqp_tpm.control.policy.Policy`). The hard box clips
-the other command as it clips the controller's.
-
-The records (``Controller.crosscheck_log``, :class:`CrosscheckLog`, drawn by
-``hqp_tpm.testing.plot_crosscheck``): docs/cli.md, "Crosscheck".
+``Controller(..., crosscheck="qp:daqp")`` solves every step again with the other solver through the command's path:
+the same levels (active inequality rows as equalities), ``x0``, box, damping and blend (eq. (8) of papers/003, from
+the same policy state). The records (:class:`CrosscheckLog`): docs/cli.md, "Crosscheck".
 """
 
 from __future__ import annotations
@@ -90,11 +84,8 @@ class CrosscheckLog:
     def append(self, t: float, rec: dict) -> None:
         self.solver = rec["solver"]
         self.t.append(float(t))
-        self.diff.append(rec["diff"])
-        self.joint.append(rec["joint"])
-        self.rel.append(rec["rel"])
-        self.same_problem.append(rec["same_problem"])
-        self.like_for_like.append(rec["like_for_like"])
+        for name in ("diff", "joint", "rel", "same_problem", "like_for_like"):
+            vars(self)[name].append(rec[name])
 
     def __len__(self) -> int:
         return len(self.t)

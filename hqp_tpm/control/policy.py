@@ -1,12 +1,8 @@
 """The policy contract: what the controller, the runner and the app may ask of a policy.
 
-A policy decides the stack of every control step. :class:`Policy` is the written contract, an abstract base class:
-``__call__(state, t) -> Stack`` and ``tasks()`` are required, every other member has a do-nothing default, so the
-controller, the runner and the app call them on any policy and never probe for attributes
-(``tests/test_no_probing.py``): a policy that defines only the two required members runs everywhere (figures, replay,
-live viewer, explain). Deriving from :class:`StackPolicy` or :class:`PlanningPolicy` gives it the compiled step (every
-shipped policy does). :class:`DistancePolicy` is the shared base of the policies driven by a
-:class:`~hqp_tpm.geometry.distances.DistanceField` (algorithm1, petric, whole_body).
+:class:`Policy`: ``__call__(state, t) -> Stack`` and ``tasks()`` required, every other member a do-nothing default
+(never probed for). :class:`StackPolicy`, :class:`PlanningPolicy`: the compiled step. :class:`DistancePolicy`: the
+policies driven by a :class:`~hqp_tpm.geometry.distances.DistanceField`.
 """
 
 from __future__ import annotations
@@ -104,9 +100,8 @@ class Policy(ABC):
         return SceneItems(targets=moving_targets(self.tasks()))
 
     def compiled_step(self, ctrl: Any) -> Any:
-        """The compiled step of this policy under ``ctrl``'s settings (the readable step's numbers in fewer calls:
-        ``compute() -> command``, ``result(t, q, v, command) -> StepResult``, ``current() -> bool``), or None (this
-        default): :meth:`Controller.step` then steps through the readable path."""
+        """The compiled step of this policy under ``ctrl``'s settings (``compute() -> command``, ``result(t, q, v,
+        command) -> StepResult``, ``current() -> bool``: the readable step's numbers), or None: the readable path."""
         return None
 
     def snapshot(self) -> Any:
@@ -118,9 +113,8 @@ class Policy(ABC):
 
 
 class StackPolicy(Policy):
-    """A policy whose stack (its ``__call__``) the compiled step takes as it is
-    (:mod:`hqp_tpm.control._planned_step`): it writes the rows of each level's tasks in turn and blends
-    (:meth:`Policy.blend`) as the readable step does."""
+    """A policy whose stack (its ``__call__``) the compiled step (:mod:`hqp_tpm.control._planned_step`) takes as it
+    is."""
 
 
 class PlanningPolicy(Policy):
@@ -137,10 +131,8 @@ class PlanningPolicy(Policy):
 
 
 class DistancePolicy(Policy):
-    """A policy that owns a distance field, updated once per step before the stack is chosen.
-
-    Subclasses set ``self.field`` and ``self.obstacles`` in their constructor.
-    """
+    """A policy that owns a distance field, updated once per step before the stack is chosen (subclasses set
+    ``self.field`` and ``self.obstacles``)."""
 
     field: DistanceField
     obstacles: list[Obstacle]
@@ -156,13 +148,9 @@ class DistancePolicy(Policy):
 
 
 class FunctionPolicy(Policy):
-    """A plain callable ``f(state, t) -> Stack`` as a policy (nothing optional).
-
-    The controller starts ``tasks`` at the first step; a task the function returns that is not among them (a bare
-    function given to the controller lists none) is started the first time a stack holds it, from that step's state:
-    a held (``None``) or ``relative`` target is then the task's value when it enters (at the first step for the
-    tasks of the first stack). :meth:`tasks` lists them from then on.
-    """
+    """A plain callable ``f(state, t) -> Stack`` as a policy. The controller starts ``tasks`` at the first step; any
+    other task the function returns is started when a stack first holds it (a held or ``relative`` target: its value
+    then), and listed by :meth:`tasks` from then on."""
 
     def __init__(self, fn: Callable[[State, float], Stack], tasks: list[Task] | None = None):
         if not callable(fn):

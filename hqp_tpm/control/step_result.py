@@ -29,20 +29,13 @@ class _OnDemand:
 class StepResult:
     """What one step computed (before integration): the stack, the command, solver info and inputs.
 
-    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose at this step. ``levels``: the
-    solver's input, one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest first (``Level.J``,
-    ``Level.b`` of an equality level, ``Level.lower``/``Level.upper`` of an inequality level, ``Level.name`` from the
-    tasks), the rows the step solved at this state; pass them with ``x0`` and ``box`` to :func:`~hqp_tpm.solvers.solve`
-    or to :func:`hqp_tpm.testing.assert_solvers_agree` to solve the same problem again. ``command``: the joint velocity
-    (order 1) or acceleration (order 2), ``nv`` values. ``info``: the solver's account (e.g. ``scale``, ``saturated``,
-    ``iterations``). ``x0``: the null-space term (None: none). ``box``: ``(lower, upper)`` of the command (None: no
-    box).
+    ``t``: the time of the step's state. ``stack``: the :class:`Stack` the policy chose. ``levels``: the solver's input,
+    one :class:`~hqp_tpm.solvers.levels.Level` per priority level, highest first; solve them again with ``x0`` and
+    ``box`` by :func:`~hqp_tpm.solvers.solve` or :func:`hqp_tpm.testing.assert_solvers_agree`. ``command``: the joint
+    velocity (order 1) or acceleration (order 2). ``info``: the solver's account (e.g. ``scale``, ``saturated``,
+    ``iterations``). ``x0``: the null-space term, ``box``: ``(lower, upper)`` of the command (None: none). A compiled
+    step fills ``stack``, ``levels``, ``x0`` and ``box`` on first read (``_kept``): the readable step's numbers."""
 
-    A compiled step (:meth:`Controller.step`) fills ``stack``, ``levels``, ``x0`` and ``box`` on first read, from what
-    it kept of the step (its stacked rows, the state it started from): the numbers of the readable step."""
-
-    # (a compiled step's result sets t, command, _kept = (step, q, v, ...) and what it knows; the others are computed
-    # when read: PlannedStep.result)
     _kept = None
 
     def __init__(self, t: float, stack, levels, command: np.ndarray, info: dict | None = None, x0=None, box=None):
