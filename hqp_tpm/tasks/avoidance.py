@@ -14,10 +14,10 @@ from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import MAX_SUMSQ, MIN_SUMSQ, Level, sumsq
 from hqp_tpm.tasks import _compiled_rows
-from hqp_tpm.tasks.base import Task
+from hqp_tpm.tasks.base import AssignedTask
 
 
-class Avoidance(Task):
+class Avoidance(AssignedTask):
     """Repulsion of one robot point along ``n`` (``dim=1``, eq. (29)) or in 3-D (``dim=3``, eq. (28))."""
 
     def __init__(self, name: str = "avoid", dim: int = 1):
@@ -66,12 +66,6 @@ class Avoidance(Task):
         self._require()
         return self._jdqd_c if self.dim == 3 else np.array([self.normal.dot(self._jdqd_c)])
 
-    def start(self, state: State) -> None:  # no target to initialise
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
-        return np.zeros(self.dim)
-
     def command(self, state: State, t: float, order: int, extra=None) -> np.ndarray:
         r = self.magnitude * (self.normal if self.dim == 3 else np.ones(1))
         return r if order == 1 else r - self.jdot_qdot(state)
@@ -96,7 +90,7 @@ class Avoidance(Task):
         return write
 
 
-class PairAvoidance(Task):
+class PairAvoidance(AssignedTask):
     """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair, a one-sided inequality level), assigned by the
     whole-body policy every step."""
 
@@ -122,12 +116,6 @@ class PairAvoidance(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         raise NotImplementedError("whole_body avoidance is velocity-level only")
-
-    def start(self, state: State) -> None:
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
-        return np.zeros(self.dim)
 
     def reference(self, t: float):
         return np.zeros(self.dim), np.zeros(self.dim), np.zeros(self.dim)

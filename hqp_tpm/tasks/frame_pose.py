@@ -10,7 +10,7 @@ from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import FrameRows, Gains, Task
+from hqp_tpm.tasks.base import FrameRows, FrameTask, Gains
 
 #: the target forms :class:`FramePose` accepts (named by its errors)
 TARGET_FORMS = ("a pinocchio.SE3, a 4x4 homogeneous matrix [[R, p], [0, 0, 0, 1]], a pair (position 3-vector, "
@@ -69,7 +69,7 @@ def _pose_into(H: np.ndarray, pose: np.ndarray) -> bool:
     return kernel(H, pose)
 
 
-class FramePose(Task):
+class FramePose(FrameTask):
     """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
 
     The target is a ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3 rotation
@@ -124,12 +124,6 @@ class FramePose(Task):
     def error(self, state: State, x_d) -> np.ndarray:
         M = state.placement(self.fid)
         return np.concatenate([self._p_d - M.translation, pin.log3(self._R_d.dot(M.rotation.T))])
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)
 
     def row_source(self) -> FrameRows:
         return FrameRows(self.fid, (0, 1, 2, 3, 4, 5), (0, 1, 2), self._p_d, self._R_d)
