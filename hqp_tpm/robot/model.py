@@ -6,6 +6,7 @@ Load from a URDF path, from a robot shipped in the package data (``hqp_tpm/data/
 
 from __future__ import annotations
 
+import difflib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,9 +64,8 @@ class Robot:
         if not path.is_file():
             raise RobotFileError(f"robot file not found: {str(path)!r}")
         dirs = [str(d) for d in (package_dirs or [path.parent, path.parent.parent])]
-        root = pin.JointModelFreeFlyer() if free_flyer else None
         try:
-            args = (str(path), dirs) if root is None else (str(path), dirs, root)
+            args = (str(path), dirs, pin.JointModelFreeFlyer()) if free_flyer else (str(path), dirs)
             model, collision, visual = pin.buildModelsFromUrdf(*args)
         except (RuntimeError, ValueError) as exc:
             raise RobotFileError(f"cannot read robot file {str(path)!r}: {exc}") from exc
@@ -99,8 +99,6 @@ class Robot:
         try:
             return cls.from_example_robot_data(key)
         except RobotFileError as exc:
-            import difflib
-
             import example_robot_data as erd
 
             erd_names = sorted(getattr(erd.robots_loader, "ROBOTS", {}).keys())

@@ -25,10 +25,7 @@ class Avoidance(AssignedTask):
             raise ParameterError(f"avoidance dimension must be 1 (eq. (29)) or 3 (eq. (28)), got {dim!r}")
         self.dim = dim
         super().__init__(name, np.zeros(dim))
-        self._J_c = self._jdqd_c = self._pair = None
-        self.normal = np.zeros(3)
-        self.magnitude = 0.0
-        self.point = np.zeros(3)
+        self.assign(None, None, np.zeros(3), 0.0, np.zeros(3))
 
     def assign(self, J_c: np.ndarray, jdot_qdot_c: np.ndarray, normal: np.ndarray, magnitude: float,
                point: np.ndarray | None = None) -> None:
@@ -42,11 +39,8 @@ class Avoidance(AssignedTask):
     def assign_pair(self, field, data, element: int, obstacle: int, normal: np.ndarray, magnitude: float) -> None:
         """:meth:`assign` of pair (element, obstacle) of a :class:`~hqp_tpm.geometry.distances.DistanceField`
         updated on ``data`` (its ``J_c`` and ``J̇_c q̇`` computed on first use)."""
+        self.assign(None, None, normal, magnitude, field.p_robot[element, obstacle])
         self._pair = (field, data, element, obstacle)
-        self._J_c = self._jdqd_c = None
-        self.normal = np.asarray(normal, dtype=float)
-        self.magnitude = float(magnitude)
-        self.point = field.p_robot[element, obstacle]
 
     def _require(self):
         if self._J_c is None:
@@ -80,13 +74,12 @@ class Avoidance(AssignedTask):
             pair = self._pair
             if self.dim == 1 and _compiled.ENABLED and pair is not None and self._J_c is None:
                 pair[0].avoidance_row(pair[1], pair[2], pair[3], self.normal, self.magnitude, order, J, b)
-                return
-            self._require()
-            if self.dim == 1 and _compiled.ENABLED:
+            elif self.dim == 1 and _compiled.ENABLED:
+                self._require()
                 _compiled_rows.avoidance_row(J, b, self.normal, self._J_c, self._jdqd_c, self.magnitude, order)
-                return
-            J[...] = self.jacobian(state)
-            b[...] = self.command(state, t, order)
+            else:
+                J[...] = self.jacobian(state)
+                b[...] = self.command(state, t, order)
         return write
 
 

@@ -20,12 +20,9 @@ def no_force(state: State, t: float) -> np.ndarray:
 
 
 class Force(FrameTask):
-    """Zero-force task: the EE moves along the force the operator applies on the sensor.
-
-    ``source(state, t)`` returns ``f^s``, that force in the sensor frame ``frame`` (the flange; the sensor-tip offset is
-    neglected, as in the paper). ``sigma_f = R_s f^s`` (world) is the error, desired 0: the velocity-level command
-    ``J_p qd = Lambda_f sigma_f`` is an admittance with damping ``1/Lambda_f``. ``J = J_p``, the flange's linear rows.
-    """
+    """Zero-force task: the EE moves along the force ``f^s = source(state, t)`` the operator applies on the sensor (in
+    its frame ``frame``, the flange; the sensor-tip offset neglected, as in the paper). The error ``sigma_f = R_s f^s``
+    makes the command ``J_p qd = Lambda_f sigma_f`` an admittance with damping ``1/Lambda_f``."""
 
     dim = 3
     _sel = slice(None, 3)

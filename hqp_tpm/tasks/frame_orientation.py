@@ -14,10 +14,8 @@ from hqp_tpm.tasks.frame_pose import rotation_matrix
 
 
 class FrameOrientation(FrameTask):
-    """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot.
-
-    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation; the error is the world
-    rotation vector to the target."""
+    """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot. The target is a rotation matrix
+    (constant) or ``None``/``"hold"`` for the start orientation; the error is the world rotation vector to it."""
 
     dim = 3
     _sel = slice(3, None)

@@ -70,10 +70,9 @@ def _pose_into(H: np.ndarray, pose: np.ndarray) -> bool:
 
 
 class FramePose(FrameTask):
-    """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
-
-    The target is a ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3 rotation
-    matrix) or ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`."""
+    """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian. The target is a
+    ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3 rotation matrix) or
+    ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`."""
 
     dim = 6
 

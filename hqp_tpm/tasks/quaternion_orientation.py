@@ -1,8 +1,6 @@
-"""Orientation by the quaternion error of papers/003, eq. (10), on selected components (the 2-D task).
-
-``e_o = eta epsilon^* - eta^* epsilon - S(epsilon^*) epsilon``: the vector part of ``Q^* Q^{-1}`` (rotation
-``R^* R^T``, world frame, sign chosen so that its scalar part is >= 0).
-"""
+"""Orientation by the quaternion error of papers/003, eq. (10), on selected components (the 2-D task):
+``e_o = eta epsilon^* - eta^* epsilon - S(epsilon^*) epsilon``, the vector part of ``Q^* Q^{-1}`` (rotation
+``R^* R^T``, world frame, sign chosen so that its scalar part is >= 0)."""
 
 from __future__ import annotations
 
@@ -24,13 +22,9 @@ def quaternion_error(R_d: np.ndarray, R: np.ndarray) -> np.ndarray:
 
 
 class QuaternionOrientation(FrameTask):
-    """``sigma_o = Sigma e_o`` (10), ``J = Sigma J_o`` (world angular rows), ``Jdot qd = Sigma (Jdot_o qd)``.
-
-    As in the paper, ``sigma_o`` is itself the error (command ``Sigma J_o qd = Lambda_o sigma_o``), so ``J`` is not the
-    derivative of :meth:`value` (``d e_o/dt = -1/2 (eta_e I + S(epsilon_e)) J_o qd``: ``-2`` times it near the target).
-    ``target``: a rotation matrix or None (the start orientation); ``axes``: the rows (``"xy"``, the paper's 2-D task:
-    the flange z axis keeps its direction).
-    """
+    """``sigma_o = Sigma e_o`` (10), itself the error as in the paper, ``J = Sigma J_o`` (world angular rows; not the
+    derivative of :meth:`value`: docs/internals.md#tasks). ``target``: a rotation matrix or None (the start
+    orientation); ``axes``: the rows (``"xy"``, the paper's 2-D task: the flange z axis keeps its direction)."""
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
                  axes: str = "xy", name: str | None = None):
