@@ -58,18 +58,14 @@ def _project(p_lo, p_up, lo, up, violated_lo, violated_up):  # pragma: no cover 
 def velocity_box(q, P, idx, dt, lo, up, v=None):  # pragma: no cover - compiled
     """The velocity box (with ``v``: the command-rate box) at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``
     (``P``: :attr:`BoxLimits.rows`); False if a joint was outside its limits (the recovery rule applied)."""
-    inside = True
+    inside, discrete = True, v is not None
     for j in range(P.shape[1]):
         c, qj = idx[1, j], q[idx[0, j]]
         q_min, q_max, v_max, two_a, ad = P[0, j], P[1, j], P[2, j], P[4, j], P[5, j]
-        if q_min == -math.inf:
-            stop_lo = -math.inf
-        else:
-            stop_lo = -_braking(max(0.0, qj - q_min), two_a, ad, dt, v is not None) if two_a != 0.0 else 0.0
-        if q_max == math.inf:
-            stop_up = math.inf
-        else:
-            stop_up = _braking(max(0.0, q_max - qj), two_a, ad, dt, v is not None) if two_a != 0.0 else 0.0
+        stop_lo = -math.inf if q_min == -math.inf else (  # (a_max = 0: the joint stops at once)
+            -_braking(max(0.0, qj - q_min), two_a, ad, dt, discrete) if two_a != 0.0 else 0.0)
+        stop_up = math.inf if q_max == math.inf else (
+            _braking(max(0.0, q_max - qj), two_a, ad, dt, discrete) if two_a != 0.0 else 0.0)
         p_lo = max(stop_lo, (q_min - qj) / dt)
         p_up = min(stop_up, (q_max - qj) / dt)
         inside = inside and p_lo <= p_up

@@ -1,8 +1,4 @@
-"""A robot: pinocchio model, collision and visual geometry, names and limits.
-
-Load from a URDF path, from a robot shipped in the package data (``hqp_tpm/data/robots/``: ``"lwr4"``,
-``"iiwa7"``, ``"planar5"``, ``"planar4"``), or from an example-robot-data name (``"romeo"``, ``"panda"``, ...).
-"""
+"""A robot: pinocchio model, collision and visual geometry, names and limits (loaded by :meth:`Robot.load`)."""
 
 from __future__ import annotations
 
@@ -87,7 +83,8 @@ class Robot:
 
     @classmethod
     def load(cls, spec: str | os.PathLike) -> Robot:
-        """``spec``: a project robot name, a URDF path, or an example-robot-data name."""
+        """``spec``: a robot shipped in the package (:data:`PROJECT_ROBOTS`, :data:`REDUCED_ROBOTS`), a URDF path, or an
+        example-robot-data name (``"romeo"``, ``"panda"``, ...)."""
         key = str(spec)
         if key in REDUCED_ROBOTS:
             base, keep = REDUCED_ROBOTS[key]
@@ -168,8 +165,7 @@ class Robot:
         """Lower/upper position limits per velocity column (1-DOF joints; +-inf elsewhere)."""
         lo = np.full(self.nv, -np.inf)
         up = np.full(self.nv, np.inf)
-        for jid in range(1, self.model.njoints):
-            j = self.model.joints[jid]
+        for j in self.model.joints[1:]:
             if j.nq == 1 and j.nv == 1:
                 lo[j.idx_v] = self.model.lowerPositionLimit[j.idx_q]
                 up[j.idx_v] = self.model.upperPositionLimit[j.idx_q]

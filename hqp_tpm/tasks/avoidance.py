@@ -91,9 +91,7 @@ class PairAvoidance(AssignedTask):
 
     def __init__(self, name: str):
         super().__init__(name, None)
-        self.J = np.zeros((0, 0))
-        self.lower = np.zeros(0)
-        self.distance = np.zeros(0)
+        self.assign(np.zeros((0, 0)), np.zeros(0), np.zeros(0))
         self._upper = np.zeros(0)  # +inf per row, read-only: every level's upper bound (one array per row count)
 
     def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:

@@ -6,7 +6,6 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ShapeError, shown
-from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import FrameRows, FrameTask, Gains
@@ -28,8 +27,7 @@ class FrameOrientation(FrameTask):
         name = name or f"{frame}_orientation"
         if not self._held:
             self._R_d[:] = self._rotation(target, name)
-        super().__init__(name, np.zeros(3), gains)
-        self.trajectory = Hold() if self._held else Constant(value=np.zeros(3))
+        super().__init__(name, None if self._held else np.zeros(3), gains)  # (a Hold, or a Constant of zeros)
 
     @staticmethod
     def _rotation(value, task: str) -> np.ndarray:

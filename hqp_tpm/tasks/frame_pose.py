@@ -6,7 +6,6 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ParameterError, ShapeError, shown
-from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
@@ -85,8 +84,7 @@ class FramePose(FrameTask):
         self._held = M is None
         if M is not None:
             self._p_d[:], self._R_d[:] = M.translation, M.rotation
-        super().__init__(name or f"{frame}_pose", None, gains)
-        self.trajectory = Hold()
+        super().__init__(name or f"{frame}_pose", None, gains)  # (a Hold: the error is the placement's)
 
     @property
     def target(self) -> pin.SE3 | None:

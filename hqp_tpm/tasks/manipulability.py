@@ -45,7 +45,6 @@ class JointAngles:
         d = np.asarray(target, dtype=float) - angles
         if not self._plain:
             c = self.continuous
-            d = d.copy()
             d[c] = -np.remainder(-d[c] + np.pi, 2.0 * np.pi) + np.pi
         return d
 
