@@ -59,8 +59,7 @@ class Gains:
     kd: float = 0.0
 
     def __post_init__(self):
-        for k in ("kp", "kd"):
-            v = getattr(self, k)
+        for k, v in (("kp", self.kp), ("kd", self.kd)):
             if not np.isfinite(v) or v < 0:
                 raise ParameterError(f"gain {k} = {v!r} must be finite and >= 0")
 
