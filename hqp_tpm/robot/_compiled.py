@@ -10,6 +10,15 @@ import numpy as np
 
 from hqp_tpm import _jit
 from hqp_tpm._jit import kernel as _njit  # the package's one kernel decorator (compiled at the end of this module)
+from hqp_tpm.robot.spatial import cross3
+
+_cross = _njit(cross3, inline=True, into=(__name__, "_cross"))
+
+
+@_njit(inline=True)
+def _add(a, b):  # pragma: no cover - compiled
+    """``a + b`` of two 3-tuples."""
+    return a[0] + b[0], a[1] + b[1], a[2] + b[2]
 
 
 @_njit(inline=True)
@@ -49,18 +58,14 @@ def _project(p_lo, p_up, lo, up, violated_lo, violated_up):  # pragma: no cover 
 def velocity_box(q, P, idx, dt, lo, up, v=None):  # pragma: no cover - compiled
     """The velocity box (with ``v``: the command-rate box) at ``q[idx[0]]`` into ``lo[idx[1]]``, ``up[idx[1]]``
     (``P``: :attr:`BoxLimits.rows`); False if a joint was outside its limits (the recovery rule applied)."""
-    inside = True
+    inside, discrete = True, v is not None
     for j in range(P.shape[1]):
         c, qj = idx[1, j], q[idx[0, j]]
         q_min, q_max, v_max, two_a, ad = P[0, j], P[1, j], P[2, j], P[4, j], P[5, j]
-        if q_min == -math.inf:
-            stop_lo = -math.inf
-        else:
-            stop_lo = -_braking(max(0.0, qj - q_min), two_a, ad, dt, v is not None) if two_a != 0.0 else 0.0
-        if q_max == math.inf:
-            stop_up = math.inf
-        else:
-            stop_up = _braking(max(0.0, q_max - qj), two_a, ad, dt, v is not None) if two_a != 0.0 else 0.0
+        stop_lo = -math.inf if q_min == -math.inf else (  # (a_max = 0: the joint stops at once)
+            -_braking(max(0.0, qj - q_min), two_a, ad, dt, discrete) if two_a != 0.0 else 0.0)
+        stop_up = math.inf if q_max == math.inf else (
+            _braking(max(0.0, q_max - qj), two_a, ad, dt, discrete) if two_a != 0.0 else 0.0)
         p_lo = max(stop_lo, (q_min - qj) / dt)
         p_up = min(stop_up, (q_max - qj) / dt)
         inside = inside and p_lo <= p_up
@@ -125,85 +130,54 @@ def frame_placement(RiT, pi, P, RfT, p):  # pragma: no cover - compiled
 def frame_jacobian(JT, cols, p, S):  # pragma: no cover - compiled
     """``pin.getFrameJacobian(..., LOCAL_WORLD_ALIGNED)`` of a frame at ``p`` into columns ``cols`` of ``S`` from
     ``JT = data.J.T``: linear ``v - p x omega``, angular ``omega``."""
-    p0, p1, p2 = p[0], p[1], p[2]
+    pt = (p[0], p[1], p[2])
     for c in cols:
-        a0, a1, a2 = JT[c, 3], JT[c, 4], JT[c, 5]
-        S[0, c] = JT[c, 0] - (p1 * a2 - p2 * a1)
-        S[1, c] = JT[c, 1] - (p2 * a0 - p0 * a2)
-        S[2, c] = JT[c, 2] - (p0 * a1 - p1 * a0)
-        S[3, c] = a0
-        S[4, c] = a1
-        S[5, c] = a2
+        omega = (JT[c, 3], JT[c, 4], JT[c, 5])
+        x = _cross(pt, omega)
+        S[0, c], S[1, c], S[2, c] = JT[c, 0] - x[0], JT[c, 1] - x[1], JT[c, 2] - x[2]
+        S[3, c], S[4, c], S[5, c] = omega
 
 
 @_njit
 def frame_jdot_qdot(JT, cols, ends, v, p, jdq):  # pragma: no cover - compiled
     """``jdq <- J-dot q-dot`` of a frame at ``p`` (pinocchio's classical acceleration at zero ``q-ddot``) from ``JT =
     data.J.T``, ``v`` on columns ``cols`` (``ends``: :meth:`State.frame_jdot_source`), without a velocity pass."""
-    u0 = u1 = u2 = w0 = w1 = w2 = 0.0           # the parent body's velocity V = [u, w]
-    j0 = j1 = j2 = k0 = k1 = k2 = 0.0           # the joint's velocity V_J = [j, k] (its columns summed)
-    a0 = a1 = a2 = b0 = b1 = b2 = 0.0           # A = [a, b]
+    zero = (0.0, 0.0, 0.0)
+    u = w = j = k = a = b = zero  # the parent body's velocity V = [u, w], the joint's V_J = [j, k], A = [a, b]
     for i in range(cols.shape[0]):
         c = cols[i]
         qd = v[c]
-        j0 += JT[c, 0] * qd
-        j1 += JT[c, 1] * qd
-        j2 += JT[c, 2] * qd
-        k0 += JT[c, 3] * qd
-        k1 += JT[c, 4] * qd
-        k2 += JT[c, 5] * qd
-        if ends[i]:                             # V x V_J = [w x j + u x k, w x k], then V += V_J
-            a0 += (w1 * j2 - w2 * j1) + (u1 * k2 - u2 * k1)
-            a1 += (w2 * j0 - w0 * j2) + (u2 * k0 - u0 * k2)
-            a2 += (w0 * j1 - w1 * j0) + (u0 * k1 - u1 * k0)
-            b0 += w1 * k2 - w2 * k1
-            b1 += w2 * k0 - w0 * k2
-            b2 += w0 * k1 - w1 * k0
-            u0 += j0
-            u1 += j1
-            u2 += j2
-            w0 += k0
-            w1 += k1
-            w2 += k2
-            j0 = j1 = j2 = k0 = k1 = k2 = 0.0
-    p0, p1, p2 = p[0], p[1], p[2]
-    s0 = u0 + (w1 * p2 - w2 * p1)               # the frame origin's velocity u + w x p
-    s1 = u1 + (w2 * p0 - w0 * p2)
-    s2 = u2 + (w0 * p1 - w1 * p0)
-    jdq[0] = a0 + (b1 * p2 - b2 * p1) + (w1 * s2 - w2 * s1)
-    jdq[1] = a1 + (b2 * p0 - b0 * p2) + (w2 * s0 - w0 * s2)
-    jdq[2] = a2 + (b0 * p1 - b1 * p0) + (w0 * s1 - w1 * s0)
-    jdq[3] = b0
-    jdq[4] = b1
-    jdq[5] = b2
+        j = (j[0] + JT[c, 0] * qd, j[1] + JT[c, 1] * qd, j[2] + JT[c, 2] * qd)  # (V_J: its columns summed)
+        k = (k[0] + JT[c, 3] * qd, k[1] + JT[c, 4] * qd, k[2] + JT[c, 5] * qd)
+        if ends[i]:  # A += V x V_J = [w x j + u x k, w x k], then V += V_J
+            a, b = _add(a, _add(_cross(w, j), _cross(u, k))), _add(b, _cross(w, k))
+            u, w, j, k = _add(u, j), _add(w, k), zero, zero
+    pt = (p[0], p[1], p[2])
+    s = _add(u, _cross(w, pt))  # the frame origin's velocity u + w x p
+    jdq[0], jdq[1], jdq[2] = _add(_add(a, _cross(b, pt)), _cross(w, s))
+    jdq[3], jdq[4], jdq[5] = b
 
 
-#: How far from orthonormal and right-handed a rotation may be in :func:`rotation_rows` (entry by entry)
+#: How far from orthonormal and right-handed a rotation may be in :func:`pose_into` (entry by entry)
 ROTATION_TOL = 1e-7
-
-
-@_njit
-def rotation_rows(a, b, c, d, e, f, g, h, i):  # pragma: no cover - compiled
-    """Whether ``[[a, b, c], [d, e, f], [g, h, i]]`` is a finite rotation matrix to :data:`ROTATION_TOL` (rows 0, 1
-    orthonormal, row 2 their cross product)."""
-    tol = ROTATION_TOL
-    return (abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
-            and abs(a * d + b * e + c * f) < tol and abs(b * f - c * e - g) < tol and abs(c * d - a * f - h) < tol
-            and abs(a * e - b * d - i) < tol)
 
 
 @_njit
 def pose_into(H, pose):  # pragma: no cover - compiled
     """A 4 x 4 pose ``H`` into ``pose`` (translation, then the rotation transposed, row by row) if its translation is
-    finite and its rotation passes :func:`rotation_rows`; False (nothing written) else."""
-    if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])):
-        return False
-    if not rotation_rows(H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], H[2, 0], H[2, 1], H[2, 2]):
+    finite and its rotation a rotation matrix to :data:`ROTATION_TOL` (rows 0, 1 orthonormal, row 2 their cross
+    product); False (nothing written) else."""
+    a, b, c, d, e, f, tol = H[0, 0], H[0, 1], H[0, 2], H[1, 0], H[1, 1], H[1, 2], ROTATION_TOL
+    x = _cross((a, b, c), (d, e, f))
+    if not (math.isfinite(H[0, 3]) and math.isfinite(H[1, 3]) and math.isfinite(H[2, 3])
+            and abs(a * a + b * b + c * c - 1.0) < tol and abs(d * d + e * e + f * f - 1.0) < tol
+            and abs(a * d + b * e + c * f) < tol and abs(x[0] - H[2, 0]) < tol and abs(x[1] - H[2, 1]) < tol
+            and abs(x[2] - H[2, 2]) < tol):
         return False
     for r in range(3):
         pose[r] = H[r, 3]
-        for c in range(3):
-            pose[3 + 3 * c + r] = H[r, c]
+        for k in range(3):
+            pose[3 + 3 * k + r] = H[r, k]
     return True
 
 
@@ -249,12 +223,8 @@ def log3(M, w):  # pragma: no cover - compiled
     for i in range(3):          # renormalize_rotation_matrix: c0, c1 normalized, c2 = c0 x c1, c0 = c1 x c2
         R[i, 0] = M[i, 0] / n0
         R[i, 1] = M[i, 1] / n1
-    R[0, 2] = R[1, 0] * R[2, 1] - R[2, 0] * R[1, 1]
-    R[1, 2] = R[2, 0] * R[0, 1] - R[0, 0] * R[2, 1]
-    R[2, 2] = R[0, 0] * R[1, 1] - R[1, 0] * R[0, 1]
-    R[0, 0] = R[1, 1] * R[2, 2] - R[2, 1] * R[1, 2]
-    R[1, 0] = R[2, 1] * R[0, 2] - R[0, 1] * R[2, 2]
-    R[2, 0] = R[0, 1] * R[1, 2] - R[1, 1] * R[0, 2]
+    R[0, 2], R[1, 2], R[2, 2] = _cross((R[0, 0], R[1, 0], R[2, 0]), (R[0, 1], R[1, 1], R[2, 1]))
+    R[0, 0], R[1, 0], R[2, 0] = _cross((R[0, 1], R[1, 1], R[2, 1]), (R[0, 2], R[1, 2], R[2, 2]))
     tr = R[0, 0] + R[1, 1] + R[2, 2]
     cos_value = (tr - 1.0) / 2.0
     if cos_value < -1.0 + _PREC:  # theta near pi: the axis from the largest 2 R_ii - tr + 1

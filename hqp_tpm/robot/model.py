@@ -1,11 +1,8 @@
-"""A robot: pinocchio model, collision and visual geometry, names and limits.
-
-Load from a URDF path, from a robot shipped in the package data (``hqp_tpm/data/robots/``: ``"lwr4"``,
-``"iiwa7"``, ``"planar5"``, ``"planar4"``), or from an example-robot-data name (``"romeo"``, ``"panda"``, ...).
-"""
+"""A robot: pinocchio model, collision and visual geometry, names and limits (loaded by :meth:`Robot.load`)."""
 
 from __future__ import annotations
 
+import difflib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -63,9 +60,8 @@ class Robot:
         if not path.is_file():
             raise RobotFileError(f"robot file not found: {str(path)!r}")
         dirs = [str(d) for d in (package_dirs or [path.parent, path.parent.parent])]
-        root = pin.JointModelFreeFlyer() if free_flyer else None
         try:
-            args = (str(path), dirs) if root is None else (str(path), dirs, root)
+            args = (str(path), dirs, pin.JointModelFreeFlyer()) if free_flyer else (str(path), dirs)
             model, collision, visual = pin.buildModelsFromUrdf(*args)
         except (RuntimeError, ValueError) as exc:
             raise RobotFileError(f"cannot read robot file {str(path)!r}: {exc}") from exc
@@ -87,7 +83,8 @@ class Robot:
 
     @classmethod
     def load(cls, spec: str | os.PathLike) -> Robot:
-        """``spec``: a project robot name, a URDF path, or an example-robot-data name."""
+        """``spec``: a robot shipped in the package (:data:`PROJECT_ROBOTS`, :data:`REDUCED_ROBOTS`), a URDF path, or an
+        example-robot-data name (``"romeo"``, ``"panda"``, ...)."""
         key = str(spec)
         if key in REDUCED_ROBOTS:
             base, keep = REDUCED_ROBOTS[key]
@@ -99,8 +96,6 @@ class Robot:
         try:
             return cls.from_example_robot_data(key)
         except RobotFileError as exc:
-            import difflib
-
             import example_robot_data as erd
 
             erd_names = sorted(getattr(erd.robots_loader, "ROBOTS", {}).keys())
@@ -170,8 +165,7 @@ class Robot:
         """Lower/upper position limits per velocity column (1-DOF joints; +-inf elsewhere)."""
         lo = np.full(self.nv, -np.inf)
         up = np.full(self.nv, np.inf)
-        for jid in range(1, self.model.njoints):
-            j = self.model.joints[jid]
+        for j in self.model.joints[1:]:
             if j.nq == 1 and j.nv == 1:
                 lo[j.idx_v] = self.model.lowerPositionLimit[j.idx_q]
                 up[j.idx_v] = self.model.upperPositionLimit[j.idx_q]

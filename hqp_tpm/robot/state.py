@@ -65,12 +65,7 @@ class State:
             q_new, v_new = np.empty(qs), np.empty(vs)
             if _copy_finite(q, q_new) and _copy_finite(v, v_new):
                 return q_new, v_new
-        # (a float64 array: its copy() is np.array(x, dtype=float), in half the time)
-        q = q.copy() if type(q) is _ARRAY and q.dtype is _FLOAT64 else np.array(q, dtype=float)
-        if v is None:
-            v = np.zeros(vs)
-        else:
-            v = v.copy() if type(v) is _ARRAY and v.dtype is _FLOAT64 else np.array(v, dtype=float)
+        q, v = np.array(q, dtype=float), np.zeros(vs) if v is None else np.array(v, dtype=float)
         if q.shape == qs and v.shape == vs and math.isfinite(_ddot(q, q) + _ddot(v, v)):
             return q, v  # (the common case: one sum of squares says both are finite)
         for arr, what, (size,) in ((q, "q", qs), (v, "v", vs)):
@@ -121,15 +116,15 @@ class State:
         return self
 
     def _complete(self) -> None:
-        """The kinematics a partial :meth:`update` left out (velocities, J-dot q-dot, every frame)."""
-        pin.forwardKinematics(self.model, self.data, self.q, self.v, self._zero)
-        pin.updateFramePlacements(self.model, self.data)
-        self._partial = False
+        """The kinematics a partial :meth:`update` left out (velocities, J-dot q-dot, every frame), if it did."""
+        if self._partial:
+            pin.forwardKinematics(self.model, self.data, self.q, self.v, self._zero)
+            pin.updateFramePlacements(self.model, self.data)
+            self._partial = False
 
     # -- frames --------------------------------------------------------------------------------
     def placement(self, fid: int) -> pin.SE3:
-        if self._partial:
-            self._complete()
+        self._complete()
         return self.data.oMf[fid]
 
     def position(self, fid: int) -> np.ndarray:
@@ -149,15 +144,13 @@ class State:
         """6-vector J-dot q-dot of the frame: classical linear and angular acceleration at zero q-ddot."""
         key = ("Jdqd", fid)
         if key not in self._cache:
-            if self._partial:
-                self._complete()
+            self._complete()
             self._cache[key] = pin.getFrameClassicalAcceleration(self.model, self.data, fid, LWA).vector.copy()
         return self._cache[key]
 
     def velocity(self, fid: int) -> np.ndarray:
         """6-vector frame velocity (linear, angular), world-aligned."""
-        if self._partial:
-            self._complete()
+        self._complete()
         return pin.getFrameVelocity(self.model, self.data, fid, LWA).vector
 
     def frame_views(self, fid: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -188,10 +181,8 @@ class State:
         """``(JT, cols)`` for ``_compiled.frame_jacobian`` (a view of ``data.J.T``, the frame's columns); None if this
         pinocchio returns a copy, the model has mimic joints or :func:`verify_source` fails."""
         model, data = self.model, self.data
-        if getattr(model, "nvExtended", model.nv) != model.nv:  # mimic joints: pinocchio's two-pass rule
-            return None
-        if not self._verified_source("jacobian", fid):
-            return None
+        if getattr(model, "nvExtended", model.nv) != model.nv or not self._verified_source("jacobian", fid):
+            return None  # (mimic joints: pinocchio's two-pass rule)
         JT = self._joint_jacobians_T  # (one array object for every task; a copied state's is a copy: made again)
         if JT is None or not _same_memory((JT,), (data.J.T,)):
             JT = data.J.T
@@ -227,8 +218,7 @@ class State:
         if order == 1 and self._com_update == self.updates:
             return
         if order == 2:
-            if self._partial:
-                self._complete()
+            self._complete()
             pin.centerOfMass(self.model, self.data, pin.KinematicLevel.ACCELERATION, False)
         pin.jacobianCenterOfMass(self.model, self.data, False)
 
@@ -285,12 +275,10 @@ def verify_source(model, what: str, fid: int) -> bool:
         RiT, pi, RfT, pf = Mi.rotation.T, Mi.translation, Mf.rotation.T, Mf.translation
         v = 0.7 * np.sin(1.0 + np.arange(model.nv))  # a probe configuration: every joint moved
         q = pin.integrate(model, pin.neutral(model), v)
-        pin.computeJointJacobians(model, data, q)
+        pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
+        pin.computeJointJacobians(model, data)
         M = pin.updateFramePlacement(model, data, fid)
         if what == "jdot":
-            pin.forwardKinematics(model, data, q, v, np.zeros(model.nv))
-            pin.computeJointJacobians(model, data)
-            M = pin.updateFramePlacement(model, data, fid)
             out = np.zeros(6)
             _compiled.frame_jdot_qdot(JT, *_columns(model, fid), v, np.array(M.translation), out)
             want = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
@@ -316,9 +304,9 @@ def _same_memory(a, b) -> bool:
     return all(x.__array_interface__["data"][0] == y.__array_interface__["data"][0] for x, y in zip(a, b, strict=True))
 
 
-def _short(x: np.ndarray, limit: int = 8) -> str:
+def _short(x: np.ndarray) -> str:
     """A vector as short text: its values (3 digits) when it is short, else its size and norm."""
     x = np.asarray(x, dtype=float)
-    if x.size <= limit:
+    if x.size <= 8:
         return np.array2string(x, precision=3, suppress_small=True, separator=", ")
     return f"<{x.size} values, norm {np.linalg.norm(x):.3g}>"

@@ -14,10 +14,10 @@ from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import MAX_SUMSQ, MIN_SUMSQ, Level, sumsq
 from hqp_tpm.tasks import _compiled_rows
-from hqp_tpm.tasks.base import Task
+from hqp_tpm.tasks.base import AssignedTask
 
 
-class Avoidance(Task):
+class Avoidance(AssignedTask):
     """Repulsion of one robot point along ``n`` (``dim=1``, eq. (29)) or in 3-D (``dim=3``, eq. (28))."""
 
     def __init__(self, name: str = "avoid", dim: int = 1):
@@ -25,10 +25,7 @@ class Avoidance(Task):
             raise ParameterError(f"avoidance dimension must be 1 (eq. (29)) or 3 (eq. (28)), got {dim!r}")
         self.dim = dim
         super().__init__(name, np.zeros(dim))
-        self._J_c = self._jdqd_c = self._pair = None
-        self.normal = np.zeros(3)
-        self.magnitude = 0.0
-        self.point = np.zeros(3)
+        self.assign(None, None, np.zeros(3), 0.0, np.zeros(3))
 
     def assign(self, J_c: np.ndarray, jdot_qdot_c: np.ndarray, normal: np.ndarray, magnitude: float,
                point: np.ndarray | None = None) -> None:
@@ -42,11 +39,8 @@ class Avoidance(Task):
     def assign_pair(self, field, data, element: int, obstacle: int, normal: np.ndarray, magnitude: float) -> None:
         """:meth:`assign` of pair (element, obstacle) of a :class:`~hqp_tpm.geometry.distances.DistanceField`
         updated on ``data`` (its ``J_c`` and ``J̇_c q̇`` computed on first use)."""
+        self.assign(None, None, normal, magnitude, field.p_robot[element, obstacle])
         self._pair = (field, data, element, obstacle)
-        self._J_c = self._jdqd_c = None
-        self.normal = np.asarray(normal, dtype=float)
-        self.magnitude = float(magnitude)
-        self.point = field.p_robot[element, obstacle]
 
     def _require(self):
         if self._J_c is None:
@@ -66,12 +60,6 @@ class Avoidance(Task):
         self._require()
         return self._jdqd_c if self.dim == 3 else np.array([self.normal.dot(self._jdqd_c)])
 
-    def start(self, state: State) -> None:  # no target to initialise
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
-        return np.zeros(self.dim)
-
     def command(self, state: State, t: float, order: int, extra=None) -> np.ndarray:
         r = self.magnitude * (self.normal if self.dim == 3 else np.ones(1))
         return r if order == 1 else r - self.jdot_qdot(state)
@@ -86,17 +74,16 @@ class Avoidance(Task):
             pair = self._pair
             if self.dim == 1 and _compiled.ENABLED and pair is not None and self._J_c is None:
                 pair[0].avoidance_row(pair[1], pair[2], pair[3], self.normal, self.magnitude, order, J, b)
-                return
-            self._require()
-            if self.dim == 1 and _compiled.ENABLED:
+            elif self.dim == 1 and _compiled.ENABLED:
+                self._require()
                 _compiled_rows.avoidance_row(J, b, self.normal, self._J_c, self._jdqd_c, self.magnitude, order)
-                return
-            J[...] = self.jacobian(state)
-            b[...] = self.command(state, t, order)
+            else:
+                J[...] = self.jacobian(state)
+                b[...] = self.command(state, t, order)
         return write
 
 
-class PairAvoidance(Task):
+class PairAvoidance(AssignedTask):
     """Rows ``n_k^T J_k qd >= lower_k`` (1-D avoidance per pair, a one-sided inequality level), assigned by the
     whole-body policy every step."""
 
@@ -104,9 +91,7 @@ class PairAvoidance(Task):
 
     def __init__(self, name: str):
         super().__init__(name, None)
-        self.J = np.zeros((0, 0))
-        self.lower = np.zeros(0)
-        self.distance = np.zeros(0)
+        self.assign(np.zeros((0, 0)), np.zeros(0), np.zeros(0))
         self._upper = np.zeros(0)  # +inf per row, read-only: every level's upper bound (one array per row count)
 
     def assign(self, J: np.ndarray, lower: np.ndarray, distance: np.ndarray) -> None:
@@ -122,12 +107,6 @@ class PairAvoidance(Task):
 
     def jdot_qdot(self, state: State) -> np.ndarray:
         raise NotImplementedError("whole_body avoidance is velocity-level only")
-
-    def start(self, state: State) -> None:
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
-        return np.zeros(self.dim)
 
     def reference(self, t: float):
         return np.zeros(self.dim), np.zeros(self.dim), np.zeros(self.dim)

@@ -59,8 +59,7 @@ class Gains:
     kd: float = 0.0
 
     def __post_init__(self):
-        for k in ("kp", "kd"):
-            v = getattr(self, k)
+        for k, v in (("kp", self.kp), ("kd", self.kd)):
             if not np.isfinite(v) or v < 0:
                 raise ParameterError(f"gain {k} = {v!r} must be finite and >= 0")
 
@@ -148,6 +147,29 @@ class Task(ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}({self.name!r}, dim={self.dim})"
+
+
+class FrameTask(Task):
+    """A task on the rows ``_sel`` of frame ``fid``'s world-aligned Jacobian and ``J̇ q̇`` (linear rows first)."""
+
+    fid: int
+    _sel: slice | np.ndarray = slice(None)
+
+    def jacobian(self, state: State) -> np.ndarray:
+        return state.jacobian(self.fid)[self._sel]
+
+    def jdot_qdot(self, state: State) -> np.ndarray:
+        return state.jdot_qdot(self.fid)[self._sel]
+
+
+class AssignedTask(Task):
+    """A task whose rows are assigned every step, without a target: nothing to start, a zero error."""
+
+    def start(self, state: State) -> None:
+        return None
+
+    def error(self, state: State, x_d) -> np.ndarray:
+        return np.zeros(self.dim)
 
 
 def _set_target(self, value) -> None:

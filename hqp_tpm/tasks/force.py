@@ -9,7 +9,7 @@ import numpy as np
 from hqp_tpm.errors import NonFiniteError, ShapeError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task
+from hqp_tpm.tasks.base import FrameTask, Gains
 
 ForceSource = Callable[[State, float], np.ndarray]
 
@@ -19,15 +19,13 @@ def no_force(state: State, t: float) -> np.ndarray:
     return np.zeros(3)
 
 
-class Force(Task):
-    """Zero-force task: the EE moves along the force the operator applies on the sensor.
-
-    ``source(state, t)`` returns ``f^s``, that force in the sensor frame ``frame`` (the flange; the sensor-tip offset is
-    neglected, as in the paper). ``sigma_f = R_s f^s`` (world) is the error, desired 0: the velocity-level command
-    ``J_p qd = Lambda_f sigma_f`` is an admittance with damping ``1/Lambda_f``. ``J = J_p``, the flange's linear rows.
-    """
+class Force(FrameTask):
+    """Zero-force task: the EE moves along the force ``f^s = source(state, t)`` the operator applies on the sensor (in
+    its frame ``frame``, the flange; the sensor-tip offset neglected, as in the paper). The error ``sigma_f = R_s f^s``
+    makes the command ``J_p qd = Lambda_f sigma_f`` an admittance with damping ``1/Lambda_f``."""
 
     dim = 3
+    _sel = slice(None, 3)
 
     def __init__(self, robot: Robot, frame: str, source: ForceSource | None = None, gains: Gains | None = None,
                  *, target=(0.0, 0.0, 0.0), name: str = "force"):
@@ -51,9 +49,3 @@ class Force(Task):
     def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
         """``sigma_f - f_d``: the EE moves along the applied force until it vanishes."""
         return self.value(state) - x_d
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)[:3]
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)[:3]

@@ -6,20 +6,18 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ShapeError, shown
-from hqp_tpm.references.trajectories import Constant, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import FrameRows, Gains, Task
+from hqp_tpm.tasks.base import FrameRows, FrameTask, Gains
 from hqp_tpm.tasks.frame_pose import rotation_matrix
 
 
-class FrameOrientation(Task):
-    """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot.
-
-    The target is a rotation matrix (constant) or ``None``/``"hold"`` for the start orientation; the error is the world
-    rotation vector to the target."""
+class FrameOrientation(FrameTask):
+    """``J = J_omega`` (world), ``Jdot qd`` = angular acceleration at zero q-ddot. The target is a rotation matrix
+    (constant) or ``None``/``"hold"`` for the start orientation; the error is the world rotation vector to it."""
 
     dim = 3
+    _sel = slice(3, None)
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *, name: str | None = None):
         self.frame = frame
@@ -29,8 +27,7 @@ class FrameOrientation(Task):
         name = name or f"{frame}_orientation"
         if not self._held:
             self._R_d[:] = self._rotation(target, name)
-        super().__init__(name, np.zeros(3), gains)
-        self.trajectory = Hold() if self._held else Constant(value=np.zeros(3))
+        super().__init__(name, None if self._held else np.zeros(3), gains)  # (a Hold, or a Constant of zeros)
 
     @staticmethod
     def _rotation(value, task: str) -> np.ndarray:
@@ -68,12 +65,6 @@ class FrameOrientation(Task):
 
     def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
         return pin.log3(self._R_d.dot(state.rotation(self.fid).T))
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)[3:]
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)[3:]
 
     def row_source(self) -> FrameRows:
         return FrameRows(self.fid, (3, 4, 5), (), None, self._R_d)

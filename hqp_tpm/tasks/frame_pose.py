@@ -6,11 +6,10 @@ import numpy as np
 import pinocchio as pin
 
 from hqp_tpm.errors import ParameterError, ShapeError, shown
-from hqp_tpm.references.trajectories import Hold
 from hqp_tpm.robot import _compiled
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import FrameRows, Gains, Task
+from hqp_tpm.tasks.base import FrameRows, FrameTask, Gains
 
 #: the target forms :class:`FramePose` accepts (named by its errors)
 TARGET_FORMS = ("a pinocchio.SE3, a 4x4 homogeneous matrix [[R, p], [0, 0, 0, 1]], a pair (position 3-vector, "
@@ -69,11 +68,10 @@ def _pose_into(H: np.ndarray, pose: np.ndarray) -> bool:
     return kernel(H, pose)
 
 
-class FramePose(Task):
-    """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian.
-
-    The target is a ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3 rotation
-    matrix) or ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`."""
+class FramePose(FrameTask):
+    """``e = [p_d - p; log3(R_d R^T)]`` (world), ``J`` = 6-row world-aligned frame Jacobian. The target is a
+    ``pin.SE3``, a 4x4 homogeneous matrix, a pair ``(position, rotation)`` (3-vector, 3x3 rotation matrix) or
+    ``None``/``"hold"`` for the start pose; anything else raises :class:`ShapeError`."""
 
     dim = 6
 
@@ -86,8 +84,7 @@ class FramePose(Task):
         self._held = M is None
         if M is not None:
             self._p_d[:], self._R_d[:] = M.translation, M.rotation
-        super().__init__(name or f"{frame}_pose", None, gains)
-        self.trajectory = Hold()
+        super().__init__(name or f"{frame}_pose", None, gains)  # (a Hold: the error is the placement's)
 
     @property
     def target(self) -> pin.SE3 | None:
@@ -124,12 +121,6 @@ class FramePose(Task):
     def error(self, state: State, x_d) -> np.ndarray:
         M = state.placement(self.fid)
         return np.concatenate([self._p_d - M.translation, pin.log3(self._R_d.dot(M.rotation.T))])
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)
 
     def row_source(self) -> FrameRows:
         return FrameRows(self.fid, (0, 1, 2, 3, 4, 5), (0, 1, 2), self._p_d, self._R_d)

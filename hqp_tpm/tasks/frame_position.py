@@ -6,10 +6,10 @@ import numpy as np
 
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import FrameRows, Gains, Task, row_selector, select_axes, trajectory_target
+from hqp_tpm.tasks.base import FrameRows, FrameTask, Gains, row_selector, select_axes, trajectory_target
 
 
-class FramePosition(Task):
+class FramePosition(FrameTask):
     """``x = p_frame[axes]``, ``J = J_v[axes]``, ``Jdot qd`` = classical linear acceleration at zero q-ddot."""
 
     target = trajectory_target
@@ -25,12 +25,6 @@ class FramePosition(Task):
 
     def value(self, state: State) -> np.ndarray:
         return state.position(self.fid)[self.rows]
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)[self._sel]
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)[self._sel]
 
     def row_source(self) -> FrameRows:
         rows = tuple(int(r) for r in self.rows)

@@ -12,11 +12,8 @@ from hqp_tpm.tasks.manipulability import joint_columns
 
 
 class JointLimit(Task):
-    """``sigma_l = 1/(2n) sum ((q_i - q_i^*)/(q_Hi - q_Li))^2`` (11), ``q^* = (q_L + q_H)/2``, target 0.
-
-    ``J_l = 1/n [(q_i - q_i^*)/(q_Hi - q_Li)^2]`` (12), the gradient of (11); ``Jdot qd = 1/n sum qd_i^2/(q_Hi -
-    q_Li)^2``. ``joints``: default every 1-DOF joint (each needs finite limits, else :class:`BoxError`).
-    """
+    """``sigma_l = 1/(2n) sum ((q_i - q_i^*)/(q_Hi - q_Li))^2`` (11), ``q^* = (q_L + q_H)/2``, target 0, ``J_l`` (12)
+    its gradient. ``joints``: default every 1-DOF joint (each needs finite limits, else :class:`BoxError`)."""
 
     dim = 1
 

@@ -4,13 +4,14 @@ projected term ``N_T qd_0`` of papers/004's solution (5) (docs/internals.md#task
 from __future__ import annotations
 
 import numpy as np
+import pinocchio as pin
 
 from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Task
+from hqp_tpm.tasks.base import AssignedTask
 
 
-class JointVelocity(Task):
+class JointVelocity(AssignedTask):
     """``J = I_n``; velocity command ``qd_0`` (set by :meth:`assign`)."""
 
     def __init__(self, n: int, name: str = "joint_velocity"):
@@ -30,23 +31,15 @@ class JointVelocity(Task):
     def value(self, state: State) -> np.ndarray:
         """The configuration as a velocity-space vector: ``pinocchio.difference(neutral, q)`` (``q`` itself
         for a robot of revolute and prismatic joints; right for continuous and free-flyer joints too)."""
-        model = getattr(state, "model", None)
-        if model is None or model.nq == model.nv:
+        model = state.model
+        if model.nq == model.nv:
             return state.q[: self.dim].copy()
-        import pinocchio as pin
-
         return pin.difference(model, pin.neutral(model), state.q)
 
     def jacobian(self, state: State) -> np.ndarray:
         return self._I
 
     def jdot_qdot(self, state: State) -> np.ndarray:
-        return np.zeros(self.dim)
-
-    def start(self, state: State) -> None:
-        return None
-
-    def error(self, state: State, x_d) -> np.ndarray:
         return np.zeros(self.dim)
 
     def command(self, state: State, t: float, order: int, extra=None, J=None) -> np.ndarray:

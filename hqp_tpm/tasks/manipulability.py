@@ -45,18 +45,14 @@ class JointAngles:
         d = np.asarray(target, dtype=float) - angles
         if not self._plain:
             c = self.continuous
-            d = d.copy()
             d[c] = -np.remainder(-d[c] + np.pi, 2.0 * np.pi) + np.pi
         return d
 
 
 class Manipulability(Task):
-    """1-D task ``sigma_m = 1/2 sum sin^2 q_i`` over the 2nd to the (n-1)-th joint (eq. (14) of papers/003).
-
-    ``J_m = [0, sin q_2 cos q_2, ..., sin q_{n-1} cos q_{n-1}, 0]``, the gradient of (14) (the printed eq. (15) keeps
-    the first and last joints: it is not). ``target``: the paper's ``sigma_m^*`` (default 2.0); ``joints``: the joints
-    of the sum (default: the 1-DOF joints but the first and the last; fewer than one: :class:`ParameterError`).
-    """
+    """``sigma_m`` (14) over ``joints`` (default: the 1-DOF joints but the first and the last; none:
+    :class:`ParameterError`), ``J_m`` its gradient (not the printed (15): docs/internals.md#tasks). ``target``: the
+    paper's ``sigma_m^*`` (default 2.0)."""
 
     dim = 1
 

@@ -109,11 +109,10 @@ class Pointing(Task):
         return (not self.inequality) or self.pointing_error(state) > 0.0
 
     def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        J = self.jacobian(state)
-        b = self.command(state, t, order, extra, J)
         if not self.inequality:
-            return Level(J, b, name=self.name, defer_finite=True)
-        return self.cone_level(J, b, self.pointing_error(state) > 0.0)
+            return super().level(state, t, order, extra)
+        J = self.jacobian(state)
+        return self.cone_level(J, self.command(state, t, order, extra, J), self.pointing_error(state) > 0.0)
 
     def cone_level(self, J: np.ndarray, b: np.ndarray, active: bool) -> Level:
         """The inequality (21) as a level: ``J x >= b``, active while the pointing error is positive."""

@@ -1,7 +1,5 @@
-"""Joint posture: selected 1-DOF joints towards target angles (``J`` is a selection matrix).
-
-Continuous joints (``nq = 2``: ``cos, sin``) enter through their angle and the error is ``pinocchio.difference`` of the
-joint, wrapped into ``(-pi, pi]`` (:class:`~hqp_tpm.tasks.manipulability.JointAngles`)."""
+"""Joint posture: selected 1-DOF joints towards target angles (``J`` a selection matrix; a continuous joint by its
+angle, the error wrapped into ``(-pi, pi]``: :class:`~hqp_tpm.tasks.manipulability.JointAngles`)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,6 @@
-"""Orientation by the quaternion error of papers/003, eq. (10), on selected components (the 2-D task).
-
-``e_o = eta epsilon^* - eta^* epsilon - S(epsilon^*) epsilon``: the vector part of ``Q^* Q^{-1}`` (rotation
-``R^* R^T``, world frame, sign chosen so that its scalar part is >= 0).
-"""
+"""Orientation by the quaternion error of papers/003, eq. (10), on selected components (the 2-D task):
+``e_o = eta epsilon^* - eta^* epsilon - S(epsilon^*) epsilon``, the vector part of ``Q^* Q^{-1}`` (rotation
+``R^* R^T``, world frame, sign chosen so that its scalar part is >= 0)."""
 
 from __future__ import annotations
 
@@ -12,7 +10,7 @@ import pinocchio as pin
 from hqp_tpm.errors import ParameterError, ShapeError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
-from hqp_tpm.tasks.base import Gains, Task, select_axes
+from hqp_tpm.tasks.base import FrameTask, Gains, select_axes
 
 
 def quaternion_error(R_d: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -23,20 +21,17 @@ def quaternion_error(R_d: np.ndarray, R: np.ndarray) -> np.ndarray:
     return -e if eta_d * eta + eps_d @ eps < 0 else e
 
 
-class QuaternionOrientation(Task):
-    """``sigma_o = Sigma e_o`` (10), ``J = Sigma J_o`` (world angular rows), ``Jdot qd = Sigma (Jdot_o qd)``.
-
-    As in the paper, ``sigma_o`` is itself the error (command ``Sigma J_o qd = Lambda_o sigma_o``), so ``J`` is not the
-    derivative of :meth:`value` (``d e_o/dt = -1/2 (eta_e I + S(epsilon_e)) J_o qd``: ``-2`` times it near the target).
-    ``target``: a rotation matrix or None (the start orientation); ``axes``: the rows (``"xy"``, the paper's 2-D task:
-    the flange z axis keeps its direction).
-    """
+class QuaternionOrientation(FrameTask):
+    """``sigma_o = Sigma e_o`` (10), itself the error as in the paper, ``J = Sigma J_o`` (world angular rows; not the
+    derivative of :meth:`value`: docs/internals.md#tasks). ``target``: a rotation matrix or None (the start
+    orientation); ``axes``: the rows (``"xy"``, the paper's 2-D task: the flange z axis keeps its direction)."""
 
     def __init__(self, robot: Robot, frame: str, target=None, gains: Gains | None = None, *,
                  axes: str = "xy", name: str | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
         self.rows = select_axes(axes)
+        self._sel = 3 + self.rows
         self.dim = len(self.rows)
         if target is None or (isinstance(target, str) and target == "hold"):
             self.R_target = None
@@ -67,9 +62,3 @@ class QuaternionOrientation(Task):
     def error(self, state: State, x_d: np.ndarray) -> np.ndarray:
         """``sigma_o`` (desired 0): the quaternion error, the command is ``Lambda_o sigma_o``."""
         return self.value(state) - x_d
-
-    def jacobian(self, state: State) -> np.ndarray:
-        return state.jacobian(self.fid)[3 + self.rows]
-
-    def jdot_qdot(self, state: State) -> np.ndarray:
-        return state.jdot_qdot(self.fid)[3 + self.rows]
