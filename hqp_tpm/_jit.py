@@ -526,18 +526,20 @@ def _unused_6(a, b, c, d, e, out):  # pragma: no cover - compiled (inlined)
         out[i] = math.nan
 
 
-def variant(fn, suffix: str, *unused: str):
+def variant(fn, suffix: str, *unused: str, **replaced):
     """A copy of the kernel source ``fn`` (for :func:`dispatcher`) whose globals named ``unused`` (kernels it calls,
     each writing into its last argument, a vector) are stubs that write NaN there: numba compiles none of their
     code, nor the kernels they call. For a caller that never takes the branches calling them (should it after all,
-    the NaN fails its finiteness test). The copy reads ``fn``'s other globals as they are now, and is named
-    ``fn.__qualname__ + suffix``: numba caches it in files of its own. None if numba cannot be imported."""
+    the NaN fails its finiteness test). ``replaced``: globals read as other kernels (a name to its kernel). The copy
+    reads ``fn``'s other globals as they are now, and is named ``fn.__qualname__ + suffix``: numba caches it in files
+    of its own. None if numba cannot be imported."""
     if not compile_module(globals()):  # (the stubs as numba dispatchers)
         return None
     stubs = {3: _unused_3, 5: _unused_5, 6: _unused_6}
     names = dict(fn.__globals__)
     for name in unused:
         names[name] = stubs[getattr(names[name], "py_func", names[name]).__code__.co_argcount]
+    names.update(replaced)
     copy = types.FunctionType(fn.__code__, names, fn.__name__ + suffix, fn.__defaults__, fn.__closure__)
     copy.__qualname__, copy.__module__, copy.__doc__ = fn.__qualname__ + suffix, fn.__module__, fn.__doc__
     return copy

@@ -333,8 +333,7 @@ def _build(solve: int, tall: bool, svd: bool = False):
     _velocity_box, _acceleration_box = _robot_compiled.velocity_box, _robot_compiled.acceleration_box
     step = {ROWS: _rows_step, TPM: _tpm_step_tall if tall else _tpm_step, SNS: _sns_step}[solve]
     if svd:  # a stack that met a pivot block only its SVD decides: _tpm_step with _general_svd (no hand-back)
-        step = _jit.variant(_tpm_step, "_svd")
-        step.__globals__["_general"] = _general_svd
+        step = _jit.variant(_tpm_step, "_svd", _general=_general_svd)
     _KERNELS[(solve, tall, svd)] = _jit.dispatcher(step)
     return _KERNELS[(solve, tall, svd)]
 
