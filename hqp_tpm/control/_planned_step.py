@@ -220,8 +220,6 @@ class PlannedStep:
                             self._unchecked |= not sumsq(Jt) + sumsq(bt) <= MAX_SUMSQ
                             continue
                         lv = True
-                elif kind is Avoidance:       # Avoidance.level: the equality (J, command), extra unused
-                    Jt, bt = task.jacobian(st), task.command(st, t, order)
                 elif kind is PairAvoidance and self.rate and task.J.ndim == 2 and task.J.shape[0] == task.lower.size \
                         and (rows := task.rows_from(st.v)) is not None:
                     Jt, bt = rows  # its active rows seen from v; its level (PairAvoidance.level's) when a result asks

@@ -60,12 +60,9 @@ class Avoidance(AssignedTask):
         self._require()
         return self._jdqd_c if self.dim == 3 else np.array([self.normal.dot(self._jdqd_c)])
 
-    def command(self, state: State, t: float, order: int, extra=None) -> np.ndarray:
+    def command(self, state: State, t: float, order: int, extra=None, J=None) -> np.ndarray:
         r = self.magnitude * (self.normal if self.dim == 3 else np.ones(1))
         return r if order == 1 else r - self.jdot_qdot(state)
-
-    def level(self, state: State, t: float, order: int, extra=None) -> Level:
-        return Level(self.jacobian(state), self.command(state, t, order), name=self.name, defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
         """``write(t)``: :meth:`jacobian` and :meth:`command` of the pair assigned at call time into ``J``, ``b``
