@@ -2,6 +2,7 @@
 
     OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py [--configs 200] [--repeats 3] [--warm] [--ab COMMIT]
     OMP_NUM_THREADS=1 NUMBA_CACHE_DIR=$(mktemp -d) python benchmarks/romeo_damped.py --perf 20
+    OMP_NUM_THREADS=1 python benchmarks/romeo_damped.py --passes 20
 
 The stacks are those of :mod:`benchmarks.peers.problems`' ``romeo_vel`` (6 levels, m > n) with kp = 100 and
 ``lambda_max = 0.05, eps = 0.1`` (captured from ``Controller.compute(record=True)``, the readable step). Prints,
@@ -14,7 +15,8 @@ and call, thread CPU time of ``_compiled_sns.sns_tpm_loop`` (the kernel and its 
 ratios; also the largest difference of the two commands and whether the decisions agree. ``--perf SECONDS``:
 where the SNS-TPM kernel's time goes, by compiled function (:func:`perf_profile`: Linux ``perf`` sampling this
 process while it runs the kernel on the stacks; the kernels must be compiled in this process, hence the empty
-``NUMBA_CACHE_DIR``).
+``NUMBA_CACHE_DIR``). ``--passes K``: what a pass costs (:func:`pass_costs`), written with the solve-alone figures
+to ``benchmarks/results/romeo_damped.md``.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from __future__ import annotations
 import argparse
 import collections
 import importlib
+import math
 import subprocess
 import sys
 import tempfile
@@ -95,6 +98,7 @@ def main(argv=None) -> int:
     ap.add_argument("--warm", action="store_true")
     ap.add_argument("--ab", metavar="COMMIT", help="time this tree's SNS-TPM kernel against COMMIT's (one process)")
     ap.add_argument("--perf", metavar="SECONDS", type=float, help="profile the SNS-TPM kernel by compiled function")
+    ap.add_argument("--passes", metavar="K", type=int, help="the cost of a pass on K configurations; write the results")
     args = ap.parse_args(argv)
     if args.ab:
         with common.one_blas_thread():
@@ -128,6 +132,20 @@ def main(argv=None) -> int:
             print(f"  {name:8s} solve alone: median {np.median(v):8.1f} us  p99 {np.percentile(v, 99):8.1f} us  "
                   f"p99/median {np.percentile(v, 99) / np.median(v):5.2f}")
         print(f"  sns_tpm passes: median {np.median(passes):.0f}, max {max(passes)}")
+        if args.passes:
+            env = common.environment()
+            table = pass_costs(cases[:args.passes])
+            common.close_environment(env)
+            solve = common.md_table(["solve alone (thread CPU)", "median µs", "p99 µs"], [
+                [name, common.fmt(np.median(np.array(v) / 1e3)), common.fmt(np.percentile(np.array(v) / 1e3, 99))]
+                for name, v in times.items()])
+            common.write_markdown(common.ROOT / "benchmarks" / "results" / "romeo_damped.md",
+                                  "Damped Romeo: the SNS-TPM solve and its passes", env, [
+                                      ("The solve alone", f"{len(cases)} configurations x {args.repeats} solves, "
+                                       f"lambda_max {LAMBDA_MAX}, eps {EPS}, kp {KP}; SNS-TPM passes: median "
+                                       f"{np.median(passes):.0f}, max {max(passes)}.\n\n{solve}"),
+                                      ("What a pass costs", table)])
+            print("wrote benchmarks/results/romeo_damped.md")
         try:
             sns_left, tpm_rec = kernel_outcomes(cases)
             print(f"  sns_tpm solves that left the compiled loop: {sns_left} of {len(cases)}; tpm solves answered "
@@ -137,6 +155,39 @@ def main(argv=None) -> int:
         if args.warm:
             warm_start(robot, prob)
     return 0
+
+
+FACTORS = (math.inf, 8.0, 4.0, 3.0, 2.0, 1.5, 1.2, 1.0)
+
+
+def pass_costs(cases, repeats: int = 21) -> str:
+    """The SNS-TPM kernel (``_compiled_sns.sns_tpm_loop``) on each stack with its box widened by each of
+    :data:`FACTORS` (fewer joints saturate in a wider box: one pass, then more): per factor, the medians over the
+    stacks of the passes and of the solve's thread CPU (median of ``repeats`` calls), and the added µs per added
+    pass from the row above. A markdown table."""
+    from hqp_tpm.solvers import _compiled_sns
+
+    res = np.empty((len(FACTORS), len(cases), 2))
+    for c, (J, b, sizes, lo, up) in enumerate(cases):
+        for f, factor in enumerate(FACTORS):
+            lo_f, up_f = (np.full_like(lo, -np.inf), np.full_like(up, np.inf)) if math.isinf(factor) else (
+                lo * factor, up * factor)
+            out = _compiled_sns.sns_tpm_loop(J, b, sizes, lo_f, up_f, LAMBDA_MAX, EPS)
+            ts = []
+            for _ in range(repeats):
+                t0 = time.thread_time_ns()
+                out = _compiled_sns.sns_tpm_loop(J, b, sizes, lo_f, up_f, LAMBDA_MAX, EPS)
+                ts.append(time.thread_time_ns() - t0)
+            res[f, c] = out[4], np.median(ts) / 1e3
+    rows, prev = [], None
+    for f, factor in enumerate(FACTORS):
+        p, us = np.median(res[f, :, 0]), np.median(res[f, :, 1])
+        step = "–" if prev is None or p == prev[0] else common.fmt((us - prev[1]) / (p - prev[0]))
+        rows.append(["none (no bound)" if math.isinf(factor) else f"{factor:g} x", f"{p:g}", common.fmt(us), step])
+        prev = p, us
+    return (f"{len(cases)} configurations; the URDF velocity box widened by a factor (the last row is the library's "
+            "box); medians over the configurations.\n\n" + common.md_table(
+                ["box", "passes", "solve µs", "µs per added pass"], rows))
 
 
 def kernels_at(commit: str):
