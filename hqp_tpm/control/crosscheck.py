@@ -84,8 +84,11 @@ class CrosscheckLog:
     def append(self, t: float, rec: dict) -> None:
         self.solver = rec["solver"]
         self.t.append(float(t))
-        for name in ("diff", "joint", "rel", "same_problem", "like_for_like"):
-            vars(self)[name].append(rec[name])
+        self.diff.append(rec["diff"])
+        self.joint.append(rec["joint"])
+        self.rel.append(rec["rel"])
+        self.same_problem.append(rec["same_problem"])
+        self.like_for_like.append(rec["like_for_like"])
 
     def __len__(self) -> int:
         return len(self.t)
