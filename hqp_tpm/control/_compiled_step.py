@@ -394,11 +394,12 @@ class Program:
         ``b`` as :meth:`hqp_tpm.tasks.base.Task.command`; the sources the kernel computes from, else the caller writes
         them (docs/internals.md#compiled-step). Returns ``(at, mat, vec, rot, xslot)``: the offset of ``[x_d], xd_d,
         xdd_d`` in :attr:`floats`, the slots of ``S``, of the first vector, of ``RT`` and of ``x_d`` (-1: none)."""
-        if (transposed is not None and (self.order != 1 or jacobian is not None)
-                or jdot is not None and (self.order != 2 or jacobian is None or len(jdot) != len(jacobian[1]))
-                or placement is not None and jacobian is None):
-            raise ValueError("add_frame: a transposed Jacobian at order 1 without a joint-Jacobian source; jdot at "
-                             "order 2 with it, one entry per column; a frame placed in the kernel with it")
+        if transposed is not None and (self.order != 1 or jacobian is not None):
+            raise ValueError("add_frame: a transposed Jacobian: order 1, and no joint-Jacobian source")
+        if jdot is not None and (self.order != 2 or jacobian is None or len(jdot) != len(jacobian[1])):
+            raise ValueError("add_frame: jdot: order 2, with the joint-Jacobian source, one entry per column")
+        if placement is not None and jacobian is None:
+            raise ValueError("add_frame: a frame placed in the kernel: with its joint-Jacobian source")
         dim, k = len(rows), len(xrows)
         mat, vec = len(self.mats), len(self.vecs)
         used = (1 if k else 0) + (1 if k < dim else 0) + (2 if self.order == 2 else 0)
