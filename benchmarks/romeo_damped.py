@@ -16,7 +16,7 @@ ratios; also the largest difference of the two commands and whether the decision
 where the SNS-TPM kernel's time goes, by compiled function (:func:`perf_profile`: Linux ``perf`` sampling this
 process while it runs the kernel on the stacks; the kernels must be compiled in this process, hence the empty
 ``NUMBA_CACHE_DIR``). ``--passes K``: what a pass costs (:func:`pass_costs`), written with the solve-alone figures
-to ``benchmarks/results/romeo_damped.md``.
+and the warm-start experiment to ``benchmarks/results/romeo_damped.md``.
 """
 
 from __future__ import annotations
@@ -135,6 +135,7 @@ def main(argv=None) -> int:
         if args.passes:
             env = common.environment()
             table = pass_costs(cases[:args.passes])
+            warm = warm_start(robot, prob)
             common.close_environment(env)
             solve = common.md_table(["solve alone (thread CPU)", "median µs", "p99 µs"], [
                 [name, common.fmt(np.median(np.array(v) / 1e3)), common.fmt(np.percentile(np.array(v) / 1e3, 99))]
@@ -144,7 +145,7 @@ def main(argv=None) -> int:
                                       ("The solve alone", f"{len(cases)} configurations x {args.repeats} solves, "
                                        f"lambda_max {LAMBDA_MAX}, eps {EPS}, kp {KP}; SNS-TPM passes: median "
                                        f"{np.median(passes):.0f}, max {max(passes)}.\n\n{solve}"),
-                                      ("What a pass costs", table)])
+                                      ("What a pass costs", table), ("A warm start", warm)])
             print("wrote benchmarks/results/romeo_damped.md")
         try:
             sns_left, tpm_rec = kernel_outcomes(cases)
@@ -152,7 +153,7 @@ def main(argv=None) -> int:
                   f"by the recursion inside its kernel: {tpm_rec} of {len(cases)}")
         except AttributeError as e:  # (an older tree without the kernel's path report)
             print(f"  (kernel outcomes not reported by this tree: {e})")
-        if args.warm:
+        if args.warm and not args.passes:
             warm_start(robot, prob)
     return 0
 
@@ -353,7 +354,7 @@ def warm_start(robot, prob, runs: int = 10, steps: int = 20):
     """Closed loops (``runs`` configurations, ``steps`` control steps each): passes per solve, cold vs warm-started
     from the previous step's saturated joints (``_compiled_sns.sns_tpm_loop(..., warm=...)``: at the first
     saturation the previous joints that are beyond a bound are saturated at once, then the full algorithm goes on
-    and decides), and how often the warm start changes the command."""
+    and decides), and how often the warm start changes the command; printed and returned as markdown."""
     from hqp_tpm.solvers import _compiled_sns
 
     S = importlib.import_module("hqp_tpm.solvers.sns")
@@ -399,6 +400,14 @@ def warm_start(robot, prob, runs: int = 10, steps: int = 20):
           f"{warm_p.mean():.2f}; solve median cold {np.median(t_cold) / 1e3:.1f} us, warm "
           f"{np.median(t_warm) / 1e3:.1f} us; same command (1e-9) {same} of {len(cold_p)}, largest difference "
           f"{max(diffs):.2e}")
+    return (f"{len(cold_p)} closed-loop steps ({runs} configurations x {steps} steps of the library's controller); "
+            "each step's stack solved cold (Algorithm 1 from W = I) and warm (the previous step's saturated joints "
+            "that are beyond a bound saturated at once at the first saturation, then Algorithm 1 goes on).\n\n"
+            + common.md_table(["start", "passes median", "passes mean", "solve median µs"], [
+                ["cold", f"{np.median(cold_p):.0f}", f"{cold_p.mean():.2f}", common.fmt(np.median(t_cold) / 1e3)],
+                ["warm", f"{np.median(warm_p):.0f}", f"{warm_p.mean():.2f}", common.fmt(np.median(t_warm) / 1e3)]])
+            + f"\n\nThe warm start gives the cold command (to 1e-9) in {same} of {len(cold_p)} steps; the largest "
+            f"difference is {max(diffs):.3g} rad/s (the saturated set depends on the order of the saturations).")
 
 
 if __name__ == "__main__":
