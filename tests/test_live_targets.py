@@ -88,6 +88,24 @@ def test_the_compiled_step_follows_constants_and_trajectories_assigned_later(iiw
     assert fast.compiled()
 
 
+@pytest.mark.parametrize("order", [1, 2])
+def test_a_trajectory_after_a_harmonic_that_followed_an_array_is_followed(iiwa, order):
+    """An array, then a Harmonic (the kernel's own), then a Line: the compiled step read x_d from the array's slot
+    still (the Harmonic left it bound to the constant's live array), tracking the old array."""
+    from hqp_tpm import Line
+
+    fast, ref = _pair(iiwa, order)
+    wave = Harmonic(center=np.array([0.5, 0.0, 0.4]), cos_amplitude=np.array([0.0, 0.05, 0.0]), omega=1.0)
+    line = Line(start_point=[0.4, 0.2, 0.6], end_point=[0.4, 0.3, 0.6], t_start=10.0)
+    for i, target in enumerate([np.array([0.5, 0.0, 0.45]), wave, line, wave, np.array([0.45, 0.1, 0.5]), line]):
+        for ctrl in (fast, ref):
+            ctrl.policy.stack.tasks()[0].target = copy.deepcopy(target)
+        for _ in range(3):
+            got, want = fast.step().command, ref.step(record=True).command
+            assert np.abs(got - want).max() <= 1e-12 * max(1.0, np.abs(want).max()), (i, got, want)
+    assert fast.compiled()
+
+
 def test_copies_have_their_own_live_array(iiwa):
     tr = Constant(value=np.zeros(3))
     shallow = copy.copy(tr)

@@ -72,6 +72,11 @@ class ReferenceSlots:
     def _copy(self, tr, live, t: float) -> None:
         program, at, d = self.program, self.at, self.d
         floats = program.floats
+        bind = live is not None and live.shape == (d,) and type(tr) in (Constant, Hold)  # x_d read in place
+        if self.bound is not None and not bind:  # (x_d in this object's array again, before any other branch)
+            if self.slot is not None:
+                program.bind_vec(self.slot, self.own)
+            self.bound = None
         if self.harmonic is not None:
             if type(tr) is Harmonic:  # its terms into the floats of x_d, xd, xdd (base, a, b), then omega, phase
                 floats[_compiled_step.TIME] = t
@@ -81,21 +86,17 @@ class ReferenceSlots:
                     floats[at - d: at + 2 * d] = np.array(fields).T.ravel()
                     floats[at + 2 * d], floats[at + 2 * d + 1] = w, phase
                     program.ints[self.harmonic] = _compiled_step.HARMONIC
-                    self.terms, self.bound, self.last = terms, None, None
+                    self.terms, self.last = terms, None
                 return
             if self.terms is not None:  # (no longer a Harmonic: x_d from its slot again)
                 program.ints[self.harmonic], self.terms = self.slot, None
         ref = tr.reference(t)
-        if live is not None and live.shape == (d,) and type(tr) in (Constant, Hold):  # bound: written in place
+        if bind:
             if self.slot is not None:
                 program.bind_vec(self.slot, live)
             floats[at: at + d], floats[at + d: at + 2 * d] = ref[1], ref[2]
             self.bound, self.last = live, None
             return
-        if self.bound is not None:  # (x_d in this object's array again)
-            if self.slot is not None:
-                program.bind_vec(self.slot, self.own)
-            self.bound = None
         last = self.last or (None, None, None)
         if self.slot is not None and ref[0] is not last[0]:
             self.own[...] = ref[0]
