@@ -97,6 +97,25 @@ def test_bad_controller_settings(lwr):
         Controller(lwr, [ee], q0=np.zeros(3))
 
 
+@pytest.mark.parametrize("record", [False, True])
+@pytest.mark.parametrize("name, bad", [("order", 3), ("order", 1.5), ("dt", -1.0), ("dt", "1e-3"), ("eps", -1.0),
+                                       ("lambda_max", float("nan")), ("nullspace_damping", -5.0), ("box", "box"),
+                                       ("solver", "tpmm")])
+def test_a_setting_assigned_later_is_checked_by_the_next_step(lwr, name, bad, record):
+    """Settings assigned after construction: the next step refuses a bad one as the constructor does and changes
+    nothing (``order = 3`` crashed the process on the compiled path; ``dt = -1`` ran time backwards)."""
+    ctrl, _ = tracking(lwr, order=1)
+    ctrl.step()
+    good, t, q, steps = getattr(ctrl, name), ctrl.t, ctrl.q.copy(), ctrl.steps
+    setattr(ctrl, name, bad)
+    with pytest.raises(HqpTpmError, match=name if name != "solver" else "tpmm"):
+        ctrl.step(record=record)
+    assert (ctrl.t, ctrl.steps) == (t, steps) and np.array_equal(ctrl.q, q)
+    setattr(ctrl, name, good)
+    ctrl.step(record=record)
+    assert ctrl.steps == steps + 1
+
+
 def test_unvalidated_state_update_equals_the_validated_one():
     """The controller's update (q, v not re-checked; joint Jacobians and CoM from the kinematics just computed)
     gives the same kinematics as a checked update with them recomputed from q, free flyer included."""

@@ -221,7 +221,6 @@ class OwnPolicy(Policy):
 
 
 @pytest.mark.parametrize("change, why", [
-    (lambda c: setattr(c, "box", lambda st, t: (None, None)), "a box with solver 'tpm'"),
     (lambda c: setattr(c, "crosscheck", "qp"), "crosscheck"),
     (lambda c: setattr(c, "policy", OwnPolicy(c.tasks()[0])), "not a PlanningPolicy"),
 ])

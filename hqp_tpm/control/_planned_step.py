@@ -64,8 +64,6 @@ class PlannedStep:
         if not planned(policy):
             return (f"the policy {type(policy).__name__} is not a PlanningPolicy (no plan()), StackPolicy, FixedStack "
                     "nor FunctionPolicy")
-        if ctrl.box is not None and ctrl.solver == "tpm":
-            return "a box with solver 'tpm', which ignores it"
         if ctrl.crosscheck is not None:
             return "a crosscheck solver is set"
         return None

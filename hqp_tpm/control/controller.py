@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from numbers import Real
 
 import numpy as np
 from scipy.linalg.blas import ddot as _ddot
@@ -38,20 +39,12 @@ class Controller:
     def __init__(self, robot: Robot, policy, *, order: int = 2, dt: float = 1e-3, solver: str = "tpm",
                  lambda_max: float = 0.0, eps: float = 0.0, nullspace_damping: float = 0.0,
                  box: BoxFn | None = None, q0=None, v0=None, t0: float = 0.0, crosscheck: str | None = None):
-        if order not in (1, 2):
-            raise ParameterError(f"order must be 1 (velocity level) or 2 (acceleration level), got {order!r}")
-        if not (np.isfinite(dt) and dt > 0):
-            raise ParameterError(f"period dt = {dt!r} must be finite and > 0")
         self.robot = robot
         self._policy = as_policy(policy)
-        self.order = order
-        self.dt = float(dt)
-        self.solver = check_solver_name(solver)
-        self.lambda_max, self.eps = check_damping(lambda_max, eps)
-        self.nullspace_damping = nonnegative("nullspace_damping", nullspace_damping)
-        self.box = check_box(box, self.solver, order, self.dt)
-        # a second solver run on every step, like for like (hqp_tpm.control.crosscheck)
-        self.crosscheck = None if crosscheck is None else check_solver_name(crosscheck)
+        self.order, self.dt, self.solver, self.lambda_max, self.eps = order, dt, solver, lambda_max, eps
+        self.nullspace_damping, self.box = nullspace_damping, box
+        self.crosscheck = crosscheck  # a second solver run on every step, like for like (hqp_tpm.control.crosscheck)
+        self._check_settings()
         self.crosscheck_log = CrosscheckLog()
         self.state = State(robot)
         q = robot.neutral() if q0 is None else q0
@@ -61,11 +54,12 @@ class Controller:
         self.t = float(t0)
         self.steps = 0
         self._started = False
-        self._fast = self._fast_key = self._scratch = None  # the compiled step and what it was planned for
+        self._fast, self._checked, self._scratch = False, None, None  # the compiled step (False: not planned), the
+        # settings it was planned for (and last checked)
 
     def __getstate__(self) -> dict:
         """Copied and pickled without its compiled step (it reads this controller's arrays by address)."""
-        return {**self.__dict__, "_fast": None, "_fast_key": None}
+        return {**self.__dict__, "_fast": False}
 
     def __repr__(self) -> str:
         level = "velocity" if self.order == 1 else "acceleration"
@@ -176,16 +170,34 @@ class Controller:
                                 eps=self.eps, solve=solve)
         return solve(self.solver, levels, self.robot.nv, x0=x0, box=box, lambda_max=self.lambda_max, eps=self.eps)
 
-    def _compiled_step(self):
-        """The compiled step (None: the readable step), planned again when the policy, a setting or its stack's
-        structure changed: a :class:`PlannedStep` where :func:`planned`, else :meth:`Policy.compiled_step`."""
-        key = (self._policy, self.solver, self.order, self.box, self.crosscheck, self.lambda_max, self.eps,
+    def _check_settings(self) -> None:
+        """The settings checked (and normalized) as the constructor checks them; a setting assigned later is checked by
+        the next step (a refused one raises there, and the step changes nothing)."""
+        if self.order not in (1, 2) or type(self.order) is bool:
+            raise ParameterError(f"order must be 1 (velocity level) or 2 (acceleration level), got {self.order!r}")
+        if not (isinstance(self.dt, Real) and not isinstance(self.dt, bool) and math.isfinite(self.dt) and self.dt > 0):
+            raise ParameterError(f"period dt = {self.dt!r} must be a finite number > 0 (seconds)")
+        self.order, self.dt, self.solver = int(self.order), float(self.dt), check_solver_name(self.solver)
+        self.lambda_max, self.eps = check_damping(self.lambda_max, self.eps)
+        self.nullspace_damping = nonnegative("nullspace_damping", self.nullspace_damping)
+        self.box = check_box(self.box, self.solver, self.order, self.dt)
+        self.crosscheck = None if self.crosscheck is None else check_solver_name(self.crosscheck)
+
+    def _compiled_step(self, record: bool = False):
+        """The compiled step (None: the readable step, or ``record``), planned again when the policy, a setting (then
+        checked again) or its stack's structure changed: a :class:`PlannedStep` where :func:`planned`, else
+        :meth:`Policy.compiled_step`."""
+        key = (self._policy, self.solver, self.order, self.dt, self.box, self.crosscheck, self.lambda_max, self.eps,
                self.nullspace_damping)
+        if key != self._checked:
+            self._check_settings()
+            self._checked, self._fast = key, False
         fast = self._fast
-        if key != self._fast_key or (fast is not None and not fast.current()):
+        if record:
+            return None
+        if fast is False or (fast is not None and not fast.current()):
             policy = self._policy
             fast = self._fast = PlannedStep.of(self) if planned(policy) else policy.compiled_step(self)
-            self._fast_key = key
         return fast
 
     def compiled(self) -> bool:
@@ -196,7 +208,7 @@ class Controller:
         """State update, policy, solve: the command at the current state (no integration; the policy's state advances,
         restored on an error). ``record``: the readable path (Task -> Level -> solver), every field computed at once;
         else the compiled step where there is one (the same numbers, fields computed on demand)."""
-        fast = None if record else self._compiled_step()
+        fast = self._compiled_step(record)
         started, saved = self._started, self._policy.snapshot()
         try:
             if fast is None:
@@ -211,7 +223,7 @@ class Controller:
         """One control step, transactional: on any error the controller and its policy keep their state. ``record``: as
         in :meth:`compute` (the readable path; ``--explain`` and the crosscheck read its record)."""
         t, q, v = self.t, self._q, self._v
-        fast = None if record else self._compiled_step()
+        fast = self._compiled_step(record)
         if fast is not None:
             return fast.result(t, q, v, self.advance(fast.compute))
         out = []
