@@ -552,3 +552,24 @@ def test_an_error_in_the_blends_other_solve_names_the_step():
         assert ctrl.t == t and np.array_equal(ctrl.q, q)
         errors.append(str(info.value))
     assert errors[0] == errors[1] and " (step at t = " in errors[0]
+
+
+@pytest.mark.parametrize("record", [False, True])
+def test_the_result_keeps_the_box_a_box_function_gave(record):
+    """A box function that reads more than the state (here a limit changed after the step): ``StepResult.box`` is the
+    box the step used, and the function is called once per step (the compiled step's result called it again when
+    the field was read, and returned the box of that moment)."""
+    from hqp_tpm import Controller, FramePosition, Gains, Posture, Robot
+
+    robot, q0, calls, limit = Robot.load("iiwa7"), np.deg2rad([0, 30, 0, -60, 0, 90, 0]), [0], [1.0]
+
+    def box(st, t):
+        calls[0] += 1
+        return -limit[0] * np.ones(7), limit[0] * np.ones(7)
+    stack = Stack.of(FramePosition(robot, "iiwa_ee", [0.3, 0.3, 0.3], Gains(kp=50.0)), Posture(robot, q0))
+    ctrl = Controller(robot, stack, order=1, dt=1e-3, q0=q0, solver="sns_tpm", box=box)
+    r = ctrl.step(record=record)
+    limit[0] = 0.1
+    assert calls[0] == 1 and np.abs(r.command).max() == 1.0  # (the box binds)
+    np.testing.assert_array_equal(r.box[1], np.ones(7))
+    assert calls[0] == 1 and (ctrl.compiled() or record)

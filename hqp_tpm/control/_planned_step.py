@@ -391,7 +391,9 @@ class PlannedStep:
     def result(self, t: float, q: np.ndarray, v: np.ndarray, x: np.ndarray) -> StepResult:
         """The :class:`StepResult` of ``x`` computed at ``(q, v, t)``, keeping a copy of the rows written."""
         r = _new(StepResult)  # (the fields not set here are computed on first read: StepResult's defaults)
-        r.t, r.command, info = t, x, self.info
+        r.t, r.command, info, box = t, x, self.info, self._box_now
+        if box is not None and type(self.planned_box) is not JointLimits:  # (a box function may read more than the
+            r._box = box[0].copy(), box[1].copy()  # state: the box the step used, not one computed when read)
         if self._program is not None:  # (J and b in one buffer, with the fused SNS solve's info when it solved)
             r._stack = self._stack
             if info is None:
