@@ -210,3 +210,20 @@ def test_assigning_q_or_v_is_validated(lwr):
     ctrl.q = q + 0.01  # a valid assignment is taken, as a copy
     assert np.allclose(ctrl.q, q + 0.01) and ctrl.q is not q
     ctrl.step()
+
+
+@pytest.mark.parametrize("record", [False, True])
+def test_a_task_that_enters_with_a_new_policy_is_started(lwr, record):
+    """A task holding its start value (target None) that enters with ``ctrl.policy = ...`` after the first step is
+    started at the current state (it raised "Hold trajectory used before start()": only the first step started
+    tasks)."""
+    from hqp_tpm.tasks import FrameOrientation
+
+    ctrl, ee = tracking(lwr, order=1)
+    for _ in range(5):
+        ctrl.step(record=record)
+    held = FrameOrientation(lwr, "lwr_ee", None, Gains(5.0, 0.0), name="held")
+    ctrl.policy = Stack.of(ee, held)
+    R = ctrl.state.update(ctrl.q, ctrl.v, ctrl.t).placement(lwr.frame_id("lwr_ee")).rotation.copy()
+    ctrl.step(record=record)
+    np.testing.assert_allclose(held.target, R, atol=1e-15)

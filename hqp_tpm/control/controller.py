@@ -78,12 +78,20 @@ class Controller:
 
     @property
     def policy(self) -> Policy:
-        """The policy (assigning a Stack, list of levels or callable wraps it, like the constructor)."""
+        """The policy (assigning a Stack, list of levels or callable wraps it, like the constructor; after the first
+        step, the tasks it brings are started at the current state)."""
         return self._policy
 
     @policy.setter
     def policy(self, value) -> None:
-        self._policy = as_policy(value)
+        new = as_policy(value)
+        if self._started:  # the tasks it brings start at the current state, as the first step starts the others
+            old = {id(task) for task in self._policy.tasks()}
+            entering = [task for task in new.tasks() if id(task) not in old]
+            self.state.update(self._q, self._v, self.t, validate=False)
+            for task in entering:
+                task.start(self.state)
+        self._policy = new
 
     @property
     def v(self) -> np.ndarray:
