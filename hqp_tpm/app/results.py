@@ -71,7 +71,8 @@ METRICS: dict[str, tuple[str, str]] = {
                      "kernels left out: ``compile_s``)"),
     "compile_s": ("s", "time spent making the compiled kernels during the run: compiling them (the first run on a "
                   "machine) or loading them from the cache; left out of ``wall_time_s`` and ``mean_step_us``"),
-    "lean": ("1", "1 if ctrl.step() ran its compiled step (the readable step's numbers in fewer calls), else 0"),
+    "lean": ("1", "1 if ctrl.step() ran its planned step (the readable step's numbers in fewer calls; compiled by "
+                  "numba unless HQP_TPM_COMPILED=0), else 0"),
     "max_dq_jump": ("rad/s", "largest change of any joint velocity between two consecutive steps"),
     "max_dq_jump_step": ("1", "step at which ``max_dq_jump`` happens"),
     "max_abs_dq": ("rad/s", "largest joint velocity (absolute value) of the run"),

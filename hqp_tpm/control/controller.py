@@ -209,7 +209,8 @@ class Controller:
         return fast
 
     def compiled(self) -> bool:
-        """Whether :meth:`step` runs a compiled step under the current set-up (else the readable path)."""
+        """Whether :meth:`step` runs its planned step under the current set-up (compiled by numba unless
+        ``HQP_TPM_COMPILED=0``; else the readable path)."""
         return self._compiled_step() is not None
 
     def compute(self, record: bool = False) -> StepResult:

@@ -387,8 +387,10 @@ def sns_tpm(levels: Iterable, lower, upper, *, lambda_max: float = 0.0, eps: flo
     Returns ``x``, or ``(x, SNSInfo)`` with ``return_info``. Equal to :func:`tpm` when no bound is
     exceeded; otherwise joints are saturated one by one and, when ``rank(J W) < m``, the best
     scaled solution ``x = x_N + (J W)# F (s b - J x_N)`` is returned. Same numbers as
-    :func:`sns_tpm_reference`; every pass runs in one kernel (:mod:`hqp_tpm.solvers._compiled_sns`,
-    compiled, or the same source as Python with ``HQP_TPM_COMPILED=0``), which evaluates the core step
+    :func:`sns_tpm_reference` (to 1e-9; at a decision point, two joints tied to rounding, the two may
+    saturate different joints and their commands differ: docs/guarantees.md); every pass runs in one
+    kernel (:mod:`hqp_tpm.solvers._compiled_sns`, compiled, or the same source as Python with
+    ``HQP_TPM_COMPILED=0``), which evaluates the core step
     as ``x = s a + b`` with ``a = (J W)# F b`` and ``b = x_N - (J W)# F J x_N``.
     """
     lambda_max, eps = check_damping(lambda_max, eps)
