@@ -181,8 +181,9 @@ def apply_event(event, ctrl, tasks, case):
             elif which == 1:
                 traj = ShiftedHarmonic(center=traj.center, cos_amplitude=traj.cos_amplitude,
                                        sin_amplitude=traj.sin_amplitude, omega=traj.omega)
-            elif which == 2 and name not in ROTATION_KINDS:  # a relative constant (origin: none until started)
+            elif which == 2 and name not in ROTATION_KINDS:  # a relative constant, started (else refused)
                 traj = Constant(value=rng.normal(0, 0.02, d), relative=True)
+                traj.start(x_d)
             elif which == 3 and name not in ROTATION_KINDS:  # a straight line from the reference, starting now
                 traj = Line(start_point=x_d, end_point=x_d + rng.normal(0, 0.05, d), v_max=0.5, a_max=20.0,
                             t_start=ctrl.t)

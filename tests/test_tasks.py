@@ -4,7 +4,7 @@ import numpy as np
 import pinocchio as pin
 import pytest
 
-from hqp_tpm.errors import NonFiniteError, RobotFileError, ShapeError, UnknownFrameError
+from hqp_tpm.errors import NonFiniteError, RobotFileError, ShapeError, StateError, UnknownFrameError
 from hqp_tpm.references.trajectories import Constant, Harmonic, Hold
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
@@ -154,6 +154,10 @@ def test_trajectory_numbers_change_only_by_assignment():
     h.center = [1.0, 1.0, 1.0]
     assert h.reference(0.0)[0][0] == 1.0 + 0.0 + 0.0
     h.relative = True                                  # (its fields as floats are kept between references)
+    h.center = [1.0, 1.0, 1.0]
+    with pytest.raises(StateError, match="relative Harmonic target used before start"):  # (no zero origin)
+        h.reference(0.0)
+    h.start(np.zeros(3))
     for change, x0, xd1 in ((lambda: setattr(h, "cos_amplitude", [2.0, 0.0, 0.0]), 3.0, 0.0),
                             (lambda: setattr(h, "sin_amplitude", [0.0, 5.0, 0.0]), 3.0, 10.0),  # w = 2
                             (lambda: h.start(np.array([1.0, 0.0, 0.0])), 4.0, 10.0),

@@ -175,7 +175,7 @@ class DmpTrajectory(Trajectory):
 
     def reference(self, t: float):
         if self._roll is None:
-            raise ShapeError("DMP target used before start(): the run did not initialise it")
+            raise self.unstarted()
         T, Y, V, A, _ = self._roll
         k = min(max(t / self.dt, 0.0), T.size - 1.0)
         i = min(int(k), T.size - 2)

@@ -12,7 +12,7 @@ from typing import ClassVar
 
 import numpy as np
 
-from hqp_tpm.errors import NonFiniteError, ShapeError, shown
+from hqp_tpm.errors import NonFiniteError, ShapeError, StateError, shown
 from hqp_tpm.robot import _compiled
 
 
@@ -62,6 +62,8 @@ class Trajectory:
     #: ``x_d`` as one array written in place while the reference stays constant (:class:`Constant`, :class:`Hold` once
     #: started; its derivatives are zero), which the compiled steps read where it is (None: no such array)
     live: ClassVar[np.ndarray | None] = None
+    #: the name of the task it was made or assigned for, which its errors name (None: not assigned through a task)
+    task: ClassVar[str | None] = None
 
     relative: bool = False
     origin: np.ndarray | None = field(default=None, repr=False)
@@ -79,7 +81,18 @@ class Trajectory:
         self.origin = np.array(x0, dtype=float) if self.relative else None
 
     def offset(self, dim: int) -> np.ndarray:
+        """The origin (the start value) of a relative trajectory, zeros for an absolute one."""
+        if self.origin is None and self.relative:
+            raise self.unstarted()
         return self.origin if self.origin is not None else np.zeros(dim)
+
+    def unstarted(self) -> StateError:
+        """The error of a relative trajectory used before :meth:`start`: never evaluated with a zero origin."""
+        where = "" if self.task is None else f"task {self.task!r}: "
+        return StateError(f"{where}relative {type(self).__name__} target used before start(): its origin, the task's "
+                          "value at the start, is not set (a target assigned, or a task added, after the run started "
+                          "is not started): call task.start(ctrl.state) after assigning it, or assign it before the "
+                          "first step")
 
     def reference(self, t: float):  # pragma: no cover - abstract
         raise NotImplementedError
@@ -101,7 +114,8 @@ class Constant(Trajectory):
         super().__setattr__(name, value)
         d = self.__dict__
         if name == "value" or (name == "origin" and "live" in d):  # x_d anew, into live in place (shape kept)
-            x = self.value + self.offset(self.value.size) if self.value.size else self.offset(0).copy()
+            o = self.origin  # (None: absolute, or relative and not started: then reference refuses it)
+            x = self.value.copy() if o is None else self.value + o if self.value.size else o.copy()
             if "live" in d and d["live"].shape == x.shape:
                 d["live"][...] = x
             else:
@@ -134,6 +148,8 @@ class Constant(Trajectory):
 
     def reference(self, t: float):
         if self._ref is None:  # constant between assignments and starts: computed once, read-only
+            if self.relative and self.origin is None:
+                raise self.unstarted()
             x = self.live.copy()
             z = np.zeros_like(x)
             self._ref = _frozen(x, z) + (z,)
@@ -157,7 +173,7 @@ class Hold(Trajectory):
 
     def reference(self, t: float):
         if self.origin is None:
-            raise ShapeError("Hold trajectory used before start(): the run did not initialise it")
+            raise self.unstarted()
         if self._ref is None:  # constant between starts: computed once, read-only
             x = self.origin.copy()
             z = np.zeros_like(x)
@@ -205,7 +221,7 @@ class Harmonic(Trajectory):
         builds it anew)."""
         fields = self._ref
         if fields is None:
-            offset = [0.0] * self.center.size if self.origin is None else self.origin.tolist()
+            offset = self.offset(self.center.size).tolist()
             fields = self._ref = tuple(zip([ci + oi for ci, oi in zip(self.center.tolist(), offset, strict=True)],
                                            self.cos_amplitude.tolist(), self.sin_amplitude.tolist(), strict=True))
         terms = self._terms
@@ -226,12 +242,14 @@ class Harmonic(Trajectory):
         return np.array(x), np.array(xd), np.array(xdd)
 
 
-def as_trajectory(target, dim: int) -> Trajectory:
-    """A :class:`Trajectory` from a trajectory, ``None``/``"hold"`` (hold the start value) or a constant."""
-    if isinstance(target, Trajectory):
-        return target
-    if target is None or (isinstance(target, str) and target == "hold"):
-        return Hold()
+def as_trajectory(target, dim: int, task: str | None = None) -> Trajectory:
+    """A :class:`Trajectory` from a trajectory, ``None``/``"hold"`` (hold the start value) or a constant, for the task
+    named ``task`` (its :attr:`~Trajectory.task`, which its errors name)."""
+    if isinstance(target, Trajectory) or target is None or (isinstance(target, str) and target == "hold"):
+        trajectory = target if isinstance(target, Trajectory) else Hold()
+        if task is not None:
+            trajectory.task = task
+        return trajectory
     try:
         value = _finite(target, "target")
     except (TypeError, ValueError) as exc:

@@ -65,8 +65,7 @@ class Avoidance(AssignedTask):
         return r if order == 1 else r - self.jdot_qdot(state)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """``write(t)``: :meth:`jacobian` and :meth:`command` of the pair assigned at call time into ``J``, ``b``
-        (1-D: one compiled call). For the planned step."""
+        """The planned step's ``write(t)``: :meth:`jacobian`, :meth:`command` of the pair assigned into ``J``, ``b``."""
         def write(t: float) -> None:
             pair = self._pair
             if self.dim == 1 and _compiled.ENABLED and pair is not None and self._J_c is None:

@@ -13,15 +13,14 @@ from typing import NamedTuple
 
 import numpy as np
 
-from hqp_tpm.errors import NonFiniteError, ParameterError, ShapeError, shown
+from hqp_tpm.errors import ArgumentTypeError, NonFiniteError, ParameterError, ShapeError, shown
 from hqp_tpm.references.trajectories import Constant, Trajectory, as_trajectory
 from hqp_tpm.robot.state import State
 from hqp_tpm.solvers.levels import Level
 
 
 def tracking_command(order: int, e, xd, xdd, rate, jdq, kp: float, kd: float):
-    """The right-hand side ``b`` from the error ``e`` (orders 1, 2 as in the module's formulas; ``rate = J qd``, ``jdq
-    = Jdot qd``): the one home of this law, on arrays and on the compiled kernels' scalars."""
+    """The module's ``b`` (``rate = J qd``, ``jdq = Jdot qd``): this law's one home, on arrays and kernel scalars."""
     if order == 1:
         return xd + kp * e
     return xdd + kd * (xd - rate) + kp * e - jdq
@@ -64,6 +63,15 @@ class Gains:
                 raise ParameterError(f"gain {k} = {v!r} must be finite and >= 0")
 
 
+class _GainsField:
+    """``task.gains``: a :class:`Gains` (None: the defaults), else refused; read as a plain attribute (no getter)."""
+
+    def __set__(self, task, gains) -> None:
+        if gains is not None and not isinstance(gains, Gains):
+            raise ArgumentTypeError(f"task {task.name!r}: gains {shown(gains)} is not a Gains; use Gains(kp, kd)")
+        task.__dict__["gains"] = gains or Gains()
+
+
 class Task(ABC):
     """A task knows its value, Jacobian and J-dot q-dot on a :class:`State`, and its target."""
 
@@ -71,16 +79,17 @@ class Task(ABC):
     dim: int = 0
     #: the robot frame the task acts on (frame tasks set it; None: not a frame task)
     frame: str | None = None
+    gains = _GainsField()  # the feedback Gains (None: the defaults; anything else is refused)
 
     def __init__(self, name: str, target, gains: Gains | None = None):
         self.name = name
-        self.gains = gains or Gains()
+        self.gains = gains
         self.trajectory: Trajectory = self._trajectory_of(target)
 
     def _trajectory_of(self, target) -> Trajectory:
         """``target`` (a constant, None/``"hold"``, a trajectory) as this task's trajectory, the errors naming it."""
         try:
-            return as_trajectory(target, self.dim)
+            return as_trajectory(target, self.dim, self.name)
         except (ShapeError, NonFiniteError) as exc:  # name the task whose target is wrong
             raise type(exc)(f"task {self.name!r}: {exc}") from None
 
@@ -101,10 +110,6 @@ class Task(ABC):
     def tracking_error(self, state: State, t: float) -> np.ndarray:
         """``e = x_d(t) - x`` at ``state``: the error against the task's own reference at time ``t``."""
         return self.error(state, self.reference(t)[0])
-
-    def rate(self, state: State) -> np.ndarray:
-        """Task velocity ``J qd``."""
-        return self.jacobian(state).dot(state.v)
 
     # lifecycle --------------------------------------------------------------------------
     def start(self, state: State) -> None:

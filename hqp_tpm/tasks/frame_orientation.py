@@ -45,8 +45,7 @@ class FrameOrientation(FrameTask):
 
     @property
     def target(self) -> np.ndarray | None:
-        """The target rotation (a copy; None: the start orientation, until the first step). Assigning a 3x3 rotation
-        matrix sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming the value)."""
+        """The target rotation (a copy; None: the start orientation, until the first step); assigned validated."""
         return None if self._held else np.array(self._R_d)
 
     @target.setter

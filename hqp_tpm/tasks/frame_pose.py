@@ -89,8 +89,7 @@ class FramePose(FrameTask):
     @property
     def target(self) -> pin.SE3 | None:
         """The target placement (a copy; None: the start pose, until the first step). Assigning one of
-        :data:`TARGET_FORMS` but None/"hold" sets it, validated (:class:`ShapeError`, :class:`ParameterError` naming the
-        value; a ``pin.SE3``'s rotation must be a rotation matrix); a refused target changes nothing."""
+        :data:`TARGET_FORMS` but None/"hold" sets it, validated (a refused target changes nothing)."""
         return None if self._held else pin.SE3(self._R_d.copy(), self._p_d.copy())
 
     @target.setter

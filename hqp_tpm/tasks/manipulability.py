@@ -50,9 +50,8 @@ class JointAngles:
 
 
 class Manipulability(Task):
-    """``sigma_m`` (14) over ``joints`` (default: the 1-DOF joints but the first and the last; none:
-    :class:`ParameterError`), ``J_m`` its gradient (not the printed (15): docs/internals.md#tasks). ``target``: the
-    paper's ``sigma_m^*`` (default 2.0)."""
+    """``sigma_m`` (14) over ``joints`` (default: the 1-DOF joints but the first and the last), ``J_m`` its gradient
+    (not the printed (15): docs/internals.md#tasks). ``target``: the paper's ``sigma_m^*`` (default 2.0)."""
 
     dim = 1
 

@@ -23,6 +23,9 @@ _NO_UPPER = np.array([np.inf])
 _ACTIVE, _INACTIVE = np.array([True]), np.array([False])
 for _a in (_NO_UPPER, _ACTIVE, _INACTIVE):
     _a.flags.writeable = False
+#: What the attributes :class:`Pointing` checks on assignment take (:meth:`Pointing.__setattr__`).
+_TAKES = {"alpha_d": "a number in [0, pi) radians", "drift_limit": "a finite number > 0 (rad/s^2), or None (no limit)",
+          "axis": "no value (a method): build a new Pointing", "target": "no value (cos(alpha_d)): assign alpha_d"}
 
 
 class Pointing(Task):
@@ -42,19 +45,24 @@ class Pointing(Task):
         norm = np.linalg.norm(z_d)
         if not np.isfinite(z_d).all() or norm < 1e-12:
             raise ParameterError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
-        if not (0.0 <= alpha_d < np.pi):
-            raise ParameterError(f"cone half-angle alpha_d = {alpha_d!r} must be in [0, pi) radians")
         self.z_d = z_d / norm
-        self.alpha_d = float(alpha_d)
-        self._cos = float(np.cos(self.alpha_d))
         self._column = None  # (state, view of its frame rotation's z column), see pointing_error
         self.inequality = inequality
-        if drift_limit is not None and not (isinstance(drift_limit, (int, float)) and not isinstance(drift_limit, bool)
-                                            and np.isfinite(drift_limit) and drift_limit > 0):
-            raise ParameterError(f"pointing drift_limit = {drift_limit!r} must be a finite number > 0 (rad/s^2) "
-                                 "or None (no limit)")
-        self.drift_limit = None if drift_limit is None else float(drift_limit)
-        super().__init__(name or f"{frame}_pointing", Constant(value=[np.cos(alpha_d)]), gains)
+        super().__init__(name or f"{frame}_pointing", [1.0], gains)
+        self.alpha_d, self.drift_limit = alpha_d, drift_limit  # (checked by __setattr__; alpha_d sets the reference)
+
+    def __setattr__(self, name: str, value) -> None:
+        """The attributes of :data:`_TAKES` checked, used from the next step on (``alpha_d``: and the reference)."""
+        if name in _TAKES and (value is not None or name != "drift_limit"):
+            real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
+            x = float(value) if real else np.nan
+            if name in ("axis", "target") or not (0.0 <= x < np.pi if name == "alpha_d" else 0.0 < x < np.inf):
+                raise ParameterError(f"task {self.name!r}: {name} = {shown(value)} refused: it takes {_TAKES[name]}")
+            value = x
+            if name == "alpha_d":  # (pointing_error's cos(alpha_d), and the reference's)
+                object.__setattr__(self, "_cos", float(np.cos(x)))
+                object.__setattr__(self, "trajectory", Constant(value=[np.cos(x)]))
+        object.__setattr__(self, name, value)
 
     def __getstate__(self) -> dict:
         """Copied and pickled without its kept view of a state's rotation."""
@@ -120,12 +128,10 @@ class Pointing(Task):
                      defer_finite=True)
 
     def row_writer(self, state: State, order: int, J: np.ndarray, b: np.ndarray):
-        """``write(t) -> e``: :meth:`jacobian` and :meth:`command` (no extra) into ``J``, ``b`` in one compiled call;
-        returns :meth:`pointing_error`. For the planned step."""
+        """The planned step's ``write(t) -> pointing_error``: :meth:`jacobian`, :meth:`command` into ``J``, ``b``."""
         model, data, fid, none = state.model, state.data, self.fid, np.zeros(6)
         views = state.frame_views(fid)
         R = None if views is None else views[1]
-        limit = np.inf if self.drift_limit is None else self.drift_limit
 
         def write(t: float) -> float:
             if R is None or not _compiled.ENABLED:  # (this pinocchio returns copies, or the kernels are off)
@@ -133,7 +139,7 @@ class Pointing(Task):
                 J[...] = Jt
                 b[...] = self.command(state, t, order, None, Jt)
                 return self.pointing_error(state)
-            ref, g = self.trajectory.reference(t), self.gains
+            ref, g, limit = self.trajectory.reference(t), self.gains, self.drift_limit
             Jf = pin.getFrameJacobian(model, data, fid, LWA)
             if order == 1:
                 vel = acc = none
@@ -141,7 +147,7 @@ class Pointing(Task):
                 vel = pin.getFrameVelocity(model, data, fid, LWA).vector
                 acc = pin.getFrameClassicalAcceleration(model, data, fid, LWA).vector
             _compiled_rows.pointing_row(J, b, R, self.z_d, Jf, state.v, vel, acc, ref[0], ref[1], ref[2], g.kp, g.kd,
-                                        order, limit)
+                                        order, np.inf if limit is None else limit)
             return self.pointing_error(state)  # (the cone's activity, as level decides it: from alpha_d)
         return write
 

@@ -7,10 +7,11 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from hqp_tpm.errors import ParameterError, ShapeError
+from hqp_tpm.errors import ShapeError
 from hqp_tpm.robot.model import Robot
 from hqp_tpm.robot.state import State
 from hqp_tpm.tasks.base import FrameTask, Gains, select_axes
+from hqp_tpm.tasks.frame_pose import rotation_matrix
 
 
 def quaternion_error(R_d: np.ndarray, R: np.ndarray) -> np.ndarray:
@@ -39,10 +40,7 @@ class QuaternionOrientation(FrameTask):
             R = np.asarray(target, dtype=float)
             if R.shape not in ((3, 3), (9,)):
                 raise ShapeError(f"orientation target must be a 3x3 rotation matrix, got shape {R.shape}")
-            R = R.reshape(3, 3)
-            if not np.allclose(R @ R.T, np.eye(3), atol=1e-6) or np.linalg.det(R) < 0:
-                raise ParameterError(f"orientation target is not a rotation matrix: {R.tolist()}")
-            self.R_target = R
+            self.R_target = rotation_matrix(R.reshape(3, 3), f"task {name or frame + '_orientation'!r}")
         super().__init__(name or f"{frame}_orientation", np.zeros(self.dim), gains)
 
     def start(self, state: State) -> None:
