@@ -87,10 +87,7 @@ class Controller:
         new = as_policy(value)
         if self._started:  # the tasks it brings start at the current state, as the first step starts the others
             old = {id(task) for task in self._policy.tasks()}
-            entering = [task for task in new.tasks() if id(task) not in old]
-            self.state.update(self._q, self._v, self.t, validate=False)
-            for task in entering:
-                task.start(self.state)
+            self.start([task for task in new.tasks() if id(task) not in old])
         self._policy = new
 
     @property
@@ -106,10 +103,10 @@ class Controller:
         """All tasks the policy may use (for start-up and logging)."""
         return list(self.policy.tasks())
 
-    def start(self) -> None:
-        """Initialise relative targets from the initial state (called by the first step)."""
+    def start(self, tasks=None) -> None:
+        """Initialise relative targets from the current state (the first step: every task; ``tasks``: those)."""
         self.state.update(self.q, self.v, self.t)
-        for task in self.tasks():
+        for task in self.tasks() if tasks is None else tasks:
             task.start(self.state)
         self._started = True
 
