@@ -227,3 +227,32 @@ def test_a_task_that_enters_with_a_new_policy_is_started(lwr, record):
     R = ctrl.state.update(ctrl.q, ctrl.v, ctrl.t).placement(lwr.frame_id("lwr_ee")).rotation.copy()
     ctrl.step(record=record)
     np.testing.assert_allclose(held.target, R, atol=1e-15)
+
+
+def test_a_task_that_comes_back_with_an_earlier_policy_is_not_started_again(lwr):
+    """Switching to a stack without a task and back: its held and relative targets stay where the first step put
+    them (the policy setter restarted every task the previous policy did not have)."""
+    from hqp_tpm.tasks import Posture
+
+    ctrl, _ = tracking(lwr, order=1)
+    post = Posture(lwr, None, Gains(1.0, 0.0), name="post")
+    ee = FramePosition(lwr, "lwr_ee", Harmonic(center=[0, 0, 0], cos_amplitude=[0.01, 0, 0], omega=1.0,
+                                               relative=True), Gains(5.0, 0.0), name="rel")
+    first = Stack.of(ee, post)
+    ctrl.policy = first
+    for _ in range(5):
+        ctrl.step()
+    held, origin = post.target.reference(0.0)[0].copy(), ee.trajectory.origin.copy()
+    ctrl.policy = Stack.of(post)
+    ctrl.q = ctrl.q + 0.05
+    ctrl.step()
+    ctrl.policy = first
+    ctrl.step()
+    np.testing.assert_array_equal(post.target.reference(0.0)[0], held)
+    np.testing.assert_array_equal(ee.trajectory.origin, origin)
+
+
+def test_solver_none_is_refused_with_the_library_error(lwr):
+    ee = FramePosition(lwr, "lwr_ee", [0, 0.5, 0])
+    with pytest.raises(UnknownNameError, match="solver"):
+        Controller(lwr, [ee], solver=None)

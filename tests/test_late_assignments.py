@@ -41,11 +41,11 @@ def test_a_relative_target_assigned_after_the_start_is_refused_until_started(iiw
         ee.target = target
         q, t = ctrl.q, ctrl.t
         with pytest.raises(StateError, match=rf"^task 'ee': relative {type(target).__name__} target used before "
-                                             r"start\(\).* call task\.start\(ctrl\.state\) after assigning it"):
+                                             r"start\(\).* call ctrl\.start\(\[task\]\) after assigning it"):
             ctrl.step(record=record)  # (both paths: the same words)
         assert ctrl.q is q and ctrl.t == t  # (the step refused: nothing changed)
     ee.target = Harmonic(**CIRCLE)
-    ee.start(ctrl.state)
+    ctrl.start([ee])  # (at the current state: ctrl.state was the last step's)
     origin = ctrl.state.position(ee.fid).copy()
     res = ctrl.step(record=record)
     np.testing.assert_allclose(ee.reference(res.t)[0], origin + [0.0, 0.05 * np.cos(res.t), 0.05 * np.sin(res.t)])
@@ -103,11 +103,13 @@ def test_a_pointing_task_refuses_bad_or_read_only_assignments(iiwa):
     for name, value, what in (("alpha_d", 3.5, r"\[0, pi\) radians"), ("alpha_d", "wide", "radians"),
                               ("alpha_d", None, "radians"), ("drift_limit", -2.0, "None \\(no limit\\)"),
                               ("drift_limit", np.inf, "finite"), ("drift_limit", True, "finite"),
-                              ("target", [1.0], "assign alpha_d"), ("axis", [0.0, 0.0, 1.0], "new Pointing")):
+                              ("target", [1.0], "assign alpha_d"), ("axis", [0.0, 0.0, 1.0], "new Pointing"),
+                              ("z_d", np.array([0.0, 0.0, -2.0]), "new Pointing")):
         with pytest.raises(ParameterError, match=rf"task 'cone': {name} = .* refused: .*{what}"):
             setattr(cone, name, value)
     assert cone.alpha_d == 0.0 and cone.drift_limit is None and cone.trajectory is trajectory
     assert "target" not in vars(cone) and "axis" not in vars(cone) and cone.axis(ctrl.state).shape == (3,)
+    assert np.linalg.norm(cone.z_d) == pytest.approx(1.0)
     assert _cone_row(cone, ctrl) == b0
     with pytest.raises(ParameterError, match=r"task 'c': alpha_d = -0\.1 refused"):
         Pointing(iiwa, "iiwa_ee", [0, 0, 1], -0.1, name="c")

@@ -53,7 +53,7 @@ class Controller:
         self.a = np.zeros(robot.nv)
         self.t = float(t0)
         self.steps = 0
-        self._started = False
+        self._started, self._begun = False, {}  # (id -> task: the tasks this controller started)
         self._fast, self._checked, self._scratch = False, None, None  # the compiled step (False: not planned), the
         # settings it was planned for (and last checked)
 
@@ -85,9 +85,8 @@ class Controller:
     @policy.setter
     def policy(self, value) -> None:
         new = as_policy(value)
-        if self._started:  # the tasks it brings start at the current state, as the first step starts the others
-            old = {id(task) for task in self._policy.tasks()}
-            self.start([task for task in new.tasks() if id(task) not in old])
+        if self._started:  # the tasks it brings start at the current state (not those this controller started before)
+            self.start([task for task in new.tasks() if id(task) not in self._begun])
         self._policy = new
 
     @property
@@ -104,10 +103,12 @@ class Controller:
         return list(self.policy.tasks())
 
     def start(self, tasks=None) -> None:
-        """Initialise relative targets from the current state (the first step: every task; ``tasks``: those)."""
+        """Initialise relative targets from the current state (the first step: every task; ``tasks``: those, e.g. a
+        task given a relative target after the first step)."""
         self.state.update(self.q, self.v, self.t)
         for task in self.tasks() if tasks is None else tasks:
             task.start(self.state)
+            self._begun[id(task)] = task
         self._started = True
 
     def solve_inputs(self, state: State, t: float, v: np.ndarray):

@@ -91,8 +91,8 @@ class Trajectory:
         where = "" if self.task is None else f"task {self.task!r}: "
         return StateError(f"{where}relative {type(self).__name__} target used before start(): its origin, the task's "
                           "value at the start, is not set (a target assigned, or a task added, after the run started "
-                          "is not started): call task.start(ctrl.state) after assigning it, or assign it before the "
-                          "first step")
+                          "is not started): call ctrl.start([task]) after assigning it, or assign it before the first "
+                          "step")
 
     def reference(self, t: float):  # pragma: no cover - abstract
         raise NotImplementedError

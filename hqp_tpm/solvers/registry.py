@@ -17,7 +17,7 @@ SOLVER_NAMES = (*ANALYTIC, *BOXED, "qp", "qp:<backend>")
 
 def check_solver_name(name: str) -> str:
     """Validate a solver name (the backend of ``qp:<backend>`` is checked on first use)."""
-    if name in ANALYTIC or name in BOXED or name == "qp" or name.startswith("qp:"):
+    if type(name) is str and (name in ANALYTIC or name in BOXED or name == "qp" or name.startswith("qp:")):
         return name
     raise unknown_name("solver", name, SOLVER_NAMES)
 

@@ -25,7 +25,8 @@ for _a in (_NO_UPPER, _ACTIVE, _INACTIVE):
     _a.flags.writeable = False
 #: What the attributes :class:`Pointing` checks on assignment take (:meth:`Pointing.__setattr__`).
 _TAKES = {"alpha_d": "a number in [0, pi) radians", "drift_limit": "a finite number > 0 (rad/s^2), or None (no limit)",
-          "axis": "no value (a method): build a new Pointing", "target": "no value (cos(alpha_d)): assign alpha_d"}
+          "axis": "no value (a method): build a new Pointing", "target": "no value (cos(alpha_d)): assign alpha_d",
+          "z_d": "no value after construction (the unit axis): build a new Pointing"}
 
 
 class Pointing(Task):
@@ -45,7 +46,7 @@ class Pointing(Task):
         norm = np.linalg.norm(z_d)
         if not np.isfinite(z_d).all() or norm < 1e-12:
             raise ParameterError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
-        self.z_d = z_d / norm
+        object.__setattr__(self, "z_d", z_d / norm)  # (refused once built: __setattr__)
         self._column = None  # (state, view of its frame rotation's z column), see pointing_error
         self.inequality = inequality
         super().__init__(name or f"{frame}_pointing", [1.0], gains)
@@ -56,7 +57,7 @@ class Pointing(Task):
         if name in _TAKES and (value is not None or name != "drift_limit"):
             real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
             x = float(value) if real else np.nan
-            if name in ("axis", "target") or not (0.0 <= x < np.pi if name == "alpha_d" else 0.0 < x < np.inf):
+            if name in ("axis", "target", "z_d") or not (0.0 <= x < np.pi if name == "alpha_d" else 0.0 < x < np.inf):
                 raise ParameterError(f"task {self.name!r}: {name} = {shown(value)} refused: it takes {_TAKES[name]}")
             value = x
             if name == "alpha_d":  # (pointing_error's cos(alpha_d), and the reference's)
