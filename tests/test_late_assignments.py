@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from hqp_tpm import Controller, FramePosition, Gains, Harmonic, Pointing, Posture, Robot, Stack
-from hqp_tpm.errors import ArgumentTypeError, ParameterError, StateError
+from hqp_tpm.errors import ArgumentTypeError, ParameterError, ShapeError, StateError
 from hqp_tpm.references.line import Line
 from hqp_tpm.references.trajectories import Constant, Hold
 
@@ -103,14 +103,19 @@ def test_a_pointing_task_refuses_bad_or_read_only_assignments(iiwa):
     for name, value, what in (("alpha_d", 3.5, r"\[0, pi\) radians"), ("alpha_d", "wide", "radians"),
                               ("alpha_d", None, "radians"), ("drift_limit", -2.0, "None \\(no limit\\)"),
                               ("drift_limit", np.inf, "finite"), ("drift_limit", True, "finite"),
-                              ("target", [1.0], "assign alpha_d"), ("axis", [0.0, 0.0, 1.0], "new Pointing"),
-                              ("z_d", np.array([0.0, 0.0, -2.0]), "new Pointing")):
+                              ("target", [1.0], "assign alpha_d"), ("axis", [0.0, 0.0, 1.0], "new Pointing")):
         with pytest.raises(ParameterError, match=rf"task 'cone': {name} = .* refused: .*{what}"):
             setattr(cone, name, value)
     assert cone.alpha_d == 0.0 and cone.drift_limit is None and cone.trajectory is trajectory
     assert "target" not in vars(cone) and "axis" not in vars(cone) and cone.axis(ctrl.state).shape == (3,)
-    assert np.linalg.norm(cone.z_d) == pytest.approx(1.0)
     assert _cone_row(cone, ctrl) == b0
+    z_d = cone.z_d
+    for value, error in (([0.0, 0.6], ShapeError), ([0.0, 0.0, np.nan], ParameterError), ("up", ShapeError)):
+        with pytest.raises(error, match=r"Pointing 'cone': axis .*"):
+            cone.z_d = value
+    assert cone.z_d is z_d and _cone_row(cone, ctrl) == b0
+    cone.z_d = [0.0, 0.0, -2.0]  # (a unit axis from the next step on, as the constructor makes it)
+    np.testing.assert_array_equal(cone.z_d, [0.0, 0.0, -1.0])
     with pytest.raises(ParameterError, match=r"task 'c': alpha_d = -0\.1 refused"):
         Pointing(iiwa, "iiwa_ee", [0, 0, 1], -0.1, name="c")
 

@@ -63,3 +63,20 @@ def test_targets_that_are_not_numbers_are_typed_errors(iiwa, bad):
         assert isinstance(info.value, HqpTpmError) and "constructor's target only" not in str(info.value)
         assert task.trajectory is before
         np.testing.assert_array_equal(task.trajectory.value, np.zeros(task.dim))
+
+
+@pytest.mark.parametrize("make", [
+    lambda: __import__("hqp_tpm").Constant(value=[0.1, 0.2]),
+    lambda: __import__("hqp_tpm").Harmonic(center=[0.0, 0.0], cos_amplitude=[0.0, 0.1], sin_amplitude=[0.0, 0.0]),
+    lambda: __import__("hqp_tpm").Line(start_point=[0, 0, 0, 0], end_point=[1, 1, 1, 1]),
+    lambda: __import__("hqp_tpm.references.dmp", fromlist=["DmpTrajectory"]).DmpTrajectory(end=[0.0, 0.05], tau=0.1),
+])
+def test_a_trajectory_of_another_size_is_refused_naming_the_task(iiwa, make):
+    """A 2-D (or 4-D) trajectory for a 3-D task: accepted before, then the step failed with numpy's broadcast
+    ValueError (or, for a DMP, 'used before start()'), naming no task."""
+    with pytest.raises(ShapeError, match=r"task 'ee': target \w+ has [24] values, expected 3"):
+        FramePosition(iiwa, "iiwa_ee", make(), name="ee")
+    ee = FramePosition(iiwa, "iiwa_ee", [0.5, 0.0, 0.4], name="ee")
+    with pytest.raises(ShapeError, match=r"task 'ee': target \w+ has [24] values, expected 3"):
+        ee.target = make()
+    np.testing.assert_array_equal(ee.target.value, [0.5, 0.0, 0.4])

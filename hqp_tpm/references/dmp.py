@@ -157,6 +157,9 @@ class DmpTrajectory(Trajectory):
         self.coupling = coupling
         self._roll = None
 
+    def size(self) -> int | None:
+        return self.end.size
+
     def start(self, x0: np.ndarray) -> None:
         super().start(x0)
         dim = self.end.size

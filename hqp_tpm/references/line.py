@@ -46,6 +46,9 @@ class Line(Trajectory):
         self.t_cruise = (self.length - v * self.t_acc) / v if v > 0 else 0.0
         self.duration = 2 * self.t_acc + self.t_cruise
 
+    def size(self) -> int | None:
+        return self.start_point.size
+
     def profile(self, t: float) -> tuple[float, float, float]:
         """``(s, s_dot, s_ddot)`` at time ``t``."""
         a, v, ta, tc = self.a_max, self.v_peak, self.t_acc, self.t_cruise

@@ -86,6 +86,10 @@ class Trajectory:
             raise self.unstarted()
         return self.origin if self.origin is not None else np.zeros(dim)
 
+    def size(self) -> int | None:
+        """How many values ``x_d`` has, where the trajectory says (None: it takes its task's)."""
+        return None
+
     def unstarted(self) -> StateError:
         """The error of a relative trajectory used before :meth:`start`: never evaluated with a zero origin."""
         where = "" if self.task is None else f"task {self.task!r}: "
@@ -109,6 +113,9 @@ class Constant(Trajectory):
 
     def __post_init__(self):
         self.value = _finite(self.value, "target")
+
+    def size(self) -> int | None:
+        return self.value.size or None
 
     def __setattr__(self, name: str, value) -> None:
         super().__setattr__(name, value)
@@ -215,6 +222,9 @@ class Harmonic(Trajectory):
         _finite([self.omega, self.phase], "omega/phase")
         self._terms = None
 
+    def size(self) -> int | None:
+        return self.center.size
+
     def terms(self) -> tuple[float, float, tuple[tuple[float, float, float], ...]]:
         """``(omega, phase, ((center + offset, a, b) per entry))`` as floats, what :meth:`reference` computes from
         (:func:`harmonic_point`); the same tuple while none of them changes (assigning a frozen field or starting again
@@ -247,6 +257,8 @@ def as_trajectory(target, dim: int, task: str | None = None) -> Trajectory:
     named ``task`` (its :attr:`~Trajectory.task`, which its errors name)."""
     if isinstance(target, Trajectory) or target is None or (isinstance(target, str) and target == "hold"):
         trajectory = target if isinstance(target, Trajectory) else Hold()
+        if trajectory.size() not in (None, dim):
+            raise ShapeError(f"target {type(trajectory).__name__} has {trajectory.size()} values, expected {dim}")
         if task is not None:
             trajectory.task = task
         return trajectory

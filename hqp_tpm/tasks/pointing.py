@@ -25,8 +25,8 @@ for _a in (_NO_UPPER, _ACTIVE, _INACTIVE):
     _a.flags.writeable = False
 #: What the attributes :class:`Pointing` checks on assignment take (:meth:`Pointing.__setattr__`).
 _TAKES = {"alpha_d": "a number in [0, pi) radians", "drift_limit": "a finite number > 0 (rad/s^2), or None (no limit)",
-          "axis": "no value (a method): build a new Pointing", "target": "no value (cos(alpha_d)): assign alpha_d",
-          "z_d": "no value after construction (the unit axis): build a new Pointing"}
+          "axis": "no value (a method): build a new Pointing (or assign z_d)",
+          "target": "no value (cos(alpha_d)): assign alpha_d"}
 
 
 class Pointing(Task):
@@ -39,14 +39,7 @@ class Pointing(Task):
                  inequality: bool = True, name: str | None = None, drift_limit: float | None = None):
         self.frame = frame
         self.fid = robot.frame_id(frame)
-        z_d = np.asarray(axis, dtype=float)
-        if z_d.shape != (3,):
-            raise ShapeError(f"Pointing {name or frame + '_pointing'!r}: axis {shown(axis)} has shape {z_d.shape}, "
-                             "expected a 3-vector (x, y, z) in the world frame")
-        norm = np.linalg.norm(z_d)
-        if not np.isfinite(z_d).all() or norm < 1e-12:
-            raise ParameterError(f"pointing axis {axis!r} must be a finite non-zero 3-vector")
-        object.__setattr__(self, "z_d", z_d / norm)  # (refused once built: __setattr__)
+        object.__setattr__(self, "z_d", unit_axis(axis, name or frame + "_pointing"))  # (later: __setattr__)
         self._column = None  # (state, view of its frame rotation's z column), see pointing_error
         self.inequality = inequality
         super().__init__(name or f"{frame}_pointing", [1.0], gains)
@@ -54,10 +47,12 @@ class Pointing(Task):
 
     def __setattr__(self, name: str, value) -> None:
         """The attributes of :data:`_TAKES` checked, used from the next step on (``alpha_d``: and the reference)."""
-        if name in _TAKES and (value is not None or name != "drift_limit"):
+        if name == "z_d":
+            value = unit_axis(value, self.name)
+        elif name in _TAKES and (value is not None or name != "drift_limit"):
             real = isinstance(value, (int, float, np.integer, np.floating)) and not isinstance(value, bool)
             x = float(value) if real else np.nan
-            if name in ("axis", "target", "z_d") or not (0.0 <= x < np.pi if name == "alpha_d" else 0.0 < x < np.inf):
+            if name in ("axis", "target") or not (0.0 <= x < np.pi if name == "alpha_d" else 0.0 < x < np.inf):
                 raise ParameterError(f"task {self.name!r}: {name} = {shown(value)} refused: it takes {_TAKES[name]}")
             value = x
             if name == "alpha_d":  # (pointing_error's cos(alpha_d), and the reference's)
@@ -165,3 +160,18 @@ def drift_left_out(jdq: float, row: np.ndarray, limit: float) -> bool:
     for x in row.tolist():
         s += x * x
     return jdq * jdq > limit * limit * s
+
+
+def unit_axis(axis, task: str) -> np.ndarray:
+    """``axis`` (the cone's axis ``z_d`` in the world frame) as a unit 3-vector, else the error naming ``task``."""
+    try:
+        z = np.asarray(axis, dtype=float)
+    except (TypeError, ValueError):
+        z = np.empty(0)
+    if z.shape != (3,):
+        raise ShapeError(f"Pointing {task!r}: axis {shown(axis)} has shape {z.shape}, expected a 3-vector (x, y, z) "
+                         "in the world frame")
+    norm = np.linalg.norm(z)
+    if not np.isfinite(z).all() or norm < 1e-12:
+        raise ParameterError(f"Pointing {task!r}: axis {shown(axis)} must be finite and non-zero")
+    return z / norm
