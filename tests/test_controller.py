@@ -256,3 +256,27 @@ def test_solver_none_is_refused_with_the_library_error(lwr):
     ee = FramePosition(lwr, "lwr_ee", [0, 0.5, 0])
     with pytest.raises(UnknownNameError, match="solver"):
         Controller(lwr, [ee], solver=None)
+
+
+@pytest.mark.parametrize("record", [False, True])
+def test_a_function_policy_assigned_later_does_not_restart_the_tasks_it_shares(lwr, record):
+    """``ctrl.policy = lambda state, t: ...`` after the first step: its first call started every task it returned,
+    those the previous stack had started included (their held and relative targets moved to the current state)."""
+    from hqp_tpm.tasks import Posture
+
+    ctrl, _ = tracking(lwr, order=1)
+    post = Posture(lwr, None, Gains(1.0, 0.0), name="post")
+    ee = FramePosition(lwr, "lwr_ee", Harmonic(center=[0, 0, 0], cos_amplitude=[0.01, 0, 0], omega=1.0,
+                                               relative=True), Gains(5.0, 0.0), name="rel")
+    ctrl.policy = Stack.of(ee, post)
+    for _ in range(5):
+        ctrl.step(record=record)
+    held, origin = post.target.reference(0.0)[0].copy(), ee.trajectory.origin.copy()
+    ctrl.q = ctrl.q + 0.05
+    ctrl.policy = lambda state, t: Stack.of(ee, post)
+    ctrl.step(record=record)
+    np.testing.assert_array_equal(post.target.reference(0.0)[0], held)
+    np.testing.assert_array_equal(ee.trajectory.origin, origin)
+    ctrl.policy = Stack.of(post)  # (and back to a stack: started by the function policy or not, they go on)
+    ctrl.step(record=record)
+    np.testing.assert_array_equal(post.target.reference(0.0)[0], held)

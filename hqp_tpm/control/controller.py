@@ -85,8 +85,11 @@ class Controller:
     @policy.setter
     def policy(self, value) -> None:
         new = as_policy(value)
-        if self._started:  # the tasks it brings start at the current state (not those this controller started before)
+        if self._started:  # the tasks it brings start at the current state (not those started before: they go on)
+            self._begun.update((id(task), task) for task in self._policy.tasks())
             self.start([task for task in new.tasks() if id(task) not in self._begun])
+            if isinstance(new, FunctionPolicy):
+                new.started(self._begun.values())
         self._policy = new
 
     @property

@@ -160,6 +160,7 @@ class FunctionPolicy(Policy):
         self._tasks = list(tasks or [])
         self._listed = {id(task) for task in self._tasks}
         self._entered: dict[int, Task] = {}  # id -> task: the tasks not in ``tasks`` started so far
+        self._known: set[int] = set()  # (ids of tasks started before this policy: :meth:`started`)
 
     def __call__(self, state: State, t: float) -> Stack:
         stack = self.fn(state, t)
@@ -168,9 +169,14 @@ class FunctionPolicy(Policy):
                                     "Stack (e.g. Stack.of(task_a, (task_b, task_c)))")
         for task in stack.tasks():
             if id(task) not in self._listed and id(task) not in self._entered:
-                task.start(state)
+                if id(task) not in self._known:
+                    task.start(state)
                 self._entered[id(task)] = task
         return stack
+
+    def started(self, tasks) -> None:
+        """``tasks`` were started before (a controller's, under another policy): not started again when held."""
+        self._known.update(id(task) for task in tasks)
 
     def tasks(self) -> list[Task]:
         return [*self._tasks, *self._entered.values()]
