@@ -87,7 +87,9 @@ class Controller:
         new = as_policy(value)
         if self._started:  # the tasks it brings start at the current state (not those started before: they go on)
             self._begun.update((id(task), task) for task in self._policy.tasks())
-            self.start([task for task in new.tasks() if id(task) not in self._begun])
+            entering = [task for task in new.tasks() if id(task) not in self._begun]
+            if entering:  # (no kinematics update for a policy that brings none)
+                self.start(entering)
             if isinstance(new, FunctionPolicy):
                 new.started(self._begun.values())
         self._policy = new
