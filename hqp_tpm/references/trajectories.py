@@ -122,7 +122,10 @@ class Constant(Trajectory):
         d = self.__dict__
         if name == "value" or (name == "origin" and "live" in d):  # x_d anew, into live in place (shape kept)
             o = self.origin  # (None: absolute, or relative and not started: then reference refuses it)
-            x = self.value.copy() if o is None else self.value + o if self.value.size else o.copy()
+            if o is None:
+                x = self.value.copy()
+            else:  # (an empty relative value: the origin itself)
+                x = self.value + o if self.value.size else o.copy()
             if "live" in d and d["live"].shape == x.shape:
                 d["live"][...] = x
             else:
